@@ -1,0 +1,55 @@
+// animation.h — clip selection and pose sampling (GUIDE.md §1).
+//
+// Pose at time t: each joint's global matrix G_j(t) from the node hierarchy
+// (non-joint ancestors included), skinning matrix M_j(t) = G_j(t) * IBM_j.
+// Channels: STEP, LINEAR (quaternions by slerp, shortest path) and CUBICSPLINE
+// (Hermite, quaternions normalised), times clamped to the channel's key range.
+#pragma once
+#include <span>
+#include <string>
+#include <vector>
+
+#include "character.h"
+
+namespace progskin {
+
+// Which clips play. Several clips play together: each channel of each selected
+// clip applies at time t (CesiumMan stores its walk as 19 one-joint clips).
+struct ClipSelection {
+    std::vector<int> clips;  // indices into Character::clips; empty = rest pose
+    float start = 0.0f;      // time range of the selection (min start, max end)
+    float end = 0.0f;
+    float duration() const { return end - start; }
+};
+
+// Parse a --clip argument: a name, an index, "all" (every clip played
+// together), or a comma-separated list. Throws Error naming the unknown clip.
+ClipSelection select_clips(const Character& c, const std::string& spec);
+
+// The training set of a build when no --clip is given: "auto" plays all clips
+// together when they animate disjoint sets of nodes (CesiumMan), otherwise
+// each clip on its own. Returns one selection per independently played group.
+std::vector<ClipSelection> default_training_set(const Character& c);
+
+// Skinning matrices M_j(t) of every joint at time t (t in the selection's time
+// base, i.e. absolute clip time). out.size() must equal joint_count().
+void sample_skinning_matrices(const Character& c, const ClipSelection& sel, double t,
+                              std::span<glm::dmat4> out);
+
+// Global matrices of every node at time t (out.size() == nodes.size()).
+void sample_node_globals(const Character& c, const ClipSelection& sel, double t,
+                         std::span<glm::dmat4> out);
+
+// Frames of one or more selections sampled at fps: frame times run from start
+// to end inclusive (floor(duration * fps) + 1 frames, at least 1).
+struct FrameSet {
+    int joint_count = 0;
+    std::vector<double> times;              // per frame, absolute clip time
+    std::vector<int> selection_of_frame;    // which selection it came from
+    std::vector<Mat34> skinning;            // frames * joint_count, row-major per frame
+    size_t frame_count() const { return times.size(); }
+    const Mat34* frame(size_t f) const { return skinning.data() + f * joint_count; }
+};
+FrameSet sample_frames(const Character& c, const std::vector<ClipSelection>& sels, double fps);
+
+}  // namespace progskin

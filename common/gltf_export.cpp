@@ -1,0 +1,284 @@
+// gltf_export.cpp — writing and reading the progressive glTF (see gltf_export.h).
+#include "gltf_export.h"
+
+#include <tiny_gltf.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <unistd.h>
+
+#include "error.h"
+#include "gltf_import.h"
+
+namespace progskin {
+
+namespace {
+
+constexpr const char* kExtension = "PROGSKIN_progressive_skin";
+
+bool keep_image_bytes(tinygltf::Image*, const int, std::string*, std::string*, int, int,
+                      const unsigned char*, int, void*) {
+    return true;  // images are carried through untouched, never decoded
+}
+bool no_image_write(const std::string*, const std::string*, const tinygltf::Image*, bool, std::string*, void*) {
+    return false;  // keep the original uri / bufferView
+}
+
+bool ends_with(const std::string& s, const std::string& suffix) {
+    return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+tinygltf::Model load_model(const std::string& path) {
+    tinygltf::TinyGLTF loader;
+    loader.SetImageLoader(keep_image_bytes, nullptr);
+    tinygltf::Model model;
+    std::string err, warn;
+    const bool ok = ends_with(path, ".glb") ? loader.LoadBinaryFromFile(&model, &err, &warn, path)
+                                            : loader.LoadASCIIFromFile(&model, &err, &warn, path);
+    if (!ok) throw Error(path + ": cannot read glTF: " + (err.empty() ? warn : err));
+    return model;
+}
+
+tinygltf::Value to_value(const nlohmann::json& j) {
+    if (j.is_object()) {
+        tinygltf::Value::Object o;
+        for (auto it = j.begin(); it != j.end(); ++it) o[it.key()] = to_value(it.value());
+        return tinygltf::Value(std::move(o));
+    }
+    if (j.is_array()) {
+        tinygltf::Value::Array a;
+        for (const auto& e : j) a.push_back(to_value(e));
+        return tinygltf::Value(std::move(a));
+    }
+    if (j.is_string()) return tinygltf::Value(j.get<std::string>());
+    if (j.is_boolean()) return tinygltf::Value(j.get<bool>());
+    if (j.is_number_integer()) return tinygltf::Value(int(j.get<int64_t>()));
+    if (j.is_number()) return tinygltf::Value(j.get<double>());
+    return tinygltf::Value();
+}
+
+nlohmann::json from_value(const tinygltf::Value& v) {
+    if (v.IsObject()) {
+        nlohmann::json o = nlohmann::json::object();
+        for (const auto& key : v.Keys()) o[key] = from_value(v.Get(key));
+        return o;
+    }
+    if (v.IsArray()) {
+        nlohmann::json a = nlohmann::json::array();
+        for (size_t i = 0; i < v.ArrayLen(); ++i) a.push_back(from_value(v.Get(int(i))));
+        return a;
+    }
+    if (v.IsString()) return v.Get<std::string>();
+    if (v.IsBool()) return v.Get<bool>();
+    if (v.IsInt()) return v.Get<int>();
+    if (v.IsNumber()) return v.GetNumberAsDouble();
+    return nullptr;
+}
+
+// Appends bytes to buffer 0 (4-byte aligned) and returns a new buffer view.
+int append_view(tinygltf::Model& m, const void* data, size_t bytes, int target) {
+    auto& buf = m.buffers[0].data;
+    while (buf.size() % 4) buf.push_back(0);
+    tinygltf::BufferView bv;
+    bv.buffer = 0;
+    bv.byteOffset = buf.size();
+    bv.byteLength = bytes;
+    bv.target = target;
+    const auto* p = static_cast<const unsigned char*>(data);
+    buf.insert(buf.end(), p, p + bytes);
+    m.bufferViews.push_back(bv);
+    return int(m.bufferViews.size() - 1);
+}
+
+int append_accessor(tinygltf::Model& m, const void* data, size_t bytes, int component, int type, size_t count,
+                    int target, bool normalized = false) {
+    tinygltf::Accessor a;
+    a.bufferView = append_view(m, data, bytes, target);
+    a.byteOffset = 0;
+    a.componentType = component;
+    a.type = type;
+    a.count = count;
+    a.normalized = normalized;
+    m.accessors.push_back(a);
+    return int(m.accessors.size() - 1);
+}
+
+// All buffers merged into buffer 0 so that a .glb has its single BIN chunk.
+void merge_buffers(tinygltf::Model& m) {
+    if (m.buffers.empty()) m.buffers.emplace_back();
+    std::vector<size_t> base(m.buffers.size(), 0);
+    auto& dst = m.buffers[0].data;
+    for (size_t i = 1; i < m.buffers.size(); ++i) {
+        while (dst.size() % 16) dst.push_back(0);
+        base[i] = dst.size();
+        dst.insert(dst.end(), m.buffers[i].data.begin(), m.buffers[i].data.end());
+    }
+    for (auto& bv : m.bufferViews) {
+        bv.byteOffset += base[size_t(bv.buffer)];
+        bv.buffer = 0;
+    }
+    m.buffers.resize(1);
+    m.buffers[0].uri.clear();
+}
+
+nlohmann::json skin_to_json(const ProgressiveSkin& s) {
+    nlohmann::json j;
+    j["version"] = 1;
+    j["strategy"] = strategy_name(s.strategy);
+    j["parents"] = nlohmann::json::array();
+    for (int16_t p : s.parents) j["parents"].push_back(int(p));
+    j["corrections"] = nlohmann::json::array();
+    for (const Mat34& m : s.corrections)
+        for (float x : m.m) j["corrections"].push_back(double(x));
+    j["diagonal"] = s.diagonal;
+    j["error"] = nlohmann::json::array();
+    for (const LodError& e : s.error)
+        j["error"].push_back({{"bones", e.bones},
+                              {"rms", e.rms},
+                              {"max", e.max},
+                              {"rms_pct", e.rms_pct},
+                              {"max_pct", e.max_pct},
+                              {"influences", e.influences}});
+    return j;
+}
+
+void write_model_atomically(tinygltf::Model& m, const std::string& out_path) {
+    namespace fs = std::filesystem;
+    const bool binary = !ends_with(out_path, ".gltf");
+    const fs::path out(out_path);
+    const fs::path tmp = out.parent_path() / (out.filename().string() + ".tmp" + std::to_string(getpid()));
+    tinygltf::TinyGLTF writer;
+    writer.SetImageWriter(no_image_write, nullptr);
+    const bool ok = writer.WriteGltfSceneToFile(&m, tmp.string(), false, true, !binary, binary);
+    std::error_code ec;
+    if (!ok) {
+        fs::remove(tmp, ec);
+        throw Error(out_path + ": cannot write the file");
+    }
+    fs::rename(tmp, out, ec);
+    if (ec) {
+        fs::remove(tmp, ec);
+        throw Error(out_path + ": cannot write the file: " + ec.message());
+    }
+}
+
+}  // namespace
+
+void save_progressive(const Character& c, const ProgressiveSkin& s, const std::string& out_path,
+                      const std::string& note) {
+    const int B = s.bone_count();
+    if (B != int(c.joint_count()) || s.parents.size() != size_t(B) || s.corrections.size() != size_t(B))
+        throw Error(out_path + ": progressive skin does not match the character");
+    tinygltf::Model m = load_model(c.source);
+    merge_buffers(m);
+
+    // The unified joint list in progressive order, with its inverse bind matrices.
+    std::vector<int> joints(size_t(B), 0);
+    std::vector<float> ibm(size_t(B) * 16);
+    for (int b = 0; b < B; ++b) {
+        const int j = s.order[b];
+        joints[b] = c.nodes[c.joint_node[j]].gltf_index;
+        const glm::dmat4& M = c.inverse_bind[j];
+        for (int col = 0; col < 4; ++col)
+            for (int row = 0; row < 4; ++row) ibm[b * 16 + col * 4 + row] = float(M[col][row]);
+    }
+    const int ibm_acc = append_accessor(m, ibm.data(), ibm.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT,
+                                        TINYGLTF_TYPE_MAT4, size_t(B), 0);
+
+    nlohmann::json ext = skin_to_json(s);
+    if (!note.empty()) ext["note"] = note;
+    std::vector<char> skin_done(m.skins.size(), 0);
+    const int I = s.influences;
+    for (const PrimitiveRange& r : c.primitives) {
+        if (r.rigid) continue;
+        if (r.skin < 0 || size_t(r.skin) >= m.skins.size()) throw Error(c.source + ": primitive without its skin");
+        if (!skin_done[r.skin]) {
+            tinygltf::Skin& sk = m.skins[size_t(r.skin)];
+            sk.joints = joints;
+            sk.inverseBindMatrices = ibm_acc;
+            sk.extensions[kExtension] = to_value(ext);
+            skin_done[r.skin] = 1;
+        }
+        auto& prim = m.meshes[size_t(r.mesh)].primitives[size_t(r.primitive)];
+        for (int set = 0; set * 4 < I; ++set) {
+            std::vector<uint16_t> jj(size_t(r.count) * 4, 0);
+            std::vector<float> ww(size_t(r.count) * 4, 0.0f);
+            for (uint32_t v = 0; v < r.count; ++v)
+                for (int i = 0; i < 4; ++i) {
+                    jj[v * 4 + i] = s.joints[(r.first + v) * I + set * 4 + i];
+                    ww[v * 4 + i] = s.weights[(r.first + v) * I + set * 4 + i];
+                }
+            const std::string n = std::to_string(set);
+            prim.attributes["JOINTS_" + n] =
+                append_accessor(m, jj.data(), jj.size() * 2, TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT,
+                                TINYGLTF_TYPE_VEC4, r.count, TINYGLTF_TARGET_ARRAY_BUFFER);
+            prim.attributes["WEIGHTS_" + n] =
+                append_accessor(m, ww.data(), ww.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT, TINYGLTF_TYPE_VEC4,
+                                r.count, TINYGLTF_TARGET_ARRAY_BUFFER);
+        }
+    }
+    if (std::find(m.extensionsUsed.begin(), m.extensionsUsed.end(), kExtension) == m.extensionsUsed.end())
+        m.extensionsUsed.push_back(kExtension);
+    write_model_atomically(m, out_path);
+}
+
+bool read_progressive_extension(const std::string& path, const Character& c, ProgressiveSkin& out) {
+    tinygltf::Model m = load_model(path);
+    const tinygltf::Skin* skin = nullptr;
+    for (const PrimitiveRange& r : c.primitives)
+        if (!r.rigid && r.skin >= 0 && size_t(r.skin) < m.skins.size() &&
+            m.skins[size_t(r.skin)].extensions.count(kExtension)) {
+            skin = &m.skins[size_t(r.skin)];
+            break;
+        }
+    if (!skin) return false;
+    const nlohmann::json j = from_value(skin->extensions.at(kExtension));
+    const int B = int(c.joint_count());
+    auto bad = [&](const std::string& what) { return Error(path + ": " + kExtension + ": " + what); };
+    if (!j.is_object() || j.value("version", 0) != 1) throw bad("unsupported version");
+    const auto& parents = j.at("parents");
+    const auto& corr = j.at("corrections");
+    if (!parents.is_array() || int(parents.size()) != B) throw bad("'parents' must list one entry per joint");
+    if (!corr.is_array() || corr.size() != size_t(B) * 12) throw bad("'corrections' must hold 12 numbers per joint");
+    out = ProgressiveSkin{};
+    out.strategy = parse_strategy(j.value("strategy", std::string("reorder")));
+    out.order.resize(size_t(B));
+    for (int b = 0; b < B; ++b) out.order[b] = b;
+    out.parents.resize(size_t(B));
+    for (int b = 0; b < B; ++b) {
+        const int p = parents[size_t(b)].is_number_integer() ? parents[size_t(b)].get<int>() : -2;
+        if ((b == 0 && p != -1) || (b > 0 && (p < 0 || p >= b)))
+            throw bad("parent of bone " + std::to_string(b) + " must be " + (b ? "in 0.." + std::to_string(b - 1) : "-1"));
+        out.parents[b] = int16_t(p);
+    }
+    out.corrections.resize(size_t(B));
+    for (int b = 0; b < B; ++b)
+        for (int i = 0; i < 12; ++i) {
+            const auto& x = corr[size_t(b) * 12 + i];
+            if (!x.is_number() || !std::isfinite(x.get<double>())) throw bad("correction values must be finite numbers");
+            out.corrections[b].m[i] = x.get<float>();
+        }
+    out.diagonal = j.value("diagonal", 0.0);
+    if (j.contains("error") && j["error"].is_array())
+        for (const auto& e : j["error"]) {
+            if (!e.is_object()) throw bad("'error' entries must be objects");
+            out.error.push_back({e.value("bones", 0), e.value("rms", 0.0), e.value("max", 0.0), e.value("rms_pct", 0.0),
+                                 e.value("max_pct", 0.0), e.value("influences", 0.0)});
+        }
+    out.influences = c.influences;
+    out.joints = c.joints;
+    out.weights = c.weights;
+    return true;
+}
+
+ProgressiveAsset load_progressive(const std::string& path, int character_index) {
+    ProgressiveAsset a;
+    a.character = import_character(path, character_index);
+    a.progressive = read_progressive_extension(path, a.character, a.skin);
+    return a;
+}
+
+}  // namespace progskin

@@ -1,0 +1,38 @@
+// gltf_export.h — progressive glTF: a standard glTF 2.0 file whose skin lists
+// its joints in progressive order, with each vertex's weights reordered for
+// dropping, animations untouched, and the progressive data in the skin
+// extension PROGSKIN_progressive_skin (docs/algorithms.md, "File format"):
+//   { "version": 1, "strategy": "reorder", "parents": [-1, 0, ...],
+//     "corrections": [12 floats per bone, row-major 3x4], "diagonal": d,
+//     "error": [{"bones": k, "rms": .., "max": .., "rms_pct": .., "max_pct": ..,
+//                "influences": ..}, ...], "fps": 30, "clips": "auto" }
+// Any glTF viewer ignores the extension and plays the file as the input.
+#pragma once
+#include <string>
+
+#include "character.h"
+#include "progressive_skin.h"
+
+namespace progskin {
+
+struct ProgressiveAsset {
+    Character character;
+    ProgressiveSkin skin;
+    bool progressive = false;  // false: a plain glTF (skin not yet built)
+};
+
+// Writes `skin` of `c` (imported from c.source) to out_path (.glb binary, or
+// .gltf with embedded buffers). The file is written to a temporary name and
+// renamed, so a failure leaves no partial output. Throws Error.
+void save_progressive(const Character& c, const ProgressiveSkin& skin, const std::string& out_path,
+                      const std::string& note = "");
+
+// Reads a file; when it carries PROGSKIN_progressive_skin, the skin is read
+// from it (joints already in progressive order), else progressive = false.
+ProgressiveAsset load_progressive(const std::string& path, int character_index = 0);
+
+// Decodes the extension of an already imported character (character joints in
+// file order must be the progressive order). Used by load_progressive.
+bool read_progressive_extension(const std::string& path, const Character& c, ProgressiveSkin& out);
+
+}  // namespace progskin

@@ -1,0 +1,67 @@
+#include "palette.h"
+
+#include <algorithm>
+
+namespace progskin {
+
+bool PaletteJob::validate() const {
+    const size_t B = parents.size();
+    if (B == 0 || out.size() != B) return false;
+    if (!corrections.empty() && corrections.size() != B) return false;
+    if (own.empty() || own.size() > B) return false;
+    if (!presence.empty() && presence.size() != own.size()) return false;
+    if (parents[0] != -1) return false;
+    for (size_t b = 1; b < B; ++b)
+        if (parents[b] < 0 || size_t(parents[b]) >= b) return false;
+    return true;
+}
+
+void PaletteJob::run() const {
+    const size_t B = parents.size(), n = own.size();
+    out[0] = own[0];
+    for (size_t b = 1; b < B; ++b) {
+        const Mat34& up = out[size_t(parents[b])];
+        const bool has_own = b < n;
+        const float p = (has_own && !presence.empty()) ? presence[b] : 1.0f;
+        if (has_own && p >= 1.0f) {
+            out[b] = own[b];
+            continue;
+        }
+        Mat34 stand_in = corrections.empty() ? up : mul(up, corrections[b]);
+        out[b] = (has_own && p > 0.0f) ? lerp(stand_in, own[b], p) : stand_in;
+    }
+}
+
+LodBlender::LodBlender(int bone_count, int blend_frames, int initial_k)
+    : presence_(size_t(std::max(bone_count, 1)), 0.0f), frames_(std::max(blend_frames, 1)) {
+    target_ = std::clamp(initial_k, 1, int(presence_.size()));
+    for (int b = 0; b < target_; ++b) presence_[size_t(b)] = 1.0f;
+    update_needed();
+}
+
+void LodBlender::set_target(int k) { target_ = std::clamp(k, 1, int(presence_.size())); }
+
+void LodBlender::step() {
+    const float d = 1.0f / float(frames_);
+    for (size_t b = 0; b < presence_.size(); ++b) {
+        float& p = presence_[b];
+        p = int(b) < target_ ? std::min(1.0f, p + d) : std::max(0.0f, p - d);
+    }
+    presence_[0] = 1.0f;
+    update_needed();
+}
+
+bool LodBlender::settled() const {
+    for (size_t b = 0; b < presence_.size(); ++b)
+        if (presence_[b] != (int(b) < target_ ? 1.0f : 0.0f)) return false;
+    return true;
+}
+
+void LodBlender::update_needed() {
+    int n = 1;
+    for (size_t b = 0; b < presence_.size(); ++b)
+        if (presence_[b] > 0.0f) n = int(b) + 1;
+    needed_ = n;
+}
+
+}  // namespace progskin

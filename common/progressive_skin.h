@@ -1,0 +1,75 @@
+// progressive_skin.h — a progressive skin and its generation by collapsing an
+// existing skin (docs/algorithms.md).
+//
+// Bones are renumbered 0..B-1 so that any prefix 0..k-1 is closed under the
+// progressive parent (parent[b] < b). An inactive bone b stands in as
+// M_parent(b) * correction[b] (palette.h). The build is a greedy collapse: at
+// each step the active bone whose collapse adds the least squared vertex error
+// (over all vertices and training frames, against the full-detail reference) is
+// collapsed into its target and becomes the last active bone; its correction is
+// the least-squares fit (Eigen) that best stands in for it, or identity for
+// plain copy-down.
+#pragma once
+#include <cstdint>
+#include <functional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "animation.h"
+#include "character.h"
+#include "math.h"
+
+namespace progskin {
+
+enum class Strategy : uint8_t {
+    Reorder,    // progressive parent = nearest active ancestor in the artist's hierarchy
+    Flatten,    // world-space bones, new minimal-error hierarchy
+    LeafPrune,  // naive baseline: deepest bones dropped first, plain copy-down
+    Scratch,    // built from vertex animation (issue 4)
+};
+const char* strategy_name(Strategy s);
+Strategy parse_strategy(const std::string& s);  // throws Error
+
+struct LodError {
+    int bones = 0;  // k
+    double rms = 0, max = 0, rms_pct = 0, max_pct = 0;
+    double influences = 0;  // mean distinct non-zero influences per vertex at k
+};
+
+struct ProgressiveSkin {
+    Strategy strategy = Strategy::Reorder;
+    std::vector<int> order;          // progressive bone b -> Character joint
+    std::vector<int16_t> parents;    // progressive parent, parents[0] = -1, parents[b] < b
+    std::vector<Mat34> corrections;  // stand-in correction per bone (identity for bone 0)
+    std::vector<LodError> error;     // e(k) for k = 1..B at index k-1
+    double diagonal = 0;
+    // The vertex stream in progressive bone indices, influences of each vertex
+    // ordered so that dropping the last ones costs least.
+    int influences = 4;
+    std::vector<uint16_t> joints;
+    std::vector<float> weights;
+
+    int bone_count() const { return int(order.size()); }
+};
+
+struct BuildOptions {
+    Strategy strategy = Strategy::Reorder;
+    bool fit_corrections = true;  // false: plain copy-down (C = identity)
+    // Progress callback: (step, total); may be empty.
+    std::function<void(int, int)> progress;
+};
+
+ProgressiveSkin build_progressive_skin(const Character& c, const FrameSet& frames,
+                                       const BuildOptions& options = {});
+
+// The error table evaluated independently of the build: for every k, the
+// palette (palette.h) and skinning (skinning.h) against the reference.
+std::vector<LodError> evaluate_error_table(const Character& c, const ProgressiveSkin& s,
+                                           const FrameSet& frames);
+
+// Reconstructed vertices at frame f with k bones (copy-down with corrections).
+void lod_positions(const Character& c, const ProgressiveSkin& s, const FrameSet& frames, size_t f,
+                   int k, std::span<glm::vec3> out);
+
+}  // namespace progskin
