@@ -7,6 +7,9 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
 #include <nlohmann/json.hpp>
 #include <unistd.h>
 
@@ -40,24 +43,6 @@ tinygltf::Model load_model(const std::string& path) {
                                             : loader.LoadASCIIFromFile(&model, &err, &warn, path);
     if (!ok) throw Error(path + ": cannot read glTF: " + (err.empty() ? warn : err));
     return model;
-}
-
-tinygltf::Value to_value(const nlohmann::json& j) {
-    if (j.is_object()) {
-        tinygltf::Value::Object o;
-        for (auto it = j.begin(); it != j.end(); ++it) o[it.key()] = to_value(it.value());
-        return tinygltf::Value(std::move(o));
-    }
-    if (j.is_array()) {
-        tinygltf::Value::Array a;
-        for (const auto& e : j) a.push_back(to_value(e));
-        return tinygltf::Value(std::move(a));
-    }
-    if (j.is_string()) return tinygltf::Value(j.get<std::string>());
-    if (j.is_boolean()) return tinygltf::Value(j.get<bool>());
-    if (j.is_number_integer()) return tinygltf::Value(int(j.get<int64_t>()));
-    if (j.is_number()) return tinygltf::Value(j.get<double>());
-    return tinygltf::Value();
 }
 
 nlohmann::json from_value(const tinygltf::Value& v) {
@@ -145,18 +130,58 @@ nlohmann::json skin_to_json(const ProgressiveSkin& s) {
     return j;
 }
 
-void write_model_atomically(tinygltf::Model& m, const std::string& out_path) {
+// tinygltf 2.7 does not serialise skin extensions, so the extension objects
+// are patched into the JSON chunk after writing (skin index -> extension).
+std::string patch_json(const std::string& text, const std::map<int, nlohmann::json>& skin_ext, bool pretty) {
+    nlohmann::json j = nlohmann::json::parse(text);
+    for (const auto& [i, e] : skin_ext) j["skins"][size_t(i)]["extensions"][kExtension] = e;
+    return j.dump(pretty ? 2 : -1);
+}
+
+uint32_t read_u32(const std::string& s, size_t at) {
+    uint32_t v;
+    std::memcpy(&v, s.data() + at, 4);
+    return v;
+}
+void put_u32(std::string& s, uint32_t v) { s.append(reinterpret_cast<const char*>(&v), 4); }
+
+std::string patch_glb(const std::string& glb, const std::map<int, nlohmann::json>& skin_ext) {
+    if (glb.size() < 20 || read_u32(glb, 0) != 0x46546C67u) throw Error("internal: tinygltf wrote no GLB");
+    const uint32_t json_len = read_u32(glb, 12);
+    std::string json = patch_json(glb.substr(20, json_len), skin_ext, false);
+    while (json.size() % 4) json.push_back(' ');
+    const std::string rest = glb.substr(20 + json_len);  // BIN chunk with its header, if any
+    std::string out;
+    put_u32(out, 0x46546C67u);
+    put_u32(out, 2);
+    put_u32(out, uint32_t(12 + 8 + json.size() + rest.size()));
+    put_u32(out, uint32_t(json.size()));
+    put_u32(out, 0x4E4F534Au);
+    out += json;
+    out += rest;
+    return out;
+}
+
+void write_model_atomically(tinygltf::Model& m, const std::map<int, nlohmann::json>& skin_ext,
+                            const std::string& out_path) {
     namespace fs = std::filesystem;
     const bool binary = !ends_with(out_path, ".gltf");
-    const fs::path out(out_path);
-    const fs::path tmp = out.parent_path() / (out.filename().string() + ".tmp" + std::to_string(getpid()));
     tinygltf::TinyGLTF writer;
     writer.SetImageWriter(no_image_write, nullptr);
-    const bool ok = writer.WriteGltfSceneToFile(&m, tmp.string(), false, true, !binary, binary);
+    std::ostringstream os;
+    if (!writer.WriteGltfSceneToStream(&m, os, !binary, binary)) throw Error(out_path + ": cannot serialise the glTF");
+    const std::string bytes = binary ? patch_glb(os.str(), skin_ext) : patch_json(os.str(), skin_ext, true);
+    const fs::path out(out_path);
+    const fs::path tmp = out.parent_path() / (out.filename().string() + ".tmp" + std::to_string(getpid()));
     std::error_code ec;
-    if (!ok) {
-        fs::remove(tmp, ec);
-        throw Error(out_path + ": cannot write the file");
+    {
+        std::ofstream f(tmp, std::ios::binary);
+        f.write(bytes.data(), std::streamsize(bytes.size()));
+        f.close();
+        if (!f) {
+            fs::remove(tmp, ec);
+            throw Error(out_path + ": cannot write the file");
+        }
     }
     fs::rename(tmp, out, ec);
     if (ec) {
@@ -191,6 +216,7 @@ void save_progressive(const Character& c, const ProgressiveSkin& s, const std::s
     nlohmann::json ext = skin_to_json(s);
     if (!note.empty()) ext["note"] = note;
     std::vector<char> skin_done(m.skins.size(), 0);
+    std::map<int, nlohmann::json> skin_ext;
     const int I = s.influences;
     for (const PrimitiveRange& r : c.primitives) {
         if (r.rigid) continue;
@@ -199,7 +225,7 @@ void save_progressive(const Character& c, const ProgressiveSkin& s, const std::s
             tinygltf::Skin& sk = m.skins[size_t(r.skin)];
             sk.joints = joints;
             sk.inverseBindMatrices = ibm_acc;
-            sk.extensions[kExtension] = to_value(ext);
+            skin_ext[r.skin] = ext;
             skin_done[r.skin] = 1;
         }
         auto& prim = m.meshes[size_t(r.mesh)].primitives[size_t(r.primitive)];
@@ -222,7 +248,7 @@ void save_progressive(const Character& c, const ProgressiveSkin& s, const std::s
     }
     if (std::find(m.extensionsUsed.begin(), m.extensionsUsed.end(), kExtension) == m.extensionsUsed.end())
         m.extensionsUsed.push_back(kExtension);
-    write_model_atomically(m, out_path);
+    write_model_atomically(m, skin_ext, out_path);
 }
 
 bool read_progressive_extension(const std::string& path, const Character& c, ProgressiveSkin& out) {

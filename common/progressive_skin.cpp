@@ -277,7 +277,12 @@ private:
     bool is_candidate(int b) const {
         if (!active_[b] || active_count() < 2) return false;
         if (opt_.strategy == Strategy::Flatten) return true;
-        // Reorder: leaves of the active artist tree; a root only when it is a leaf too.
+        // Reorder: any bone with an active artist ancestor (its active children
+        // then hang from that ancestor); a bone without one only when another
+        // such root-level bone remains, or when it has no active children.
+        if (nearest_active_ancestor(b) >= 0) return true;
+        for (int j = 0; j < B_; ++j)
+            if (active_[j] && j != b && nearest_active_ancestor(j) < 0) return true;
         return !has_active_child(b);
     }
 

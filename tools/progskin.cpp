@@ -1,1 +1,361 @@
-int main(){return 0;}
+// progskin — the offline tool: build, inspect and pose progressive skins.
+//
+// Exit codes: 0 success, 1 bad input or failed work (message on stderr),
+// 2 bad command line.
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "animation.h"
+#include "error.h"
+#include "error_metric.h"
+#include "gltf_export.h"
+#include "gltf_import.h"
+#include "progressive_skin.h"
+
+using namespace progskin;
+using nlohmann::json;
+
+namespace {
+
+const char* kUsage = R"(progskin — progressive skinning, offline tool
+
+usage:
+  progskin build IN -o OUT.glb [--strategy reorder|flatten] [--clip SPEC] [--fps 30]
+                 [--character N] [--plain-copy] [--quiet]
+      Build a progressive skin by collapsing IN's skin and write a standard
+      glTF 2.0 file (joints in progressive order, weights reordered, animations
+      kept, PROGSKIN_progressive_skin extension on the skin). OUT ending in
+      .gltf is written as JSON with embedded buffers, anything else as .glb.
+  progskin inspect FILE [--json] [--clip SPEC] [--fps 30] [--character N]
+      Joints, vertices, clips and the error table k -> RMS / max error (units
+      and % of the rest bounding-box diagonal) and mean distinct influences per
+      vertex. For a plain glTF it builds and compares the strategies reorder,
+      flatten and leaf_prune (naive baseline: deepest bones first, plain copy).
+  progskin pose FILE --time T [--clip SPEC] [--bones K|all] [--character N]
+                [--max-influences M] [--json | -o OUT.bin]
+      World-space skinned vertex positions at time T with K bones active, in
+      glTF order (mesh nodes by node index, then primitives, then accessor
+      order). -o writes little-endian float32 x,y,z per vertex.
+
+clip SPEC: a clip name, an index, a comma-separated list, or "all" (played
+together). Default for build/inspect: "auto" (all clips together when they
+animate disjoint nodes, as CesiumMan's 19 one-joint clips; else each clip on
+its own, frames concatenated). Default for pose: "auto" as well.
+
+exit codes: 0 ok, 1 bad input or failure, 2 bad command line
+)";
+
+struct UsageError : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
+
+struct Args {
+    std::vector<std::string> positional;
+    std::map<std::string, std::string> opts;
+    bool has(const std::string& k) const { return opts.count(k) > 0; }
+    std::string get(const std::string& k, const std::string& d = "") const {
+        auto it = opts.find(k);
+        return it == opts.end() ? d : it->second;
+    }
+};
+
+Args parse(int argc, char** argv, int first, const std::vector<std::string>& flags,
+           const std::vector<std::string>& valued) {
+    Args a;
+    for (int i = first; i < argc; ++i) {
+        std::string s = argv[i];
+        if (s.rfind("--", 0) == 0 || s == "-o") {
+            std::string key = s, value;
+            const auto eq = s.find('=');
+            if (eq != std::string::npos) {
+                key = s.substr(0, eq);
+                value = s.substr(eq + 1);
+            }
+            const bool is_flag = std::find(flags.begin(), flags.end(), key) != flags.end();
+            const bool is_valued = std::find(valued.begin(), valued.end(), key) != valued.end();
+            if (!is_flag && !is_valued) throw UsageError("unknown option " + key);
+            if (is_valued && eq == std::string::npos) {
+                if (i + 1 >= argc) throw UsageError(key + " needs a value");
+                value = argv[++i];
+            }
+            a.opts[key] = value;
+        } else {
+            a.positional.push_back(s);
+        }
+    }
+    return a;
+}
+
+double to_number(const std::string& key, const std::string& v) {
+    try {
+        size_t n = 0;
+        const double d = std::stod(v, &n);
+        if (n != v.size() || !std::isfinite(d)) throw 0;
+        return d;
+    } catch (...) {
+        throw UsageError(key + ": '" + v + "' is not a number");
+    }
+}
+
+int to_int(const std::string& key, const std::string& v) {
+    const double d = to_number(key, v);
+    if (d != std::floor(d) || d < 0 || d > 1e9) throw UsageError(key + ": '" + v + "' is not a non-negative integer");
+    return int(d);
+}
+
+std::vector<ClipSelection> training_set(const Character& c, const std::string& spec) {
+    if (spec.empty() || spec == "auto") return default_training_set(c);
+    return {select_clips(c, spec)};
+}
+
+json table_json(const std::vector<LodError>& t, const std::vector<double>* distortion = nullptr) {
+    json a = json::array();
+    for (size_t i = 0; i < t.size(); ++i) {
+        const LodError& e = t[i];
+        json row = {{"bones", e.bones}, {"rms", e.rms},         {"max", e.max},
+                    {"rms_pct", e.rms_pct}, {"max_pct", e.max_pct}, {"influences", e.influences}};
+        if (distortion) row["distortion_pct"] = (*distortion)[i];
+        a.push_back(row);
+    }
+    return a;
+}
+
+void print_table(const std::string& title, const std::vector<LodError>& t, double diag) {
+    std::printf("\n%s (error against the full skin; diagonal %.4g)\n", title.c_str(), diag);
+    std::printf("  %5s  %12s  %9s  %12s  %9s  %10s\n", "bones", "rms", "rms %", "max", "max %", "influences");
+    for (const LodError& e : t)
+        std::printf("  %5d  %12.6g  %9.4f  %12.6g  %9.4f  %10.3f\n", e.bones, e.rms, e.rms_pct, e.max, e.max_pct,
+                    e.influences);
+}
+
+class Progress {
+public:
+    explicit Progress(bool quiet, std::string what) : quiet_(quiet), what_(std::move(what)) {}
+    void operator()(int step, int total) {
+        if (quiet_ || total <= 0) return;
+        const auto now = std::chrono::steady_clock::now();
+        if (step < total && now - last_ < std::chrono::milliseconds(250)) return;
+        last_ = now;
+        const double el = std::chrono::duration<double>(now - start_).count();
+        const double eta = step > 0 ? el * (total - step) / step : 0.0;
+        std::fprintf(stderr, "\r%s: %d/%d collapses, %.1f s, about %.1f s left   ", what_.c_str(), step, total, el,
+                     eta);
+        if (step >= total) std::fprintf(stderr, "\n");
+    }
+
+private:
+    bool quiet_;
+    std::string what_;
+    std::chrono::steady_clock::time_point start_ = std::chrono::steady_clock::now(), last_{};
+};
+
+ProgressiveSkin build_with_progress(const Character& c, const FrameSet& frames, Strategy st, bool fit, bool quiet) {
+    BuildOptions opt;
+    opt.strategy = st;
+    opt.fit_corrections = fit;
+    Progress p(quiet, std::string("build ") + strategy_name(st));
+    opt.progress = [&p](int s, int t) { p(s, t); };
+    return build_progressive_skin(c, frames, opt);
+}
+
+int character_arg(const Args& a) { return a.has("--character") ? to_int("--character", a.get("--character")) : 0; }
+
+int cmd_build(int argc, char** argv) {
+    Args a = parse(argc, argv, 2, {"--plain-copy", "--quiet", "--help"},
+                   {"-o", "--strategy", "--clip", "--fps", "--character"});
+    if (a.has("--help")) {
+        std::fputs(kUsage, stdout);
+        return 0;
+    }
+    if (a.positional.size() != 1) throw UsageError("build needs exactly one input file");
+    if (!a.has("-o")) throw UsageError("build needs -o OUT.glb");
+    const double fps = a.has("--fps") ? to_number("--fps", a.get("--fps")) : 30.0;
+    if (fps <= 0 || fps > 1000) throw UsageError("--fps must be in (0, 1000]");
+    const Strategy st = parse_strategy(a.get("--strategy", "reorder"));
+    if (st != Strategy::Reorder && st != Strategy::Flatten && st != Strategy::LeafPrune)
+        throw UsageError("--strategy must be reorder, flatten or leaf_prune");
+    const bool quiet = a.has("--quiet");
+    const Character c = import_character(a.positional[0], character_arg(a));
+    const FrameSet frames = sample_frames(c, training_set(c, a.get("--clip")), fps);
+    if (!quiet)
+        std::fprintf(stderr, "%s: %zu joints, %zu vertices, %zu frames at %g fps\n", a.positional[0].c_str(),
+                     c.joint_count(), c.vertex_count(), frames.frame_count(), fps);
+    const ProgressiveSkin s = build_with_progress(c, frames, st, !a.has("--plain-copy"), quiet);
+    save_progressive(c, s, a.get("-o"));
+    if (!quiet) {
+        print_table(std::string("progressive skin, strategy ") + strategy_name(st), s.error, s.diagonal);
+        std::printf("\nwrote %s\n", a.get("-o").c_str());
+    }
+    return 0;
+}
+
+int cmd_inspect(int argc, char** argv) {
+    Args a = parse(argc, argv, 2, {"--json", "--help", "--quiet"}, {"--clip", "--fps", "--character"});
+    if (a.has("--help")) {
+        std::fputs(kUsage, stdout);
+        return 0;
+    }
+    if (a.positional.size() != 1) throw UsageError("inspect needs exactly one file");
+    const bool as_json = a.has("--json");
+    const double fps = a.has("--fps") ? to_number("--fps", a.get("--fps")) : 30.0;
+    if (fps <= 0 || fps > 1000) throw UsageError("--fps must be in (0, 1000]");
+    const ProgressiveAsset asset = load_progressive(a.positional[0], character_arg(a));
+    const Character& c = asset.character;
+    const double diag = rest_diagonal(c);
+    json out;
+    out["file"] = a.positional[0];
+    out["joints"] = c.joint_count();
+    out["vertices"] = c.vertex_count();
+    out["diagonal"] = diag;
+    out["influences_per_vertex"] = c.influences;
+    out["clips"] = json::array();
+    for (const Clip& cl : c.clips)
+        out["clips"].push_back({{"name", cl.name}, {"start", cl.start}, {"end", cl.end},
+                                {"channels", cl.channels.size()}});
+    out["renormalised_vertices"] = c.renormalised_vertices;
+    out["morph_targets_ignored"] = c.has_morph_targets;
+    out["notes"] = c.notes;
+    out["progressive"] = asset.progressive;
+    out["strategies"] = json::object();
+    std::vector<std::pair<std::string, std::vector<LodError>>> tables;
+    if (asset.progressive) {
+        tables.push_back({strategy_name(asset.skin.strategy), asset.skin.error});
+    } else {
+        const FrameSet frames = sample_frames(c, training_set(c, a.get("--clip")), fps);
+        out["frames"] = frames.frame_count();
+        const bool quiet = as_json || a.has("--quiet");
+        for (Strategy st : {Strategy::Reorder, Strategy::Flatten, Strategy::LeafPrune})
+            tables.push_back({strategy_name(st), build_with_progress(c, frames, st, true, quiet).error});
+        tables.push_back(
+            {"reorder_plain_copy", build_with_progress(c, frames, Strategy::Reorder, false, quiet).error});
+    }
+    for (const auto& [name, t] : tables) out["strategies"][name] = table_json(t);
+    if (as_json) {
+        std::cout << out.dump(2) << "\n";
+        return 0;
+    }
+    std::printf("%s\n  joints %zu, vertices %zu, %d influence slots per vertex, diagonal %.6g\n",
+                a.positional[0].c_str(), c.joint_count(), c.vertex_count(), c.influences, diag);
+    std::printf("  clips:");
+    for (const Clip& cl : c.clips) std::printf(" \"%s\" (%.3g-%.3g s)", cl.name.c_str(), cl.start, cl.end);
+    std::printf("\n");
+    for (const std::string& n : c.notes) std::printf("  note: %s\n", n.c_str());
+    if (c.has_morph_targets) std::printf("  note: morph targets are ignored\n");
+    std::printf("  %s\n", asset.progressive ? "progressive skin (PROGSKIN_progressive_skin)" : "plain glTF skin");
+    for (const auto& [name, t] : tables) print_table("strategy " + name, t, diag);
+    return 0;
+}
+
+int cmd_pose(int argc, char** argv) {
+    Args a = parse(argc, argv, 2, {"--json", "--help"},
+                   {"--time", "--clip", "--bones", "--character", "--max-influences", "-o"});
+    if (a.has("--help")) {
+        std::fputs(kUsage, stdout);
+        return 0;
+    }
+    if (a.positional.size() != 1) throw UsageError("pose needs exactly one file");
+    if (!a.has("--time")) throw UsageError("pose needs --time T");
+    if (a.has("--json") == a.has("-o")) throw UsageError("pose needs exactly one of --json or -o OUT.bin");
+    const double t = to_number("--time", a.get("--time"));
+    ProgressiveAsset asset = load_progressive(a.positional[0], character_arg(a));
+    const Character& c = asset.character;
+    const int B = int(c.joint_count());
+    const std::string bones = a.get("--bones", "all");
+    const int k = bones == "all" ? B : to_int("--bones", bones);
+    if (k < 1 || k > B) throw UsageError("--bones must be in 1.." + std::to_string(B) + " or all");
+    const std::string spec = a.get("--clip", "auto");
+    ClipSelection sel;
+    if (spec == "auto") {
+        const auto sets = default_training_set(c);
+        if (!sets.empty()) sel = sets[0];
+    } else {
+        sel = select_clips(c, spec);
+    }
+    FrameSet one;
+    one.joint_count = B;
+    one.times = {t};
+    one.selection_of_frame = {0};
+    std::vector<glm::dmat4> m(static_cast<size_t>(B));
+    sample_skinning_matrices(c, sel, t, m);
+    for (const auto& x : m) one.skinning.push_back(Mat34::from_glm(x));
+    if (!asset.progressive && k < B) {
+        asset.skin = build_with_progress(c, sample_frames(c, default_training_set(c), 30.0), Strategy::Reorder, true,
+                                         true);
+        asset.progressive = true;
+    }
+    std::vector<glm::vec3> pos(c.vertex_count());
+    if (!asset.progressive) {
+        reference_positions(c, one, 0, pos);
+    } else {
+        ProgressiveSkin s = asset.skin;
+        if (a.has("--max-influences")) {
+            const int mi = to_int("--max-influences", a.get("--max-influences"));
+            if (mi < 1) throw UsageError("--max-influences must be at least 1");
+            // Drop the last slots, renormalising the kept weights.
+            for (size_t v = 0; v < c.vertex_count(); ++v) {
+                float sum = 0;
+                for (int i = 0; i < s.influences; ++i) {
+                    float& w = s.weights[v * s.influences + i];
+                    if (i >= mi) w = 0.0f;
+                    sum += w;
+                }
+                for (int i = 0; i < s.influences && sum > 0; ++i) s.weights[v * s.influences + i] /= sum;
+            }
+        }
+        lod_positions(c, s, one, 0, k, pos);
+    }
+    if (a.has("--json")) {
+        json out;
+        out["count"] = pos.size();
+        out["time"] = t;
+        out["bones"] = k;
+        json p = json::array();
+        for (const auto& v : pos) p.push_back({v.x, v.y, v.z});
+        out["positions"] = std::move(p);
+        std::cout << out.dump() << "\n";
+    } else {
+        const std::string path = a.get("-o");
+        const std::string tmp = path + ".tmp";
+        {
+            std::ofstream f(tmp, std::ios::binary);
+            for (const auto& v : pos) f.write(reinterpret_cast<const char*>(&v.x), 12);
+            if (!f) throw Error(path + ": cannot write");
+        }
+        if (std::rename(tmp.c_str(), path.c_str()) != 0) throw Error(path + ": cannot write");
+    }
+    return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    if (argc < 2 || !std::strcmp(argv[1], "--help") || !std::strcmp(argv[1], "-h") ||
+        !std::strcmp(argv[1], "help")) {
+        std::fputs(kUsage, argc < 2 ? stderr : stdout);
+        return argc < 2 ? 2 : 0;
+    }
+    const std::string cmd = argv[1];
+    try {
+        if (cmd == "build") return cmd_build(argc, argv);
+        if (cmd == "inspect") return cmd_inspect(argc, argv);
+        if (cmd == "pose") return cmd_pose(argc, argv);
+        throw UsageError("unknown command '" + cmd + "'");
+    } catch (const UsageError& e) {
+        std::fprintf(stderr, "progskin: %s (see progskin --help)\n", e.what());
+        return 2;
+    } catch (const Error& e) {
+        std::fprintf(stderr, "progskin: %s\n", e.what());
+        return 1;
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "progskin: %s\n", e.what());
+        return 1;
+    }
+}
