@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <immintrin.h>
 
 namespace progskin {
 
@@ -47,12 +48,7 @@ void SkinningJob::run() const {
     }
 }
 
-// ---- packed SoA skinning -------------------------------------------------
-// Layout per block of 8 vertices: pos[3][8], nrm[3][8], then for each slot s:
-// jnt[s][8], wgt[s][8]. Weights are renormalised over the packed slots at pack
-// time. Padding lanes have weight 1 on joint 0 and position 0.
-
-constexpr int kLanes = 8;
+// ---- packed SIMD skinning ----------------------------------------------
 
 PackedSkin pack_skin(std::span<const glm::vec3> positions, std::span<const glm::vec3> normals,
                      std::span<const uint16_t> joints, std::span<const float> weights, int influences,
@@ -60,99 +56,105 @@ PackedSkin pack_skin(std::span<const glm::vec3> positions, std::span<const glm::
     PackedSkin p;
     p.count = int(positions.size());
     p.influences = std::clamp(max_influences, 1, influences);
-    const size_t blocks = (positions.size() + kLanes - 1) / kLanes;
-    p.pos.assign(blocks * 3 * kLanes, 0.0f);
-    p.nrm.assign(blocks * 3 * kLanes, 0.0f);
-    p.wgt.assign(blocks * size_t(p.influences) * kLanes, 0.0f);
-    p.jnt.assign(blocks * size_t(p.influences) * kLanes, 0);
-    for (size_t v = 0; v < positions.size(); ++v) {
-        const size_t b = v / kLanes, l = v % kLanes;
-        for (int c = 0; c < 3; ++c) {
-            p.pos[(b * 3 + c) * kLanes + l] = positions[v][c];
-            p.nrm[(b * 3 + c) * kLanes + l] = normals.empty() ? 0.0f : normals[v][c];
-        }
+    const size_t n = positions.size(), m = size_t(p.influences);
+    p.pos.resize(n * 4);
+    p.nrm.resize(n * 4);
+    p.wgt.resize(n * m);
+    p.jnt.resize(n * m);
+    for (size_t v = 0; v < n; ++v) {
+        const glm::vec3 nv = normals.empty() ? glm::vec3(0.0f) : normals[v];
+        const float pr[4] = {positions[v].x, positions[v].y, positions[v].z, 1.0f};
+        const float nr[4] = {nv.x, nv.y, nv.z, 0.0f};
+        std::copy(pr, pr + 4, &p.pos[v * 4]);
+        std::copy(nr, nr + 4, &p.nrm[v * 4]);
         float sum = 0.0f;
-        for (int s = 0; s < p.influences; ++s) sum += weights[v * influences + s];
-        for (int s = 0; s < p.influences; ++s) {
-            float w = weights[v * influences + s];
-            w = sum > 0.0f ? w / sum : (s == 0 ? 1.0f : 0.0f);
-            p.wgt[(b * p.influences + s) * kLanes + l] = w;
-            p.jnt[(b * p.influences + s) * kLanes + l] = joints[v * influences + s];
-            p.max_joint = std::max(p.max_joint, joints[v * influences + s]);
+        for (size_t s = 0; s < m; ++s) sum += weights[v * influences + s];
+        for (size_t s = 0; s < m; ++s) {
+            const float w = weights[v * influences + s];
+            p.wgt[v * m + s] = sum > 0.0f ? w / sum : (s == 0 ? 1.0f : 0.0f);
+            p.jnt[v * m + s] = joints[v * influences + s];
+            p.max_joint = std::max(p.max_joint, p.jnt[v * m + s]);
         }
     }
-    for (size_t v = positions.size(); v < blocks * kLanes; ++v)  // padding lanes
-        p.wgt[((v / kLanes) * p.influences) * kLanes + v % kLanes] = 1.0f;
     return p;
 }
 
-// Blend the slot matrices of 8 lanes into acc[12][8], then transform. The
-// per-lane loops have no dependencies so the compiler vectorises them.
-template <int S>
-static void skin_block(const float* __restrict pos, const float* __restrict nrm, const uint16_t* __restrict jnt,
-                       const float* __restrict wgt, int slots, const Mat34* __restrict pal, float* __restrict out_p,
-                       float* __restrict out_n) {
-    const int ns = S > 0 ? S : slots;
-    alignas(32) float acc[12][kLanes];
-    for (int e = 0; e < 12; ++e)
-        for (int l = 0; l < kLanes; ++l) acc[e][l] = 0.0f;
-    for (int s = 0; s < ns; ++s) {
-        const uint16_t* js = jnt + s * kLanes;
-        const float* ws = wgt + s * kLanes;
-        for (int e = 0; e < 12; ++e)
-            for (int l = 0; l < kLanes; ++l) acc[e][l] += ws[l] * pal[js[l]].m[e];
+namespace {
+
+// One vertex: blend the rows of its matrices, transform position and normal.
+// FMA selects fused multiply-add (compiled for AVX2+FMA) or mul+add (SSE2).
+#define PROGSKIN_SKIN_KERNEL(NAME, ATTR, MADD)                                                                  \
+    template <int S>                                                                                             \
+    ATTR void NAME(const PackedSkin& p, const Mat34* __restrict pal, glm::vec3* __restrict op,                   \
+                   glm::vec3* __restrict on) {                                                                   \
+        const int ns = S > 0 ? S : p.influences;                                                                 \
+        const float* __restrict pos = p.pos.data();                                                              \
+        const float* __restrict nrm = p.nrm.data();                                                              \
+        const float* __restrict wgt = p.wgt.data();                                                              \
+        const uint16_t* __restrict jnt = p.jnt.data();                                                           \
+        const __m128 xyz = _mm_castsi128_ps(_mm_set_epi32(0, -1, -1, -1));                                      \
+        for (int v = 0; v < p.count; ++v) {                                                                      \
+            const float* m0 = pal[jnt[0]].m;                                                                     \
+            __m128 w = _mm_set1_ps(wgt[0]);                                                                      \
+            __m128 r0 = _mm_mul_ps(w, _mm_loadu_ps(m0));                                                         \
+            __m128 r1 = _mm_mul_ps(w, _mm_loadu_ps(m0 + 4));                                                     \
+            __m128 r2 = _mm_mul_ps(w, _mm_loadu_ps(m0 + 8));                                                     \
+            for (int s = 1; s < ns; ++s) {                                                                       \
+                const float* m = pal[jnt[s]].m;                                                                  \
+                w = _mm_set1_ps(wgt[s]);                                                                         \
+                r0 = MADD(w, _mm_loadu_ps(m), r0);                                                               \
+                r1 = MADD(w, _mm_loadu_ps(m + 4), r1);                                                           \
+                r2 = MADD(w, _mm_loadu_ps(m + 8), r2);                                                           \
+            }                                                                                                    \
+            const __m128 x = _mm_loadu_ps(pos);                                                                  \
+            __m128 a = _mm_mul_ps(r0, x), b = _mm_mul_ps(r1, x), c = _mm_mul_ps(r2, x);                          \
+            __m128 ab = _mm_hadd_ps(a, b), cc = _mm_hadd_ps(c, c);                                               \
+            alignas(16) float res[4];                                                                            \
+            _mm_store_ps(res, _mm_hadd_ps(ab, cc));                                                              \
+            op[v] = glm::vec3(res[0], res[1], res[2]);                                                           \
+            if (on) {                                                                                            \
+                const __m128 nx = _mm_loadu_ps(nrm);                                                             \
+                a = _mm_mul_ps(r0, nx), b = _mm_mul_ps(r1, nx), c = _mm_mul_ps(r2, nx);                          \
+                ab = _mm_hadd_ps(a, b), cc = _mm_hadd_ps(c, c);                                                  \
+                __m128 t = _mm_and_ps(_mm_hadd_ps(ab, cc), xyz);                                                      \
+                __m128 sq = _mm_mul_ps(t, t);                                                                    \
+                sq = _mm_hadd_ps(sq, sq);                                                                        \
+                sq = _mm_hadd_ps(sq, sq);                                                                        \
+                const float len2 = _mm_cvtss_f32(sq);                                                            \
+                if (len2 > 0.0f) t = _mm_div_ps(t, _mm_sqrt_ps(_mm_set1_ps(len2)));                              \
+                _mm_store_ps(res, t);                                                                            \
+                on[v] = glm::vec3(res[0], res[1], res[2]);                                                       \
+            }                                                                                                    \
+            pos += 4, nrm += 4, wgt += ns, jnt += ns;                                                            \
+        }                                                                                                        \
     }
-    const float* px = pos;
-    const float* py = pos + kLanes;
-    const float* pz = pos + 2 * kLanes;
-    for (int r = 0; r < 3; ++r)
-        for (int l = 0; l < kLanes; ++l)
-            out_p[r * kLanes + l] =
-                acc[r * 4][l] * px[l] + acc[r * 4 + 1][l] * py[l] + acc[r * 4 + 2][l] * pz[l] + acc[r * 4 + 3][l];
-    if (out_n) {
-        const float* nx = nrm;
-        const float* ny = nrm + kLanes;
-        const float* nz = nrm + 2 * kLanes;
-        float o[3][kLanes];
-        for (int r = 0; r < 3; ++r)
-            for (int l = 0; l < kLanes; ++l)
-                o[r][l] = acc[r * 4][l] * nx[l] + acc[r * 4 + 1][l] * ny[l] + acc[r * 4 + 2][l] * nz[l];
-        for (int l = 0; l < kLanes; ++l) {
-            const float len2 = o[0][l] * o[0][l] + o[1][l] * o[1][l] + o[2][l] * o[2][l];
-            const float inv = len2 > 0.0f ? 1.0f / std::sqrt(len2) : 0.0f;
-            for (int r = 0; r < 3; ++r) out_n[r * kLanes + l] = o[r][l] * inv;
-        }
-    }
-}
+
+#define PROGSKIN_MADD_SSE(a, b, c) _mm_add_ps(_mm_mul_ps(a, b), c)
+#define PROGSKIN_MADD_FMA(a, b, c) _mm_fmadd_ps(a, b, c)
+PROGSKIN_SKIN_KERNEL(skin_sse, __attribute__((target("sse3"))), PROGSKIN_MADD_SSE)
+PROGSKIN_SKIN_KERNEL(skin_fma, __attribute__((target("avx2,fma"))), PROGSKIN_MADD_FMA)
 
 template <int S>
-static void skin_all(const PackedSkin& p, std::span<const Mat34> palette, std::span<glm::vec3> out_positions,
-                     std::span<glm::vec3> out_normals) {
-    const size_t blocks = (size_t(p.count) + kLanes - 1) / kLanes;
-    const bool normals = !out_normals.empty();
-    alignas(32) float op[3][kLanes], on[3][kLanes];
-    for (size_t b = 0; b < blocks; ++b) {
-        skin_block<S>(&p.pos[b * 3 * kLanes], &p.nrm[b * 3 * kLanes], &p.jnt[b * p.influences * kLanes],
-                      &p.wgt[b * p.influences * kLanes], p.influences, palette.data(), &op[0][0],
-                      normals ? &on[0][0] : nullptr);
-        const size_t first = b * kLanes;
-        const size_t n = std::min<size_t>(kLanes, size_t(p.count) - first);
-        for (size_t l = 0; l < n; ++l) {
-            out_positions[first + l] = {op[0][l], op[1][l], op[2][l]};
-            if (normals) out_normals[first + l] = {on[0][l], on[1][l], on[2][l]};
-        }
-    }
+void skin_dispatch(const PackedSkin& p, const Mat34* pal, glm::vec3* op, glm::vec3* on) {
+    static const bool fma = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+    if (fma)
+        skin_fma<S>(p, pal, op, on);
+    else
+        skin_sse<S>(p, pal, op, on);
 }
+
+}  // namespace
 
 bool skin_packed(const PackedSkin& p, std::span<const Mat34> palette, std::span<glm::vec3> out_positions,
                  std::span<glm::vec3> out_normals) {
     if (palette.size() <= p.max_joint || out_positions.size() != size_t(p.count)) return false;
     if (!out_normals.empty() && out_normals.size() != size_t(p.count)) return false;
+    glm::vec3* on = out_normals.empty() ? nullptr : out_normals.data();
     switch (p.influences) {
-        case 1: skin_all<1>(p, palette, out_positions, out_normals); break;
-        case 2: skin_all<2>(p, palette, out_positions, out_normals); break;
-        case 4: skin_all<4>(p, palette, out_positions, out_normals); break;
-        default: skin_all<0>(p, palette, out_positions, out_normals); break;
+        case 1: skin_dispatch<1>(p, palette.data(), out_positions.data(), on); break;
+        case 2: skin_dispatch<2>(p, palette.data(), out_positions.data(), on); break;
+        case 4: skin_dispatch<4>(p, palette.data(), out_positions.data(), on); break;
+        default: skin_dispatch<0>(p, palette.data(), out_positions.data(), on); break;
     }
     return true;
 }

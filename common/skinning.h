@@ -30,17 +30,19 @@ struct SkinningJob {
     void run() const;  // reference scalar loop; no allocation
 };
 
-// The same contract over a packed vertex layout (SoA, 3x4 palette, u16 joints,
-// weights pre-normalised per influence count) built once per mesh and LOD of
-// influence count; several times faster than SkinningJob::run on one core.
+// The same contract over a packed vertex layout built once per mesh and
+// influence count: per vertex (x,y,z,1) and (nx,ny,nz,0) as 16-byte rows, u16
+// joints and weights pre-normalised over the kept slots. skin_packed blends the
+// 3x4 matrices of a vertex with 4-wide SIMD (SSE, FMA when the CPU has AVX2)
+// and transforms once; several times faster than SkinningJob::run.
 struct PackedSkin {
     int count = 0;
-    int influences = 0;  // slots packed (the max_influences it was packed for)
-    // Stored in blocks of 8 vertices: px[8] py[8] pz[8] nx[8] ny[8] nz[8], then
-    // per slot j[8] (u16) and w[8] (float).
-    std::vector<float> pos, nrm, wgt;
+    int influences = 0;       // slots packed per vertex (the max_influences it was packed for)
+    std::vector<float> pos;   // 4 floats per vertex
+    std::vector<float> nrm;   // 4 floats per vertex
+    std::vector<float> wgt;   // influences per vertex
     std::vector<uint16_t> jnt;
-    uint16_t max_joint = 0;  // largest joint index packed (checked against the palette)
+    uint16_t max_joint = 0;   // largest joint index packed (checked against the palette)
 };
 PackedSkin pack_skin(std::span<const glm::vec3> positions, std::span<const glm::vec3> normals,
                      std::span<const uint16_t> joints, std::span<const float> weights,
