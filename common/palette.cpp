@@ -1,8 +1,28 @@
 #include "palette.h"
 
 #include <algorithm>
+#include <immintrin.h>
 
 namespace progskin {
+
+namespace {
+// a * b for 3x4 affine matrices, four lanes at a time (row i of the result is
+// sum_k a[i][k] * row_k(b) plus a[i][3] in the translation lane).
+inline Mat34 mul_simd(const Mat34& a, const Mat34& b) {
+    const __m128 b0 = _mm_loadu_ps(b.m), b1 = _mm_loadu_ps(b.m + 4), b2 = _mm_loadu_ps(b.m + 8);
+    const __m128 t = _mm_set_ps(1.0f, 0.0f, 0.0f, 0.0f);
+    Mat34 r;
+    for (int i = 0; i < 3; ++i) {
+        const float* ai = a.m + 4 * i;
+        __m128 row = _mm_mul_ps(_mm_set1_ps(ai[0]), b0);
+        row = _mm_add_ps(row, _mm_mul_ps(_mm_set1_ps(ai[1]), b1));
+        row = _mm_add_ps(row, _mm_mul_ps(_mm_set1_ps(ai[2]), b2));
+        row = _mm_add_ps(row, _mm_mul_ps(_mm_set1_ps(ai[3]), t));
+        _mm_storeu_ps(r.m + 4 * i, row);
+    }
+    return r;
+}
+}  // namespace
 
 bool PaletteJob::validate() const {
     const size_t B = parents.size();
@@ -27,7 +47,7 @@ void PaletteJob::run() const {
             out[b] = own[b];
             continue;
         }
-        Mat34 stand_in = corrections.empty() ? up : mul(up, corrections[b]);
+        Mat34 stand_in = corrections.empty() ? up : mul_simd(up, corrections[b]);
         out[b] = (has_own && p > 0.0f) ? lerp(stand_in, own[b], p) : stand_in;
     }
 }
