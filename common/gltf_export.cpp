@@ -109,7 +109,9 @@ void merge_buffers(tinygltf::Model& m) {
     m.buffers[0].uri.clear();
 }
 
-nlohmann::json skin_to_json(const ProgressiveSkin& s) {
+}  // namespace
+
+nlohmann::json progressive_extension_json(const ProgressiveSkin& s) {
     nlohmann::json j;
     j["version"] = 1;
     j["strategy"] = strategy_name(s.strategy);
@@ -127,8 +129,12 @@ nlohmann::json skin_to_json(const ProgressiveSkin& s) {
                               {"rms_pct", e.rms_pct},
                               {"max_pct", e.max_pct},
                               {"influences", e.influences}});
+    for (size_t i = 0; i < s.error.size(); ++i)
+        if (s.error[i].distortion_pct >= 0) j["error"][i]["distortion_pct"] = s.error[i].distortion_pct;
     return j;
 }
+
+namespace {
 
 // tinygltf 2.7 does not serialise skin extensions, so the extension objects
 // are patched into the JSON chunk after writing (skin index -> extension).
@@ -162,8 +168,9 @@ std::string patch_glb(const std::string& glb, const std::map<int, nlohmann::json
     return out;
 }
 
-void write_model_atomically(tinygltf::Model& m, const std::map<int, nlohmann::json>& skin_ext,
-                            const std::string& out_path) {
+}  // namespace
+
+void write_gltf(tinygltf::Model& m, const std::map<int, nlohmann::json>& skin_ext, const std::string& out_path) {
     namespace fs = std::filesystem;
     const bool binary = !ends_with(out_path, ".gltf");
     tinygltf::TinyGLTF writer;
@@ -190,7 +197,6 @@ void write_model_atomically(tinygltf::Model& m, const std::map<int, nlohmann::js
     }
 }
 
-}  // namespace
 
 void save_progressive(const Character& c, const ProgressiveSkin& s, const std::string& out_path,
                       const std::string& note) {
@@ -213,7 +219,7 @@ void save_progressive(const Character& c, const ProgressiveSkin& s, const std::s
     const int ibm_acc = append_accessor(m, ibm.data(), ibm.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT,
                                         TINYGLTF_TYPE_MAT4, size_t(B), 0);
 
-    nlohmann::json ext = skin_to_json(s);
+    nlohmann::json ext = progressive_extension_json(s);
     if (!note.empty()) ext["note"] = note;
     std::vector<char> skin_done(m.skins.size(), 0);
     std::map<int, nlohmann::json> skin_ext;
@@ -248,7 +254,7 @@ void save_progressive(const Character& c, const ProgressiveSkin& s, const std::s
     }
     if (std::find(m.extensionsUsed.begin(), m.extensionsUsed.end(), kExtension) == m.extensionsUsed.end())
         m.extensionsUsed.push_back(kExtension);
-    write_model_atomically(m, skin_ext, out_path);
+    write_gltf(m, skin_ext, out_path);
 }
 
 bool read_progressive_extension(const std::string& path, const Character& c, ProgressiveSkin& out) {
@@ -292,7 +298,8 @@ bool read_progressive_extension(const std::string& path, const Character& c, Pro
         for (const auto& e : j["error"]) {
             if (!e.is_object()) throw bad("'error' entries must be objects");
             out.error.push_back({e.value("bones", 0), e.value("rms", 0.0), e.value("max", 0.0), e.value("rms_pct", 0.0),
-                                 e.value("max_pct", 0.0), e.value("influences", 0.0)});
+                                 e.value("max_pct", 0.0), e.value("influences", 0.0),
+                                 e.value("distortion_pct", -1.0)});
         }
     out.influences = c.influences;
     out.joints = c.joints;

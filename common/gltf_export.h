@@ -8,10 +8,16 @@
 //                "influences": ..}, ...], "fps": 30, "clips": "auto" }
 // Any glTF viewer ignores the extension and plays the file as the input.
 #pragma once
+#include <map>
+#include <nlohmann/json.hpp>
 #include <string>
 
 #include "character.h"
 #include "progressive_skin.h"
+
+namespace tinygltf {
+class Model;
+}
 
 namespace progskin {
 
@@ -26,6 +32,16 @@ struct ProgressiveAsset {
 // renamed, so a failure leaves no partial output. Throws Error.
 void save_progressive(const Character& c, const ProgressiveSkin& skin, const std::string& out_path,
                       const std::string& note = "");
+
+// The extension object of a skin (the JSON above).
+nlohmann::json progressive_extension_json(const ProgressiveSkin& skin);
+
+// Writes a tinygltf model to path (.gltf: JSON with embedded buffers, else
+// .glb), adding skin_ext[i] as the PROGSKIN_progressive_skin extension of skin
+// i (tinygltf 2.7 does not write skin extensions). Buffers must already be one
+// buffer without uri for .glb. Written to a temporary name, then renamed; no
+// partial output on failure. Throws Error.
+void write_gltf(tinygltf::Model& model, const std::map<int, nlohmann::json>& skin_ext, const std::string& path);
 
 // Reads a file; when it carries PROGSKIN_progressive_skin, the skin is read
 // from it (joints already in progressive order), else progressive = false.

@@ -123,6 +123,7 @@ json table_json(const std::vector<LodError>& t, const std::vector<double>* disto
         json row = {{"bones", e.bones}, {"rms", e.rms},         {"max", e.max},
                     {"rms_pct", e.rms_pct}, {"max_pct", e.max_pct}, {"influences", e.influences}};
         if (distortion) row["distortion_pct"] = (*distortion)[i];
+        if (e.distortion_pct >= 0) row["distortion_pct"] = e.distortion_pct;
         a.push_back(row);
     }
     return a;
