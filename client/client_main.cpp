@@ -1,0 +1,124 @@
+// client_main.cpp — progskin-client: connects to a progskin-server, streams
+// for a while and reports what it received and displayed (client.h).
+#include <cmath>
+#include <cstdio>
+#include <string>
+
+#include "client.h"
+#include "error.h"
+
+using namespace progskin;
+using namespace progskin::net;
+
+static const char* kUsage =
+    "usage: progskin-client [options]\n"
+    "Receives progressive bone packets from a progskin-server and displays (CPU-skins) them.\n"
+    "\n"
+    "  --server HOST:PORT  server control address (default 127.0.0.1:7777)\n"
+    "  --udp-via HOST:PORT send the frame stream through a relay (progskin-netem)\n"
+    "  --max-kbps N        bandwidth cap in kbit/s, GUIDE.md rate (default: server maximum)\n"
+    "  --view SPEC         camera:X,Y,Z[,FOV_DEG[,HEIGHT_PX]]  or  weights:W0,W1,...\n"
+    "                      (importance per instance; default: all characters alike)\n"
+    "  --duration S        seconds of streaming (default 10)\n"
+    "  --delay-ms N        display delay behind the newest frame (default 100)\n"
+    "  --display-rate HZ   displayed frames per second (default 30)\n"
+    "  --blend-frames N    frames to blend a bone on/off (default 8)\n"
+    "  --verify            measure displayed vertices against the reference (error metric)\n"
+    "  --verify-every N    verify every N-th displayed frame (default 1)\n"
+    "  --snap-to-ticks     display on server ticks only (isolates quantisation error)\n"
+    "  --report json|text  final summary format on stdout (default text)\n"
+    "  --cache DIR         asset cache directory (default ~/.cache/progskin)\n"
+    "  --name NAME         client name sent in Hello\n"
+    "  --token T           access token\n"
+    "  --protocol-version N  claim another protocol version (testing refusals)\n"
+    "  --verbose           per-second lines on stderr\n"
+    "  --help\n"
+    "Exit codes: 0 ok, 1 runtime error (refused, unreachable, bad data), 2 bad arguments.\n";
+
+static bool split_host_port(const std::string& s, std::string& host, uint16_t& port) {
+    auto c = s.rfind(':');
+    if (c == std::string::npos) return false;
+    host = s.substr(0, c);
+    port = uint16_t(std::stoi(s.substr(c + 1)));
+    return !host.empty();
+}
+
+static std::vector<float> floats(const std::string& s) {
+    std::vector<float> v;
+    size_t p = 0;
+    while (p <= s.size()) {
+        size_t q = s.find(',', p);
+        if (q == std::string::npos) q = s.size();
+        v.push_back(std::stof(s.substr(p, q - p)));
+        p = q + 1;
+    }
+    return v;
+}
+
+int main(int argc, char** argv) {
+    ClientOptions opt;
+    std::string report = "text";
+    try {
+        for (int i = 1; i < argc; ++i) {
+            std::string a = argv[i];
+            auto val = [&]() -> std::string {
+                if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
+                return argv[++i];
+            };
+            if (a == "--help" || a == "-h") {
+                std::fputs(kUsage, stdout);
+                return 0;
+            } else if (a == "--server") {
+                if (!split_host_port(val(), opt.host, opt.port)) throw std::invalid_argument("--server needs HOST:PORT");
+            } else if (a == "--udp-via") {
+                if (!split_host_port(val(), opt.udp_via_host, opt.udp_via_port)) throw std::invalid_argument("--udp-via needs HOST:PORT");
+            } else if (a == "--max-kbps") opt.max_kbps = std::stod(val());
+            else if (a == "--view") {
+                std::string v = val();
+                if (v.rfind("camera:", 0) == 0) {
+                    auto f = floats(v.substr(7));
+                    if (f.size() < 3) throw std::invalid_argument("--view camera:X,Y,Z[,FOV_DEG[,HEIGHT_PX]]");
+                    opt.view.camera = {f[0], f[1], f[2]};
+                    opt.view.has_camera = true;
+                    if (f.size() > 3) opt.view.fov_y = f[3] * float(M_PI / 180.0);
+                    if (f.size() > 4) opt.view.viewport_height = f[4];
+                } else if (v.rfind("weights:", 0) == 0) {
+                    auto f = floats(v.substr(8));
+                    for (size_t k = 0; k < f.size(); ++k) opt.view.weights.emplace_back(int(k), f[k]);
+                } else {
+                    throw std::invalid_argument("--view camera:... or weights:...");
+                }
+                opt.send_view = true;
+            } else if (a == "--duration") opt.duration = std::stod(val());
+            else if (a == "--delay-ms") opt.delay_ms = std::stod(val());
+            else if (a == "--display-rate") opt.display_rate = std::stod(val());
+            else if (a == "--blend-frames") opt.blend_frames = std::stoi(val());
+            else if (a == "--verify") opt.verify = true;
+            else if (a == "--verify-every") opt.verify_every = std::stoi(val());
+            else if (a == "--snap-to-ticks") opt.snap_to_ticks = true;
+            else if (a == "--report") {
+                report = val();
+                if (report != "json" && report != "text") throw std::invalid_argument("--report json|text");
+            } else if (a == "--cache") opt.cache_dir = val();
+            else if (a == "--name") opt.name = val();
+            else if (a == "--token") opt.token = val();
+            else if (a == "--protocol-version") opt.protocol_version = uint16_t(std::stoi(val()));
+            else if (a == "--verbose") opt.verbose = true;
+            else throw std::invalid_argument("unknown argument " + a);
+        }
+        if (!(opt.duration > 0) || !(opt.display_rate > 0) || opt.max_kbps < 0 || opt.blend_frames < 1 || opt.verify_every < 1)
+            throw std::invalid_argument("argument out of range");
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "progskin-client: %s\n%s", e.what(), kUsage);
+        return 2;
+    }
+    try {
+        ClientReport r = run_client(opt);
+        if (report == "json") std::printf("%s\n", report_json(r).c_str());
+        else std::fputs(report_text(r).c_str(), stdout);
+        return 0;
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "progskin-client: %s\n", e.what());
+        return 1;
+    }
+}

@@ -1,0 +1,109 @@
+// client_palette.cpp — see client_palette.h.
+#include "client_palette.h"
+
+#include <cmath>
+
+#include "error.h"
+#include "skinning.h"
+
+namespace progskin::net {
+
+void remap_skin_vertices(const Character& c, ProgressiveSkin& skin) {
+    const int B = skin.bone_count();
+    if (size_t(B) != c.joint_count()) throw Error(c.source + ": skin has " + std::to_string(B) + " bones, file " +
+                                                  std::to_string(c.joint_count()) + " joints");
+    std::vector<int> inv(B, -1);
+    for (int b = 0; b < B; ++b) {
+        int j = skin.order[b];
+        if (j < 0 || j >= B || inv[j] >= 0) throw Error(c.source + ": bad progressive order");
+        inv[j] = b;
+    }
+    skin.influences = c.influences;
+    skin.joints.resize(c.joints.size());
+    for (size_t i = 0; i < c.joints.size(); ++i) skin.joints[i] = uint16_t(inv[c.joints[i]]);
+    skin.weights = c.weights;
+}
+
+double ClipInfo::clip_time(double tick, double tick_rate) const {
+    double dur = selection.duration();
+    double t = time_offset + tick / tick_rate * speed;
+    if (dur > 0) {
+        t = std::fmod(t, dur);
+        if (t < 0) t += dur;
+    } else {
+        t = 0;
+    }
+    return selection.start + t;
+}
+
+InstanceView::InstanceView(std::shared_ptr<const ClientAsset> asset, ClipInfo clip, int blend_frames)
+    : asset_(std::move(asset)), clip_(std::move(clip)), buffer_(asset_->skin.bone_count(), asset_->format) {
+    const int B = asset_->skin.bone_count();
+    blend_frames_ = std::max(1, blend_frames);
+    blender_ = LodBlender(B, blend_frames_, 1);
+    own_.resize(B);
+    palette_.resize(B, Mat34::identity());
+}
+
+bool InstanceView::display(double d) {
+    int k = buffer_.bones_at(d);
+    if (k == 0) return false;
+    if (!started_) {
+        blender_ = LodBlender(asset_->skin.bone_count(), blend_frames_, k);  // first frame: no fade-in from nothing
+        started_ = true;
+    }
+    blender_.set_target(k);
+    blender_.step();
+    const int n = blender_.needed();
+    BonePose p;
+    for (int b = 0; b < n; ++b) {
+        if (buffer_.pose(b, d, p)) {
+            own_[b] = compose(p);
+        } else {  // never received: stand in from the parent
+            int parent = asset_->skin.parents[b];
+            own_[b] = parent >= 0 ? mul(own_[parent], asset_->skin.corrections[b]) : Mat34::identity();
+        }
+    }
+    PaletteJob job;
+    job.parents = asset_->skin.parents;
+    job.corrections = asset_->skin.corrections;
+    job.own = std::span<const Mat34>(own_.data(), size_t(n));
+    job.presence = blender_.presence();
+    job.out = palette_;
+    job.run();
+    return true;
+}
+
+void InstanceView::skin(std::vector<glm::vec3>& out) const {
+    const Character& c = asset_->character;
+    out.resize(c.vertex_count());
+    SkinningJob job;
+    job.positions = c.positions;
+    job.joints = asset_->skin.joints;
+    job.weights = asset_->skin.weights;
+    job.influences = asset_->skin.influences;
+    job.max_influences = asset_->skin.influences;
+    job.palette = palette_;
+    job.out_positions = out;
+    job.run();
+}
+
+void InstanceView::reference(double clip_time, std::vector<glm::vec3>& out) const {
+    const Character& c = asset_->character;
+    ref_mats_.resize(c.joint_count());
+    ref_palette_.resize(c.joint_count());
+    sample_skinning_matrices(c, clip_.selection, clip_time, ref_mats_);
+    for (size_t j = 0; j < c.joint_count(); ++j) ref_palette_[j] = Mat34::from_glm(ref_mats_[j]);
+    out.resize(c.vertex_count());
+    SkinningJob job;
+    job.positions = c.positions;
+    job.joints = c.joints;
+    job.weights = c.weights;
+    job.influences = c.influences;
+    job.max_influences = c.influences;
+    job.palette = ref_palette_;
+    job.out_positions = out;
+    job.run();
+}
+
+}  // namespace progskin::net

@@ -1,0 +1,74 @@
+// client_palette.h — what the client displays: per instance, the palette of
+// the progressive skin at the display time (own matrices of the bones the
+// LodBlender needs, interpolated by the PoseBuffer; copy-down with corrections
+// for the rest, PaletteJob), skinned on the CPU (SkinningJob) when verifying,
+// and compared with the reference (the asset's clip evaluated at full detail
+// at the same clip time; GUIDE.md §2).
+#pragma once
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "animation.h"
+#include "bone_codec.h"
+#include "character.h"
+#include "palette.h"
+#include "pose_buffer.h"
+#include "progressive_skin.h"
+
+namespace progskin::net {
+
+// An asset as the client holds it: the character imported from the
+// downloaded file and the progressive skin described in Welcome.
+struct ClientAsset {
+    uint64_t id = 0;
+    std::string name, path;
+    Character character;
+    ProgressiveSkin skin;   // order, parents, corrections, error; joints/weights in progressive indices
+    RecordFormat format;
+    double diagonal = 1;    // rest_diagonal(character)
+};
+
+// Fills skin.joints/weights from the character's vertex stream remapped to
+// progressive indices (skin.order must be set). Throws Error on a bad order.
+void remap_skin_vertices(const Character& c, ProgressiveSkin& skin);
+
+struct ClipInfo {
+    ClipSelection selection;  // empty clips: live poses (no reference)
+    float time_offset = 0, speed = 1;
+    double clip_time(double tick, double tick_rate) const;
+};
+
+class InstanceView {
+public:
+    InstanceView(std::shared_ptr<const ClientAsset> asset, ClipInfo clip, int blend_frames);
+
+    PoseBuffer& buffer() { return buffer_; }
+    const ClientAsset& asset() const { return *asset_; }
+    const ClipInfo& clip() const { return clip_; }
+
+    // One displayed frame at display tick d: updates the blender, builds the
+    // palette. Returns false when nothing was received yet.
+    bool display(double d);
+    int target_bones() const { return blender_.target(); }
+    std::span<const Mat34> palette() const { return palette_; }
+
+    // CPU skinning of the current palette into positions (all vertices).
+    void skin(std::vector<glm::vec3>& out) const;
+    // Reference vertices at clip time t (full detail, original weights).
+    void reference(double clip_time, std::vector<glm::vec3>& out) const;
+
+private:
+    std::shared_ptr<const ClientAsset> asset_;
+    ClipInfo clip_;
+    PoseBuffer buffer_;
+    LodBlender blender_;
+    bool started_ = false;
+    int blend_frames_ = 8;
+    std::vector<Mat34> own_, palette_;
+    mutable std::vector<glm::dmat4> ref_mats_;
+    mutable std::vector<Mat34> ref_palette_;
+};
+
+}  // namespace progskin::net

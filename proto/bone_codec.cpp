@@ -1,0 +1,125 @@
+// bone_codec.cpp — see bone_codec.h.
+#include "bone_codec.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace progskin::net {
+namespace {
+
+constexpr float kInvSqrt2 = 0.70710678118654752f;
+constexpr float kRotSteps = 32767.0f;   // 15 bits
+constexpr float kTransSteps = 65535.0f; // 16 bits
+constexpr float kScaleUnit = 2048.0f;   // log2 scale fixed point
+
+uint32_t quant(float v, float lo, float hi, float steps) {
+    float x = (v - lo) / (hi - lo);
+    if (!(x > 0.0f)) x = 0.0f;  // also NaN
+    if (x > 1.0f) x = 1.0f;
+    return static_cast<uint32_t>(std::lround(x * steps));
+}
+float dequant(uint32_t q, float lo, float hi, float steps) { return lo + (hi - lo) * (float(q) / steps); }
+
+}  // namespace
+
+BonePose decompose(const Mat34& m) {
+    glm::vec3 c0{m.m[0], m.m[4], m.m[8]}, c1{m.m[1], m.m[5], m.m[9]}, c2{m.m[2], m.m[6], m.m[10]};
+    float det = glm::dot(c0, glm::cross(c1, c2));
+    float s = std::cbrt(std::fabs(det));
+    if (!(s > 1e-12f)) s = 1.0f;
+    glm::mat3 r(c0 / s, c1 / s, c2 / s);
+    BonePose p;
+    p.r = glm::normalize(glm::quat_cast(r));
+    p.t = {m.m[3], m.m[7], m.m[11]};
+    p.s = s;
+    return p;
+}
+
+Mat34 compose(const BonePose& p) {
+    glm::mat3 r = glm::mat3_cast(p.r) * p.s;
+    Mat34 m;
+    for (int row = 0; row < 3; ++row) {
+        for (int c = 0; c < 3; ++c) m.m[row * 4 + c] = r[c][row];
+        m.m[row * 4 + 3] = p.t[row];
+    }
+    return m;
+}
+
+BonePose interpolate(const BonePose& a, const BonePose& b, float t) {
+    BonePose p;
+    glm::quat qb = b.r;
+    if (glm::dot(a.r, qb) < 0.0f) qb = -qb;
+    p.r = glm::normalize(glm::slerp(a.r, qb, t));
+    p.t = a.t + (b.t - a.t) * t;
+    p.s = a.s + (b.s - a.s) * t;
+    return p;
+}
+
+void encode_bone(const BonePose& p, const RecordFormat& fmt, uint8_t* out) {
+    float q[4] = {p.r.x, p.r.y, p.r.z, p.r.w};
+    int big = 0;
+    for (int i = 1; i < 4; ++i)
+        if (std::fabs(q[i]) > std::fabs(q[big])) big = i;
+    float sign = q[big] < 0.0f ? -1.0f : 1.0f;
+    uint64_t bits = uint64_t(big);
+    int shift = 2;
+    for (int i = 0; i < 4; ++i) {
+        if (i == big) continue;
+        bits |= uint64_t(quant(q[i] * sign, -kInvSqrt2, kInvSqrt2, kRotSteps)) << shift;
+        shift += 15;
+    }
+    for (int i = 0; i < 6; ++i) out[i] = uint8_t(bits >> (8 * i));
+    for (int a = 0; a < 3; ++a) {
+        uint32_t v = quant(p.t[a], fmt.t_min[a], fmt.t_max[a], kTransSteps);
+        out[6 + 2 * a] = uint8_t(v);
+        out[7 + 2 * a] = uint8_t(v >> 8);
+    }
+    if (fmt.scaled) {
+        float l = std::log2(std::max(p.s, 1e-9f)) * kScaleUnit;
+        int v = int(std::lround(std::clamp(l, -32768.0f, 32767.0f)));
+        uint16_t u = uint16_t(int16_t(v));
+        out[12] = uint8_t(u);
+        out[13] = uint8_t(u >> 8);
+    }
+}
+
+BonePose decode_bone(const uint8_t* in, const RecordFormat& fmt) {
+    uint64_t bits = 0;
+    for (int i = 0; i < 6; ++i) bits |= uint64_t(in[i]) << (8 * i);
+    int big = int(bits & 3);
+    float q[4];
+    float sum = 0.0f;
+    int shift = 2;
+    for (int i = 0; i < 4; ++i) {
+        if (i == big) continue;
+        q[i] = dequant(uint32_t(bits >> shift) & 0x7fff, -kInvSqrt2, kInvSqrt2, kRotSteps);
+        sum += q[i] * q[i];
+        shift += 15;
+    }
+    q[big] = std::sqrt(std::max(0.0f, 1.0f - sum));
+    BonePose p;
+    p.r = glm::normalize(glm::quat(q[3], q[0], q[1], q[2]));
+    for (int a = 0; a < 3; ++a) {
+        uint32_t v = uint32_t(in[6 + 2 * a]) | uint32_t(in[7 + 2 * a]) << 8;
+        p.t[a] = dequant(v, fmt.t_min[a], fmt.t_max[a], kTransSteps);
+    }
+    if (fmt.scaled) {
+        int16_t v = int16_t(uint16_t(in[12]) | uint16_t(in[13]) << 8);
+        p.s = std::exp2(float(v) / kScaleUnit);
+    }
+    return p;
+}
+
+double quantisation_bound(const RecordFormat& fmt, double bind_radius, double max_scale) {
+    const double h = (2.0 / std::sqrt(2.0)) / kRotSteps / 2.0;  // half step per component
+    const double dq = std::sqrt(12.0) * h;                       // quaternion error norm
+    const double angle = 2.0 * dq;                               // rotation angle error
+    glm::dvec3 ext = glm::dvec3(fmt.t_max - fmt.t_min) / (2.0 * kTransSteps);
+    double trans = glm::length(ext);
+    double scale = fmt.scaled ? std::log(2.0) / (2.0 * kScaleUnit) : 0.0;
+    // float32 arithmetic of compose/skinning adds a few ulps of the magnitudes.
+    double fp = 1e-6 * (max_scale * bind_radius + glm::length(glm::dvec3(glm::max(glm::abs(fmt.t_min), glm::abs(fmt.t_max)))));
+    return max_scale * bind_radius * (angle + scale) + trans + fp;
+}
+
+}  // namespace progskin::net

@@ -1,0 +1,84 @@
+// wire.cpp — see wire.h.
+#include "wire.h"
+
+#include <chrono>
+#include <cstdio>
+
+namespace progskin::net {
+
+uint64_t content_hash(std::span<const uint8_t> bytes) {
+    uint64_t h = 14695981039346656037ull;
+    for (uint8_t b : bytes) {
+        h ^= b;
+        h *= 1099511628211ull;
+    }
+    return h;
+}
+
+std::string hex64(uint64_t v) {
+    char buf[17];
+    std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(v));
+    return buf;
+}
+
+const wire::Control* verify_control(std::span<const uint8_t> body) {
+    if (body.size() < 8 || body.size() > MAX_CONTROL_MESSAGE) return nullptr;
+    flatbuffers::Verifier::Options opt;
+    opt.max_depth = 16;
+    opt.max_tables = 4096;
+    flatbuffers::Verifier v(body.data(), body.size(), opt);
+    if (!wire::VerifyControlBuffer(v)) return nullptr;
+    const wire::Control* c = wire::GetControl(body.data());
+    if (c->body_type() == wire::ControlBody::NONE) return nullptr;
+    return c;
+}
+
+const wire::Datagram* verify_datagram(std::span<const uint8_t> d) {
+    if (d.size() < 8 || d.size() > MAX_DATAGRAM) return nullptr;
+    flatbuffers::Verifier::Options opt;
+    opt.max_depth = 8;
+    opt.max_tables = 64;
+    flatbuffers::Verifier v(d.data(), d.size(), opt);
+    if (!wire::VerifyDatagramBuffer(v)) return nullptr;
+    const wire::Datagram* g = wire::GetDatagram(d.data());
+    if (g->body_type() == wire::DatagramBody::NONE) return nullptr;
+    return g;
+}
+
+void frame_control(const flatbuffers::FlatBufferBuilder& fbb, std::vector<uint8_t>& out) {
+    uint32_t n = fbb.GetSize();
+    uint8_t len[4] = {uint8_t(n), uint8_t(n >> 8), uint8_t(n >> 16), uint8_t(n >> 24)};
+    out.insert(out.end(), len, len + 4);
+    out.insert(out.end(), fbb.GetBufferPointer(), fbb.GetBufferPointer() + n);
+}
+
+bool read_length(std::span<const uint8_t> in, uint32_t& length) {
+    if (in.size() < 4) return false;
+    length = uint32_t(in[0]) | uint32_t(in[1]) << 8 | uint32_t(in[2]) << 16 | uint32_t(in[3]) << 24;
+    return true;
+}
+
+double now_seconds() {
+    using namespace std::chrono;
+    return duration<double>(steady_clock::now().time_since_epoch()).count();
+}
+
+uint32_t now_us32() {
+    using namespace std::chrono;
+    return static_cast<uint32_t>(
+        duration_cast<microseconds>(steady_clock::now().time_since_epoch()).count());
+}
+
+void build_goodbye(flatbuffers::FlatBufferBuilder& fbb, const std::string& reason) {
+    auto r = fbb.CreateString(reason);
+    auto g = wire::CreateGoodbye(fbb, r);
+    fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Goodbye, g.Union()), wire::ControlIdentifier());
+}
+
+void build_refuse(flatbuffers::FlatBufferBuilder& fbb, const std::string& reason) {
+    auto r = fbb.CreateString(reason);
+    auto g = wire::CreateRefuse(fbb, PROTOCOL_VERSION, r);
+    fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Refuse, g.Union()), wire::ControlIdentifier());
+}
+
+}  // namespace progskin::net

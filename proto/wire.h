@@ -1,0 +1,51 @@
+// wire.h — constants, framing and verification shared by every peer of the
+// streaming protocol (docs/protocol.md).
+//
+// Control messages (TCP) are FlatBuffers "Control" buffers (control.fbs), each
+// preceded by a 4-byte little-endian length. UDP datagrams are FlatBuffers
+// "Datagram" buffers (datagram.fbs). Every received buffer goes through
+// verify_control / verify_datagram (flatbuffers::Verifier with depth and table
+// limits) before any field is read.
+#pragma once
+#include <cstddef>
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "control_generated.h"
+#include "datagram_generated.h"
+
+namespace progskin::net {
+
+inline constexpr uint16_t PROTOCOL_VERSION = 1;
+inline constexpr size_t MAX_DATAGRAM = 1200;          // UDP payload limit, bytes
+inline constexpr size_t UDP_IP_OVERHEAD = 28;         // IPv4 + UDP headers (GUIDE.md rate)
+inline constexpr size_t MAX_CONTROL_MESSAGE = 65536;  // control message body limit
+inline constexpr size_t MAX_ASSET_CHUNK = 32768;      // AssetRequest.length limit
+inline constexpr size_t MAX_NAME = 64;                // Hello.client_name
+inline constexpr size_t MAX_TOKEN = 256;              // Hello.token
+inline constexpr int MAX_BONES = 255;                 // bones per character on the wire
+
+// FNV-1a 64 of bytes: the asset id (content hash; not cryptographic).
+uint64_t content_hash(std::span<const uint8_t> bytes);
+std::string hex64(uint64_t v);
+
+// Checks a received control body / datagram. Returns the root or nullptr.
+const wire::Control* verify_control(std::span<const uint8_t> body);
+const wire::Datagram* verify_datagram(std::span<const uint8_t> datagram);
+
+// Appends the 4-byte little-endian length and the finished builder's bytes.
+void frame_control(const flatbuffers::FlatBufferBuilder& fbb, std::vector<uint8_t>& out);
+// Reads the length prefix; returns false if fewer than 4 bytes are present.
+bool read_length(std::span<const uint8_t> in, uint32_t& length);
+
+// Microseconds of a monotonic clock, wrapping (Datagram.send_time_us).
+uint32_t now_us32();
+double now_seconds();  // monotonic seconds
+
+// Helpers building the small messages both sides send.
+void build_goodbye(flatbuffers::FlatBufferBuilder& fbb, const std::string& reason);
+void build_refuse(flatbuffers::FlatBufferBuilder& fbb, const std::string& reason);
+
+}  // namespace progskin::net

@@ -1,0 +1,32 @@
+// datagram_packer.h — turns one client's picks of a tick into frame-stream
+// datagrams (datagram.fbs Frame) of at most MAX_DATAGRAM bytes, copying the
+// pre-encoded bone records (no re-encoding). A pick's records may be split
+// across datagrams (Chunk.first/count); chunks go out in pick order.
+#pragma once
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include <flatbuffers/flatbuffers.h>
+
+#include "frame_encoder.h"
+#include "scheduler.h"
+#include "wire.h"
+
+namespace progskin::net {
+
+class DatagramPacker {
+public:
+    // Appends datagrams to `out` (each a complete buffer); `seq` is advanced per
+    // datagram. Returns the wire bytes (payload + 28 per datagram).
+    size_t pack(const EncodedFrame& frame, std::span<const Pick> picks, uint32_t& seq,
+                std::vector<std::vector<uint8_t>>& out);
+
+private:
+    void flush(uint32_t tick, uint32_t& seq, std::vector<std::vector<uint8_t>>& out, size_t& wire);
+    flatbuffers::FlatBufferBuilder fbb_{1400};
+    std::vector<wire::Chunk> chunks_;
+    std::vector<uint8_t> records_;
+};
+
+}  // namespace progskin::net

@@ -1,0 +1,48 @@
+// link_emulator.h — a UDP relay that emulates a slow or bad link between
+// clients and a server: rate cap (serialisation + drop-tail queue of at most
+// queue_ms), fixed delay, uniform jitter, loss, reordering and duplication,
+// deterministic for a given seed. Each client address gets its own upstream
+// socket, so the server sees one address per client. Used by progskin-netem
+// and by the tests (clients send their UDP to the relay: --udp-via).
+#pragma once
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <thread>
+
+namespace progskin::net {
+
+struct LinkConfig {
+    double rate_kbps = 0;     // 0 = unlimited (GUIDE.md wire bytes: payload + 28)
+    double delay_ms = 0;
+    double jitter_ms = 0;
+    double loss = 0;          // probability per datagram
+    double reorder = 0;       // probability that a datagram is held back by extra delay
+    double duplicate = 0;     // probability that a datagram is sent twice
+    double queue_ms = 200;    // rate-cap queue limit
+    uint64_t seed = 1;
+    bool both_ways = false;   // false: impairments only server -> client (acks get the delay only)
+};
+
+struct LinkStats {
+    uint64_t forwarded = 0, dropped = 0, duplicated = 0, reordered = 0, queue_drops = 0;
+};
+
+class LinkEmulator {
+public:
+    // Listens on listen_address:listen_port (0 = ephemeral) and relays to target.
+    LinkEmulator(const LinkConfig& cfg, const std::string& target_host, uint16_t target_port,
+                 const std::string& listen_address = "127.0.0.1", uint16_t listen_port = 0);
+    ~LinkEmulator();
+    uint16_t port() const;
+    void start();  // relays on a thread of its own
+    void stop();
+    LinkStats stats() const;
+
+private:
+    struct Impl;
+    std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace progskin::net

@@ -1,0 +1,97 @@
+// netem_main.cpp — progskin-netem: a UDP link emulator in front of a
+// progskin-server's frame stream (link_emulator.h).
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+#include <thread>
+
+#include "link_emulator.h"
+
+using namespace progskin::net;
+
+static const char* kUsage =
+    "usage: progskin-netem --to HOST:UDPPORT [options]\n"
+    "Relays the UDP frame stream between clients and a progskin-server, emulating a link.\n"
+    "Point clients at it with: progskin-client --server HOST:TCPPORT --udp-via HOST:LISTENPORT\n"
+    "\n"
+    "  --to HOST:PORT    the server's UDP port (by default the same number as its TCP port)\n"
+    "  --listen PORT     UDP port to listen on (default 7778; 0 = any)\n"
+    "  --bind ADDR       listen address (default 127.0.0.1)\n"
+    "  --rate-kbps N     link rate cap (0 = unlimited)\n"
+    "  --delay-ms N      one-way delay\n"
+    "  --jitter-ms N     uniform extra delay 0..N\n"
+    "  --loss P          loss probability (0..1)\n"
+    "  --reorder P       probability of holding a datagram back (reordering)\n"
+    "  --duplicate P     duplication probability\n"
+    "  --queue-ms N      rate-cap queue limit (default 200)\n"
+    "  --both-ways       impair client -> server too (default: delay only)\n"
+    "  --seed N          random seed (default 1)\n"
+    "  --duration S      stop after S seconds (default: until SIGINT/SIGTERM)\n"
+    "Exit codes: 0 ok, 1 runtime error, 2 bad arguments.\n";
+
+static volatile std::sig_atomic_t g_stop = 0;
+static void on_signal(int) { g_stop = 1; }
+
+int main(int argc, char** argv) {
+    LinkConfig cfg;
+    std::string to, bind = "127.0.0.1";
+    uint16_t listen = 7778;
+    double duration = 0;
+    try {
+        for (int i = 1; i < argc; ++i) {
+            std::string a = argv[i];
+            auto val = [&]() -> std::string {
+                if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
+                return argv[++i];
+            };
+            if (a == "--help" || a == "-h") {
+                std::fputs(kUsage, stdout);
+                return 0;
+            } else if (a == "--to") to = val();
+            else if (a == "--listen") listen = uint16_t(std::stoi(val()));
+            else if (a == "--bind") bind = val();
+            else if (a == "--rate-kbps") cfg.rate_kbps = std::stod(val());
+            else if (a == "--delay-ms") cfg.delay_ms = std::stod(val());
+            else if (a == "--jitter-ms") cfg.jitter_ms = std::stod(val());
+            else if (a == "--loss") cfg.loss = std::stod(val());
+            else if (a == "--reorder") cfg.reorder = std::stod(val());
+            else if (a == "--duplicate") cfg.duplicate = std::stod(val());
+            else if (a == "--queue-ms") cfg.queue_ms = std::stod(val());
+            else if (a == "--both-ways") cfg.both_ways = true;
+            else if (a == "--seed") cfg.seed = std::stoull(val());
+            else if (a == "--duration") duration = std::stod(val());
+            else throw std::invalid_argument("unknown argument " + a);
+        }
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "progskin-netem: %s\n%s", e.what(), kUsage);
+        return 2;
+    }
+    auto colon = to.rfind(':');
+    if (to.empty() || colon == std::string::npos) {
+        std::fprintf(stderr, "progskin-netem: --to HOST:PORT is required\n%s", kUsage);
+        return 2;
+    }
+    try {
+        LinkEmulator link(cfg, to.substr(0, colon), uint16_t(std::stoi(to.substr(colon + 1))), bind, listen);
+        std::signal(SIGINT, on_signal);
+        std::signal(SIGTERM, on_signal);
+        link.start();
+        std::printf("progskin-netem: listening on UDP %s:%u -> %s\n", bind.c_str(), link.port(), to.c_str());
+        std::fflush(stdout);
+        auto t0 = std::chrono::steady_clock::now();
+        while (!g_stop) {
+            std::this_thread::sleep_for(std::chrono::milliseconds(50));
+            if (duration > 0 && std::chrono::steady_clock::now() - t0 > std::chrono::duration<double>(duration)) break;
+        }
+        link.stop();
+        LinkStats s = link.stats();
+        std::fprintf(stderr, "progskin-netem: forwarded %llu, dropped %llu, queue drops %llu, duplicated %llu, reordered %llu\n",
+                     (unsigned long long)s.forwarded, (unsigned long long)s.dropped, (unsigned long long)s.queue_drops,
+                     (unsigned long long)s.duplicated, (unsigned long long)s.reordered);
+        return 0;
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "progskin-netem: %s\n", e.what());
+        return 1;
+    }
+}

@@ -1,0 +1,107 @@
+// rate_controller.cpp — see rate_controller.h.
+#include "rate_controller.h"
+
+#include <algorithm>
+
+namespace progskin::net {
+
+static constexpr double kMinKbps = 8.0;
+
+RateController::RateController(double cap_kbps, double initial_kbps) : cap_kbps_(cap_kbps) {
+    estimate_kbps_ = std::clamp(initial_kbps, kMinKbps, std::max(kMinKbps, cap_kbps));
+}
+
+void RateController::set_cap(double cap_kbps) {
+    cap_kbps_ = std::max(kMinKbps, cap_kbps);
+    estimate_kbps_ = std::min(estimate_kbps_, cap_kbps_);
+}
+
+static double depth_bytes(double kbps) { return 0.10 * kbps * 125.0; }
+
+void RateController::refill(double dt) {
+    double t = target_kbps();
+    fill_ = 0.94 * t * 125.0 * dt;
+    tokens_ = std::min(depth_bytes(t), tokens_ + fill_);
+}
+
+size_t RateController::budget() const {
+    // Send once the bucket holds 400 bytes, or earlier if the next refill would
+    // overflow it (what overflows is rate never used).
+    double d = depth_bytes(target_kbps());
+    double min_send = std::max(0.0, std::min(400.0, d - fill_));
+    return tokens_ >= min_send && tokens_ > 0 ? size_t(tokens_) : 0;
+}
+
+void RateController::spend(size_t wire_bytes) {
+    tokens_ -= double(wire_bytes);
+    // A budget used to within one small datagram means the rate limited us.
+    if (tokens_ < 200.0) limited_ = true;
+}
+
+void RateController::on_sent(uint32_t seq, uint32_t send_us, size_t) {
+    Sent& s = ring_[seq % ring_.size()];
+    if (s.valid && !s.counted) {  // overwritten before being judged: lost
+        if (!s.acked) { ++win_lost_; ++lost_total_; }
+    }
+    s = Sent{seq, send_us, true, false, false};
+}
+
+void RateController::mark(uint32_t seq) {
+    Sent& s = ring_[seq % ring_.size()];
+    if (s.valid && s.seq == seq && !s.acked) {
+        s.acked = true;
+        if (!s.counted) {
+            s.counted = true;
+            ++win_acked_;
+            ++acked_total_;
+        }
+    }
+}
+
+void RateController::on_ack(uint32_t ack, uint32_t bits, uint32_t echo_us, uint32_t hold_us, uint32_t now_us) {
+    mark(ack);
+    for (int i = 0; i < 32; ++i)
+        if (bits & (1u << i)) mark(ack - 1 - uint32_t(i));
+    if (!any_ack_ || int32_t(ack - highest_acked_) > 0) {
+        highest_acked_ = ack;
+        any_ack_ = true;
+        double rtt = double(int32_t(now_us - echo_us - hold_us)) / 1000.0;
+        if (rtt >= 0 && rtt < 10000) {
+            srtt_ms_ = srtt_ms_ == 0 ? rtt : 0.875 * srtt_ms_ + 0.125 * rtt;
+            min_rtt_ms_ = std::min(min_rtt_ms_, rtt);
+        }
+    }
+    // Datagrams older than the ack window and not acked are lost.
+    for (auto& s : ring_) {
+        if (!s.valid || s.counted) continue;
+        if (int32_t(highest_acked_ - s.seq) > 32) {
+            s.counted = true;
+            if (!s.acked) { ++win_lost_; ++lost_total_; }
+        }
+    }
+}
+
+void RateController::update(double now) {
+    if (last_update_ < 0) last_update_ = now;
+    if (now - last_update_ < 0.25) return;
+    last_update_ = now;
+    const uint64_t judged = win_acked_ + win_lost_;
+    if (judged >= 4) loss_ = double(win_lost_) / double(judged);
+    bool delay_growth = srtt_ms_ > 0 && min_rtt_ms_ < 1e9 &&
+                        srtt_ms_ > min_rtt_ms_ + std::max(25.0, 0.5 * min_rtt_ms_);
+    if ((judged >= 4 && loss_ > 0.20) || delay_growth) {
+        estimate_kbps_ = std::max(kMinKbps, estimate_kbps_ * 0.8);
+    } else if (limited_) {
+        estimate_kbps_ = std::min(cap_kbps_, estimate_kbps_ * 1.10 + 4.0);
+    }
+    // Let the minimum RTT forget after ~10 s so a changed path is learnt.
+    min_rtt_age_ += 0.25;
+    if (min_rtt_age_ > 10.0) {
+        min_rtt_age_ = 0;
+        min_rtt_ms_ = srtt_ms_ > 0 ? srtt_ms_ : 1e9;
+    }
+    win_acked_ = win_lost_ = 0;
+    limited_ = false;
+}
+
+}  // namespace progskin::net

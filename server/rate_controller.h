@@ -1,0 +1,55 @@
+// rate_controller.h — one client's sending rate: a cap (kbit/s, GUIDE.md rate)
+// and an estimate that adapts to measured loss and delay (multiplicative back
+// off on loss > 20% or on RTT growing 25 ms / 50% above its minimum, probe up
+// by 10% per 250 ms otherwise while the budget is used), never above the cap.
+//
+// Pacing is a token bucket in wire bytes: filled at 94% of the target rate,
+// at most 10% of a second of the target deep, so the wire bytes in any one
+// second stay <= 1.04 * target <= 1.04 * cap. A tick sends only when the bucket
+// holds at least min(400, depth - one tick's fill) bytes, so slow links get fewer, fuller datagrams.
+#pragma once
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+namespace progskin::net {
+
+class RateController {
+public:
+    RateController(double cap_kbps = 1000, double initial_kbps = 1000);
+    void set_cap(double cap_kbps);
+
+    void refill(double dt_seconds);
+    size_t budget() const;          // bytes allowed now (0: wait)
+    void spend(size_t wire_bytes);  // after sending
+    void on_sent(uint32_t seq, uint32_t send_us, size_t wire_bytes);
+    void on_ack(uint32_t ack, uint32_t ack_bits, uint32_t echo_us, uint32_t hold_us, uint32_t now_us);
+    // Re-evaluates the estimate; call every tick (acts every 250 ms).
+    void update(double now_seconds);
+
+    double cap_kbps() const { return cap_kbps_; }
+    double estimate_kbps() const { return estimate_kbps_; }
+    double target_kbps() const { return estimate_kbps_ < cap_kbps_ ? estimate_kbps_ : cap_kbps_; }
+    double loss() const { return loss_; }       // last window's loss fraction
+    double rtt_ms() const { return srtt_ms_; }
+    uint64_t acked() const { return acked_total_; }
+    uint64_t lost() const { return lost_total_; }
+
+private:
+    struct Sent {
+        uint32_t seq = 0, send_us = 0;
+        bool valid = false, acked = false, counted = false;
+    };
+    void mark(uint32_t seq);
+    double cap_kbps_, estimate_kbps_;
+    double tokens_ = 0, fill_ = 0;
+    bool limited_ = false;  // the budget ran out since the last update
+    std::vector<Sent> ring_ = std::vector<Sent>(1024);
+    uint32_t highest_acked_ = 0;
+    bool any_ack_ = false;
+    uint64_t win_acked_ = 0, win_lost_ = 0, acked_total_ = 0, lost_total_ = 0;
+    double loss_ = 0, srtt_ms_ = 0, min_rtt_ms_ = 1e9, min_rtt_age_ = 0;
+    double last_update_ = -1;
+};
+
+}  // namespace progskin::net

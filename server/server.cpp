@@ -1,0 +1,549 @@
+// server.cpp — see server.h. Session state machine (docs/protocol.md):
+//   AwaitHello --Hello ok--> Welcomed --valid UDP Bind--> Streaming
+//   any --Goodbye / TCP close / timeout / limit--> Closed
+//   AwaitHello --bad version or token, server full--> Refuse, Closed
+#include "server.h"
+
+#include <asio.hpp>
+#include <chrono>
+#include <cstdio>
+#include <deque>
+#include <map>
+#include <mutex>
+#include <random>
+
+#include "datagram_packer.h"
+#include "error.h"
+#include "frame_encoder.h"
+#include "rate_controller.h"
+#include "scheduler.h"
+#include "wire.h"
+
+namespace progskin::net {
+
+using asio::ip::tcp;
+using asio::ip::udp;
+
+namespace {
+enum class State { AwaitHello, Welcomed, Streaming, Closed };
+}
+
+struct Server::Impl {
+    struct Session : std::enable_shared_from_this<Session> {
+        Impl* server;
+        uint64_t id = 0, token = 0;
+        tcp::socket sock;
+        State state = State::AwaitHello;
+        std::string name;
+        uint8_t len_buf[4];
+        std::vector<uint8_t> body;
+        std::deque<std::vector<uint8_t>> writes;
+        size_t queued = 0;
+        udp::endpoint peer;
+        bool bound = false;
+        double opened = 0, last_heard = 0;
+        RateController rate;
+        Scheduler scheduler;
+        std::vector<float> importance;
+        uint32_t seq = 0;
+        double asset_bytes = 0;
+        explicit Session(Impl* s, tcp::socket so) : server(s), sock(std::move(so)) {}
+    };
+
+    ServerConfig cfg;
+    std::vector<std::shared_ptr<ServerAsset>> assets;
+    FrameEncoder encoder;
+    asio::io_context io;
+    tcp::acceptor acceptor{io};
+    udp::socket udp_sock{io};
+    asio::steady_timer timer{io};
+    std::chrono::steady_clock::time_point next_tick;
+    std::map<uint64_t, std::shared_ptr<Session>> sessions;
+    std::mt19937_64 rng{std::random_device{}()};
+    DatagramPacker packer;
+    std::vector<Pick> picks;
+    std::vector<std::vector<uint8_t>> out_dgrams;
+    alignas(16) std::array<uint8_t, 2048> udp_buf;
+    udp::endpoint udp_from;
+    uint32_t tick = 0;
+    double last_tick_time = 0;
+    double total_asset_bytes = 0;
+    mutable std::mutex stats_mutex;
+    ServerStats st;
+
+    Impl(ServerConfig c, std::vector<std::shared_ptr<ServerAsset>> a, std::vector<InstanceSpec> inst)
+        : cfg(std::move(c)), assets(a), encoder(a, std::move(inst), cfg.tick_rate) {
+        if (!(cfg.tick_rate > 0 && cfg.tick_rate <= 240)) throw Error("tick rate must be in (0, 240]");
+        if (assets.empty()) throw Error("server: no assets");
+        for (const auto& x : assets) total_asset_bytes += double(x->bytes.size());
+        auto addr = asio::ip::make_address(cfg.bind_address);
+        // Bind TCP, then UDP on the same number when possible.
+        for (int attempt = 0;; ++attempt) {
+            tcp::endpoint ep(addr, cfg.port);
+            acceptor = tcp::acceptor(io);
+            acceptor.open(ep.protocol());
+            acceptor.set_option(tcp::acceptor::reuse_address(true));
+            asio::error_code ec;
+            acceptor.bind(ep, ec);
+            if (ec) throw Error("cannot listen on " + cfg.bind_address + ":" + std::to_string(cfg.port) + ": " + ec.message());
+            acceptor.listen(asio::socket_base::max_listen_connections);
+            uint16_t want = cfg.udp_port ? cfg.udp_port : acceptor.local_endpoint().port();
+            udp_sock = udp::socket(io);
+            udp_sock.open(udp::v4());
+            udp_sock.bind(udp::endpoint(addr, want), ec);
+            if (!ec) break;
+            if (cfg.udp_port) throw Error("cannot bind UDP port " + std::to_string(cfg.udp_port) + ": " + ec.message());
+            if (cfg.port != 0 || attempt > 20) {
+                udp_sock.bind(udp::endpoint(addr, 0), ec);  // any free port; announced in Welcome
+                if (ec) throw Error("cannot bind UDP: " + ec.message());
+                break;
+            }
+        }
+        udp_sock.non_blocking(true);
+        udp_sock.set_option(asio::socket_base::send_buffer_size(4 << 20));
+        udp_sock.set_option(asio::socket_base::receive_buffer_size(4 << 20));
+    }
+
+    template <class F>
+    void with_stats(F f) {
+        std::lock_guard lock(stats_mutex);
+        f(st);
+    }
+
+    void log(const std::string& s) {
+        if (cfg.verbose) std::fprintf(stderr, "progskin-server: %s\n", s.c_str());
+    }
+
+    // ---------------------------------------------------------------- TCP --
+    void accept() {
+        acceptor.async_accept([this](asio::error_code ec, tcp::socket s) {
+            if (ec) {
+                if (ec != asio::error::operation_aborted) accept();
+                return;
+            }
+            asio::error_code ig;
+            s.set_option(tcp::no_delay(true), ig);
+            auto sess = std::make_shared<Session>(this, std::move(s));
+            sess->id = rng();
+            sess->token = rng();
+            sess->opened = sess->last_heard = now_seconds();
+            sess->rate = RateController(cfg.max_kbps, std::min(cfg.initial_kbps, cfg.max_kbps));
+            sessions[sess->id] = sess;
+            with_stats([](ServerStats& s) { ++s.sessions_total; });
+            read_header(sess);
+            accept();
+        });
+    }
+
+    void close(const std::shared_ptr<Session>& s, const std::string& why) {
+        if (s->state == State::Closed) return;
+        s->state = State::Closed;
+        log("session " + hex64(s->id) + " (" + s->name + ") closed: " + why);
+        asio::error_code ig;
+        s->sock.shutdown(tcp::socket::shutdown_both, ig);
+        s->sock.close(ig);
+        asio::post(io, [this, id = s->id] { sessions.erase(id); });
+    }
+
+    void send(const std::shared_ptr<Session>& s, const flatbuffers::FlatBufferBuilder& fbb, bool close_after = false) {
+        if (s->state == State::Closed) return;
+        std::vector<uint8_t> msg;
+        frame_control(fbb, msg);
+        s->queued += msg.size();
+        if (s->queued > (8u << 20)) {  // slow reader
+            close(s, "control backlog");
+            return;
+        }
+        s->writes.push_back(std::move(msg));
+        if (s->writes.size() == 1) write_next(s, close_after);
+        else if (close_after) {
+            // closes once the queue drains
+            s->writes.push_back({});
+        }
+    }
+
+    void write_next(const std::shared_ptr<Session>& s, bool close_after) {
+        if (s->writes.empty()) return;
+        if (s->writes.front().empty()) {  // close marker
+            close(s, "refused");
+            return;
+        }
+        asio::async_write(s->sock, asio::buffer(s->writes.front()), [this, s, close_after](asio::error_code ec, size_t) {
+            if (ec) {
+                close(s, "write: " + ec.message());
+                return;
+            }
+            s->queued -= s->writes.front().size();
+            s->writes.pop_front();
+            if (close_after && s->writes.empty()) {
+                close(s, "refused");
+                return;
+            }
+            write_next(s, close_after);
+        });
+    }
+
+    void read_header(const std::shared_ptr<Session>& s) {
+        asio::async_read(s->sock, asio::buffer(s->len_buf, 4), [this, s](asio::error_code ec, size_t) {
+            if (ec || s->state == State::Closed) {
+                close(s, ec ? ec.message() : "closed");
+                return;
+            }
+            uint32_t n = 0;
+            read_length({s->len_buf, 4}, n);
+            if (n < 8 || n > MAX_CONTROL_MESSAGE) {
+                with_stats([](ServerStats& st) { ++st.malformed_control; });
+                close(s, "bad control length " + std::to_string(n));
+                return;
+            }
+            s->body.resize(n);
+            asio::async_read(s->sock, asio::buffer(s->body), [this, s](asio::error_code ec2, size_t) {
+                if (ec2 || s->state == State::Closed) {
+                    close(s, ec2 ? ec2.message() : "closed");
+                    return;
+                }
+                if (!handle_control(s)) return;
+                read_header(s);
+            });
+        });
+    }
+
+    void refuse(const std::shared_ptr<Session>& s, const std::string& reason) {
+        with_stats([](ServerStats& st) { ++st.refused; });
+        flatbuffers::FlatBufferBuilder fbb;
+        build_refuse(fbb, reason);
+        log("refused: " + reason);
+        send(s, fbb, true);
+    }
+
+    bool handle_control(const std::shared_ptr<Session>& s) {
+        const wire::Control* c = verify_control(s->body);
+        if (!c) {
+            with_stats([](ServerStats& st) { ++st.malformed_control; });
+            close(s, "malformed control message");
+            return false;
+        }
+        s->last_heard = std::max(s->last_heard, now_seconds() - cfg.client_timeout * 0.5);
+        switch (c->body_type()) {
+            case wire::ControlBody::Hello: {
+                if (s->state != State::AwaitHello) break;
+                const wire::Hello* h = c->body_as_Hello();
+                if (h->version() != PROTOCOL_VERSION) {
+                    refuse(s, "protocol version " + std::to_string(h->version()) + " not supported; this server speaks version " +
+                                  std::to_string(PROTOCOL_VERSION));
+                    return false;
+                }
+                if ((h->client_name() && h->client_name()->size() > MAX_NAME) || (h->token() && h->token()->size() > MAX_TOKEN)) {
+                    refuse(s, "client name or token too long");
+                    return false;
+                }
+                if (!cfg.token.empty() && (!h->token() || h->token()->str() != cfg.token)) {
+                    refuse(s, "bad or missing access token");
+                    return false;
+                }
+                int active = 0;
+                for (auto& [id, x] : sessions)
+                    if (x->state == State::Welcomed || x->state == State::Streaming) ++active;
+                if (active >= cfg.max_clients) {
+                    refuse(s, "server full (" + std::to_string(cfg.max_clients) + " clients)");
+                    return false;
+                }
+                s->name = h->client_name() ? h->client_name()->str() : "";
+                double cap = h->max_kbps() ? std::min(double(h->max_kbps()), cfg.max_kbps) : cfg.max_kbps;
+                s->rate = RateController(cap, std::min(cap, cfg.initial_kbps));
+                s->importance = compute_importance(ViewSpec{}, encoder.instances(), assets);
+                s->scheduler.reset(encoder.instances().size());
+                s->state = State::Welcomed;
+                s->last_heard = now_seconds();
+                send_welcome(s, cap);
+                log("session " + hex64(s->id) + " (" + s->name + ") welcomed, cap " + std::to_string(int(cap)) + " kbit/s");
+                return true;
+            }
+            case wire::ControlBody::AssetRequest: {
+                if (s->state == State::AwaitHello) break;
+                const wire::AssetRequest* r = c->body_as_AssetRequest();
+                const ServerAsset* a = nullptr;
+                for (const auto& x : assets)
+                    if (x->id == r->asset_id()) a = x.get();
+                if (!a || r->offset() >= a->bytes.size() || r->length() == 0 || r->length() > MAX_ASSET_CHUNK) {
+                    with_stats([](ServerStats& st) { ++st.malformed_control; });
+                    close(s, "bad asset request");
+                    return false;
+                }
+                size_t n = std::min<size_t>(r->length(), a->bytes.size() - r->offset());
+                s->asset_bytes += double(n);
+                if (s->asset_bytes > cfg.asset_bytes_factor * total_asset_bytes + MAX_ASSET_CHUNK) {
+                    close(s, "asset download limit");
+                    return false;
+                }
+                flatbuffers::FlatBufferBuilder fbb(n + 128);
+                auto data = fbb.CreateVector(a->bytes.data() + r->offset(), n);
+                auto ch = wire::CreateAssetChunk(fbb, a->id, r->offset(), a->bytes.size(), data);
+                fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::AssetChunk, ch.Union()), wire::ControlIdentifier());
+                with_stats([n](ServerStats& st) { st.asset_bytes_sent += n; });
+                send(s, fbb);
+                return true;
+            }
+            case wire::ControlBody::View: {
+                if (s->state == State::AwaitHello) break;
+                const wire::View* v = c->body_as_View();
+                ViewSpec vs;
+                if (v->camera()) {
+                    vs.camera = {v->camera()->x(), v->camera()->y(), v->camera()->z()};
+                    vs.has_camera = true;
+                }
+                if (v->fov_y() > 0) vs.fov_y = v->fov_y();
+                if (v->viewport_height() > 0) vs.viewport_height = v->viewport_height();
+                if (v->weights())
+                    for (const auto* w : *v->weights())
+                        if (w->instance() < encoder.instances().size() && std::isfinite(w->weight()))
+                            vs.weights.emplace_back(w->instance(), w->weight());
+                s->importance = compute_importance(vs, encoder.instances(), assets);
+                if (v->max_kbps()) s->rate.set_cap(std::min(double(v->max_kbps()), cfg.max_kbps));
+                return true;
+            }
+            case wire::ControlBody::Stats: {
+                if (s->state == State::AwaitHello) break;
+                flatbuffers::FlatBufferBuilder fbb;
+                wire::StatsBuilder sb(fbb);
+                sb.add_estimate_kbps(float(s->rate.target_kbps()));
+                sb.add_loss(float(s->rate.loss()));
+                sb.add_rtt_ms(float(s->rate.rtt_ms()));
+                sb.add_sent_datagrams(s->seq);
+                auto so = sb.Finish();
+                fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Stats, so.Union()), wire::ControlIdentifier());
+                send(s, fbb);
+                return true;
+            }
+            case wire::ControlBody::Goodbye:
+                close(s, "goodbye");
+                return false;
+            default:
+                break;
+        }
+        with_stats([](ServerStats& st) { ++st.malformed_control; });
+        close(s, "unexpected control message in this state");
+        return false;
+    }
+
+    void send_welcome(const std::shared_ptr<Session>& s, double cap) {
+        flatbuffers::FlatBufferBuilder fbb(16384);
+        std::vector<flatbuffers::Offset<wire::Asset>> as;
+        for (const auto& a : assets) {
+            const ProgressiveSkin& sk = a->skin;
+            std::vector<int16_t> order(sk.order.begin(), sk.order.end());
+            std::vector<float> corr;
+            corr.reserve(sk.corrections.size() * 12);
+            for (const Mat34& m : sk.corrections) corr.insert(corr.end(), m.m, m.m + 12);
+            std::vector<wire::ErrorPoint> err;
+            for (const auto& e : sk.error) err.emplace_back(float(e.rms), float(e.max));
+            auto name = fbb.CreateString(a->name);
+            auto vo = fbb.CreateVector(order);
+            auto vp = fbb.CreateVector(sk.parents);
+            auto vc = fbb.CreateVector(corr);
+            auto ve = fbb.CreateVectorOfStructs(err);
+            wire::Vec3 lo(a->format.t_min.x, a->format.t_min.y, a->format.t_min.z);
+            wire::Vec3 hi(a->format.t_max.x, a->format.t_max.y, a->format.t_max.z);
+            as.push_back(wire::CreateAsset(fbb, a->id, name, a->bytes.size(), uint16_t(a->bone_count()), a->format.scaled, vo, vp,
+                                           vc, ve, float(a->diagonal), &lo, &hi, float(a->motion)));
+        }
+        std::vector<flatbuffers::Offset<wire::Instance>> is;
+        const auto& specs = encoder.instances();
+        for (size_t i = 0; i < specs.size(); ++i) {
+            const auto& sp = specs[i];
+            const ServerAsset& a = *assets[sp.asset];
+            std::vector<int32_t> clips;
+            float start = 0, end = 0;
+            if (sp.selection >= 0) {
+                const ClipSelection& sel = a.selections[sp.selection];
+                for (int c : sel.clips) clips.push_back(a.character.clips[c].gltf_index >= 0 ? c : c);
+                start = sel.start;
+                end = sel.end;
+            }
+            wire::Vec3 pos(sp.position.x, sp.position.y, sp.position.z);
+            auto vcl = fbb.CreateVector(clips);
+            is.push_back(wire::CreateInstance(fbb, uint16_t(i), uint16_t(sp.asset), &pos, vcl, start, end, sp.time_offset, sp.speed));
+        }
+        auto va = fbb.CreateVector(as);
+        auto vi = fbb.CreateVector(is);
+        auto sn = fbb.CreateString("progskin-server");
+        auto w = wire::CreateWelcome(fbb, PROTOCOL_VERSION, s->id, s->token, udp_sock.local_endpoint().port(), cfg.tick_rate,
+                                     uint32_t(cap), va, vi, sn);
+        fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Welcome, w.Union()), wire::ControlIdentifier());
+        if (fbb.GetSize() > MAX_CONTROL_MESSAGE) throw Error("welcome exceeds the control message limit (too many instances)");
+        send(s, fbb);
+    }
+
+    // ---------------------------------------------------------------- UDP --
+    void receive() {
+        udp_sock.async_receive_from(asio::buffer(udp_buf), udp_from, [this](asio::error_code ec, size_t n) {
+            if (ec == asio::error::operation_aborted) return;
+            if (!ec) handle_datagram(n);
+            receive();
+        });
+    }
+
+    void handle_datagram(size_t n) {
+        with_stats([](ServerStats& st) { ++st.datagrams_received; });
+        const wire::Datagram* d = verify_datagram({udp_buf.data(), n});
+        auto reject = [&](bool malformed) {
+            with_stats([&](ServerStats& st) {
+                if (malformed) ++st.malformed_datagrams;
+                else ++st.rejected_datagrams;
+                st.unverified_bytes_in += n;
+            });
+        };
+        if (!d) return reject(true);
+        if (d->body_type() == wire::DatagramBody::Bind) {
+            const wire::Bind* b = d->body_as_Bind();
+            auto it = sessions.find(b->session_id());
+            if (it == sessions.end() || it->second->token != b->token() || it->second->state == State::AwaitHello ||
+                it->second->state == State::Closed)
+                return reject(false);
+            auto& s = it->second;
+            s->peer = udp_from;
+            s->bound = true;
+            s->last_heard = now_seconds();
+            if (s->state == State::Welcomed) {
+                s->state = State::Streaming;
+                log("session " + hex64(s->id) + " bound to " + udp_from.address().to_string() + ":" + std::to_string(udp_from.port()));
+            }
+            flatbuffers::FlatBufferBuilder fbb(64);
+            auto ba = wire::CreateBindAck(fbb, s->id);
+            fbb.Finish(wire::CreateDatagram(fbb, s->seq, now_us32(), wire::DatagramBody::BindAck, ba.Union()),
+                       wire::DatagramIdentifier());
+            if (fbb.GetSize() <= n) {  // never more bytes back than the request carried
+                asio::error_code ig;
+                udp_sock.send_to(asio::buffer(fbb.GetBufferPointer(), fbb.GetSize()), udp_from, 0, ig);
+            }
+            return;
+        }
+        if (d->body_type() == wire::DatagramBody::Ack) {
+            const wire::Ack* a = d->body_as_Ack();
+            auto it = sessions.find(a->session_id());
+            if (it == sessions.end() || it->second->token != a->token() || !it->second->bound || it->second->peer != udp_from)
+                return reject(false);
+            auto& s = it->second;
+            s->last_heard = now_seconds();
+            s->rate.on_ack(a->ack(), a->ack_bits(), a->echo_time_us(), a->hold_us(), now_us32());
+            return;
+        }
+        reject(false);  // Frame / BindAck are server -> client only
+    }
+
+    // --------------------------------------------------------------- tick --
+    void schedule_tick() {
+        next_tick += std::chrono::microseconds(int64_t(1e6 / cfg.tick_rate));
+        auto now = std::chrono::steady_clock::now();
+        if (next_tick < now - std::chrono::milliseconds(200)) next_tick = now;  // fell far behind: skip
+        timer.expires_at(next_tick);
+        timer.async_wait([this](asio::error_code ec) {
+            if (ec) return;
+            on_tick();
+            schedule_tick();
+        });
+    }
+
+    void on_tick() {
+        const double t0 = now_seconds();
+        const double dt = last_tick_time > 0 ? std::min(0.25, t0 - last_tick_time) : 1.0 / cfg.tick_rate;
+        last_tick_time = t0;
+        ++tick;
+        bool any = false;
+        for (auto& [id, s] : sessions)
+            if (s->state == State::Streaming) any = true;
+        const EncodedFrame* frame = any ? &encoder.encode(tick) : nullptr;
+        uint64_t dg = 0, bytes = 0, timeouts = 0;
+        std::vector<std::shared_ptr<Session>> drop;
+        for (auto& [id, s] : sessions) {
+            if (s->state == State::AwaitHello && t0 - s->opened > cfg.hello_timeout) {
+                drop.push_back(s);
+                continue;
+            }
+            if ((s->state == State::Welcomed || s->state == State::Streaming) && t0 - s->last_heard > cfg.client_timeout) {
+                drop.push_back(s);
+                continue;
+            }
+            if (s->state != State::Streaming || !frame) continue;
+            s->rate.refill(dt);
+            s->rate.update(t0);
+            size_t budget = s->rate.budget();
+            if (!budget) continue;
+            s->scheduler.select(*frame, assets, s->importance, budget, cfg.tick_rate, picks);
+            if (picks.empty()) continue;
+            out_dgrams.clear();
+            uint32_t first_seq = s->seq;
+            size_t wire = packer.pack(*frame, picks, s->seq, out_dgrams);
+            for (size_t i = 0; i < out_dgrams.size(); ++i) {
+                asio::error_code ec;
+                udp_sock.send_to(asio::buffer(out_dgrams[i]), s->peer, 0, ec);
+                s->rate.on_sent(first_seq + uint32_t(i), now_us32(), out_dgrams[i].size() + UDP_IP_OVERHEAD);
+            }
+            s->rate.spend(wire);
+            s->scheduler.sent(picks, tick);
+            dg += out_dgrams.size();
+            bytes += wire;
+        }
+        for (auto& s : drop) {
+            ++timeouts;
+            flatbuffers::FlatBufferBuilder fbb;
+            build_goodbye(fbb, "timeout");
+            std::vector<uint8_t> msg;
+            frame_control(fbb, msg);
+            asio::error_code ig;
+            if (s->state != State::AwaitHello) asio::write(s->sock, asio::buffer(msg), ig);  // best effort
+            close(s, "timeout");
+        }
+        const double t1 = now_seconds();
+        with_stats([&](ServerStats& st) {
+            ++st.ticks;
+            st.datagrams_sent += dg;
+            st.wire_bytes_sent += bytes;
+            st.timeouts += timeouts;
+            st.tick_seconds += t1 - t0;
+            uint64_t active = 0;
+            for (auto& [id, s] : sessions)
+                if (s->state != State::Closed) ++active;
+            st.sessions_active = active;
+        });
+    }
+};
+
+Server::Server(ServerConfig config, std::vector<std::shared_ptr<ServerAsset>> assets, std::vector<InstanceSpec> instances)
+    : impl_(std::make_unique<Impl>(std::move(config), std::move(assets), std::move(instances))) {}
+
+Server::~Server() = default;
+
+uint16_t Server::tcp_port() const { return impl_->acceptor.local_endpoint().port(); }
+uint16_t Server::udp_port() const { return impl_->udp_sock.local_endpoint().port(); }
+
+void Server::run() {
+    impl_->accept();
+    impl_->receive();
+    impl_->next_tick = std::chrono::steady_clock::now();
+    impl_->schedule_tick();
+    impl_->io.run();
+}
+
+void Server::stop() {
+    asio::post(impl_->io, [this] {
+        asio::error_code ig;
+        impl_->acceptor.close(ig);
+        impl_->udp_sock.close(ig);
+        impl_->timer.cancel();
+        for (auto& [id, s] : impl_->sessions) {
+            s->state = State::Closed;
+            s->sock.close(ig);
+        }
+        impl_->io.stop();
+    });
+}
+
+void Server::push_pose(int instance, std::span<const Mat34> m) { impl_->encoder.push_pose(instance, m); }
+
+ServerStats Server::stats() const {
+    std::lock_guard lock(impl_->stats_mutex);
+    return impl_->st;
+}
+
+}  // namespace progskin::net

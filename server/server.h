@@ -1,0 +1,67 @@
+// server.h — the streaming server (docs/protocol.md): TCP control sessions,
+// a UDP frame stream, and a tick that samples + encodes every instance once,
+// then per client selects (scheduler.h) and packs (datagram_packer.h) within
+// the client's rate (rate_controller.h). Single-threaded (one asio
+// io_context); push_pose, stop and stats may be called from other threads.
+//
+// Library use (game servers pushing their own characters' poses):
+//   Server s(cfg, assets, instances);   // InstanceSpec::selection = -1: live only
+//   std::thread t([&] { s.run(); });
+//   s.push_pose(instance, skinning_matrices);  // each game tick, joint order
+//   s.stop(); t.join();
+#pragma once
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "scene.h"
+
+namespace progskin::net {
+
+struct ServerConfig {
+    std::string bind_address = "0.0.0.0";
+    uint16_t port = 0;            // TCP port; 0 = ephemeral
+    uint16_t udp_port = 0;        // 0 = the TCP port's number if free, else ephemeral
+    float tick_rate = 30.0f;
+    int max_clients = 256;
+    double max_kbps = 50000;      // per-client ceiling (a client's cap is min(its own, this))
+    double initial_kbps = 1000;   // start of the adaptive estimate
+    double hello_timeout = 5.0;   // seconds to receive Hello after connecting
+    double client_timeout = 10.0; // seconds without UDP acks (or without binding) before dropping
+    std::string token;            // non-empty: Hello.token must match
+    double asset_bytes_factor = 4.0;  // per-session download limit, x total asset bytes
+    bool verbose = false;
+};
+
+struct ServerStats {
+    uint64_t sessions_total = 0, sessions_active = 0, refused = 0, timeouts = 0;
+    uint64_t ticks = 0, datagrams_sent = 0, wire_bytes_sent = 0;
+    uint64_t datagrams_received = 0, malformed_datagrams = 0, rejected_datagrams = 0;
+    uint64_t unverified_bytes_in = 0, unverified_bytes_out = 0;  // to/from addresses not bound
+    uint64_t malformed_control = 0, asset_bytes_sent = 0;
+    double tick_seconds = 0;      // total time spent in ticks
+};
+
+class Server {
+public:
+    Server(ServerConfig config, std::vector<std::shared_ptr<ServerAsset>> assets, std::vector<InstanceSpec> instances);
+    ~Server();
+    Server(const Server&) = delete;
+    Server& operator=(const Server&) = delete;
+
+    uint16_t tcp_port() const;
+    uint16_t udp_port() const;
+    void run();   // serves until stop()
+    void stop();  // thread-safe
+    void push_pose(int instance, std::span<const Mat34> skinning_matrices);  // thread-safe
+    ServerStats stats() const;  // thread-safe snapshot
+
+private:
+    struct Impl;
+    std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace progskin::net

@@ -1,0 +1,147 @@
+// server_main.cpp — progskin-server: hosts a scene and streams it (server.h).
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "error.h"
+#include "server.h"
+#include "wire.h"
+
+using namespace progskin;
+using namespace progskin::net;
+
+static const char* kUsage =
+    "usage: progskin-server [options]\n"
+    "Streams progressive bone packets of a scene of characters to progskin-client.\n"
+    "With no --asset, serves the bundled default set (assets/Fox.glb, assets/CesiumMan.glb).\n"
+    "\n"
+    "  --port P          TCP control port (default 7777; 0 = any free port); UDP uses the\n"
+    "                    same number unless --udp-port is given\n"
+    "  --udp-port P      UDP frame stream port\n"
+    "  --bind ADDR       address to listen on (default 0.0.0.0)\n"
+    "  --asset FILE      a glTF/glb character (progressive or plain; repeatable)\n"
+    "  --crowd N         lay out N instances over the assets and their clips (default:\n"
+    "                    one instance per asset and clip group)\n"
+    "  --tick-rate HZ    ticks per second (default 30)\n"
+    "  --max-clients N   (default 256)\n"
+    "  --max-kbps N      per-client rate ceiling in kbit/s (default 50000)\n"
+    "  --token T         require this access token in Hello\n"
+    "  --duration S      stop after S seconds (default: run until SIGINT/SIGTERM)\n"
+    "  --verbose         log sessions on stderr\n"
+    "  --help\n"
+    "Exit codes: 0 ok, 1 runtime error, 2 bad arguments.\n";
+
+static Server* g_server = nullptr;
+static void on_signal(int) {
+    if (g_server) g_server->stop();
+}
+
+int main(int argc, char** argv) {
+    ServerConfig cfg;
+    cfg.port = 7777;
+    std::vector<std::string> asset_paths;
+    int crowd = 0;
+    double duration = 0;
+    auto need = [&](int& i) -> const char* {
+        if (i + 1 >= argc) {
+            std::fprintf(stderr, "progskin-server: %s needs a value\n%s", argv[i], kUsage);
+            std::exit(2);
+        }
+        return argv[++i];
+    };
+    try {
+        for (int i = 1; i < argc; ++i) {
+            std::string a = argv[i];
+            if (a == "--help" || a == "-h") {
+                std::fputs(kUsage, stdout);
+                return 0;
+            } else if (a == "--port") cfg.port = uint16_t(std::stoi(need(i)));
+            else if (a == "--udp-port") cfg.udp_port = uint16_t(std::stoi(need(i)));
+            else if (a == "--bind") cfg.bind_address = need(i);
+            else if (a == "--asset") asset_paths.push_back(need(i));
+            else if (a == "--crowd") crowd = std::stoi(need(i));
+            else if (a == "--tick-rate") cfg.tick_rate = std::stof(need(i));
+            else if (a == "--max-clients") cfg.max_clients = std::stoi(need(i));
+            else if (a == "--max-kbps") cfg.max_kbps = std::stod(need(i));
+            else if (a == "--token") cfg.token = need(i);
+            else if (a == "--duration") duration = std::stod(need(i));
+            else if (a == "--verbose") cfg.verbose = true;
+            else {
+                std::fprintf(stderr, "progskin-server: unknown argument %s\n%s", a.c_str(), kUsage);
+                return 2;
+            }
+        }
+    } catch (const std::exception&) {
+        std::fprintf(stderr, "progskin-server: bad number in arguments\n%s", kUsage);
+        return 2;
+    }
+    if (!(cfg.tick_rate > 0 && cfg.tick_rate <= 240) || crowd < 0 || cfg.max_clients < 1 || cfg.max_kbps <= 0) {
+        std::fprintf(stderr, "progskin-server: argument out of range\n%s", kUsage);
+        return 2;
+    }
+    try {
+        if (asset_paths.empty()) {
+            std::string exe = argv[0];
+            auto slash = exe.rfind('/');
+            asset_paths = default_asset_paths(slash == std::string::npos ? "." : exe.substr(0, slash));
+        }
+        std::vector<std::shared_ptr<ServerAsset>> assets;
+        for (const auto& p : asset_paths) {
+            std::fprintf(stderr, "progskin-server: loading %s\n", p.c_str());
+            assets.push_back(load_server_asset(p));
+            const auto& a = *assets.back();
+            std::fprintf(stderr, "progskin-server:   %s: %d bones, %zu vertices, %zu clip groups, id %s, %zu bytes\n",
+                         a.name.c_str(), a.bone_count(), a.character.vertex_count(), a.selections.size(),
+                         hex64(a.id).c_str(), a.bytes.size());
+        }
+        std::vector<InstanceSpec> instances;
+        if (crowd > 0) {
+            instances = crowd_layout(assets, crowd);
+        } else {
+            int n = 0;
+            for (const auto& a : assets) n += int(a->selections.size());
+            instances = crowd_layout(assets, 0);
+            for (size_t ai = 0; ai < assets.size(); ++ai)
+                for (size_t si = 0; si < assets[ai]->selections.size(); ++si) {
+                    InstanceSpec s;
+                    s.asset = int(ai);
+                    s.selection = int(si);
+                    s.position = glm::vec3(float(instances.size()) * float(assets[ai]->diagonal), 0.0f, 0.0f);
+                    instances.push_back(s);
+                }
+            (void)n;
+        }
+        Server server(cfg, assets, instances);
+        g_server = &server;
+        std::signal(SIGINT, on_signal);
+        std::signal(SIGTERM, on_signal);
+        std::printf("progskin-server: listening on TCP %u, UDP %u, %zu instances, %.0f Hz\n", server.tcp_port(),
+                    server.udp_port(), instances.size(), double(cfg.tick_rate));
+        std::fflush(stdout);
+        std::thread stopper;
+        if (duration > 0) {
+            stopper = std::thread([&server, duration] {
+                std::this_thread::sleep_for(std::chrono::duration<double>(duration));
+                server.stop();
+            });
+        }
+        server.run();
+        if (stopper.joinable()) stopper.join();
+        g_server = nullptr;
+        ServerStats st = server.stats();
+        std::fprintf(stderr,
+                     "progskin-server: %llu sessions, %llu datagrams sent, %llu malformed + %llu rejected datagrams, "
+                     "mean tick %.3f ms\n",
+                     (unsigned long long)st.sessions_total, (unsigned long long)st.datagrams_sent,
+                     (unsigned long long)st.malformed_datagrams, (unsigned long long)st.rejected_datagrams,
+                     st.ticks ? 1000.0 * st.tick_seconds / double(st.ticks) : 0.0);
+        return 0;
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "progskin-server: %s\n", e.what());
+        return 1;
+    }
+}

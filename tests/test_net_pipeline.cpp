@@ -1,0 +1,133 @@
+// test_net_pipeline.cpp — the data flow without sockets: frame_encoder ->
+// scheduler -> datagram_packer -> (verify, decode) pose_buffer -> client
+// palette -> skinning, against the reference at the same clip time.
+#include <gtest/gtest.h>
+
+#include <map>
+
+#include "client_palette.h"
+#include "datagram_packer.h"
+#include "error_metric.h"
+#include "frame_encoder.h"
+#include "scene.h"
+#include "scheduler.h"
+#include "wire.h"
+
+using namespace progskin;
+using namespace progskin::net;
+
+namespace {
+
+std::vector<std::shared_ptr<ServerAsset>>& shared_assets() {
+    static std::vector<std::shared_ptr<ServerAsset>> a = {
+        load_server_asset(std::string(PROGSKIN_ASSETS) + "/Fox.glb"),
+        load_server_asset(std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb")};
+    return a;
+}
+
+std::shared_ptr<ClientAsset> client_asset(const ServerAsset& s) {
+    auto c = std::make_shared<ClientAsset>();
+    c->name = s.name;
+    c->character = s.character;
+    c->skin.order = s.skin.order;
+    c->skin.parents = s.skin.parents;
+    c->skin.corrections = s.skin.corrections;
+    c->skin.error = s.skin.error;
+    remap_skin_vertices(c->character, c->skin);
+    c->format = s.format;
+    c->diagonal = rest_diagonal(c->character);
+    return c;
+}
+
+struct Pipeline {
+    std::vector<std::shared_ptr<ServerAsset>> assets = shared_assets();
+    std::vector<InstanceSpec> specs = crowd_layout(assets, 4);
+    FrameEncoder enc{assets, specs, 30.0f};
+    Scheduler sched;
+    DatagramPacker packer;
+    std::vector<std::unique_ptr<InstanceView>> views;
+    uint32_t seq = 0;
+    Pipeline(int blend = 8) {
+        for (const auto& s : specs) {
+            ClipInfo ci;
+            ci.selection = assets[s.asset]->selections[s.selection];
+            ci.time_offset = s.time_offset;
+            ci.speed = s.speed;
+            views.push_back(std::make_unique<InstanceView>(client_asset(*assets[s.asset]), ci, blend));
+        }
+    }
+    // One tick at a byte budget; returns wire bytes.
+    size_t tick(uint32_t t, size_t budget, std::span<const float> imp) {
+        const EncodedFrame& f = enc.encode(t);
+        std::vector<Pick> picks;
+        sched.select(f, assets, imp, budget, 30.0f, picks);
+        std::vector<std::vector<uint8_t>> dgs;
+        size_t wire = packer.pack(f, picks, seq, dgs);
+        sched.sent(picks, t);
+        for (auto& d : dgs) {
+            const wire::Datagram* g = verify_datagram(d);
+            EXPECT_NE(g, nullptr);
+            EXPECT_LE(d.size(), MAX_DATAGRAM);
+            const wire::Frame* fr = g->body_as_Frame();
+            const uint8_t* rec = fr->records()->data();
+            for (const wire::Chunk* c : *fr->chunks()) {
+                InstanceView& v = *views[c->instance()];
+                EXPECT_TRUE(v.buffer().add_chunk(fr->tick(), c->first(), c->count(), c->total(), rec));
+                rec += size_t(c->count()) * v.asset().format.size();
+            }
+        }
+        return wire;
+    }
+    // Error (% of diagonal) of instance i displayed at tick d.
+    std::pair<double, double> error(int i, double d) {
+        InstanceView& v = *views[i];
+        std::vector<glm::vec3> shown, ref;
+        EXPECT_TRUE(v.display(d));
+        v.skin(shown);
+        v.reference(v.clip().clip_time(d, 30.0), ref);
+        ErrorAccumulator acc(v.asset().diagonal);
+        acc.add(ref, shown);
+        return {acc.stats().rms_pct, acc.stats().max_pct};
+    }
+};
+
+}  // namespace
+
+TEST(NetPipeline, FullBudgetShowsOnlyQuantisationError) {
+    Pipeline p(1);
+    std::vector<float> imp(p.specs.size(), 1.0f);
+    for (uint32_t t = 1; t <= 40; ++t) {
+        p.tick(t, 1 << 20, imp);
+        for (int i = 0; i < int(p.specs.size()); ++i) {
+            auto [rms, max] = p.error(i, t);
+            EXPECT_LT(max, 0.05) << "instance " << i << " tick " << t;
+            EXPECT_EQ(p.views[i]->target_bones(), p.assets[p.specs[i].asset]->bone_count());
+        }
+    }
+}
+
+TEST(NetPipeline, FrameOverheadMatchesWireCost) {
+    Pipeline p;
+    std::vector<float> imp(p.specs.size(), 1.0f);
+    for (size_t budget : {150u, 300u, 700u, 1300u, 4000u, 100000u}) {
+        const EncodedFrame& f = p.enc.encode(5);
+        std::vector<Pick> picks;
+        size_t est = p.sched.select(f, p.assets, imp, budget, 30.0f, picks);
+        std::vector<std::vector<uint8_t>> dgs;
+        size_t wire = p.packer.pack(f, picks, p.seq, dgs);
+        EXPECT_LE(wire, est) << "budget " << budget;
+        EXPECT_LE(wire, budget) << "budget " << budget;
+    }
+}
+
+TEST(NetPipeline, DelayedDisplayInterpolatesBetweenTicks) {
+    Pipeline p(1);
+    std::vector<float> imp(p.specs.size(), 1.0f);
+    double worst_on_tick = 0;
+    for (uint32_t t = 1; t <= 40; ++t) {
+        p.tick(t, 1 << 20, imp);
+        if (t < 5) continue;
+        for (int i = 0; i < int(p.specs.size()); ++i) worst_on_tick = std::max(worst_on_tick, p.error(i, t - 3).second);
+    }
+    EXPECT_LT(worst_on_tick, 0.05);
+}
