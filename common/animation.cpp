@@ -288,13 +288,24 @@ FrameSet sample_frames(const Character& c, const std::vector<ClipSelection>& sel
     if (!(fps > 0.0) || !std::isfinite(fps)) throw Error("sample_frames: fps must be positive (got " + std::to_string(fps) + ")");
     FrameSet fs;
     fs.joint_count = int(c.joint_count());
+    // floor(duration * fps) + 1 frames per selection (the epsilon absorbs float rounding of the end time).
+    auto frame_count = [fps](const ClipSelection& sel) {
+        const double duration = std::max(0.0, double(sel.end) - double(sel.start));
+        return size_t(std::floor(duration * fps + 1e-6)) + 1;
+    };
+    size_t total = 0;
+    for (const ClipSelection& sel : sels) {
+        check_selection(c, sel);
+        total += frame_count(sel);
+    }
+    fs.times.reserve(total);
+    fs.selection_of_frame.reserve(total);
+    fs.skinning.reserve(total * c.joint_count());
     PoseScratch s;
     std::vector<glm::dmat4> m(c.joint_count());
     for (size_t k = 0; k < sels.size(); ++k) {
         const ClipSelection& sel = sels[k];
-        check_selection(c, sel);
-        const double duration = std::max(0.0, double(sel.end) - double(sel.start));
-        const size_t frames = size_t(std::floor(duration * fps + 1e-6)) + 1;
+        const size_t frames = frame_count(sel);
         for (size_t f = 0; f < frames; ++f) {
             const double t = double(sel.start) + double(f) / fps;
             evaluate_globals(c, sel, t, s);

@@ -19,6 +19,9 @@
 #include <set>
 #include <sstream>
 
+#ifndef GLM_ENABLE_EXPERIMENTAL
+#define GLM_ENABLE_EXPERIMENTAL  // glm/gtx/matrix_decompose.hpp
+#endif
 #include <glm/gtc/matrix_inverse.hpp>
 #include <glm/gtc/matrix_transform.hpp>
 #include <glm/gtx/matrix_decompose.hpp>
@@ -60,6 +63,7 @@ bool skip_image(tinygltf::Image*, const int, std::string*, std::string*, int, in
     return true;
 }
 
+// Little-endian u32 at p (GLB header fields).
 uint32_t read_u32le(const unsigned char* p) {
     return uint32_t(p[0]) | uint32_t(p[1]) << 8 | uint32_t(p[2]) << 16 | uint32_t(p[3]) << 24;
 }
@@ -110,6 +114,10 @@ void load_model(const std::string& path, tinygltf::Model& model) {
     if (!ok) {
         std::string msg = tidy_message(err.empty() ? warn : err);
         if (msg.empty()) msg = "tinygltf could not load it";
+        // With images skipped, the only external files tinygltf must find are buffers.
+        if (msg.find("File not found") != std::string::npos || msg.find("File read error") != std::string::npos ||
+            msg.find("File is empty") != std::string::npos)
+            throw Error(path + ": missing buffer (" + msg + ")");
         throw Error(path + ": invalid glTF: " + msg);
     }
     if (model.asset.version.empty() || model.asset.version[0] != '2')
@@ -131,6 +139,7 @@ struct AccessorData {
     double at(size_t i, int c) const { return values[i * size_t(components) + size_t(c)]; }
 };
 
+// Components per element of an accessor type (0 for unknown types).
 int component_count(int type) {
     switch (type) {
         case TINYGLTF_TYPE_SCALAR: return 1;
@@ -144,6 +153,7 @@ int component_count(int type) {
     }
 }
 
+// glTF spelling of an accessor type, for messages.
 const char* type_name(int type) {
     switch (type) {
         case TINYGLTF_TYPE_SCALAR: return "SCALAR";
@@ -178,6 +188,7 @@ struct ElementLayout {
     size_t size = 0;          // bytes of one tightly packed element
 };
 
+// Layout of one element of `type` with components of `csize` bytes.
 ElementLayout element_layout(int type, size_t csize) {
     ElementLayout l;
     const int n = component_count(type);
@@ -385,14 +396,18 @@ std::vector<int> node_parents(const Ctx& ctx) {
             parent[size_t(child)] = int(n);
         }
     }
-    // With one parent per node, a cycle is a parent chain longer than the node count.
+    // With one parent per node, a cycle is a parent chain that comes back to a node of the walk.
+    std::vector<char> state(nodes.size(), 0);  // 0 unseen, 1 on the current walk, 2 reaches a root
+    std::vector<size_t> walk;
     for (size_t n = 0; n < nodes.size(); ++n) {
-        int p = parent[n];
-        for (size_t steps = 0; p != -1; ++steps) {
-            if (steps > nodes.size() || size_t(p) == n)
-                ctx.fail("cyclic node hierarchy: node " + std::to_string(n) + " is its own ancestor");
-            p = parent[size_t(p)];
+        walk.clear();
+        for (int p = int(n); p != -1 && state[size_t(p)] != 2; p = parent[size_t(p)]) {
+            if (state[size_t(p)] == 1)
+                ctx.fail("cyclic node hierarchy: node " + std::to_string(p) + " is its own ancestor");
+            state[size_t(p)] = 1;
+            walk.push_back(size_t(p));
         }
+        for (size_t w : walk) state[w] = 2;
     }
     return parent;
 }
@@ -496,6 +511,7 @@ SkinInfo read_skin(const Ctx& ctx, int s) {
     return info;
 }
 
+// True when two inverse bind matrices are equal up to float rounding (same joint in two skins).
 bool same_matrix(const glm::dmat4& a, const glm::dmat4& b) {
     double diff = 0.0, mag = 1.0;
     for (int c = 0; c < 4; ++c)
@@ -522,7 +538,12 @@ std::vector<std::vector<int>> group_skins(const Ctx& ctx, const std::vector<int>
                                           const std::vector<int>& parent) {
     std::vector<char> is_joint(ctx.model.nodes.size(), 0);
     for (int s : used_skins)
-        for (int j : ctx.model.skins[size_t(s)].joints) is_joint[size_t(j)] = 1;
+        for (int j : ctx.model.skins[size_t(s)].joints) {
+            if (j < 0 || size_t(j) >= is_joint.size())
+                ctx.fail("skin " + std::to_string(s) + " lists joint node " + std::to_string(j) +
+                         ", which does not exist");
+            is_joint[size_t(j)] = 1;
+        }
     auto top_joint = [&](int n) {
         int top = n;
         for (int p = parent[size_t(n)]; p != -1; p = parent[size_t(p)])
@@ -565,7 +586,7 @@ JointTable merge_skins(const Ctx& ctx, const std::vector<int>& skins) {
             const int node = info.joints[k];
             int found = -1;
             for (int j : t.joints_of_node[node])
-                if (same_matrix(t.inverse_bind[size_t(j)], info.inverse_bind[k])) found = j;
+                if (found < 0 && same_matrix(t.inverse_bind[size_t(j)], info.inverse_bind[k])) found = j;
             if (found < 0) {
                 found = int(t.node_of_joint.size());
                 t.node_of_joint.push_back(node);

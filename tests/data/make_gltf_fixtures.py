@@ -1,0 +1,368 @@
+#!/usr/bin/env python3
+"""Writes the small hand-made glTF files used by tests/test_import.cpp.
+
+Run from anywhere: python3 tests/data/make_gltf_fixtures.py
+Outputs (next to this script):
+  sparse_quantized.gltf   sparse accessors, normalized u8/u16 weights, byte strides,
+                          offsets, STEP/LINEAR/CUBICSPLINE samplers, i16 quaternions
+  eight_influences.gltf   JOINTS_0/WEIGHTS_0 + JOINTS_1/WEIGHTS_1
+  multi_skin.gltf         five skins: four form one skeleton (shared and top-most joints,
+                          a duplicate node with another inverse bind matrix), one is a
+                          second character; a mesh rigidly parented to a joint
+  external_buffer.gltf/.bin, basic.glb   the basic character in the other containers
+  broken/*                one defect each (see BROKEN below)
+Only the standard library is used; the output is deterministic.
+"""
+import base64
+import json
+import math
+import os
+import struct
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+FLOAT, UBYTE, USHORT, SHORT, BYTE, UINT = 5126, 5121, 5123, 5122, 5120, 5125
+FORMAT = {FLOAT: 'f', UBYTE: 'B', USHORT: 'H', SHORT: 'h', BYTE: 'b', UINT: 'I'}
+SIZE = {FLOAT: 4, UBYTE: 1, USHORT: 2, SHORT: 2, BYTE: 1, UINT: 4}
+COMPONENTS = {'SCALAR': 1, 'VEC2': 2, 'VEC3': 3, 'VEC4': 4, 'MAT4': 16}
+
+
+class Gltf:
+    """Accumulates one binary buffer and the JSON objects that refer to it."""
+
+    def __init__(self):
+        self.bin = bytearray()
+        self.j = {'asset': {'version': '2.0', 'generator': 'progskin make_gltf_fixtures.py'},
+                  'buffers': [], 'bufferViews': [], 'accessors': [], 'nodes': [], 'meshes': [],
+                  'skins': [], 'animations': [], 'scenes': [{'nodes': []}], 'scene': 0}
+
+    def align(self):
+        while len(self.bin) % 4:
+            self.bin.append(0)
+
+    def view(self, data, stride=None, lead=0):
+        """Adds a buffer view over `data`, preceded by `lead` padding bytes in the buffer."""
+        self.align()
+        self.bin += b'\xee' * lead
+        v = {'buffer': 0, 'byteOffset': len(self.bin), 'byteLength': len(data)}
+        if stride:
+            v['byteStride'] = stride
+        self.bin += data
+        self.j['bufferViews'].append(v)
+        return len(self.j['bufferViews']) - 1
+
+    def accessor(self, ctype, type_, values, normalized=False, stride=None, offset=0, lead=0, minmax=False):
+        """Packs `values` (list of tuples) into a new view (strided if asked) and an accessor."""
+        fmt = '<' + FORMAT[ctype] * COMPONENTS[type_]
+        elem = struct.calcsize(fmt)
+        step = stride or elem
+        data = bytearray(b'\xcd' * offset)
+        for v in values:
+            chunk = struct.pack(fmt, *v)
+            data += chunk + b'\xab' * (step - elem)
+        a = {'bufferView': self.view(bytes(data), stride, lead), 'componentType': ctype,
+             'count': len(values), 'type': type_}
+        if offset:
+            a['byteOffset'] = offset
+        if normalized:
+            a['normalized'] = True
+        if minmax:
+            a['min'] = [min(v[i] for v in values) for i in range(COMPONENTS[type_])]
+            a['max'] = [max(v[i] for v in values) for i in range(COMPONENTS[type_])]
+        self.j['accessors'].append(a)
+        return len(self.j['accessors']) - 1
+
+    def sparse(self, ctype, type_, count, base, indices, values, index_type=UBYTE):
+        """Accessor of `count` elements: `base` (list or None for zeros) with values at indices replaced."""
+        a = {'componentType': ctype, 'count': count, 'type': type_}
+        if base is not None:
+            fmt = '<' + FORMAT[ctype] * COMPONENTS[type_]
+            a['bufferView'] = self.view(b''.join(struct.pack(fmt, *v) for v in base))
+        fmt = '<' + FORMAT[ctype] * COMPONENTS[type_]
+        iv = self.view(b''.join(struct.pack('<' + FORMAT[index_type], i) for i in indices))
+        vv = self.view(b''.join(struct.pack(fmt, *v) for v in values), lead=4)
+        a['sparse'] = {'count': len(indices),
+                       'indices': {'bufferView': iv, 'componentType': index_type},
+                       'values': {'bufferView': vv}}
+        self.j['accessors'].append(a)
+        return len(self.j['accessors']) - 1
+
+    def node(self, **kw):
+        self.j['nodes'].append(kw)
+        return len(self.j['nodes']) - 1
+
+    def finish(self, uri=None):
+        """The JSON with the buffer as a data URI (or an external `uri`)."""
+        self.align()
+        buf = {'byteLength': len(self.bin)}
+        buf['uri'] = uri or 'data:application/octet-stream;base64,' + base64.b64encode(bytes(self.bin)).decode()
+        j = json.loads(json.dumps(self.j))
+        j['buffers'] = [buf]
+        for key in ('skins', 'animations'):
+            if not j[key]:
+                del j[key]
+        parents = {c for n in j['nodes'] for c in n.get('children', [])}
+        j['scenes'][0]['nodes'] = [i for i in range(len(j['nodes'])) if i not in parents]
+        return j
+
+    def glb(self):
+        """The model as a GLB container (binary chunk instead of the data URI)."""
+        self.align()
+        j = self.finish()
+        j['buffers'] = [{'byteLength': len(self.bin)}]
+        text = json.dumps(j, separators=(',', ':')).encode()
+        text += b' ' * (-len(text) % 4)
+        body = struct.pack('<II', len(text), 0x4E4F534A) + text + struct.pack('<II', len(self.bin), 0x004E4942) + self.bin
+        return struct.pack('<III', 0x46546C67, 2, 12 + len(body)) + body
+
+
+def write_json(name, j):
+    path = os.path.join(HERE, name)
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    with open(path, 'w') as f:
+        json.dump(j, f, indent=1)
+        f.write('\n')
+
+
+def translation(x, y, z):
+    """Column-major 4x4 translation as glTF stores it."""
+    return (1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, x, y, z, 1)
+
+
+def quat_z(deg):
+    """Rotation about +z as glTF (x, y, z, w)."""
+    h = math.radians(deg) / 2
+    return (0.0, 0.0, math.sin(h), math.cos(h))
+
+
+# ---------------------------------------------------------------------------
+# The basic character: root joint at the origin, child joint 1 unit up, a quad
+# from y=0 to y=2 weighted to the root at the bottom and the child at the top.
+
+def basic(ctype_weights=FLOAT):
+    g = Gltf()
+    g.node(name='root', children=[1])
+    g.node(name='bone', translation=[0, 1, 0])
+    g.node(name='quad', mesh=0, skin=0)
+    pos = g.accessor(FLOAT, 'VEC3', [(0, 0, 0), (1, 0, 0), (0, 2, 0), (1, 2, 0)], minmax=True)
+    joints = g.accessor(UBYTE, 'VEC4', [(0, 1, 0, 0)] * 4)
+    w = [(1, 0, 0, 0), (1, 0, 0, 0), (0, 1, 0, 0), (0, 1, 0, 0)]
+    weights = g.accessor(ctype_weights, 'VEC4', w)
+    idx = g.accessor(USHORT, 'SCALAR', [(0,), (1,), (2,), (2,), (1,), (3,)])
+    g.j['meshes'].append({'primitives': [{'attributes': {'POSITION': pos, 'JOINTS_0': joints, 'WEIGHTS_0': weights},
+                                          'indices': idx}]})
+    ibm = g.accessor(FLOAT, 'MAT4', [translation(0, 0, 0), translation(0, -1, 0)])
+    g.j['skins'].append({'joints': [0, 1], 'inverseBindMatrices': ibm})
+    times = g.accessor(FLOAT, 'SCALAR', [(0.0,), (1.0,)])
+    rot = g.accessor(FLOAT, 'VEC4', [quat_z(0), quat_z(90)])
+    g.j['animations'].append({'name': 'bend', 'samplers': [{'input': times, 'output': rot}],
+                              'channels': [{'sampler': 0, 'target': {'node': 1, 'path': 'rotation'}}]})
+    return g
+
+
+# ---------------------------------------------------------------------------
+
+def sparse_quantized():
+    g = Gltf()
+    # An animated node with a matrix (glTF forbids it; the importer decomposes it into TRS).
+    g.node(name='root', children=[1], matrix=list(translation(2, 0, 0)))
+    g.node(name='bone', translation=[0, 1, 0])
+    g.node(name='mesh', mesh=0, skin=0)
+    # Primitive 0: interleaved-style strided views with byte offsets, sparse positions.
+    base = [(0, 0, 0), (1, 0, 0), (0, 2, 0), (1, 2, 0)]
+    g.align()
+    pos_view = g.view(b'\x00' * 8 + b''.join(struct.pack('<3f', *p) + b'\xab' * 4 for p in base), stride=16, lead=12)
+    iv = g.view(struct.pack('<H', 2))
+    vv = g.view(struct.pack('<3f', 0.0, 2.5, 0.0))
+    g.j['accessors'].append({'bufferView': pos_view, 'byteOffset': 8, 'componentType': FLOAT, 'count': 4,
+                             'type': 'VEC3',
+                             'sparse': {'count': 1, 'indices': {'bufferView': iv, 'componentType': USHORT},
+                                        'values': {'bufferView': vv}}})
+    pos0 = len(g.j['accessors']) - 1
+    nrm0 = g.accessor(FLOAT, 'VEC3', [(0, 0, 1)] * 4)
+    j0 = g.accessor(UBYTE, 'VEC4', [(0, 1, 0, 0)] * 4, stride=8, offset=4)
+    # u8 weights: exact, exact, 200/255 (renormalised), 254/255 (renormalised for u8 tolerance).
+    w0 = g.accessor(UBYTE, 'VEC4', [(255, 0, 0, 0), (128, 127, 0, 0), (100, 100, 0, 0), (0, 254, 0, 0)],
+                    normalized=True, stride=12)
+    # Primitive 1: positions without a buffer view (zeros) plus sparse values; u16 joints and weights.
+    pos1 = g.sparse(FLOAT, 'VEC3', 3, None, [1, 2], [(1, 0, 0), (0, 1, 0)])
+    j1 = g.accessor(USHORT, 'VEC4', [(1, 0, 0, 0), (0, 1, 0, 0), (1, 0, 0, 0)])
+    w1 = g.accessor(USHORT, 'VEC4', [(65535, 0, 0, 0), (32768, 32767, 0, 0), (65535, 0, 0, 0)], normalized=True)
+    g.j['meshes'].append({'primitives': [
+        {'attributes': {'POSITION': pos0, 'NORMAL': nrm0, 'JOINTS_0': j0, 'WEIGHTS_0': w0}},
+        {'attributes': {'POSITION': pos1, 'JOINTS_0': j1, 'WEIGHTS_0': w1}, 'mode': 4}]})
+    ibm = g.accessor(FLOAT, 'MAT4', [translation(0, 0, 0), translation(0, -1, 0)], stride=64)
+    g.j['skins'].append({'joints': [0, 1], 'inverseBindMatrices': ibm})
+    # Clips: CUBICSPLINE translation, STEP rotation (normalized i16), LINEAR scale with u8-free floats.
+    t2 = g.accessor(FLOAT, 'SCALAR', [(0.0,), (2.0,)])
+    cubic = g.accessor(FLOAT, 'VEC3', [(0, 0, 0), (0, 1, 0), (1, 0, 0),    # key 0: in, value, out
+                                       (0, 0, 3), (0, 2, 0), (0, 0, 0)])   # key 1: in, value, out
+    t3 = g.accessor(FLOAT, 'SCALAR', [(0.0,), (1.0,), (2.0,)])
+    q = [quat_z(0), quat_z(90), quat_z(180)]
+    steps = g.accessor(SHORT, 'VEC4', [tuple(round(c * 32767) for c in x) for x in q], normalized=True)
+    scales = g.accessor(FLOAT, 'VEC3', [(1, 1, 1), (2, 2, 2), (1, 1, 1)])
+    g.j['animations'] = [
+        {'name': 'cubic', 'samplers': [{'input': t2, 'output': cubic, 'interpolation': 'CUBICSPLINE'}],
+         'channels': [{'sampler': 0, 'target': {'node': 1, 'path': 'translation'}}]},
+        {'name': 'steps', 'samplers': [{'input': t3, 'output': steps, 'interpolation': 'STEP'}],
+         'channels': [{'sampler': 0, 'target': {'node': 1, 'path': 'rotation'}}]},
+        {'name': 'grow', 'samplers': [{'input': t3, 'output': scales}],
+         'channels': [{'sampler': 0, 'target': {'node': 0, 'path': 'scale'}}]},
+    ]
+    write_json('sparse_quantized.gltf', g.finish())
+
+
+def eight_influences():
+    g = Gltf()
+    for i in range(8):
+        g.node(name='j%d' % i, translation=[0, 0 if i == 0 else 1, 0], **({'children': [i + 1]} if i < 7 else {}))
+    g.node(name='mesh', mesh=0, skin=0)
+    pos = g.accessor(FLOAT, 'VEC3', [(0, 0, 0), (1, 0, 0), (0, 1, 0)])
+    j0 = g.accessor(UBYTE, 'VEC4', [(0, 1, 2, 3)] * 3)
+    w0 = g.accessor(FLOAT, 'VEC4', [(0.125,) * 4, (0.5, 0, 0, 0), (0.25, 0.25, 0, 0)])
+    j1 = g.accessor(USHORT, 'VEC4', [(4, 5, 6, 7)] * 3)
+    w1 = g.accessor(FLOAT, 'VEC4', [(0.125,) * 4, (0, 0, 0, 0.5), (0.25, 0, 0.25, 0)])
+    pos_b = g.accessor(FLOAT, 'VEC3', [(0, 0, 1), (1, 0, 1), (0, 1, 1)])
+    jb = g.accessor(UBYTE, 'VEC4', [(7, 0, 0, 0)] * 3)
+    wb = g.accessor(FLOAT, 'VEC4', [(1, 0, 0, 0)] * 3)
+    g.j['meshes'].append({'primitives': [
+        {'attributes': {'POSITION': pos, 'JOINTS_0': j0, 'WEIGHTS_0': w0, 'JOINTS_1': j1, 'WEIGHTS_1': w1}},
+        {'attributes': {'POSITION': pos_b, 'JOINTS_0': jb, 'WEIGHTS_0': wb}}]})
+    ibm = g.accessor(FLOAT, 'MAT4', [translation(0, -i, 0) for i in range(8)])
+    g.j['skins'].append({'joints': list(range(8)), 'inverseBindMatrices': ibm})
+    write_json('eight_influences.gltf', g.finish())
+
+
+def multi_skin():
+    g = Gltf()
+    g.node(name='armature', translation=[1, 0, 0], children=[1, 5, 6, 9, 10])       # 0
+    g.node(name='hip', translation=[0, 1, 0], children=[2, 3])                      # 1
+    g.node(name='left', translation=[0.5, 0, 0])                                    # 2
+    g.node(name='right', translation=[-0.5, 0, 0], children=[4])                    # 3
+    g.node(name='prop', translation=[0, 0, 1], rotation=list(quat_z(90)), mesh=1)   # 4 rigid
+    g.node(name='body', mesh=0, skin=0)                                             # 5
+    g.node(name='arm', mesh=2, skin=1)                                              # 6
+    g.node(name='other_root', translation=[5, 0, 0])                                # 7
+    g.node(name='other_mesh', mesh=2, skin=3)                                       # 8
+    g.node(name='tail', mesh=0, skin=2)                                             # 9
+    g.node(name='cape', mesh=2, skin=4)                                             # 10
+    tri = g.accessor(FLOAT, 'VEC3', [(0, 0, 0), (1, 0, 0), (0, 1, 0)])
+    joints = g.accessor(UBYTE, 'VEC4', [(0, 0, 0, 0), (1, 0, 0, 0), (0, 1, 0, 0)])
+    weights = g.accessor(FLOAT, 'VEC4', [(1, 0, 0, 0), (1, 0, 0, 0), (0.5, 0.5, 0, 0)])
+    g.j['meshes'].append({'primitives': [{'attributes': {'POSITION': tri, 'JOINTS_0': joints, 'WEIGHTS_0': weights}}]})
+    prop = g.accessor(FLOAT, 'VEC3', [(0, 0, 0), (1, 0, 0), (0, 1, 0)])
+    prop_n = g.accessor(FLOAT, 'VEC3', [(1, 0, 0)] * 3)
+    g.j['meshes'].append({'primitives': [{'attributes': {'POSITION': prop, 'NORMAL': prop_n}}]})
+    other_j = g.accessor(UBYTE, 'VEC4', [(0, 0, 0, 0)] * 3)
+    other_w = g.accessor(FLOAT, 'VEC4', [(1, 0, 0, 0)] * 3)
+    g.j['meshes'].append({'primitives': [{'attributes': {'POSITION': tri, 'JOINTS_0': other_j, 'WEIGHTS_0': other_w}}]})
+    hip, left, right = translation(-1, -1, 0), translation(-1.5, -1, 0), translation(-0.5, -1, 0)
+    g.j['skins'] = [
+        {'joints': [1, 2], 'inverseBindMatrices': g.accessor(FLOAT, 'MAT4', [hip, left])},
+        {'joints': [3], 'inverseBindMatrices': g.accessor(FLOAT, 'MAT4', [right])},
+        {'joints': [2, 1], 'inverseBindMatrices': g.accessor(FLOAT, 'MAT4', [left, hip])},
+        {'joints': [7], 'inverseBindMatrices': g.accessor(FLOAT, 'MAT4', [translation(-5, 0, 0)])},
+        {'joints': [1], 'inverseBindMatrices': g.accessor(FLOAT, 'MAT4', [translation(-1, -2, 0)])},
+    ]
+    times = g.accessor(FLOAT, 'SCALAR', [(0.0,), (1.0,)])
+    rot = g.accessor(FLOAT, 'VEC4', [quat_z(0), quat_z(90)])
+    move = g.accessor(FLOAT, 'VEC3', [(5, 0, 0), (5, 1, 0)])
+    g.j['animations'] = [{'name': 'wave', 'samplers': [{'input': times, 'output': rot}, {'input': times, 'output': move}],
+                          'channels': [{'sampler': 0, 'target': {'node': 3, 'path': 'rotation'}},
+                                       {'sampler': 1, 'target': {'node': 7, 'path': 'translation'}}]}]
+    write_json('multi_skin.gltf', g.finish())
+
+
+def containers():
+    g = basic()
+    with open(os.path.join(HERE, 'basic.glb'), 'wb') as f:
+        f.write(g.glb())
+    write_json('external_buffer.gltf', g.finish(uri='external_buffer.bin'))
+    with open(os.path.join(HERE, 'external_buffer.bin'), 'wb') as f:
+        f.write(g.bin)
+
+
+# ---------------------------------------------------------------------------
+# Broken files: each has exactly one defect; test_import.cpp checks the message.
+
+def broken():
+    os.makedirs(os.path.join(HERE, 'broken'), exist_ok=True)
+
+    def put(name, j):
+        write_json(os.path.join('broken', name), j)
+
+    with open(os.path.join(HERE, 'broken', 'not_gltf.gltf'), 'w') as f:
+        f.write('This is a text file, not glTF.\n')
+
+    g = basic()
+    j = g.finish()
+    del j['skins']
+    del j['nodes'][2]['skin']
+    put('no_skin.gltf', j)
+
+    j = basic().finish()
+    j['accessors'][0]['count'] = 40  # POSITION: 4 vertices in the view, 40 claimed
+    put('accessor_out_of_range.gltf', j)
+
+    j = basic().finish()
+    j['bufferViews'][0]['byteLength'] = 4096  # view runs past the end of the buffer
+    put('view_out_of_range.gltf', j)
+
+    g = basic()
+    g.j['accessors'][1]['bufferView'] = g.view(struct.pack('<16B', *([0, 1, 0, 0] * 3 + [0, 5, 0, 0])))
+    put('joint_out_of_range.gltf', g.finish())
+
+    g = basic()
+    g.j['accessors'][0] = dict(g.j['accessors'][0])
+    g.j['accessors'][0]['bufferView'] = g.view(struct.pack('<12f', 0, 0, 0, 1, 0, 0, 0, float('nan'), 0, 1, 2, 0))
+    del g.j['accessors'][0]['min'], g.j['accessors'][0]['max']
+    put('nan_position.gltf', g.finish())
+
+    g = basic()  # JSON cannot hold NaN, so the bad number sits in the binary keyframe data
+    g.j['animations'][0]['samplers'][0]['output'] = g.accessor(FLOAT, 'VEC4', [quat_z(0), (0, 0, float('nan'), 1)])
+    put('nan_keyframe.gltf', g.finish())
+
+    j = basic().finish()
+    j['nodes'][1]['children'] = [0]  # root -> bone -> root
+    put('cyclic_nodes.gltf', j)
+
+    j = basic().finish()
+    j['nodes'][1]['children'] = [2]  # the mesh node is now a child of root and of bone
+    j['nodes'][0]['children'] = [1, 2]
+    put('shared_child.gltf', j)
+
+    j = basic().finish()
+    j['buffers'][0]['uri'] = 'missing_buffer.bin'
+    put('missing_buffer.gltf', j)
+
+    data = basic().glb()
+    with open(os.path.join(HERE, 'broken', 'truncated.glb'), 'wb') as f:
+        f.write(data[:len(data) // 2])
+
+    g = basic()
+    g.j['accessors'][2]['bufferView'] = g.view(struct.pack('<16f', 1, 0, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0))
+    put('zero_weights.gltf', g.finish())
+
+    g = basic()
+    g.j['accessors'][2]['bufferView'] = g.view(struct.pack('<16f', 1, 0, 0, 0, 1, 0, 0, 0, 1.5, -0.5, 0, 0, 0, 1, 0, 0))
+    put('negative_weight.gltf', g.finish())
+
+    g = basic()
+    g.j['animations'][0]['samplers'][0]['input'] = g.accessor(FLOAT, 'SCALAR', [(1.0,), (1.0,)])
+    put('bad_key_times.gltf', g.finish())
+
+    g = basic()
+    g.j['skins'][0]['inverseBindMatrices'] = g.accessor(FLOAT, 'MAT4', [translation(0, 0, 0)])
+    put('ibm_count.gltf', g.finish())
+
+
+def main():
+    sparse_quantized()
+    eight_influences()
+    multi_skin()
+    containers()
+    broken()
+
+
+if __name__ == '__main__':
+    main()
