@@ -23,6 +23,10 @@
 using namespace progskin;
 using nlohmann::json;
 
+#ifdef PROGSKIN_HAVE_RENDER
+int render_command(int argc, char** argv);  // render/render_command.cpp
+#endif
+
 namespace {
 
 const char* kUsage = R"(progskin — progressive skinning, offline tool
@@ -44,6 +48,9 @@ usage:
       World-space skinned vertex positions at time T with K bones active, in
       glTF order (mesh nodes by node index, then primitives, then accessor
       order). -o writes little-endian float32 x,y,z per vertex.
+  progskin render FILE -o OUT.png [--clip SPEC] [--time T] [--bones 1,2,4,all] [--heatmap]
+      One image, a panel per LOD, rendered off screen with OpenGL (GPU skinning);
+      see progskin render --help and docs/rendering.md.
 
 clip SPEC: a clip name, an index, a comma-separated list, or "all" (played
 together). Default for build/inspect: "auto" (all clips together when they
@@ -348,6 +355,9 @@ int main(int argc, char** argv) {
         if (cmd == "build") return cmd_build(argc, argv);
         if (cmd == "inspect") return cmd_inspect(argc, argv);
         if (cmd == "pose") return cmd_pose(argc, argv);
+#ifdef PROGSKIN_HAVE_RENDER
+        if (cmd == "render") return render_command(argc, argv);
+#endif
         throw UsageError("unknown command '" + cmd + "'");
     } catch (const UsageError& e) {
         std::fprintf(stderr, "progskin: %s (see progskin --help)\n", e.what());
