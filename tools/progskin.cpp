@@ -19,6 +19,8 @@
 #include "gltf_export.h"
 #include "gltf_import.h"
 #include "progressive_skin.h"
+#include "scratch_build.h"
+#include "vertex_animation.h"
 
 using namespace progskin;
 using nlohmann::json;
@@ -38,6 +40,16 @@ usage:
       glTF 2.0 file (joints in progressive order, weights reordered, animations
       kept, PROGSKIN_progressive_skin extension on the skin). OUT ending in
       .gltf is written as JSON with embedded buffers, anything else as .glb.
+  progskin build --from-vertices IN -o OUT.glb [--bones N] [--max-error PERCENT]
+                 [--rest-frame F] [--similarity] [--clip SPEC] [--fps 30] [--quiet]
+      Build a progressive skin from scratch for a vertex animation: IN is a
+      glTF with morph-target animation, a PC2 point cache (.pc2), or any
+      skinned glTF evaluated as vertices (its skeleton then forgotten; --clip
+      as above). Bones are added top-down until N bones (default 16) or until
+      the RMS error is at most PERCENT % of the bounding-box diagonal. Bind
+      pose: per-vertex mean over frames, or frame F. --similarity lets bones
+      scale uniformly. The output plays in any glTF viewer (rigid TRS joint
+      animation) and carries the error table (strategy "scratch").
   progskin inspect FILE [--json] [--clip SPEC] [--fps 30] [--character N]
       Joints, vertices, clips and the error table k -> RMS / max error (units
       and % of the rest bounding-box diagonal) and mean distinct influences per
@@ -176,13 +188,64 @@ ProgressiveSkin build_with_progress(const Character& c, const FrameSet& frames, 
 
 int character_arg(const Args& a) { return a.has("--character") ? to_int("--character", a.get("--character")) : 0; }
 
+int cmd_build_from_vertices(const Args& a) {
+    if (a.positional.size() != 1) throw UsageError("build --from-vertices needs exactly one input file");
+    if (!a.has("-o")) throw UsageError("build needs -o OUT.glb");
+    if (a.has("--strategy") || a.has("--plain-copy")) throw UsageError("--strategy/--plain-copy do not apply to --from-vertices");
+    VertexAnimationOptions vo;
+    vo.fps = a.has("--fps") ? to_number("--fps", a.get("--fps")) : 30.0;
+    if (vo.fps <= 0 || vo.fps > 1000) throw UsageError("--fps must be in (0, 1000]");
+    vo.clip = a.get("--clip", "auto");
+    vo.character = character_arg(a);
+    ScratchOptions so;
+    so.max_bones = a.has("--bones") ? to_int("--bones", a.get("--bones")) : 16;
+    if (so.max_bones < 1 || so.max_bones > 1024) throw UsageError("--bones must be in 1..1024");
+    if (a.has("--max-error")) {
+        so.max_error_pct = to_number("--max-error", a.get("--max-error"));
+        if (so.max_error_pct < 0) throw UsageError("--max-error must be >= 0");
+        if (!a.has("--bones")) so.max_bones = 256;
+    }
+    so.rest_frame = a.has("--rest-frame") ? to_int("--rest-frame", a.get("--rest-frame")) : -1;
+    so.similarity = a.has("--similarity");
+    const bool quiet = a.has("--quiet");
+    const VertexAnimation anim = load_vertex_animation(a.positional[0], vo);
+    if (!quiet)
+        std::fprintf(stderr, "%s: %zu vertices, %zu frames at %g fps\n", a.positional[0].c_str(), anim.vertex_count,
+                     anim.frame_count, anim.fps);
+    const auto start = std::chrono::steady_clock::now();
+    auto last = start - std::chrono::seconds(1);
+    so.progress = [&](int step, int total) {
+        if (quiet || total <= 0) return;
+        const auto now = std::chrono::steady_clock::now();
+        if (step < total && now - last < std::chrono::milliseconds(250)) return;
+        last = now;
+        const double el = std::chrono::duration<double>(now - start).count();
+        // Later bones cost about as much as earlier ones: linear estimate.
+        const double eta = step > 0 ? el * (total - step) / step : 0.0;
+        std::fprintf(stderr, "\rbuild scratch: step %d/%d, %.1f s, about %.1f s left   ", step, total, el, eta);
+        if (step >= total) std::fprintf(stderr, "\n");
+    };
+    const ScratchResult r = build_from_vertices(anim, so);
+    save_scratch(r, a.get("-o"));
+    if (!quiet) {
+        print_table("progressive skin, strategy scratch", r.skin.error, r.skin.diagonal);
+        std::printf("  distortion %%:");
+        for (const LodError& e : r.skin.error) std::printf(" %.3g", e.distortion_pct);
+        std::printf("\n\nwrote %s (%d bones)\n", a.get("-o").c_str(), r.skin.bone_count());
+    }
+    return 0;
+}
+
 int cmd_build(int argc, char** argv) {
-    Args a = parse(argc, argv, 2, {"--plain-copy", "--quiet", "--help"},
-                   {"-o", "--strategy", "--clip", "--fps", "--character"});
+    Args a = parse(argc, argv, 2, {"--plain-copy", "--quiet", "--help", "--from-vertices", "--similarity"},
+                   {"-o", "--strategy", "--clip", "--fps", "--character", "--bones", "--max-error", "--rest-frame"});
     if (a.has("--help")) {
         std::fputs(kUsage, stdout);
         return 0;
     }
+    if (a.has("--from-vertices")) return cmd_build_from_vertices(a);
+    for (const char* k : {"--bones", "--max-error", "--rest-frame", "--similarity"})
+        if (a.has(k)) throw UsageError(std::string(k) + " needs --from-vertices");
     if (a.positional.size() != 1) throw UsageError("build needs exactly one input file");
     if (!a.has("-o")) throw UsageError("build needs -o OUT.glb");
     const double fps = a.has("--fps") ? to_number("--fps", a.get("--fps")) : 30.0;

@@ -1,0 +1,577 @@
+// scratch_build.cpp — build a progressive skin from vertex animation (see
+// scratch_build.h and docs/algorithms.md "Build from scratch").
+//
+// State: per vertex up to 4 (bone, weight) slots, weights >= 0 summing to 1;
+// per bone a parent (< its index) and per frame a rigid 3x4 transform M_b(f)
+// acting on bind positions; the current reconstruction R[f*V + v] and per
+// vertex outstanding squared error E[v] = sum_f |a_vf - R_vf|^2.
+#include "scratch_build.h"
+
+#include <Eigen/Dense>
+#include <Eigen/SVD>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <numeric>
+
+#include <glm/gtc/matrix_transform.hpp>
+
+#include "error.h"
+#include "error_metric.h"
+
+namespace progskin {
+
+namespace {
+
+using V3 = Eigen::Vector3d;
+using M3 = Eigen::Matrix3d;
+using M34 = Eigen::Matrix<double, 3, 4>;
+
+inline V3 xf(const M34& m, const V3& p) { return m.leftCols<3>() * p + m.col(3); }
+
+M34 identity34() {
+    M34 m = M34::Zero();
+    m.leftCols<3>().setIdentity();
+    return m;
+}
+
+// Weighted Procrustes: minimise sum w |s R x + t - y|^2 over rotations R
+// (det +1), translation t and (optionally) uniform scale s > 0.
+struct Procrustes {
+    double W = 0, sxx = 0;
+    V3 sx = V3::Zero(), sy = V3::Zero();
+    M3 sxy = M3::Zero();
+    void add(const V3& x, const V3& y, double w) {
+        W += w;
+        sx += w * x;
+        sy += w * y;
+        sxy += w * x * y.transpose();
+        sxx += w * x.squaredNorm();
+    }
+    M34 solve(bool scale) const {
+        M34 out = identity34();
+        if (!(W > 0)) return out;
+        const V3 mx = sx / W, my = sy / W;
+        const M3 H = sxy - W * mx * my.transpose();  // sum w (x - mx)(y - my)^T
+        const double varx = sxx - W * mx.squaredNorm();
+        M3 R = M3::Identity();
+        double s = 1.0;
+        if (varx > 1e-300 && H.allFinite() && H.norm() > 1e-300) {
+            Eigen::JacobiSVD<M3> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
+            M3 D = M3::Identity();
+            if ((svd.matrixV() * svd.matrixU().transpose()).determinant() < 0) D(2, 2) = -1;
+            R = svd.matrixV() * D * svd.matrixU().transpose();
+            if (scale) {
+                const double tr = (svd.singularValues().asDiagonal() * D).trace();
+                s = tr > 0 ? tr / varx : 1.0;
+            }
+        }
+        out.leftCols<3>() = s * R;
+        out.col(3) = my - s * R * mx;
+        if (!out.allFinite()) return identity34();
+        return out;
+    }
+};
+
+constexpr int kSlots = 4;
+
+struct Bone {
+    int parent = -1;
+    std::vector<M34> M;  // per frame
+    V3 center = V3::Zero();
+};
+
+class Builder {
+public:
+    Builder(const VertexAnimation& an, const ScratchOptions& opt) : an_(an), opt_(opt) {
+        V_ = an.vertex_count;
+        F_ = an.frame_count;
+        A_.resize(V_ * F_);
+        for (size_t i = 0; i < V_ * F_; ++i) A_[i] = V3(an.positions[i].x, an.positions[i].y, an.positions[i].z);
+        P_.assign(V_, V3::Zero());
+        if (opt.rest_frame >= 0) {
+            if (size_t(opt.rest_frame) >= F_)
+                throw Error(an.source + ": --rest-frame " + std::to_string(opt.rest_frame) + " out of range (" +
+                            std::to_string(F_) + " frames)");
+            for (size_t v = 0; v < V_; ++v) P_[v] = A_[size_t(opt.rest_frame) * V_ + v];
+        } else {
+            for (size_t f = 0; f < F_; ++f)
+                for (size_t v = 0; v < V_; ++v) P_[v] += A_[f * V_ + v];
+            for (V3& p : P_) p /= double(F_);
+        }
+        slot_bone_.assign(V_, {});
+        slot_w_.assign(V_, {});
+        nslot_.assign(V_, 0);
+        R_.assign(V_ * F_, V3::Zero());
+        E_.assign(V_, 0.0);
+        // Total variance for the distortion-style stopping rule.
+        V3 mean = V3::Zero();
+        for (const V3& a : A_) mean += a;
+        scale_ = 0;
+        for (size_t v = 0; v < V_; ++v) scale_ += (P_[v] - P_[0]).squaredNorm();
+    }
+
+    const std::vector<Bone>& bones() const { return bones_; }
+    const std::vector<V3>& bind() const { return P_; }
+
+    double total_error() const { return std::accumulate(E_.begin(), E_.end(), 0.0); }
+
+    void fit_root() {
+        Bone b;
+        b.M.resize(F_);
+        for (size_t f = 0; f < F_; ++f) {
+            Procrustes pr;
+            for (size_t v = 0; v < V_; ++v) pr.add(P_[v], A_[f * V_ + v], 1.0);
+            b.M[f] = pr.solve(opt_.similarity);
+        }
+        for (const V3& p : P_) b.center += p;
+        b.center /= double(V_);
+        bones_.push_back(std::move(b));
+        for (size_t v = 0; v < V_; ++v) {
+            nslot_[v] = 1;
+            slot_bone_[v] = {0, 0, 0, 0};
+            slot_w_[v] = {1.0, 0, 0, 0};
+        }
+        recompute_all();
+    }
+
+    // One bone added top-down; false when no seed gives a useful bone.
+    bool add_bone() {
+        const double total = total_error();
+        if (!(total > 0)) return false;
+        std::vector<size_t> seeds(V_);
+        std::iota(seeds.begin(), seeds.end(), 0);
+        const size_t tries = std::min<size_t>(V_, 6);
+        std::partial_sort(seeds.begin(), seeds.begin() + tries, seeds.end(),
+                          [&](size_t a, size_t b) { return E_[a] > E_[b]; });
+        for (size_t t = 0; t < tries; ++t) {
+            if (!(E_[seeds[t]] > 1e-12 * total)) break;
+            if (try_seed(seeds[t], total)) return true;
+        }
+        return false;
+    }
+
+    int bone_count() const { return int(bones_.size()); }
+
+    // Per vertex slots, for the export.
+    int nslot(size_t v) const { return nslot_[v]; }
+    int slot_bone(size_t v, int i) const { return slot_bone_[v][i]; }
+    double slot_w(size_t v, int i) const { return slot_w_[v][i]; }
+
+    // Drops bones >= k: their weight goes to their nearest ancestor < k.
+    void truncate(int k) {
+        if (k >= bone_count()) return;
+        std::vector<int> up(bones_.size());
+        for (size_t b = 0; b < bones_.size(); ++b) up[b] = int(b) < k ? int(b) : up[size_t(bones_[b].parent)];
+        for (size_t v = 0; v < V_; ++v) {
+            std::array<int, kSlots> nb{};
+            std::array<double, kSlots> nw{};
+            int n = 0;
+            for (int i = 0; i < nslot_[v]; ++i) {
+                const int b = up[size_t(slot_bone_[v][i])];
+                int j = 0;
+                while (j < n && nb[j] != b) ++j;
+                if (j == n) {
+                    nb[n] = b;
+                    nw[n++] = 0;
+                }
+                nw[j] += slot_w_[v][i];
+            }
+            slot_bone_[v] = nb;
+            slot_w_[v] = nw;
+            nslot_[v] = n;
+        }
+        bones_.resize(size_t(k));
+        recompute_all();
+    }
+
+    // Global refinement (see refine() below).
+    void refine(int sweeps, const std::function<void()>& tick);
+
+private:
+    // Current reconstruction and errors from scratch.
+    void recompute_all() {
+        for (size_t v = 0; v < V_; ++v) recompute_vertex(v);
+    }
+    void recompute_vertex(size_t v) {
+        double e = 0;
+        for (size_t f = 0; f < F_; ++f) {
+            V3 r = V3::Zero();
+            for (int i = 0; i < nslot_[v]; ++i) r += slot_w_[v][i] * xf(bones_[size_t(slot_bone_[v][i])].M[f], P_[v]);
+            R_[f * V_ + v] = r;
+            e += (A_[f * V_ + v] - r).squaredNorm();
+        }
+        E_[v] = e;
+    }
+    double weight_on(size_t v, int b) const {
+        for (int i = 0; i < nslot_[v]; ++i)
+            if (slot_bone_[v][i] == b) return slot_w_[v][i];
+        return 0.0;
+    }
+
+    // Rigid per-frame fit of a vertex set to the input.
+    std::vector<M34> fit_set(const std::vector<size_t>& set) const {
+        std::vector<M34> T(F_);
+        for (size_t f = 0; f < F_; ++f) {
+            Procrustes pr;
+            for (size_t v : set) pr.add(P_[v], A_[f * V_ + v], 1.0);
+            T[f] = pr.solve(opt_.similarity);
+        }
+        return T;
+    }
+
+    // Least-squares share alpha of vertex v's parent weight w_p moved to a bone
+    // moving with Mk, and the error decrease it gives.
+    struct Share {
+        double alpha = 0, gain = 0;
+    };
+    Share solve_share(size_t v, int p, double wp, const std::vector<M34>& Mk) const {
+        const std::vector<M34>& Mp = bones_[size_t(p)].M;
+        double num = 0, den = 0;
+        for (size_t f = 0; f < F_; ++f) {
+            const V3 d = wp * (xf(Mk[f], P_[v]) - xf(Mp[f], P_[v]));
+            const V3 e = A_[f * V_ + v] - R_[f * V_ + v];
+            num += e.dot(d);
+            den += d.squaredNorm();
+        }
+        Share s;
+        if (!(den > 0)) return s;
+        double a = std::clamp(num / den, 0.0, 1.0);
+        if (nslot_[v] >= kSlots && a < 1.0) a = (den - 2 * num < 0) ? 1.0 : 0.0;  // no free slot: all or nothing
+        s.alpha = a;
+        s.gain = 2 * a * num - a * a * den;
+        return s;
+    }
+
+    bool try_seed(size_t seed, double total) {
+        // Initial region: the seed's nearest vertices in the bind pose.
+        const size_t n0 = std::min(V_, std::clamp<size_t>(V_ / size_t(4 * std::max(1, opt_.max_bones)), 8, 200));
+        std::vector<size_t> idx(V_);
+        std::iota(idx.begin(), idx.end(), 0);
+        std::nth_element(idx.begin(), idx.begin() + (n0 - 1), idx.end(), [&](size_t a, size_t b) {
+            return (P_[a] - P_[seed]).squaredNorm() < (P_[b] - P_[seed]).squaredNorm();
+        });
+        std::vector<size_t> region(idx.begin(), idx.begin() + n0);
+        std::vector<M34> T;
+        std::vector<double> eT(V_);
+        // Grow by motion similarity: the vertices the region's rigid motion
+        // predicts better than the current skin does.
+        for (int it = 0; it < 4; ++it) {
+            T = fit_set(region);
+            std::vector<size_t> next;
+            for (size_t v = 0; v < V_; ++v) {
+                double e = 0;
+                for (size_t f = 0; f < F_; ++f) e += (xf(T[f], P_[v]) - A_[f * V_ + v]).squaredNorm();
+                eT[v] = e;
+                if (e < 0.5 * E_[v]) next.push_back(v);
+            }
+            if (std::find(next.begin(), next.end(), seed) == next.end()) next.push_back(seed);
+            if (next.size() < 3 || next == region) break;
+            region = std::move(next);
+        }
+        // Parent: the bone the region's improvement draws its weight from.
+        std::vector<double> score(bones_.size(), 0.0);
+        for (size_t v : region)
+            for (int i = 0; i < nslot_[v]; ++i)
+                score[size_t(slot_bone_[v][i])] += slot_w_[v][i] * std::max(0.0, E_[v] - eT[v]);
+        const int p = int(std::max_element(score.begin(), score.end()) - score.begin());
+        std::vector<size_t> S;
+        for (size_t v = 0; v < V_; ++v)
+            if (weight_on(v, p) > 0) S.push_back(v);
+        // Alternate shares and the bone's transform.
+        std::vector<M34> Mk = T;
+        std::vector<Share> sh(S.size());
+        const std::vector<M34>& Mp = bones_[size_t(p)].M;
+        for (int it = 0; it < 6; ++it) {
+            for (size_t i = 0; i < S.size(); ++i) sh[i] = solve_share(S[i], p, weight_on(S[i], p), Mk);
+            for (size_t f = 0; f < F_; ++f) {
+                Procrustes pr;
+                for (size_t i = 0; i < S.size(); ++i) {
+                    const size_t v = S[i];
+                    const double c = sh[i].alpha * weight_on(v, p);
+                    if (c < 1e-6) continue;
+                    const V3 q = A_[f * V_ + v] - R_[f * V_ + v] + c * xf(Mp[f], P_[v]);
+                    pr.add(P_[v], q / c, c * c);
+                }
+                if (pr.W > 0) Mk[f] = pr.solve(opt_.similarity);
+            }
+        }
+        double gain = 0;
+        for (size_t i = 0; i < S.size(); ++i) {
+            sh[i] = solve_share(S[i], p, weight_on(S[i], p), Mk);
+            gain += sh[i].gain;
+        }
+        if (!(gain > 1e-7 * total)) return false;
+        // Commit.
+        const int k = int(bones_.size());
+        Bone b;
+        b.parent = p;
+        b.M = std::move(Mk);
+        double csum = 0;
+        for (size_t i = 0; i < S.size(); ++i) {
+            const size_t v = S[i];
+            const double a = sh[i].alpha;
+            if (a <= 0) continue;
+            int ip = 0;
+            while (slot_bone_[v][ip] != p) ++ip;
+            const double c = a * slot_w_[v][ip];
+            b.center += c * P_[v];
+            csum += c;
+            if (a >= 1.0) {
+                slot_bone_[v][ip] = k;
+            } else {
+                slot_w_[v][ip] -= c;
+                slot_bone_[v][nslot_[v]] = k;
+                slot_w_[v][nslot_[v]] = c;
+                ++nslot_[v];
+            }
+        }
+        b.center = csum > 0 ? V3(b.center / csum) : P_[seed];
+        bones_.push_back(std::move(b));
+        for (size_t i = 0; i < S.size(); ++i)
+            if (sh[i].alpha > 0) recompute_vertex(S[i]);
+        return true;
+    }
+
+    const VertexAnimation& an_;
+    ScratchOptions opt_;
+    size_t V_ = 0, F_ = 0;
+    std::vector<V3> A_, P_, R_;
+    std::vector<double> E_;
+    std::vector<Bone> bones_;
+    std::vector<std::array<int, kSlots>> slot_bone_;
+    std::vector<std::array<double, kSlots>> slot_w_;
+    std::vector<int> nslot_;
+    double scale_ = 0;
+};
+
+void Builder::refine(int, const std::function<void()>&) {}
+
+// Float key times t_f = f / fps such that sample_frames yields exactly F frames.
+std::vector<float> key_times(size_t F, double fps) {
+    std::vector<float> t(F);
+    for (size_t f = 0; f < F; ++f) t[f] = float(double(f) / fps);
+    if (F > 1) {
+        auto count = [&]() { return size_t(std::floor(double(t.back()) * fps + 1e-6)) + 1; };
+        while (count() < F) t.back() = std::nextafter(t.back(), std::numeric_limits<float>::infinity());
+    }
+    return t;
+}
+
+// Area-weighted vertex normals of a triangle list (empty without triangles).
+std::vector<glm::vec3> triangle_normals(const std::vector<glm::vec3>& p, const std::vector<uint32_t>& tri) {
+    if (tri.empty()) return {};
+    std::vector<glm::dvec3> n(p.size(), glm::dvec3(0.0));
+    for (size_t i = 0; i + 2 < tri.size(); i += 3) {
+        const glm::dvec3 a(p[tri[i]]), b(p[tri[i + 1]]), c(p[tri[i + 2]]);
+        const glm::dvec3 x = glm::cross(b - a, c - a);
+        for (int k = 0; k < 3; ++k) n[tri[i + k]] += x;
+    }
+    std::vector<glm::vec3> out(p.size());
+    for (size_t v = 0; v < p.size(); ++v) {
+        const double l = glm::length(n[v]);
+        out[v] = l > 0 ? glm::vec3(n[v] / l) : glm::vec3(0, 0, 1);
+    }
+    return out;
+}
+
+// The Character (flat joints under one root node, one TRS clip) of a fit.
+Character make_character(const VertexAnimation& an, const Builder& b, bool similarity) {
+    Character c;
+    c.name = "scratch";
+    c.source = an.source;
+    const int B = b.bone_count();
+    const size_t V = an.vertex_count, F = an.frame_count;
+    Node root;
+    root.name = "scratch_root";
+    root.gltf_index = 0;
+    c.nodes.push_back(root);
+    for (int j = 0; j < B; ++j) {
+        Node n;
+        n.name = "bone" + std::to_string(j);
+        n.gltf_index = j + 1;
+        n.parent = 0;
+        const V3& ctr = b.bones()[size_t(j)].center;
+        n.translation = glm::dvec3(ctr.x(), ctr.y(), ctr.z());
+        c.nodes.push_back(n);
+        c.joint_node.push_back(j + 1);
+        c.joint_parent.push_back(-1);
+        c.inverse_bind.push_back(glm::translate(glm::dmat4(1.0), -n.translation));
+    }
+    c.positions.resize(V);
+    for (size_t v = 0; v < V; ++v) c.positions[v] = glm::vec3(b.bind()[v].x(), b.bind()[v].y(), b.bind()[v].z());
+    c.triangles = an.triangles;
+    c.normals = an.normals.size() == V ? an.normals : triangle_normals(c.positions, c.triangles);
+    c.influences = kSlots;
+    c.joints.assign(V * kSlots, 0);
+    c.weights.assign(V * kSlots, 0.0f);
+    for (size_t v = 0; v < V; ++v) {
+        // Slots ordered for dropping: largest weight first.
+        std::array<int, kSlots> ord{0, 1, 2, 3};
+        const int n = b.nslot(v);
+        for (int i = 1; i < n; ++i)  // insertion sort by weight, descending
+            for (int k = i; k > 0 && b.slot_w(v, ord[k]) > b.slot_w(v, ord[k - 1]); --k) std::swap(ord[k], ord[k - 1]);
+        double sum = 0;
+        for (int i = 0; i < n; ++i) sum += b.slot_w(v, ord[i]);
+        for (int i = 0; i < n; ++i) {
+            c.joints[v * kSlots + i] = uint16_t(b.slot_bone(v, ord[i]));
+            c.weights[v * kSlots + i] = float(b.slot_w(v, ord[i]) / sum);
+        }
+    }
+    PrimitiveRange pr;
+    pr.node = B + 1;
+    pr.mesh = 0;
+    pr.primitive = 0;
+    pr.first = 0;
+    pr.count = uint32_t(V);
+    pr.skin = 0;
+    c.primitives.push_back(pr);
+    Clip clip;
+    clip.name = "scratch";
+    clip.gltf_index = 0;
+    const std::vector<float> times = key_times(F, an.fps);
+    for (int j = 0; j < B; ++j) {
+        Channel t, r, s;
+        t.node = r.node = s.node = j + 1;
+        t.path = ChannelPath::Translation;
+        r.path = ChannelPath::Rotation;
+        s.path = ChannelPath::Scale;
+        t.times = r.times = s.times = times;
+        const V3& ctr = b.bones()[size_t(j)].center;
+        glm::dquat prev(1, 0, 0, 0);
+        for (size_t f = 0; f < F; ++f) {
+            const M34& M = b.bones()[size_t(j)].M[f];
+            // G = M * translate(center): translation M(center), rotation/scale of M.
+            const V3 tr = xf(M, ctr);
+            const double sc = std::cbrt(std::max(1e-300, M.leftCols<3>().determinant()));
+            const M3 rot = M.leftCols<3>() / sc;
+            glm::dmat3 g;
+            for (int col = 0; col < 3; ++col)
+                for (int row = 0; row < 3; ++row) g[col][row] = rot(row, col);
+            glm::dquat q = glm::normalize(glm::quat_cast(g));
+            if (glm::dot(q, prev) < 0) q = -q;  // shortest path between keys
+            prev = q;
+            t.values.insert(t.values.end(), {float(tr.x()), float(tr.y()), float(tr.z())});
+            r.values.insert(r.values.end(), {float(q.x), float(q.y), float(q.z), float(q.w)});
+            s.values.insert(s.values.end(), {float(sc), float(sc), float(sc)});
+        }
+        clip.channels.push_back(std::move(t));
+        clip.channels.push_back(std::move(r));
+        if (similarity) clip.channels.push_back(std::move(s));
+    }
+    clip.start = times.front();
+    clip.end = times.back();
+    c.clips.push_back(std::move(clip));
+    return c;
+}
+
+ProgressiveSkin make_skin(const Character& c, const Builder& b, double diagonal) {
+    ProgressiveSkin s;
+    s.strategy = Strategy::Scratch;
+    const int B = b.bone_count();
+    s.order.resize(size_t(B));
+    std::iota(s.order.begin(), s.order.end(), 0);
+    s.parents.resize(size_t(B));
+    for (int j = 0; j < B; ++j) s.parents[size_t(j)] = int16_t(b.bones()[size_t(j)].parent);
+    s.corrections.assign(size_t(B), Mat34::identity());
+    s.diagonal = diagonal;
+    s.influences = c.influences;
+    s.joints = c.joints;
+    s.weights = c.weights;
+    return s;
+}
+
+}  // namespace
+
+std::vector<LodError> scratch_error_table(const Character& c, const ProgressiveSkin& s, const FrameSet& frames,
+                                          const VertexAnimation& an, double diagonal) {
+    if (frames.frame_count() != an.frame_count || c.vertex_count() != an.vertex_count)
+        throw Error(an.source + ": skin and vertex animation do not match");
+    const size_t V = an.vertex_count, F = an.frame_count;
+    const int B = s.bone_count();
+    // ||A - Abar||_F^2 for the distortion percentage.
+    std::vector<glm::dvec3> mean(V, glm::dvec3(0.0));
+    for (size_t f = 0; f < F; ++f)
+        for (size_t v = 0; v < V; ++v) mean[v] += glm::dvec3(an.frame(f)[v]);
+    double spread = 0;
+    for (size_t v = 0; v < V; ++v) mean[v] /= double(F);
+    for (size_t f = 0; f < F; ++f)
+        for (size_t v = 0; v < V; ++v) {
+            const glm::dvec3 d = glm::dvec3(an.frame(f)[v]) - mean[v];
+            spread += glm::dot(d, d);
+        }
+    std::vector<LodError> table;
+    std::vector<glm::vec3> rec(V);
+    for (int k = 1; k <= B; ++k) {
+        ErrorAccumulator acc(diagonal);
+        for (size_t f = 0; f < F; ++f) {
+            lod_positions(c, s, frames, f, k, rec);
+            acc.add(std::span<const glm::vec3>(an.frame(f), V), rec);
+        }
+        const ErrorStats st = acc.stats();
+        std::vector<int> up(static_cast<size_t>(B));
+        for (int b = 0; b < B; ++b) up[b] = b < k ? b : up[s.parents[b]];
+        double owners = 0;
+        for (size_t v = 0; v < V; ++v) {
+            int seen[8], n = 0;
+            for (int i = 0; i < s.influences; ++i) {
+                if (s.weights[v * s.influences + i] == 0.0f) continue;
+                const int o = up[s.joints[v * s.influences + i]];
+                if (std::find(seen, seen + n, o) == seen + n) seen[n++] = o;
+            }
+            owners += n;
+        }
+        LodError e{k, st.rms, st.max, st.rms_pct, st.max_pct, V ? owners / double(V) : 0.0, -1.0};
+        if (spread > 0) e.distortion_pct = 100.0 * std::sqrt(st.rms * st.rms * double(V * F) / spread);
+        table.push_back(e);
+    }
+    return table;
+}
+
+ScratchResult build_from_vertices(const VertexAnimation& an, const ScratchOptions& opt) {
+    an.validate();
+    if (opt.max_bones < 1 || opt.max_bones > 1024) throw Error(an.source + ": bone count must be in 1..1024");
+    if (opt.max_error_pct < 0 || !std::isfinite(opt.max_error_pct)) throw Error(an.source + ": --max-error must be >= 0");
+    double diag = an.diagonal > 0 ? an.diagonal : frame_diagonal(an, opt.rest_frame >= 0 ? size_t(opt.rest_frame) : 0);
+    if (!(diag > 0)) diag = 1.0;  // a single point: report in units
+    Builder b(an, opt);
+    const int total_steps = opt.max_bones + opt.refine_sweeps;
+    int step = 0;
+    auto tick = [&]() {
+        if (opt.progress) opt.progress(++step, total_steps);
+    };
+    b.fit_root();
+    tick();
+    const double n = double(an.vertex_count) * double(an.frame_count);
+    auto rms_pct = [&]() { return 100.0 * std::sqrt(b.total_error() / n) / diag; };
+    while (b.bone_count() < opt.max_bones) {
+        if (opt.max_error_pct > 0 && rms_pct() <= opt.max_error_pct) break;
+        if (!b.add_bone()) break;
+        tick();
+    }
+    step = opt.max_bones;
+    b.refine(opt.refine_sweeps, tick);
+    if (opt.progress) opt.progress(total_steps, total_steps);
+
+    ScratchResult r;
+    for (int attempt = 0;; ++attempt) {
+        r.character = make_character(an, b, opt.similarity);
+        r.frames = sample_frames(r.character, {select_clips(r.character, "all")}, an.fps);
+        if (r.frames.frame_count() != an.frame_count)
+            throw Error(an.source + ": internal: resampled " + std::to_string(r.frames.frame_count()) + " frames of " +
+                        std::to_string(an.frame_count));
+        r.skin = make_skin(r.character, b, diag);
+        r.skin.error = scratch_error_table(r.character, r.skin, r.frames, an, diag);
+        // Safety net: the table must be non-increasing (float rounding of the
+        // keys could break a tie); drop the bones from the first increase on.
+        int bad = 0;
+        for (size_t k = 1; k < r.skin.error.size() && !bad; ++k)
+            if (r.skin.error[k].rms > r.skin.error[k - 1].rms) bad = int(k);
+        if (!bad || attempt > 4) break;
+        b.truncate(bad);
+    }
+    return r;
+}
+
+}  // namespace progskin

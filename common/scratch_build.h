@@ -1,0 +1,78 @@
+// scratch_build.h — a progressive skin built from scratch for a mesh that has
+// only vertex animation (docs/algorithms.md, "Build from scratch").
+//
+// Bind pose: each vertex's mean over frames, or one chosen frame. Bone 0 (the
+// root) is, per frame, the least-squares rigid (optionally similarity)
+// transform of the whole mesh (Kabsch/Procrustes, Eigen SVD). Bones are then
+// added one at a time, top-down: seeded at the vertex with the largest
+// outstanding error, grown by motion similarity (the vertices a rigid fit of
+// the region predicts better than the current skin; no mesh connectivity
+// used), its parent is the bone the region draws its weight from, and each
+// vertex's share alpha in [0,1] of its parent weight moved to the new bone is
+// solved by least squares together with the bone's per-frame rigid transform
+// (alternating, weighted Procrustes). Because a bone only ever takes weight
+// from its progressive parent, copy-down of an inactive bone (palette.h,
+// identity correction) gives back exactly the skin before the bone was added,
+// so every prefix k is the skin of step k and e(k) is non-increasing. A final
+// refinement alternates transform and weight updates of all bones against an
+// objective summed over every LOD k (see the .cpp), accepted only when it
+// lowers that objective and keeps the table non-increasing.
+//
+// Output: a Character with one root node (identity, not a joint) whose
+// children are the B joints (flat), each with rigid per-frame TRS animation
+// (one clip "scratch", LINEAR keys at every frame), inverse bind matrices =
+// inverse of the joint's rest transform (a translation to the weighted
+// centroid of its vertices), joints in progressive order (order = identity),
+// so sample_frames(character, {select_clips(character, "all")}, fps)
+// reproduces the skinning matrices of the fit; and the ProgressiveSkin with
+// strategy Scratch, identity corrections, and the error table evaluated
+// honestly with lod_positions against the input animation.
+//
+// Memory O(V*F + B*F); time O(B * V * F) per bone added plus refinement.
+#pragma once
+#include <functional>
+#include <string>
+
+#include "animation.h"
+#include "character.h"
+#include "progressive_skin.h"
+#include "vertex_animation.h"
+
+namespace progskin {
+
+struct ScratchOptions {
+    int max_bones = 16;          // stop at this many bones (--bones)
+    double max_error_pct = 0;    // stop once RMS <= this % of the diagonal (--max-error); 0 = off
+    int rest_frame = -1;         // bind pose: -1 = per-vertex mean over frames, else this frame
+    bool similarity = false;     // bones may scale uniformly
+    int refine_sweeps = 4;       // global refinement sweeps after the greedy build (0 = none)
+    // Progress (step, total): steps are bones added then refinement sweeps.
+    std::function<void(int, int)> progress;
+};
+
+struct ScratchResult {
+    Character character;
+    ProgressiveSkin skin;
+    FrameSet frames;  // sample_frames of the character's clip (what playback computes)
+};
+
+// Throws Error for an invalid animation (validate()) or options.
+ScratchResult build_from_vertices(const VertexAnimation& anim, const ScratchOptions& options = {});
+
+// The error table e(k), k = 1..B, of a progressive skin against a vertex
+// animation: lod_positions (copy-down palette + skinning) of every frame
+// against the input, RMS / max in units and % of `diagonal`, mean distinct
+// influences, and the distortion percentage 100 ||A - A'||_F / ||A - Abar||_F
+// (-1 when the animation does not move).
+std::vector<LodError> scratch_error_table(const Character& c, const ProgressiveSkin& s, const FrameSet& frames,
+                                          const VertexAnimation& anim, double diagonal);
+
+// Writes the result as a progressive glTF (.glb, or .gltf with embedded
+// buffers): mesh with POSITION, NORMAL (input normals or computed from the
+// triangles), JOINTS_0/WEIGHTS_0, indices; the skin with its joints and
+// inverse bind matrices; one animation with per-frame T/R (and S when the
+// bones scale) channels; PROGSKIN_progressive_skin with the error table.
+// load_progressive reads it back. Throws Error.
+void save_scratch(const ScratchResult& r, const std::string& path);
+
+}  // namespace progskin
