@@ -88,6 +88,7 @@ Image render_lod_figure(Renderer& r, const Character& c, const ProgressiveSkin& 
     std::vector<Panel> panels;
     Bounds bounds;
     bounds.add(ref);
+    std::vector<glm::vec3> all_points = ref;
     float max_err = 0.0f;
     for (int want : o.bones) {
         Panel p;
@@ -96,6 +97,7 @@ Image render_lod_figure(Renderer& r, const Character& c, const ProgressiveSkin& 
         std::vector<glm::vec3> pos;
         skin_lod_cpu(c, s, joints, p.k, pos);
         bounds.add(pos);
+        if (p.k < B) all_points.insert(all_points.end(), pos.begin(), pos.end());
         ErrorAccumulator acc(diag);
         acc.add(ref, pos);
         const ErrorStats st = acc.stats();
@@ -110,7 +112,7 @@ Image render_lod_figure(Renderer& r, const Character& c, const ProgressiveSkin& 
 
     const MeshData mesh = mesh_from_skin(c, s, o.textured);
     const int handle = r.add_mesh(mesh);
-    const Camera cam = frame_bounds(bounds, float(pw) / float(ph), o.azimuth, o.elevation);
+    const Camera cam = frame_points(all_points, float(pw) / float(ph), o.azimuth, o.elevation, 30.0f, 0.85f);
     const Ground ground = ground_under(bounds);
     const float scale = max_err > 0 ? max_err : 1.0f;
 

@@ -85,7 +85,7 @@ int text_height(const std::string& text, int scale) {
 }
 
 glm::vec3 heat_color(float t) {
-    t = std::clamp(t, 0.0f, 1.0f);
+    t = 0.1f + 0.9f * std::clamp(t, 0.0f, 1.0f);  // skip Turbo's near-black start: zero error stays readable
     const glm::vec4 kr(0.13572138f, 4.61539260f, -42.66032258f, 132.13108234f);
     const glm::vec4 kg(0.09140261f, 2.19418839f, 4.84296658f, -14.18503333f);
     const glm::vec4 kb(0.10667330f, 12.64194608f, -60.58204836f, 110.36276771f);

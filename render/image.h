@@ -37,7 +37,7 @@ int draw_text(Image& img, int x, int y, const std::string& text, glm::u8vec4 col
 int text_width(const std::string& text, int scale = 2);
 int text_height(const std::string& text, int scale = 2);
 
-// Heat map colour for t in [0,1] (Google's Turbo colormap, polynomial fit).
+// Heat map colour for t in [0,1]: Google's Turbo colormap (polynomial fit) from 0.1 to 1.
 glm::vec3 heat_color(float t);
 
 }  // namespace progskin::render

@@ -77,10 +77,13 @@ uniform bool u_use_color;
 uniform sampler2D u_texture;
 uniform vec3 u_light_dir;   // towards the light, unit
 uniform vec3 u_eye;
+uniform bool u_flat;        // no normals in the file: face normals from screen-space derivatives
 out vec4 o_color;
 void main() {
-    vec3 n = normalize(v_normal);
-    if (!gl_FrontFacing) n = -n;
+    vec3 n = u_flat ? cross(dFdx(v_world), dFdy(v_world)) : v_normal;
+    n = normalize(n);
+    if (!u_flat && !gl_FrontFacing) n = -n;
+    if (u_flat && dot(n, u_eye - v_world) < 0.0) n = -n;
     vec3 base = u_base_color.rgb;
     if (u_use_texture) base *= texture(u_texture, v_uv).rgb;
     if (u_use_color) base = v_color;
@@ -174,6 +177,7 @@ struct GpuMesh {
     int influences = 4;
     uint16_t max_joint = 0;
     bool has_uv = false;
+    bool flat = false;
     std::vector<MeshPart> parts;
     std::vector<GLuint> textures;
 };
@@ -290,6 +294,7 @@ int Renderer::add_mesh(const MeshData& md) {
     m.influences = std::clamp(md.influences, 1, 8);
     m.parts = md.parts;
     m.has_uv = md.uvs.size() == m.vertices;
+    m.flat = md.flat_shaded;
     const size_t n = m.vertices;
 
     glGenVertexArrays(1, &m.vao);
@@ -351,43 +356,64 @@ int Renderer::add_mesh(const MeshData& md) {
     return int(I.meshes.size()) - 1;
 }
 
-Camera frame_bounds(const Bounds& b, float aspect, float azimuth_deg, float elevation_deg, float fov_y_deg,
-                    float fill) {
-    Camera c;
+Camera frame_points(std::span<const glm::vec3> pts, float aspect, float azimuth_deg, float elevation_deg,
+                    float fov_y_deg, float fill) {
+    Bounds b;
+    b.add(pts);
     const glm::vec3 lo = b.valid() ? b.lo : glm::vec3(-1.0f), hi = b.valid() ? b.hi : glm::vec3(1.0f);
-    const glm::vec3 center = 0.5f * (lo + hi);
+    glm::vec3 target = 0.5f * (lo + hi);
     const float radius = std::max(0.5f * glm::length(hi - lo), 1e-6f);
     const float az = glm::radians(azimuth_deg), el = glm::radians(elevation_deg);
     const glm::vec3 dir(std::sin(az) * std::cos(el), std::sin(el), std::cos(az) * std::cos(el));
     const float fov = glm::radians(fov_y_deg);
-    const float half = std::min(std::atan(std::tan(fov * 0.5f) * aspect), fov * 0.5f);
-    float dist = radius / std::sin(half);
-    // Tighten: move in until the projected corners fill `fill` of the view.
-    for (int it = 0; it < 4; ++it) {
-        const glm::vec3 eye = center + dir * dist;
-        const glm::mat4 view = glm::lookAt(eye, center, glm::vec3(0, 1, 0));
-        const glm::mat4 proj = glm::perspective(fov, aspect, dist * 0.01f, dist * 10.0f);
-        float extent = 0.0f;
-        for (int k = 0; k < 8; ++k) {
-            const glm::vec3 p((k & 1) ? hi.x : lo.x, (k & 2) ? hi.y : lo.y, (k & 4) ? hi.z : lo.z);
-            const glm::vec4 q = proj * view * glm::vec4(p, 1.0f);
-            if (q.w <= 0) {
-                extent = 2.0f;
+    const float tan_y = std::tan(fov * 0.5f), tan_x = tan_y * aspect;
+    float dist = radius / std::sin(std::min(std::atan(tan_x), fov * 0.5f));
+    // Refine: centre the points' projected box and move in until it fills `fill` of the view.
+    for (int it = 0; it < 6 && !pts.empty(); ++it) {
+        const glm::mat4 view = glm::lookAt(target + dir * dist, target, glm::vec3(0, 1, 0));
+        glm::vec2 mn(1e30f), mx(-1e30f);
+        float nearest = 1e30f;
+        for (const glm::vec3& p : pts) {
+            const glm::vec3 q = glm::vec3(view * glm::vec4(p, 1.0f));
+            const float depth = -q.z;
+            if (depth <= 1e-6f * dist) {
+                mn = glm::vec2(-1e30f);
                 break;
             }
-            extent = std::max({extent, std::abs(q.x / q.w), std::abs(q.y / q.w)});
+            nearest = std::min(nearest, depth);
+            const glm::vec2 ndc(q.x / (depth * tan_x), q.y / (depth * tan_y));
+            mn = glm::min(mn, ndc);
+            mx = glm::max(mx, ndc);
         }
-        if (extent <= 0) break;
-        const float ratio = extent / fill;
-        if (std::abs(ratio - 1.0f) < 0.01f) break;
-        // Extent scales like 1/depth; depth of the box's near side ~ dist - radius.
-        dist = std::max((dist - radius) * ratio + radius, radius * 1.05f);
+        if (mn.x < -1e29f) {  // a point behind the camera: back off
+            dist *= 2.0f;
+            continue;
+        }
+        const glm::vec2 c = 0.5f * (mn + mx), half = 0.5f * (mx - mn);
+        // Shift the target sideways / up so the box is centred (at the target's depth).
+        const glm::vec3 right(view[0][0], view[1][0], view[2][0]), up(view[0][1], view[1][1], view[2][1]);
+        target += right * (c.x * dist * tan_x) + up * (c.y * dist * tan_y);
+        const float ratio = std::max(half.x, half.y) / fill;
+        if (std::abs(ratio - 1.0f) < 0.005f && glm::length(c) < 0.005f) break;
+        // Projected size ~ 1/depth; scale the distance of the nearest point.
+        const float near_gap = dist - nearest;
+        dist = std::max(near_gap + (dist - near_gap) * ratio, 1e-6f);
     }
-    c.target = center;
-    c.eye = center + dir * dist;
-    c.view = glm::lookAt(c.eye, center, glm::vec3(0, 1, 0));
-    c.proj = glm::perspective(fov, aspect, std::max(dist - radius * 3.0f, dist * 0.02f), dist + radius * 12.0f);
-    return c;
+    Camera cam;
+    cam.target = target;
+    cam.eye = target + dir * dist;
+    cam.view = glm::lookAt(cam.eye, target, glm::vec3(0, 1, 0));
+    cam.proj = glm::perspective(fov, aspect, std::max(dist - radius * 3.0f, dist * 0.02f), dist + radius * 12.0f);
+    return cam;
+}
+
+Camera frame_bounds(const Bounds& b, float aspect, float azimuth_deg, float elevation_deg, float fov_y_deg,
+                    float fill) {
+    std::vector<glm::vec3> corners;
+    if (b.valid())
+        for (int k = 0; k < 8; ++k)
+            corners.emplace_back((k & 1) ? b.hi.x : b.lo.x, (k & 2) ? b.hi.y : b.lo.y, (k & 4) ? b.hi.z : b.lo.z);
+    return frame_points(corners, aspect, azimuth_deg, elevation_deg, fov_y_deg, fill);
 }
 
 Ground ground_under(const Bounds& b) {
@@ -491,6 +517,7 @@ bool Renderer::draw(int handle, const DrawParams& p) {
     glUniform1i(glGetUniformLocation(prog, "u_palette"), 1);
     glUniform1i(glGetUniformLocation(prog, "u_texture"), 0);
     glUniform1i(glGetUniformLocation(prog, "u_use_color"), p.colors.empty() ? 0 : 1);
+    glUniform1i(glGetUniformLocation(prog, "u_flat"), m.flat ? 1 : 0);
     const glm::vec3 light = glm::normalize(glm::vec3(-0.45f, 0.85f, 0.55f));
     glUniform3fv(glGetUniformLocation(prog, "u_light_dir"), 1, glm::value_ptr(light));
     glUniform3fv(glGetUniformLocation(prog, "u_eye"), 1, glm::value_ptr(I.cam.eye));

@@ -38,6 +38,10 @@ struct Camera {
 // half-extent. Y is up (glTF).
 Camera frame_bounds(const Bounds& b, float aspect, float azimuth_deg = 35.0f, float elevation_deg = 15.0f,
                     float fov_y_deg = 30.0f, float fill = 0.9f);
+// The same, framing the points themselves (tighter): their projected box is
+// centred and fills `fill` of the view's larger relative extent.
+Camera frame_points(std::span<const glm::vec3> points, float aspect, float azimuth_deg = 35.0f,
+                    float elevation_deg = 15.0f, float fov_y_deg = 30.0f, float fill = 0.9f);
 
 struct Ground {
     float height = 0.0f;             // y of the plane

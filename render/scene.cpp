@@ -98,7 +98,10 @@ MeshData mesh_from_skin(const Character& c, const ProgressiveSkin& s, bool load_
         m.triangles.insert(m.triangles.end(), per_part[p].begin(), per_part[p].end());
         m.parts.push_back(part);
     }
-    if (m.normals.size() != m.positions.size()) compute_normals(m);
+    if (m.normals.size() != m.positions.size()) {
+        m.flat_shaded = true;  // glTF: "client implementations MUST calculate flat normals"
+        compute_normals(m);
+    }
     if (!load_materials || c.source.empty() || P == 0) return m;
 
     tinygltf::Model model;

@@ -32,7 +32,8 @@ struct MeshPart {             // one glTF primitive's triangles and material
 
 struct MeshData {
     std::vector<glm::vec3> positions;  // bind space
-    std::vector<glm::vec3> normals;    // same count (computed from triangles when the file has none)
+    std::vector<glm::vec3> normals;    // same count (smooth normals computed when the file has none)
+    bool flat_shaded = false;          // the file has no normals: shade flat (glTF spec), normals unused
     std::vector<glm::vec2> uvs;        // same count, or empty
     std::vector<uint32_t> triangles;
     int influences = 4;                // slots per vertex (1..8)
