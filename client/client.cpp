@@ -312,7 +312,13 @@ ClientReport run_client(const ClientOptions& opt) {
     double next_bind = 0, last_ack_sent = 0, next_stats = t_start + 1.0;
     double next_display = 0;
     size_t cap_index = 0;
-    const double delay_ticks = opt.delay_ms / 1000.0 * tick_rate;
+    // Display delay: at least --delay-ms, raised to cover the gaps between an
+    // instance's frames (plus their lateness) so the display interpolates
+    // rather than holds; it changes by at most 25% of the elapsed time (the
+    // display clock runs at 0.75x..1.25x while it adapts), up to max_delay.
+    const double base_delay = opt.delay_ms / 1000.0 * tick_rate;
+    const double max_delay = std::max(base_delay, opt.max_delay_ms / 1000.0 * tick_rate);
+    double delay_ticks = base_delay, needed_delay = 0, last_display_time = 0;
     double end_time = t_start + opt.duration + 5.0;  // fixed once streaming starts
     bool ended_by_server = false;
 
@@ -358,7 +364,11 @@ ClientReport run_client(const ClientOptions& opt) {
         if (f->chunks())
             for (const wire::Chunk* c : *f->chunks()) {
                 InstanceView& v = *views[view_of_instance[c->instance()]];
+                const bool had = !v.buffer().empty();
+                const uint32_t prev = v.buffer().newest_tick();
                 if (!v.buffer().add_chunk(f->tick(), c->first(), c->count(), c->total(), rec)) ++rep.malformed;
+                else if (had && int32_t(f->tick() - prev) > 0 && tick_offset > -1e299)
+                    needed_delay = std::max(needed_delay, t * tick_rate + tick_offset - double(prev));
                 rec += size_t(c->count()) * v.asset().format.size();
             }
         // Ack state
@@ -476,6 +486,15 @@ ClientReport run_client(const ClientOptions& opt) {
         if (any_frame && next_display > 0 && now >= next_display) {
             next_display += 1.0 / opt.display_rate;
             if (next_display < now) next_display = now + 1.0 / opt.display_rate;
+            {
+                const double elapsed = last_display_time > 0 ? (now - last_display_time) * tick_rate : 0;
+                last_display_time = now;
+                const double target = std::clamp(needed_delay + 0.5, base_delay, max_delay);
+                const double step = 0.25 * elapsed;
+                delay_ticks += std::clamp(target - delay_ticks, -step, step);
+                needed_delay *= std::pow(0.7, elapsed / tick_rate);  // forget over a few seconds
+                rep.delay_ms = std::max(rep.delay_ms, delay_ticks / tick_rate * 1000.0);
+            }
             double d = now * tick_rate + tick_offset - delay_ticks;
             if (opt.snap_to_ticks) d = std::floor(d);
             const bool verify_now = opt.verify && (display_count % size_t(std::max(1, opt.verify_every)) == 0);
@@ -583,7 +602,7 @@ std::string report_json(const ClientReport& r) {
     o << ", \"max_pct\": ";
     if (r.max_pct >= 0) o << r.max_pct; else o << "null";
     o << ", \"rate_max_kbps\": " << r.rate_max_kbps << ", \"max_jump_pct\": " << r.max_jump_pct
-      << ", \"rtt_ms\": " << r.rtt_ms << ", \"estimate_kbps\": " << r.estimate_kbps << ", \"malformed\": " << r.malformed
+      << ", \"delay_ms_max\": " << r.delay_ms << ", \"rtt_ms\": " << r.rtt_ms << ", \"estimate_kbps\": " << r.estimate_kbps << ", \"malformed\": " << r.malformed
       << ", \"duplicates\": " << r.duplicates << ", \"asset_bytes_downloaded\": " << r.asset_bytes_downloaded
       << ", \"assets_cached\": " << r.assets_cached << ", \"per_second_kbps\": [";
     for (size_t i = 0; i < r.per_second_kbps.size(); ++i) o << (i ? ", " : "") << r.per_second_kbps[i];

@@ -23,7 +23,8 @@ struct ClientOptions {
     ViewSpec view;
     bool send_view = false;
     double duration = 10;          // seconds of streaming
-    double delay_ms = 100;         // display delay behind the newest frame
+    double delay_ms = 100;         // display delay behind the newest frame (minimum)
+    double max_delay_ms = 600;     // the delay adapts up to this to cover gaps between frames
     double display_rate = 30;      // displayed frames per second
     bool verify = false;           // measure displayed vertices against the reference
     int verify_every = 1;          // verify every n-th displayed frame
@@ -59,6 +60,7 @@ struct ClientReport {
     double rms_pct = -1, max_pct = -1;  // -1: not verified
     double max_jump_pct = 0;
     double rtt_ms = 0, estimate_kbps = 0;
+    double delay_ms = 0;       // largest display delay used
     uint64_t asset_bytes_downloaded = 0;
     int assets_cached = 0;
     std::vector<InstanceReport> instances;

@@ -20,7 +20,8 @@ static const char* kUsage =
     "  --view SPEC         camera:X,Y,Z[,FOV_DEG[,HEIGHT_PX]]  or  weights:W0,W1,...\n"
     "                      (importance per instance; default: all characters alike)\n"
     "  --duration S        seconds of streaming (default 10)\n"
-    "  --delay-ms N        display delay behind the newest frame (default 100)\n"
+    "  --delay-ms N        minimum display delay behind the newest frame (default 100)\n"
+    "  --max-delay-ms N    the delay adapts up to N to interpolate across gaps (default 600)\n"
     "  --display-rate HZ   displayed frames per second (default 30)\n"
     "  --blend-frames N    frames to blend a bone on/off (default 8)\n"
     "  --verify            measure displayed vertices against the reference (error metric)\n"
@@ -91,6 +92,7 @@ int main(int argc, char** argv) {
                 opt.send_view = true;
             } else if (a == "--duration") opt.duration = std::stod(val());
             else if (a == "--delay-ms") opt.delay_ms = std::stod(val());
+            else if (a == "--max-delay-ms") opt.max_delay_ms = std::stod(val());
             else if (a == "--display-rate") opt.display_rate = std::stod(val());
             else if (a == "--blend-frames") opt.blend_frames = std::stoi(val());
             else if (a == "--verify") opt.verify = true;

@@ -9,6 +9,7 @@
 #include "error.h"
 #include "error_metric.h"
 #include "gltf_import.h"
+#include "skinning.h"
 #include "wire.h"
 
 namespace progskin::net {
@@ -95,6 +96,42 @@ void finish_server_asset(ServerAsset& a) {
         if (n > 2e6) break;  // enough for an estimate
     }
     a.motion = n > 0 ? std::sqrt(sum / n) : 0.0;
+
+    // Interpolation error over gaps of g frames (what a client shows between
+    // two frames g ticks apart at 30 Hz), sampled at the middle of the gap.
+    a.gap_error.assign(ServerAsset::kGapTable, 0.0);
+    {
+        std::vector<Mat34> pal(c.joint_count());
+        std::vector<glm::vec3> ref(c.vertex_count()), got(c.vertex_count());
+        for (int g = 2; g < ServerAsset::kGapTable; ++g) {
+            double sq = 0, cnt = 0;
+            const size_t stride = std::max<size_t>(1, frames.frame_count() / 24);
+            for (size_t f = 0; f + size_t(g) < frames.frame_count(); f += stride) {
+                if (frames.selection_of_frame[f] != frames.selection_of_frame[f + g]) continue;
+                const int h = g / 2;
+                const float alpha = float(h) / float(g);
+                for (size_t j = 0; j < c.joint_count(); ++j)
+                    pal[j] = compose(interpolate(decompose(frames.frame(f)[j]), decompose(frames.frame(f + g)[j]), alpha));
+                reference_positions(c, frames, f + h, ref);
+                SkinningJob job;
+                job.positions = c.positions;
+                job.joints = c.joints;
+                job.weights = c.weights;
+                job.influences = c.influences;
+                job.max_influences = c.influences;
+                job.palette = pal;
+                job.out_positions = got;
+                job.run();
+                for (size_t v = 0; v < got.size(); ++v) {
+                    glm::vec3 d = got[v] - ref[v];
+                    sq += double(glm::dot(d, d));
+                }
+                cnt += double(got.size());
+            }
+            // Clips shorter than the gap: extrapolate from the motion.
+            a.gap_error[g] = cnt > 0 ? std::sqrt(sq / cnt) : a.gap_error[g - 1] + a.motion / 30.0;
+        }
+    }
 
     a.hull = error_hull(s.error);
     a.e1 = s.error.empty() ? 0.0 : s.error[0].rms;

@@ -31,6 +31,11 @@ struct ServerAsset {
     RecordFormat format;
     double diagonal = 1;
     double motion = 0;               // RMS vertex motion per second (model units/s)
+    // gap_error[g]: RMS error (model units) of a pose interpolated (slerp per
+    // bone) half-way between two frames g/30 s apart, g = 0..kGapTable-1
+    // (gap_error[0] = gap_error[1] = 0 by definition: consecutive frames).
+    static constexpr int kGapTable = 17;
+    std::vector<double> gap_error;
     double bind_radius = 0;          // max |bind-space position|
     double max_scale = 1;            // of the skinning matrices over the training frames
     std::vector<HullStep> hull;      // lower convex hull of e(k), k = 1..B

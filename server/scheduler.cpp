@@ -40,6 +40,16 @@ std::vector<float> compute_importance(const ViewSpec& view, const std::vector<In
     return imp;
 }
 
+// Extra error of an interpolation gap of g frames (30 Hz) over consecutive frames.
+static double gap_cost(const ServerAsset& a, double g) {
+    const int last = int(a.gap_error.size()) - 1;
+    if (last < 1) return a.motion / 30.0 * std::max(0.0, g - 1.0);
+    if (g >= last) return a.gap_error[last] + a.motion / 30.0 * (g - last);
+    int i = int(g);
+    double f = g - i;
+    return a.gap_error[i] + (a.gap_error[std::min(i + 1, last)] - a.gap_error[i]) * f;
+}
+
 void Scheduler::reset(size_t n) {
     state_.assign(n, State{});
     k_.assign(n, 0);
@@ -83,9 +93,9 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         if (!e.valid || importance[i] <= 0.0f) continue;
         const ServerAsset& a = *assets[e.asset];
         const State& s = state_[i];
-        const double age = double(frame.tick - s.last_tick);
-        const double per_tick = a.motion / std::max(1.0f, tick_rate);
-        double stale = s.k_last > 0 ? a.skin.error[s.k_last - 1].rms + per_tick * age : a.e1 + a.diagonal;
+        // Skipping this tick widens the client's interpolation gap to age + 1 ticks.
+        const double gap = double(frame.tick - s.last_tick) * 30.0 / std::max(1.0f, tick_rate);
+        double stale = s.k_last > 0 ? a.skin.error[s.k_last - 1].rms + gap_cost(a, gap) : a.e1 + a.diagonal;
         // Best first target among k = 1 and the hull vertices.
         double best = -1;
         int best_to = 1, best_h = 0;

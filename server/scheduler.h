@@ -3,9 +3,11 @@
 // wire byte goes first, until the client's byte budget for the tick is spent.
 //
 // Error model of an instance on the client: a fresh frame with k bones shows
-// e(k) (the skin's RMS error table, along its lower convex hull); a frame held
-// for `age` ticks shows about e(k_last) + motion_per_tick * age. So the first
-// step of an instance (0 -> k') is worth importance * (stale - e(k')) and every
+// e(k) (the skin's RMS error table, along its lower convex hull); frames sent
+// g ticks apart show in between about e(k_last) + gap_error(g) (the client
+// interpolates; ServerAsset::gap_error, extended by the motion beyond 16
+// frames). So the first step of an instance (0 -> k') is worth
+// importance * (e(k_last) + gap_error(age) - e(k')) and every
 // further hull step k -> k'' importance * (e(k) - e(k'')). Bytes per step:
 // record_size per bone + a 6-byte chunk header for the first step; datagram
 // overheads are charged by WireCost. Cost: O(S log S) per client and tick for S

@@ -1,4 +1,6 @@
 // server_main.cpp — progskin-server: hosts a scene and streams it (server.h).
+#include <atomic>
+#include <chrono>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
@@ -123,13 +125,17 @@ int main(int argc, char** argv) {
                     server.udp_port(), instances.size(), double(cfg.tick_rate));
         std::fflush(stdout);
         std::thread stopper;
+        std::atomic<bool> done{false};
         if (duration > 0) {
-            stopper = std::thread([&server, duration] {
-                std::this_thread::sleep_for(std::chrono::duration<double>(duration));
+            stopper = std::thread([&server, &done, duration] {
+                auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(duration);
+                while (!done && std::chrono::steady_clock::now() < end)
+                    std::this_thread::sleep_for(std::chrono::milliseconds(20));
                 server.stop();
             });
         }
         server.run();
+        done = true;
         if (stopper.joinable()) stopper.join();
         g_server = nullptr;
         ServerStats st = server.stats();

@@ -1,0 +1,87 @@
+#!/usr/bin/env bash
+# demo.sh — the streaming demo: a progskin-server with the default character
+# set (assets/Fox.glb: Survey, Walk, Run; assets/CesiumMan.glb) and one
+# progskin-client per bandwidth cap on loopback, all at once, each verifying
+# what it displays against the reference. Prints the rate-distortion table:
+# cap -> measured rate (GUIDE.md: UDP payload + 28 bytes per datagram), bones
+# per character, RMS and max error in % of the rest-pose diagonal.
+#
+#   scripts/demo.sh [--duration S] [--caps "16 32 64 ..."] [--build DIR]
+#
+# Builds the three targets into build/ if they are missing. Finishes in well
+# under a minute and stops every process it started.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ROOT=$(pwd)
+BUILD=${PROGSKIN_BUILD:-build}
+DURATION=6
+CAPS="16 24 32 48 64 96 128 192 256 0"
+while (($#)); do
+  case "$1" in
+    --duration) DURATION=$2; shift 2;;
+    --caps) CAPS=$2; shift 2;;
+    --build) BUILD=$2; shift 2;;
+    -h|--help) sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
+    *) echo "demo.sh: unknown argument $1" >&2; exit 2;;
+  esac
+done
+
+SERVER=$BUILD/server/progskin-server
+CLIENT=$BUILD/client/progskin-client
+if [[ ! -x $SERVER || ! -x $CLIENT ]]; then
+  echo "demo: building progskin-server and progskin-client into $BUILD ..." >&2
+  cmake -S . -B "$BUILD" -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
+  cmake --build "$BUILD" -j"$(nproc)" --target progskin-server progskin-client >/dev/null
+fi
+
+TMP=$(mktemp -d)
+PIDS=()
+cleanup() {
+  for p in "${PIDS[@]:-}"; do [[ -n $p ]] && kill "$p" 2>/dev/null || true; done
+  wait 2>/dev/null || true
+  rm -rf "$TMP"
+}
+trap cleanup EXIT INT TERM
+
+"$SERVER" --port 0 --duration $((DURATION + 40)) >"$TMP/server.out" 2>"$TMP/server.err" &
+PIDS+=($!)
+PORT=""
+for _ in $(seq 1 200); do
+  PORT=$(grep -o 'TCP [0-9]*' "$TMP/server.out" 2>/dev/null | cut -d' ' -f2 || true)
+  [[ -n $PORT ]] && break
+  if ! kill -0 "${PIDS[0]}" 2>/dev/null; then cat "$TMP/server.err" >&2; echo "demo: server failed" >&2; exit 1; fi
+  sleep 0.1
+done
+[[ -n $PORT ]] || { echo "demo: server did not start" >&2; cat "$TMP/server.err" >&2; exit 1; }
+
+# Fetch the assets once so the clients start together.
+"$CLIENT" --server 127.0.0.1:$PORT --duration 0.2 --cache "$TMP/cache" >/dev/null
+for cap in $CAPS; do
+  "$CLIENT" --server 127.0.0.1:$PORT --max-kbps "$cap" --duration "$DURATION" --verify --report json \
+    --cache "$TMP/cache" --name "demo-$cap" >"$TMP/client-$cap.json" 2>"$TMP/client-$cap.err" &
+  PIDS+=($!)
+done
+status=0
+for i in "${!PIDS[@]}"; do
+  ((i == 0)) && continue
+  wait "${PIDS[$i]}" || status=1
+  PIDS[$i]=""
+done
+
+field() { grep -o "\"$2\": [^,}]*" "$1" | head -1 | cut -d' ' -f2; }
+echo
+echo "progskin streaming demo: default character set, $DURATION s per client, loopback"
+grep -h 'bones' "$TMP/server.err" | sed 's/^progskin-server: */  /' || true
+printf "%10s  %14s  %13s  %12s  %10s  %10s  %6s\n" "cap kbit/s" "rate kbit/s" "max 1 s kbit/s" "bones/char" "RMS %diag" "max %diag" "loss"
+for cap in $CAPS; do
+  f=$TMP/client-$cap.json
+  if [[ ! -s $f ]]; then printf "%10s  client failed: %s\n" "$cap" "$(tail -1 "$TMP/client-$cap.err")"; status=1; continue; fi
+  label=$cap; [[ $cap == 0 ]] && label=unlimited
+  printf "%10s  %14.1f  %13.1f  %12.1f  %10.4f  %10.4f  %6.3f\n" "$label" "$(field "$f" rate_kbps)" "$(field "$f" rate_max_kbps)" \
+    "$(field "$f" bones_mean)" "$(field "$f" rms_pct)" "$(field "$f" max_pct)" "$(field "$f" loss)"
+done
+echo
+echo "Rate = UDP payload + 28 bytes per datagram (docs/protocol.md); error = displayed vertices vs the"
+echo "full-detail reference at the display time (GUIDE.md §2). More: docs/performance.md, docs/protocol.md,"
+echo "progskin-client --help (--view, --report json), progskin-netem --help (slow links)."
+exit $status

@@ -1,0 +1,71 @@
+// net_test_support.h — shared by tests/test_net_*.cpp: assets loaded once per
+// test binary, a server on an ephemeral loopback port run on its own thread,
+// and a per-test asset cache directory.
+#pragma once
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "client.h"
+#include "scene.h"
+#include "server.h"
+
+namespace progskin::net::testing {
+
+inline std::vector<std::shared_ptr<ServerAsset>>& default_assets() {
+    static std::vector<std::shared_ptr<ServerAsset>> a = {
+        load_server_asset(std::string(PROGSKIN_ASSETS) + "/Fox.glb"),
+        load_server_asset(std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb")};
+    return a;
+}
+
+// One instance per asset and clip group (what progskin-server serves by default).
+inline std::vector<InstanceSpec> default_instances(const std::vector<std::shared_ptr<ServerAsset>>& assets) {
+    std::vector<InstanceSpec> out;
+    for (size_t a = 0; a < assets.size(); ++a)
+        for (size_t s = 0; s < assets[a]->selections.size(); ++s) {
+            InstanceSpec i;
+            i.asset = int(a);
+            i.selection = int(s);
+            i.position = glm::vec3(float(out.size()) * float(assets[a]->diagonal), 0, 0);
+            out.push_back(i);
+        }
+    return out;
+}
+
+class RunningServer {
+public:
+    explicit RunningServer(std::vector<InstanceSpec> instances = {}, ServerConfig cfg = {}) {
+        cfg.bind_address = "127.0.0.1";
+        cfg.port = 0;
+        if (instances.empty()) instances = default_instances(default_assets());
+        server = std::make_unique<Server>(cfg, default_assets(), instances);
+        thread = std::thread([this] { server->run(); });
+    }
+    ~RunningServer() {
+        server->stop();
+        thread.join();
+    }
+    ClientOptions client(double duration) const {
+        ClientOptions o;
+        o.host = "127.0.0.1";
+        o.port = server->tcp_port();
+        o.duration = duration;
+        o.cache_dir = cache_dir();
+        return o;
+    }
+    static std::string cache_dir() {
+        static std::string d = [] {
+            auto p = std::filesystem::temp_directory_path() / ("progskin-test-cache-" + std::to_string(::getpid()));
+            std::filesystem::create_directories(p);
+            return p.string();
+        }();
+        return d;
+    }
+    std::unique_ptr<Server> server;
+    std::thread thread;
+};
+
+}  // namespace progskin::net::testing
