@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <map>
@@ -18,6 +19,7 @@
 #include "error_metric.h"
 #include "gltf_export.h"
 #include "gltf_import.h"
+#include "plot.h"
 #include "progressive_skin.h"
 #include "scratch_build.h"
 #include "vertex_animation.h"
@@ -50,11 +52,12 @@ usage:
       pose: per-vertex mean over frames, or frame F. --similarity lets bones
       scale uniformly. The output plays in any glTF viewer (rigid TRS joint
       animation) and carries the error table (strategy "scratch").
-  progskin inspect FILE [--json] [--clip SPEC] [--fps 30] [--character N]
+  progskin inspect FILE [--json] [--clip SPEC] [--fps 30] [--character N] [--plot OUT.svg]
       Joints, vertices, clips and the error table k -> RMS / max error (units
       and % of the rest bounding-box diagonal) and mean distinct influences per
       vertex. For a plain glTF it builds and compares the strategies reorder,
       flatten and leaf_prune (naive baseline: deepest bones first, plain copy).
+      --plot draws error against bones per strategy with gnuplot (.svg/.png/.pdf).
   progskin pose FILE --time T [--clip SPEC] [--bones K|all] [--character N]
                 [--max-influences M] [--json | -o OUT.bin]
       World-space skinned vertex positions at time T with K bones active, in
@@ -269,7 +272,7 @@ int cmd_build(int argc, char** argv) {
 }
 
 int cmd_inspect(int argc, char** argv) {
-    Args a = parse(argc, argv, 2, {"--json", "--help", "--quiet"}, {"--clip", "--fps", "--character"});
+    Args a = parse(argc, argv, 2, {"--json", "--help", "--quiet"}, {"--clip", "--fps", "--character", "--plot"});
     if (a.has("--help")) {
         std::fputs(kUsage, stdout);
         return 0;
@@ -309,6 +312,11 @@ int cmd_inspect(int argc, char** argv) {
             {"reorder_plain_copy", build_with_progress(c, frames, Strategy::Reorder, false, quiet).error});
     }
     for (const auto& [name, t] : tables) out["strategies"][name] = table_json(t);
+    if (a.has("--plot")) {
+        std::string err;
+        const std::string file = std::filesystem::path(a.positional[0]).filename().string();
+        if (!plot_error_tables(tables, a.get("--plot"), file + ": error against bones", &err)) throw Error(err);
+    }
     if (as_json) {
         std::cout << out.dump(2) << "\n";
         return 0;
