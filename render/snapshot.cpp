@@ -98,7 +98,6 @@ bool render_snapshot(const std::vector<SnapshotCharacter>& chars, const std::str
     r.begin(W, H, cam, &ground, glm::vec3(bg) / 255.0f);
     for (const Item& it : items) {
         DrawParams d;
-        std::vector<glm::vec3> cpu;
         d.palette = it.sc->palette;
         d.positions = it.sc->positions;
         d.model = it.sc->placement;
