@@ -188,6 +188,9 @@ public:
 
     // Global refinement (see refine() below).
     void refine(int sweeps, const std::function<void()>& tick);
+    void refine_transforms(int first_bone);
+    void refine_weights();
+    void refine_weights_full();
 
 private:
     // Current reconstruction and errors from scratch.
@@ -276,6 +279,9 @@ private:
             for (int i = 0; i < nslot_[v]; ++i)
                 score[size_t(slot_bone_[v][i])] += slot_w_[v][i] * std::max(0.0, E_[v] - eT[v]);
         const int p = int(std::max_element(score.begin(), score.end()) - score.begin());
+        // Candidates: every vertex holding weight on the parent (restricting
+        // them to the region gives better full-detail skins with many bones
+        // but worse small k; see docs/algorithms.md).
         std::vector<size_t> S;
         for (size_t v = 0; v < V_; ++v)
             if (weight_on(v, p) > 0) S.push_back(v);
@@ -346,7 +352,217 @@ private:
     double scale_ = 0;
 };
 
-void Builder::refine(int, const std::function<void()>&) {}
+// SSDR-style transform update of every bone with the weights fixed
+// (Gauss-Seidel: each bone's weighted Procrustes against the residual of the
+// others), lowering the full-detail error.
+void Builder::refine_transforms(int first_bone) {
+    std::vector<size_t> vs;
+    std::vector<double> ws;
+    for (int b = first_bone; b < bone_count(); ++b) {
+        vs.clear();
+        ws.clear();
+        for (size_t v = 0; v < V_; ++v) {
+            const double w = weight_on(v, b);
+            if (w > 1e-6) {
+                vs.push_back(v);
+                ws.push_back(w);
+            }
+        }
+        if (vs.empty()) continue;
+        std::vector<M34>& M = bones_[size_t(b)].M;
+        for (size_t f = 0; f < F_; ++f) {
+            Procrustes pr;
+            for (size_t i = 0; i < vs.size(); ++i) {
+                const size_t v = vs[i];
+                const double w = ws[i];
+                const V3 q = A_[f * V_ + v] - R_[f * V_ + v] + w * xf(M[f], P_[v]);
+                pr.add(P_[v], q / w, w * w);
+            }
+            const M34 Mn = pr.solve(opt_.similarity);
+            for (size_t i = 0; i < vs.size(); ++i) {
+                const size_t v = vs[i];
+                R_[f * V_ + v] += ws[i] * (xf(Mn, P_[v]) - xf(M[f], P_[v]));
+            }
+            M[f] = Mn;
+        }
+        for (size_t v : vs) {
+            double e = 0;
+            for (size_t f = 0; f < F_; ++f) e += (A_[f * V_ + v] - R_[f * V_ + v]).squaredNorm();
+            E_[v] = e;
+        }
+    }
+}
+
+// Weight update that keeps the skin progressive: for every bone b of a
+// vertex, the split of w_b + w_parent(b) between b and its parent is re-solved
+// by least squares (clamped to [0, 1]). Levels where b is inactive see only the
+// sum, so they are unchanged; the full skin's error does not increase.
+void Builder::refine_weights() {
+    for (size_t v = 0; v < V_; ++v) {
+        bool changed = false;
+        for (int i = 0; i < nslot_[v]; ++i) {
+            const int b = slot_bone_[v][i];
+            if (b == 0) continue;
+            const int p = bones_[size_t(b)].parent;
+            int ip = -1;
+            for (int j = 0; j < nslot_[v]; ++j)
+                if (slot_bone_[v][j] == p) ip = j;
+            if (ip < 0 && nslot_[v] >= kSlots) continue;
+            const double wb = slot_w_[v][i], wp = ip >= 0 ? slot_w_[v][ip] : 0.0, tot = wb + wp;
+            if (!(tot > 1e-9)) continue;
+            const std::vector<M34>& Mb = bones_[size_t(b)].M;
+            const std::vector<M34>& Mp = bones_[size_t(p)].M;
+            double num = 0, den = 0;
+            for (size_t f = 0; f < F_; ++f) {
+                const V3 xb = xf(Mb[f], P_[v]), xp = xf(Mp[f], P_[v]);
+                const V3 r0 = R_[f * V_ + v] - wb * xb - wp * xp + tot * xp;
+                const V3 d = tot * (xb - xp);
+                num += (A_[f * V_ + v] - r0).dot(d);
+                den += d.squaredNorm();
+            }
+            if (!(den > 0)) continue;
+            const double beta = std::clamp(num / den, 0.0, 1.0);
+            const double nb = beta * tot, np = tot - nb;
+            if (std::abs(nb - wb) < 1e-12) continue;
+            slot_w_[v][i] = nb;
+            if (ip >= 0) {
+                slot_w_[v][ip] = np;
+            } else {
+                slot_bone_[v][nslot_[v]] = p;
+                slot_w_[v][nslot_[v]] = np;
+                ++nslot_[v];
+            }
+            changed = true;
+        }
+        // Drop empty slots (keep bone b's slot only while it carries weight).
+        int n = 0;
+        for (int i = 0; i < nslot_[v]; ++i)
+            if (slot_w_[v][i] > 1e-12) {
+                slot_bone_[v][n] = slot_bone_[v][i];
+                slot_w_[v][n] = slot_w_[v][i];
+                ++n;
+            }
+        if (n == 0) continue;  // cannot happen: weights sum to 1
+        nslot_[v] = n;
+        if (changed) recompute_vertex(v);
+    }
+}
+
+// Non-negative least squares on the normal equations (Lawson-Hanson):
+// minimise w'Gw - 2h'w, w >= 0, over the index set `allowed`.
+Eigen::VectorXd nnls(const Eigen::MatrixXd& G, const Eigen::VectorXd& h, const std::vector<int>& allowed) {
+    const int n = int(G.rows());
+    Eigen::VectorXd w = Eigen::VectorXd::Zero(n);
+    std::vector<char> inP(size_t(n), 0), ok(size_t(n), 0);
+    for (int i : allowed) ok[size_t(i)] = 1;
+    const double tol = 1e-12 * std::max(1.0, G.diagonal().maxCoeff());
+    for (int outer = 0; outer < 3 * n; ++outer) {
+        const Eigen::VectorXd grad = h - G * w;
+        int j = -1;
+        for (int i = 0; i < n; ++i)
+            if (ok[size_t(i)] && !inP[size_t(i)] && grad[i] > tol && (j < 0 || grad[i] > grad[j])) j = i;
+        if (j < 0) break;
+        inP[size_t(j)] = 1;
+        for (int inner = 0; inner < 3 * n; ++inner) {
+            std::vector<int> P;
+            for (int i = 0; i < n; ++i)
+                if (inP[size_t(i)]) P.push_back(i);
+            Eigen::MatrixXd Gp(P.size(), P.size());
+            Eigen::VectorXd hp(P.size());
+            for (size_t a = 0; a < P.size(); ++a) {
+                hp[Eigen::Index(a)] = h[P[a]];
+                for (size_t b = 0; b < P.size(); ++b) Gp(Eigen::Index(a), Eigen::Index(b)) = G(P[a], P[b]);
+            }
+            const Eigen::VectorXd z = Gp.ldlt().solve(hp);
+            bool pos = z.allFinite();
+            for (Eigen::Index a = 0; a < z.size() && pos; ++a) pos = z[a] > 0;
+            if (pos) {
+                for (size_t a = 0; a < P.size(); ++a) w[P[a]] = z[Eigen::Index(a)];
+                break;
+            }
+            double alpha = 1.0;
+            for (size_t a = 0; a < P.size(); ++a) {
+                const double za = z.allFinite() ? z[Eigen::Index(a)] : 0.0;
+                if (za <= 0) alpha = std::min(alpha, w[P[a]] / std::max(1e-300, w[P[a]] - za));
+            }
+            for (size_t a = 0; a < P.size(); ++a) {
+                const double za = z.allFinite() ? z[Eigen::Index(a)] : 0.0;
+                w[P[a]] += alpha * (za - w[P[a]]);
+                if (w[P[a]] <= 1e-14) {
+                    w[P[a]] = 0;
+                    inP[size_t(P[a])] = 0;
+                }
+            }
+        }
+    }
+    return w;
+}
+
+// SSDR weight update: per vertex, non-negative weights over all bones summing
+// to 1 (a stiff penalty row), at most 4 kept (the largest, then re-solved);
+// accepted only where the vertex's error decreases.
+void Builder::refine_weights_full() {
+    const int B = bone_count();
+    if (B < 2) return;
+    Eigen::MatrixXd G(B, B);
+    Eigen::VectorXd h(B);
+    std::vector<V3> y(static_cast<size_t>(B));
+    std::vector<int> all(static_cast<size_t>(B));
+    std::iota(all.begin(), all.end(), 0);
+    for (size_t v = 0; v < V_; ++v) {
+        G.setZero();
+        h.setZero();
+        for (size_t f = 0; f < F_; ++f) {
+            for (int b = 0; b < B; ++b) y[size_t(b)] = xf(bones_[size_t(b)].M[f], P_[v]);
+            const V3& a = A_[f * V_ + v];
+            for (int i = 0; i < B; ++i) {
+                h[i] += y[size_t(i)].dot(a);
+                for (int j = i; j < B; ++j) G(i, j) += y[size_t(i)].dot(y[size_t(j)]);
+            }
+        }
+        for (int i = 0; i < B; ++i)
+            for (int j = 0; j < i; ++j) G(i, j) = G(j, i);
+        const double lambda = 1e4 * std::max(1e-300, G.trace() / B);
+        G.array() += lambda;
+        h.array() += lambda;
+        Eigen::VectorXd w = nnls(G, h, all);
+        std::vector<int> idx(static_cast<size_t>(B));
+        std::iota(idx.begin(), idx.end(), 0);
+        std::sort(idx.begin(), idx.end(), [&](int a, int b) { return w[a] > w[b]; });
+        std::vector<int> keep;
+        for (int i = 0; i < B && int(keep.size()) < kSlots; ++i)
+            if (w[idx[size_t(i)]] > 1e-9) keep.push_back(idx[size_t(i)]);
+        if (keep.empty()) continue;
+        if (std::count_if(w.data(), w.data() + B, [](double x) { return x > 1e-9; }) > kSlots) w = nnls(G, h, keep);
+        const double sum = w.sum();
+        if (!(sum > 0) || !w.allFinite()) continue;
+        // Error of the candidate.
+        double e = 0;
+        for (size_t f = 0; f < F_; ++f) {
+            V3 r = V3::Zero();
+            for (int b : keep) r += (w[b] / sum) * xf(bones_[size_t(b)].M[f], P_[v]);
+            e += (A_[f * V_ + v] - r).squaredNorm();
+        }
+        if (!(e < E_[v])) continue;
+        nslot_[v] = 0;
+        for (int b : keep) {
+            if (!(w[b] > 0)) continue;
+            slot_bone_[v][nslot_[v]] = b;
+            slot_w_[v][nslot_[v]] = w[b] / sum;
+            ++nslot_[v];
+        }
+        recompute_vertex(v);
+    }
+}
+
+void Builder::refine(int sweeps, const std::function<void()>& tick) {
+    for (int s = 0; s < sweeps; ++s) {
+        refine_transforms(0);
+        if (opt_.free_weights) refine_weights_full();
+        else refine_weights();
+        tick();
+    }
+}
 
 // Float key times t_f = f / fps such that sample_frames yields exactly F frames.
 std::vector<float> key_times(size_t F, double fps) {
@@ -548,6 +764,8 @@ ScratchResult build_from_vertices(const VertexAnimation& an, const ScratchOption
     while (b.bone_count() < opt.max_bones) {
         if (opt.max_error_pct > 0 && rms_pct() <= opt.max_error_pct) break;
         if (!b.add_bone()) break;
+        if (opt.step_sweeps > 0)
+            for (int i = 0; i < opt.step_sweeps; ++i) b.refine_transforms(0);
         tick();
     }
     step = opt.max_bones;

@@ -45,7 +45,11 @@ struct ScratchOptions {
     double max_error_pct = 0;    // stop once RMS <= this % of the diagonal (--max-error); 0 = off
     int rest_frame = -1;         // bind pose: -1 = per-vertex mean over frames, else this frame
     bool similarity = false;     // bones may scale uniformly
-    int refine_sweeps = 4;       // global refinement sweeps after the greedy build (0 = none)
+    int refine_sweeps = 4;
+    // Refinement weight update: true = per-vertex NNLS over all bones (SSDR),
+    // false = only re-split each bone's weight with its progressive parent.
+    bool free_weights = true;
+    int step_sweeps = 0;         // transform sweeps after each bone added (experimental)       // global refinement sweeps after the greedy build (0 = none)
     // Progress (step, total): steps are bones added then refinement sweeps.
     std::function<void(int, int)> progress;
 };

@@ -210,6 +210,9 @@ int cmd_build_from_vertices(const Args& a) {
     }
     so.rest_frame = a.has("--rest-frame") ? to_int("--rest-frame", a.get("--rest-frame")) : -1;
     so.similarity = a.has("--similarity");
+    if (const char* e = std::getenv("PROGSKIN_SCRATCH_STEP_SWEEPS")) so.step_sweeps = std::atoi(e);
+    if (const char* e = std::getenv("PROGSKIN_SCRATCH_SWEEPS")) so.refine_sweeps = std::atoi(e);
+    if (const char* e = std::getenv("PROGSKIN_SCRATCH_FREE_WEIGHTS")) so.free_weights = std::atoi(e) != 0;
     const bool quiet = a.has("--quiet");
     const VertexAnimation anim = load_vertex_animation(a.positional[0], vo);
     if (!quiet)
