@@ -1,0 +1,116 @@
+// bench_scratch.cpp — build from scratch: build time (2,000 vertices x 100
+// frames x 16 bones, one core) and, with --report, the RMS error table at
+// k = 2, 4, 8, 16, 32 next to Dem Bones (issue 4) with the ratio per cell.
+//
+//   bench_scratch --benchmark_filter=Build      # build time
+//   bench_scratch --report                      # the table in docs/performance.md
+#include <benchmark/benchmark.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <random>
+#include <string>
+
+#include "scratch_build.h"
+#include "vertex_animation.h"
+
+using namespace progskin;
+
+namespace {
+
+// A 2,000-vertex "creature" of 16 rigid parts with blended seams, 100 frames.
+VertexAnimation synthetic_2000() {
+    const int parts = 16, per = 125, F = 100;
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<double> u(-0.4, 0.4);
+    VertexAnimation a;
+    a.source = "synthetic 2000x100";
+    a.vertex_count = size_t(parts * per);
+    a.frame_count = F;
+    std::vector<glm::dvec3> bind;
+    for (int p = 0; p < parts; ++p)
+        for (int i = 0; i < per; ++i) bind.push_back({double(p % 4) + u(rng), double(p / 4) + u(rng), u(rng)});
+    for (int f = 0; f < F; ++f) {
+        const double t = f / 30.0;
+        for (size_t v = 0; v < bind.size(); ++v) {
+            const int p = int(v) / per;
+            const double ang = 0.5 * std::sin(2 * t + p), c = std::cos(ang), s = std::sin(ang);
+            const glm::dvec3 o(double(p % 4), double(p / 4), 0);
+            const glm::dvec3 d = bind[v] - o;
+            a.positions.push_back(glm::vec3(o + glm::dvec3(c * d.x - s * d.y, s * d.x + c * d.y, d.z) +
+                                            glm::dvec3(0.1 * t, 0, 0.05 * std::sin(t + p))));
+        }
+    }
+    a.diagonal = frame_diagonal(a, 0);
+    return a;
+}
+
+void BM_BuildScratch_2000x100x16(benchmark::State& state) {
+    const VertexAnimation a = synthetic_2000();
+    ScratchOptions o;
+    o.max_bones = 16;
+    double rms = 0;
+    for (auto _ : state) {
+        const ScratchResult r = build_from_vertices(a, o);
+        rms = r.skin.error.back().rms_pct;
+        benchmark::DoNotOptimize(r.skin.bone_count());
+    }
+    state.counters["rms_pct"] = rms;
+}
+BENCHMARK(BM_BuildScratch_2000x100x16)->Unit(benchmark::kMillisecond)->Iterations(1);
+
+struct Row {
+    const char* name;
+    const char* file;
+    const char* clip;
+    double dem[5];  // Dem Bones RMS % at k = 2, 4, 8, 16, 32 (issue 4)
+};
+
+int report(int rest_frame) {
+    const Row rows[] = {
+        {"Fox (Survey)", "Fox.glb", "Survey", {1.76, 0.395, 0.098, 0.035, 0.033}},
+        {"CesiumMan (all clips)", "CesiumMan.glb", "all", {3.95, 1.64, 0.338, 0.153, 0.066}},
+        {"AnimatedMorphSphere", "AnimatedMorphSphere.gltf", "auto", {12.75, 6.51, 2.47, 1.68, 1.31}},
+    };
+    const int ks[5] = {2, 4, 8, 16, 32};
+    std::printf("bind pose: %s; one skin of up to 32 bones per input, RMS %% of the diagonal\n\n",
+                rest_frame < 0 ? "per-vertex mean" : ("frame " + std::to_string(rest_frame)).c_str());
+    std::printf("| input | frames | build s | k=2 | k=4 | k=8 | k=16 | k=32 |\n|---|---|---|---|---|---|---|---|\n");
+    for (const Row& r : rows) {
+        VertexAnimationOptions vo;
+        vo.fps = 30;
+        vo.clip = r.clip;
+        const VertexAnimation a = load_vertex_animation(std::string(PROGSKIN_ASSETS) + "/" + r.file, vo);
+        ScratchOptions o;
+        o.max_bones = 32;
+        o.rest_frame = rest_frame;
+        const auto t0 = std::chrono::steady_clock::now();
+        const ScratchResult s = build_from_vertices(a, o);
+        const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        std::printf("| %s | %zu | %.1f |", r.name, a.frame_count, secs);
+        for (int i = 0; i < 5; ++i) {
+            const int k = std::min(ks[i], s.skin.bone_count());
+            const double e = s.skin.error[size_t(k - 1)].rms_pct;
+            std::printf(" %.3g%s (Dem Bones %.3g, ratio %.2f) |", e, k < ks[i] ? ("@" + std::to_string(k)).c_str() : "",
+                        r.dem[i], e / r.dem[i]);
+        }
+        std::printf("\n");
+    }
+    return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    for (int i = 1; i < argc; ++i)
+        if (!std::strcmp(argv[i], "--report")) {
+            const int rest = (i + 1 < argc) ? std::atoi(argv[i + 1]) : -1;
+            return report(i + 1 < argc ? rest : -1);
+        }
+    benchmark::Initialize(&argc, argv);
+    benchmark::RunSpecifiedBenchmarks();
+    benchmark::Shutdown();
+    return 0;
+}
