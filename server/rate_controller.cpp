@@ -38,18 +38,19 @@ void RateController::spend(size_t wire_bytes) {
     if (tokens_ < 200.0) limited_ = true;
 }
 
-void RateController::on_sent(uint32_t seq, uint32_t send_us, size_t) {
+void RateController::on_sent(uint32_t seq, uint32_t send_us, size_t wire_bytes) {
     Sent& s = ring_[seq % ring_.size()];
     if (s.valid && !s.counted) {  // overwritten before being judged: lost
         if (!s.acked) { ++win_lost_; ++lost_total_; }
     }
-    s = Sent{seq, send_us, true, false, false};
+    s = Sent{seq, send_us, uint32_t(wire_bytes), true, false, false};
 }
 
 void RateController::mark(uint32_t seq) {
     Sent& s = ring_[seq % ring_.size()];
     if (s.valid && s.seq == seq && !s.acked) {
         s.acked = true;
+        win_acked_bytes_ += s.bytes;
         if (!s.counted) {
             s.counted = true;
             ++win_acked_;
@@ -84,13 +85,21 @@ void RateController::on_ack(uint32_t ack, uint32_t bits, uint32_t echo_us, uint3
 void RateController::update(double now) {
     if (last_update_ < 0) last_update_ = now;
     if (now - last_update_ < 0.25) return;
-    last_update_ = now;
     const uint64_t judged = win_acked_ + win_lost_;
     if (judged >= 4) loss_ = double(win_lost_) / double(judged);
     bool delay_growth = srtt_ms_ > 0 && min_rtt_ms_ < 1e9 &&
                         srtt_ms_ > min_rtt_ms_ + std::max(25.0, 0.5 * min_rtt_ms_);
-    if ((judged >= 4 && loss_ > 0.20) || delay_growth) {
-        estimate_kbps_ = std::max(kMinKbps, estimate_kbps_ * 0.8);
+    // What the client actually received over the window (acked wire bytes).
+    const double window = now - last_update_;
+    const double delivered_kbps = window > 0 ? double(win_acked_bytes_) * 8.0 / 1000.0 / window : 0.0;
+    last_update_ = now;
+    if (hold_ > 0) {
+        --hold_;  // let the last back-off take effect before judging again
+    } else if ((judged >= 4 && loss_ > 0.20) || delay_growth) {
+        hold_ = 2;
+        double e = estimate_kbps_ * 0.8;
+        if (delivered_kbps > 0) e = std::min(e, 0.95 * delivered_kbps);  // straight to what got through
+        estimate_kbps_ = std::max(kMinKbps, e);
     } else if (limited_) {
         estimate_kbps_ = std::min(cap_kbps_, estimate_kbps_ * 1.10 + 4.0);
     }
@@ -100,7 +109,7 @@ void RateController::update(double now) {
         min_rtt_age_ = 0;
         min_rtt_ms_ = srtt_ms_ > 0 ? srtt_ms_ : 1e9;
     }
-    win_acked_ = win_lost_ = 0;
+    win_acked_ = win_lost_ = win_acked_bytes_ = 0;
     limited_ = false;
 }
 

@@ -1,6 +1,8 @@
 // rate_controller.h — one client's sending rate: a cap (kbit/s, GUIDE.md rate)
 // and an estimate that adapts to measured loss and delay (multiplicative back
-// off on loss > 20% or on RTT growing 25 ms / 50% above its minimum, probe up
+// off, to at most 95% of the rate the client acknowledged, on loss > 20% or on
+// RTT growing 25 ms / 50% above its minimum, then hold for two
+// windows; probe up
 // by 10% per 250 ms otherwise while the budget is used), never above the cap.
 //
 // Pacing is a token bucket in wire bytes: filled at 94% of the target rate,
@@ -37,7 +39,7 @@ public:
 
 private:
     struct Sent {
-        uint32_t seq = 0, send_us = 0;
+        uint32_t seq = 0, send_us = 0, bytes = 0;
         bool valid = false, acked = false, counted = false;
     };
     void mark(uint32_t seq);
@@ -47,9 +49,10 @@ private:
     std::vector<Sent> ring_ = std::vector<Sent>(1024);
     uint32_t highest_acked_ = 0;
     bool any_ack_ = false;
-    uint64_t win_acked_ = 0, win_lost_ = 0, acked_total_ = 0, lost_total_ = 0;
+    uint64_t win_acked_bytes_ = 0, win_acked_ = 0, win_lost_ = 0, acked_total_ = 0, lost_total_ = 0;
     double loss_ = 0, srtt_ms_ = 0, min_rtt_ms_ = 1e9, min_rtt_age_ = 0;
     double last_update_ = -1;
+    int hold_ = 0;  // windows to wait after a back-off
 };
 
 }  // namespace progskin::net

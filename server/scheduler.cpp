@@ -155,6 +155,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
 
 void Scheduler::sent(std::span<const Pick> picks, uint32_t tick) {
     for (const Pick& p : picks) {
+        if (size_t(p.instance) >= state_.size()) state_.resize(size_t(p.instance) + 1);
         state_[p.instance].k_last = p.k;
         state_[p.instance].last_tick = tick;
     }

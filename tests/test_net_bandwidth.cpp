@@ -1,0 +1,119 @@
+// test_net_bandwidth.cpp — bandwidth-limited playback on loopback: the
+// measured rate (GUIDE.md) never above the cap by more than 5% in any one
+// second, error non-increasing as the cap grows, closer characters get at
+// least as many bones, the adaptive estimate backs off on a slow link, and
+// loss + reordering + duplication (link_emulator.h) cause no harm.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+
+#include "link_emulator.h"
+#include "net_test_support.h"
+
+using namespace progskin;
+using namespace progskin::net;
+using namespace progskin::net::testing;
+
+TEST(NetBandwidth, CapsFrom16kTo2MRespectedAndErrorFallsWithRate) {
+    // 24 instances: the full rate is about 1.8 Mbit/s, so every cap limits.
+    RunningServer s(crowd_layout(default_assets(), 24));
+    const std::vector<double> caps = {16, 64, 256, 1000, 2000};
+    std::vector<ClientReport> r(caps.size());
+    std::vector<std::thread> ts;
+    for (size_t i = 0; i < caps.size(); ++i)
+        ts.emplace_back([&, i] {
+            ClientOptions o = s.client(5.0);
+            o.max_kbps = caps[i];
+            o.verify = true;
+            o.verify_every = 3;
+            r[i] = run_client(o);
+        });
+    for (auto& t : ts) t.join();
+    for (size_t i = 0; i < caps.size(); ++i) {
+        std::printf("cap %6.0f: rate %7.1f (max 1 s %7.1f) kbit/s, bones %.1f, RMS %.4f%% max %.4f%%\n", caps[i],
+                    r[i].rate_kbps, r[i].rate_max_kbps, r[i].bones_mean, r[i].rms_pct, r[i].max_pct);
+        ASSERT_GE(r[i].per_second_kbps.size(), 3u);
+        for (double k : r[i].per_second_kbps) EXPECT_LE(k, caps[i] * 1.05) << "cap " << caps[i];
+        EXPECT_GT(r[i].rate_kbps, caps[i] * 0.6) << "cap " << caps[i] << " poorly used";
+        EXPECT_EQ(r[i].characters, 24);
+        if (i > 0) {
+            EXPECT_LE(r[i].rms_pct, r[i - 1].rms_pct * 1.05 + 0.002) << "cap " << caps[i];
+        }
+    }
+}
+
+TEST(NetBandwidth, CloserCharactersGetAtLeastAsManyBones) {
+    auto inst = crowd_layout(default_assets(), 8);
+    const float spacing = float(default_assets()[0]->diagonal);
+    for (size_t i = 0; i < inst.size(); ++i) {
+        inst[i].asset = 0;  // all Fox, walking, along a line
+        inst[i].selection = 1;
+        inst[i].position = glm::vec3(0, 0, float(i + 1) * spacing * 2.0f);
+    }
+    RunningServer s(inst);
+    ClientOptions o = s.client(4.0);
+    o.max_kbps = 96;
+    o.view.has_camera = true;
+    o.view.camera = glm::vec3(0, 0, 0);
+    o.send_view = true;
+    ClientReport r = run_client(o);
+    ASSERT_EQ(r.instances.size(), inst.size());
+    for (size_t i = 0; i < inst.size(); ++i) {
+        std::printf("instance %zu at %.0f: %.2f bones\n", i, double(inst[i].position.z), r.instances[i].bones_mean);
+        if (i > 0) {
+            EXPECT_GE(r.instances[i - 1].bones_mean + 0.5, r.instances[i].bones_mean) << "instance " << i;
+        }
+    }
+    EXPECT_GT(r.instances[0].bones_mean, r.instances.back().bones_mean);
+}
+
+TEST(NetBandwidth, LossReorderingAndDuplicationDoNoHarm) {
+    RunningServer s;
+    LinkConfig lc;
+    lc.loss = 0.10;
+    lc.reorder = 0.10;
+    lc.duplicate = 0.10;
+    lc.delay_ms = 10;
+    lc.jitter_ms = 5;
+    lc.seed = 42;
+    LinkEmulator link(lc, "127.0.0.1", s.server->udp_port());
+    link.start();
+    ClientOptions o = s.client(4.0);
+    o.udp_via_host = "127.0.0.1";
+    o.udp_via_port = link.port();
+    o.verify = true;
+    ClientReport r = run_client(o);
+    link.stop();
+    LinkStats ls = link.stats();
+    std::printf("loss %.3f, duplicates %llu, RMS %.4f%% max %.4f%%, link: %llu dropped %llu reordered %llu duplicated\n",
+                r.loss, (unsigned long long)r.duplicates, r.rms_pct, r.max_pct, (unsigned long long)ls.dropped,
+                (unsigned long long)ls.reordered, (unsigned long long)ls.duplicated);
+    EXPECT_GT(ls.dropped, 0u);
+    EXPECT_EQ(r.characters, 4);
+    EXPECT_GT(r.loss, 0.03);
+    EXPECT_LT(r.loss, 0.25);
+    EXPECT_GT(r.duplicates, 0u);
+    EXPECT_EQ(r.malformed, 0u);
+    for (double k : r.per_second_kbps) EXPECT_GT(k, 50.0);  // the stream keeps flowing every second
+    EXPECT_LT(r.rms_pct, 0.5);
+}
+
+TEST(NetBandwidth, EstimateBacksOffOnASlowLink) {
+    RunningServer s;
+    LinkConfig lc;
+    lc.rate_kbps = 100;  // the link, not the client's cap, limits
+    lc.queue_ms = 150;
+    LinkEmulator link(lc, "127.0.0.1", s.server->udp_port());
+    link.start();
+    ClientOptions o = s.client(6.0);
+    o.udp_via_host = "127.0.0.1";
+    o.udp_via_port = link.port();
+    o.max_kbps = 2000;
+    ClientReport r = run_client(o);
+    link.stop();
+    std::printf("slow link: rate %.1f kbit/s, loss %.3f, estimate %.1f kbit/s, rtt %.1f ms\n", r.rate_kbps, r.loss,
+                r.estimate_kbps, r.rtt_ms);
+    EXPECT_EQ(r.characters, 4);
+    EXPECT_LT(r.estimate_kbps, 400.0);
+    EXPECT_GT(r.rate_kbps, 40.0);
+}
