@@ -12,6 +12,8 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <thread>
+#include <unistd.h>
 #include <map>
 #include <memory>
 #include <sstream>
@@ -138,8 +140,11 @@ std::string fetch_asset(ControlChannel& ctl, const wire::Asset* a, const std::st
         --in_flight;
     }
     if (content_hash(bytes) != a->asset_id()) throw Error("downloaded " + name + " does not match its content hash");
+    // A temporary name unique to this process and thread: several clients may
+    // fill the same cache at once, and the rename makes the file appear whole.
     fs::path tmp = path;
-    tmp += ".part";
+    tmp += ".part" + std::to_string(::getpid()) + "-" +
+           std::to_string(std::hash<std::thread::id>{}(std::this_thread::get_id()));
     {
         std::ofstream f(tmp, std::ios::binary);
         f.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
