@@ -30,6 +30,7 @@ SERVER=$BUILD/server/progskin-server
 CLIENT=$BUILD/client/progskin-client
 if [[ ! -x $SERVER || ! -x $CLIENT ]]; then
   echo "demo: building progskin-server and progskin-client into $BUILD ..." >&2
+  bash scripts/setup.sh
   cmake -S . -B "$BUILD" -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
   cmake --build "$BUILD" -j"$(nproc)" --target progskin-server progskin-client >/dev/null
 fi
