@@ -1,6 +1,8 @@
 // pose_buffer.cpp — see pose_buffer.h.
 #include "pose_buffer.h"
 
+#include <algorithm>
+
 namespace progskin::net {
 
 static bool newer(uint32_t a, uint32_t b) { return int32_t(a - b) > 0; }
@@ -55,20 +57,25 @@ bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const
 }
 
 int PoseBuffer::bones_at(double d) const {
-    const Frame* before = nullptr;
-    const Frame* after = nullptr;
+    // Bones that can be shown at d: those present in a kept frame at or before
+    // d and in one after it (interpolated per bone), or, when nothing newer
+    // arrived yet, those of the newest frame before d (held).
+    int before = 0, after = 0, newest_before = 0;
+    const Frame* nb = nullptr;
     for (const auto& f : frames_) {
         if (!f.used || f.ready == 0) continue;
         double t = double(int32_t(f.tick - newest_)) + double(newest_);
         if (t <= d) {
-            if (!before || newer(f.tick, before->tick)) before = &f;
-        } else if (!after || newer(after->tick, f.tick)) {
-            after = &f;
+            before = std::max(before, f.ready);
+            if (!nb || newer(f.tick, nb->tick)) nb = &f;
+        } else {
+            after = std::max(after, f.ready);
         }
     }
-    if (before) return before->ready;
-    if (after) return after->ready;
-    return 0;
+    newest_before = nb ? nb->ready : 0;
+    if (before == 0) return after;
+    if (after == 0) return newest_before;
+    return std::max(newest_before, std::min(before, after));
 }
 
 bool PoseBuffer::pose(int b, double d, BonePose& out) const {

@@ -27,8 +27,9 @@ public:
     // True once a frame at or before display tick d has been received (the
     // display starts `delay` after the first frame, not before it).
     bool covers(double d) const { return any_ && d >= double(int32_t(first_ - newest_)) + double(newest_); }
-    // Bones of the frame shown at display tick d: the complete prefix of the
-    // newest frame at or before d (else the oldest frame after it); 0 if none.
+    // Bones shown at display tick d: the prefix present both in a kept frame at
+    // or before d and in one after it (each bone interpolated between its own
+    // frames), at least the newest frame's at or before d; 0 if none.
     int bones_at(double d) const;
     // Pose of bone b at display tick d; false if bone b was never received.
     bool pose(int b, double d, BonePose& out) const;

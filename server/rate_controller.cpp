@@ -7,7 +7,10 @@ namespace progskin::net {
 
 static constexpr double kMinKbps = 8.0;
 
-RateController::RateController(double cap_kbps, double initial_kbps) : cap_kbps_(cap_kbps) {
+double RateController::depth_bytes(double kbps) const { return std::max(min_depth_, 0.10 * kbps * 125.0); }
+
+RateController::RateController(double cap_kbps, double initial_kbps, double min_depth_bytes)
+    : cap_kbps_(cap_kbps), min_depth_(min_depth_bytes) {
     estimate_kbps_ = std::clamp(initial_kbps, kMinKbps, std::max(kMinKbps, cap_kbps));
 }
 
@@ -16,7 +19,6 @@ void RateController::set_cap(double cap_kbps) {
     estimate_kbps_ = std::min(estimate_kbps_, cap_kbps_);
 }
 
-static double depth_bytes(double kbps) { return 0.10 * kbps * 125.0; }
 
 void RateController::refill(double dt) {
     double t = target_kbps();

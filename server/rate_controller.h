@@ -18,7 +18,9 @@ namespace progskin::net {
 
 class RateController {
 public:
-    RateController(double cap_kbps = 1000, double initial_kbps = 1000);
+    // min_depth_bytes: a deeper bucket (bursts beyond 10% of a second) for
+    // senders whose smallest useful datagram is larger (the RD baselines).
+    RateController(double cap_kbps = 1000, double initial_kbps = 1000, double min_depth_bytes = 0);
     void set_cap(double cap_kbps);
 
     void refill(double dt_seconds);
@@ -43,7 +45,8 @@ private:
         bool valid = false, acked = false, counted = false;
     };
     void mark(uint32_t seq);
-    double cap_kbps_, estimate_kbps_;
+    double depth_bytes(double kbps) const;
+    double cap_kbps_, min_depth_, estimate_kbps_;
     double tokens_ = 0, fill_ = 0;
     bool limited_ = false;  // the budget ran out since the last update
     std::vector<Sent> ring_ = std::vector<Sent>(1024);

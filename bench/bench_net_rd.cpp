@@ -1,0 +1,253 @@
+// bench_net_rd.cpp — rate-distortion of progressive streaming against two
+// baselines measured in the same run, same scene, same token-bucket pacing,
+// same datagram format and same client (interpolation, display delay chosen
+// per method to cover its largest update gap, at most 600 ms):
+//   progressive: scheduler.h (importance-weighted error removed per byte);
+//   all_bones:   every update carries all bones of a character; characters
+//                are updated round-robin as the budget allows (fewer updates
+//                per second when the budget is short; its token bucket may
+//                hold one whole character, a burst the others do not get);
+//   leaf_lod:    a static skeleton LOD: the leaf-pruning skin (deepest bones
+//                dropped first, plain copy-down), the largest k that fits
+//                every character every tick (k = 1 round-robin below that).
+// Error: displayed vertices vs the full-detail reference at the display time
+// (GUIDE.md §2), RMS and max over all characters and displayed ticks, % of
+// each character's rest diagonal. Rate: GUIDE.md (payload + 28 per datagram).
+#include <benchmark/benchmark.h>
+
+#include <cmath>
+#include <cstdio>
+#include <map>
+
+#include "client_palette.h"
+#include "datagram_packer.h"
+#include "error_metric.h"
+#include "frame_encoder.h"
+#include "rate_controller.h"
+#include "scene.h"
+#include "scheduler.h"
+#include "wire.h"
+
+using namespace progskin;
+using namespace progskin::net;
+
+namespace {
+
+using Assets = std::vector<std::shared_ptr<ServerAsset>>;
+
+const Assets& progressive_assets() {
+    static Assets a = {load_server_asset(std::string(PROGSKIN_ASSETS) + "/Fox.glb"),
+                       load_server_asset(std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb")};
+    return a;
+}
+
+const Assets& leaf_assets() {
+    static Assets a = [] {
+        Assets out;
+        for (const auto& p : progressive_assets()) {
+            auto x = std::make_shared<ServerAsset>(*p);
+            BuildOptions o;
+            o.strategy = Strategy::LeafPrune;
+            o.fit_corrections = false;
+            x->skin = build_progressive_skin(x->character, sample_frames(x->character, x->selections, 30.0), o);
+            finish_server_asset(*x);
+            out.push_back(x);
+        }
+        return out;
+    }();
+    return a;
+}
+
+std::shared_ptr<ClientAsset> client_asset(const ServerAsset& s) {
+    auto c = std::make_shared<ClientAsset>();
+    c->name = s.name;
+    c->character = s.character;
+    c->skin.order = s.skin.order;
+    c->skin.parents = s.skin.parents;
+    c->skin.corrections = s.skin.corrections;
+    remap_skin_vertices(c->character, c->skin);
+    c->format = s.format;
+    c->diagonal = rest_diagonal(c->character);
+    return c;
+}
+
+enum class Method { Progressive, AllBones, LeafLod };
+
+struct Result {
+    double rate_kbps = 0, bones = 0, rms = 0, max = 0, delay_ms = 0;
+};
+
+Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbps, int ticks, int warm) {
+    const Assets& assets = m == Method::LeafLod ? leaf_assets() : progressive_assets();
+    FrameEncoder enc(assets, specs, 30.0f);
+    // The all-bones baseline needs room for one whole character per datagram.
+    double min_depth = 0;
+    if (m == Method::AllBones)
+        for (const auto& a : assets) min_depth = std::max(min_depth, double(WireCost::wire(WireCost::kChunk + size_t(a->bone_count()) * a->format.size())));
+    RateController rate(cap_kbps, cap_kbps, min_depth);
+    Scheduler sched;
+    DatagramPacker packer;
+    std::vector<float> imp = compute_importance(ViewSpec{}, specs, assets);
+    const size_t n = specs.size();
+    // Static LOD: the largest k with every character every tick within the rate.
+    int leaf_k = 1;
+    if (m == Method::LeafLod) {
+        int kmax = 255;
+        for (const auto& a : assets) kmax = std::min(kmax, a->bone_count());
+        for (int k = kmax; k >= 1; --k) {
+            size_t payload = 0;
+            for (const auto& s : specs) payload += WireCost::kChunk + size_t(std::min(k, assets[s.asset]->bone_count())) * assets[s.asset]->format.size();
+            if (WireCost::wire(payload) * 30.0 <= 0.94 * cap_kbps * 125.0) {
+                leaf_k = k;
+                break;
+            }
+        }
+    }
+    std::vector<std::vector<std::vector<uint8_t>>> log(size_t(ticks) + 1);
+    std::vector<std::vector<int>> updates(n);
+    size_t rr = 0, wire_total = 0;
+    std::vector<Pick> picks;
+    for (int t = 1; t <= ticks; ++t) {
+        const EncodedFrame& f = enc.encode(uint32_t(t));
+        rate.refill(1.0 / 30.0);
+        size_t budget = rate.budget();
+        picks.clear();
+        if (budget) {
+            if (m == Method::Progressive) {
+                sched.select(f, assets, imp, budget, 30.0f, picks);
+            } else {
+                // Round-robin, fixed k per character, as many as fit.
+                size_t payload = 0;
+                for (size_t c = 0; c < n; ++c) {
+                    size_t i = (rr + c) % n;
+                    const auto& a = *assets[specs[i].asset];
+                    int k = m == Method::AllBones ? a.bone_count() : std::min(leaf_k, a.bone_count());
+                    size_t b = WireCost::kChunk + size_t(k) * a.format.size();
+                    if (WireCost::wire(payload + b) > budget) break;
+                    payload += b;
+                    picks.push_back({int(i), k});
+                }
+                rr = (rr + picks.size()) % n;
+            }
+        }
+        uint32_t seq = 0;
+        size_t w = packer.pack(f, picks, seq, log[size_t(t)]);
+        rate.spend(w);
+        if (m == Method::Progressive) sched.sent(picks, uint32_t(t));
+        if (t > warm) wire_total += w;
+        for (const Pick& p : picks) updates[size_t(p.instance)].push_back(t);
+    }
+    // Display delay covering the largest gap after warm-up (as the client adapts it).
+    int gap = 1;
+    for (const auto& u : updates)
+        for (size_t i = 1; i < u.size(); ++i)
+            if (u[i] > warm) gap = std::max(gap, u[i] - u[i - 1]);
+    const int delay = std::min(18, gap + 1);
+
+    std::vector<std::unique_ptr<InstanceView>> views;
+    for (const auto& s : specs) {
+        ClipInfo ci;
+        ci.selection = assets[s.asset]->selections[s.selection];
+        ci.time_offset = s.time_offset;
+        ci.speed = s.speed;
+        views.push_back(std::make_unique<InstanceView>(client_asset(*assets[s.asset]), ci, 8));
+    }
+    double sq = 0, cnt = 0, mx = 0, bones = 0, frames = 0;
+    std::vector<glm::vec3> shown, ref;
+    for (int t = 1; t <= ticks; ++t) {
+        for (const auto& d : log[size_t(t)]) {
+            const wire::Datagram* g = verify_datagram(d);
+            const wire::Frame* fr = g->body_as_Frame();
+            const uint8_t* rec = fr->records()->data();
+            for (const wire::Chunk* c : *fr->chunks()) {
+                InstanceView& v = *views[c->instance()];
+                v.buffer().add_chunk(fr->tick(), c->first(), c->count(), c->total(), rec);
+                rec += size_t(c->count()) * v.asset().format.size();
+            }
+        }
+        const double d = double(t - delay);
+        if (t - delay <= warm) continue;
+        for (size_t i = 0; i < n; ++i) {
+            InstanceView& v = *views[i];
+            if (!v.buffer().covers(d) || !v.display(d)) continue;
+            bones += v.target_bones();
+            frames += 1;
+            if (t % 2) continue;  // verify every other tick
+            v.skin(shown);
+            v.reference(v.clip().clip_time(d, 30.0), ref);
+            const double s = 100.0 / v.asset().diagonal;
+            for (size_t j = 0; j < shown.size(); ++j) {
+                double e = glm::length(shown[j] - ref[j]) * s;
+                sq += e * e;
+                mx = std::max(mx, e);
+            }
+            cnt += double(shown.size());
+        }
+    }
+    Result r;
+    r.rate_kbps = double(wire_total) * 8 / 1000 / (double(ticks - warm) / 30.0);
+    r.bones = frames > 0 ? bones / frames : 0;
+    r.rms = cnt > 0 ? std::sqrt(sq / cnt) : 0;
+    r.max = mx;
+    r.delay_ms = delay * 1000.0 / 30.0;
+    return r;
+}
+
+std::map<std::pair<int, int>, std::array<Result, 3>>& table() {
+    static std::map<std::pair<int, int>, std::array<Result, 3>> t;
+    return t;
+}
+
+void BM_RateDistortion(benchmark::State& st) {
+    const int scene = int(st.range(0)), cap = int(st.range(1));
+    std::vector<InstanceSpec> specs;
+    if (scene == 0) {
+        for (size_t a = 0; a < progressive_assets().size(); ++a)
+            for (size_t s = 0; s < progressive_assets()[a]->selections.size(); ++s) {
+                InstanceSpec i;
+                i.asset = int(a);
+                i.selection = int(s);
+                specs.push_back(i);
+            }
+    } else {
+        specs = crowd_layout(progressive_assets(), 24);
+    }
+    std::array<Result, 3> r;
+    for (auto _ : st) {
+        r[0] = simulate(Method::Progressive, specs, cap, 330, 30);
+        r[1] = simulate(Method::AllBones, specs, cap, 330, 30);
+        r[2] = simulate(Method::LeafLod, specs, cap, 330, 30);
+    }
+    table()[{scene, cap}] = r;
+    st.counters["rate_kbps"] = r[0].rate_kbps;
+    st.counters["prog_rms_pct"] = r[0].rms;
+    st.counters["all_bones_rms_pct"] = r[1].rms;
+    st.counters["leaf_lod_rms_pct"] = r[2].rms;
+    st.counters["prog_vs_best_baseline"] = r[0].rms / std::max(1e-9, std::min(r[1].rms, r[2].rms));
+    st.SetLabel(scene == 0 ? "default set (4 characters)" : "crowd of 24");
+}
+BENCHMARK(BM_RateDistortion)
+    ->ArgsProduct({{0}, {16, 32, 64, 128, 256}})
+    ->ArgsProduct({{1}, {64, 256, 1000, 2000}})
+    ->Iterations(1)
+    ->Unit(benchmark::kSecond);
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    benchmark::Initialize(&argc, argv);
+    benchmark::RunSpecifiedBenchmarks();
+    benchmark::Shutdown();
+    if (table().empty()) return 0;
+    std::printf("\n| scene | cap kbit/s | method | rate kbit/s | bones/char | RMS %% diag | max %% diag | delay ms |\n");
+    std::printf("|---|---|---|---|---|---|---|---|\n");
+    const char* names[3] = {"progressive", "all bones, fewer updates", "static leaf LOD"};
+    for (const auto& [key, r] : table()) {
+        for (int m = 0; m < 3; ++m)
+            std::printf("| %s | %d | %s | %.1f | %.1f | %.4f | %.3f | %.0f |\n", key.first == 0 ? "default (4)" : "crowd (24)",
+                        key.second, names[m], r[m].rate_kbps, r[m].bones, r[m].rms, r[m].max, r[m].delay_ms);
+        std::printf("| | | progressive / best baseline RMS | | | **%.2f** | | |\n",
+                    r[0].rms / std::max(1e-9, std::min(r[1].rms, r[2].rms)));
+    }
+    return 0;
+}

@@ -1,0 +1,243 @@
+// bench_net_server.cpp — server tick cost per client and per character.
+//
+// BM_ClientTick: the per-client part of a tick (scheduler selection under the
+// client's byte budget + packing datagrams by copying pre-encoded records),
+// for 100 characters, at several caps. BM_ServerTick200x100: one whole tick
+// of 200 clients x 100 characters without sockets (encode once + 200 x
+// select/pack). BM_Loopback200Clients: a real Server on loopback with 200
+// lightweight clients (Hello, UDP Bind, Acks; no display) for 5 s: mean tick
+// time and the datagrams and rate each client received.
+#include <benchmark/benchmark.h>
+#include <poll.h>
+
+#include <asio.hpp>
+#include <thread>
+
+#include "datagram_packer.h"
+#include "frame_encoder.h"
+#include "rate_controller.h"
+#include "scene.h"
+#include "scheduler.h"
+#include "server.h"
+#include "wire.h"
+
+using namespace progskin;
+using namespace progskin::net;
+
+static std::vector<std::shared_ptr<ServerAsset>>& assets() {
+    static std::vector<std::shared_ptr<ServerAsset>> a = {load_server_asset(std::string(PROGSKIN_ASSETS) + "/Fox.glb"),
+                                                          load_server_asset(std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb")};
+    return a;
+}
+
+static void BM_ClientTick(benchmark::State& st) {
+    const int n = 100;
+    const double kbps = double(st.range(0));
+    auto specs = crowd_layout(assets(), n);
+    FrameEncoder enc(assets(), specs, 30.0f);
+    ViewSpec view;
+    view.has_camera = true;
+    std::vector<float> imp = compute_importance(view, specs, assets());
+    Scheduler sched;
+    DatagramPacker packer;
+    RateController rate(kbps, kbps);
+    std::vector<Pick> picks;
+    std::vector<std::vector<uint8_t>> out;
+    uint32_t tick = 0, seq = 0;
+    size_t bytes = 0, dgrams = 0;
+    for (auto _ : st) {
+        st.PauseTiming();
+        const EncodedFrame& f = enc.encode(++tick);
+        out.clear();
+        st.ResumeTiming();
+        rate.refill(1.0 / 30.0);
+        size_t budget = rate.budget();
+        if (budget) {
+            sched.select(f, assets(), imp, budget, 30.0f, picks);
+            size_t w = packer.pack(f, picks, seq, out);
+            rate.spend(w);
+            sched.sent(picks, tick);
+            bytes += w;
+            dgrams += out.size();
+        }
+    }
+    st.counters["kbps_sent"] = benchmark::Counter(double(bytes) * 8 / 1000 / (double(st.iterations()) / 30.0));
+    st.counters["datagrams_per_tick"] = double(dgrams) / double(st.iterations());
+    st.SetLabel("100 characters, per client per tick");
+}
+BENCHMARK(BM_ClientTick)->Arg(64)->Arg(256)->Arg(1000)->Arg(4000)->Arg(20000)->Unit(benchmark::kMicrosecond);
+
+static void BM_ServerTick200x100(benchmark::State& st) {
+    const int n = 100, clients = 200;
+    const double kbps = double(st.range(0));
+    auto specs = crowd_layout(assets(), n);
+    FrameEncoder enc(assets(), specs, 30.0f);
+    std::vector<Scheduler> sched(clients);
+    std::vector<RateController> rate(clients, RateController(kbps, kbps));
+    std::vector<std::vector<float>> imp;
+    for (int c = 0; c < clients; ++c) {
+        ViewSpec v;
+        v.has_camera = true;
+        v.camera = specs[size_t(c) % specs.size()].position + glm::vec3(0, 0, 300);
+        imp.push_back(compute_importance(v, specs, assets()));
+    }
+    DatagramPacker packer;
+    std::vector<Pick> picks;
+    std::vector<std::vector<uint8_t>> out;
+    uint32_t tick = 0, seq = 0;
+    double busy = 0;
+    for (auto _ : st) {
+        const double t0 = now_seconds();
+        const EncodedFrame& f = enc.encode(++tick);
+        for (int c = 0; c < clients; ++c) {
+            rate[c].refill(1.0 / 30.0);
+            size_t budget = rate[c].budget();
+            if (!budget) continue;
+            out.clear();
+            sched[c].select(f, assets(), imp[c], budget, 30.0f, picks);
+            rate[c].spend(packer.pack(f, picks, seq, out));
+            sched[c].sent(picks, tick);
+        }
+        busy += now_seconds() - t0;
+    }
+    st.counters["core_load_at_30Hz"] = busy / double(st.iterations()) * 30.0;
+    st.SetLabel("encode 100 + 200 clients select/pack (no sockets); core_load = tick time x 30 Hz");
+}
+BENCHMARK(BM_ServerTick200x100)->Arg(256)->Arg(1000)->Unit(benchmark::kMillisecond);
+
+// ---------------------------------------------------------------- loopback --
+
+namespace {
+struct LightClient {
+    asio::ip::tcp::socket tcp;
+    asio::ip::udp::socket udp;
+    uint64_t session = 0, token = 0;
+    uint32_t ack = 0, bits = 0, echo = 0;
+    bool any = false;
+    uint64_t datagrams = 0, bytes = 0, since_ack = 0;
+    explicit LightClient(asio::io_context& io) : tcp(io), udp(io) {}
+};
+
+void send_control(asio::ip::tcp::socket& s, flatbuffers::FlatBufferBuilder& fbb) {
+    std::vector<uint8_t> m;
+    frame_control(fbb, m);
+    asio::write(s, asio::buffer(m));
+}
+
+bool read_control(asio::ip::tcp::socket& s, std::vector<uint8_t>& body) {
+    uint8_t len[4];
+    asio::error_code ec;
+    asio::read(s, asio::buffer(len), ec);
+    if (ec) return false;
+    uint32_t n = 0;
+    read_length({len, 4}, n);
+    body.resize(n);
+    asio::read(s, asio::buffer(body), ec);
+    return !ec;
+}
+}  // namespace
+
+static void BM_Loopback200Clients(benchmark::State& st) {
+    const int clients = int(st.range(0)), n = int(st.range(1));
+    const double kbps = double(st.range(2));
+    for (auto _ : st) {
+        ServerConfig cfg;
+        cfg.bind_address = "127.0.0.1";
+        cfg.max_clients = clients + 8;
+        Server server(cfg, assets(), crowd_layout(assets(), n));
+        std::thread th([&] { server.run(); });
+        asio::io_context io;
+        std::vector<std::unique_ptr<LightClient>> cs;
+        asio::ip::udp::endpoint srv(asio::ip::make_address("127.0.0.1"), server.udp_port());
+        std::vector<uint8_t> body;
+        for (int i = 0; i < clients; ++i) {
+            auto c = std::make_unique<LightClient>(io);
+            c->tcp.connect(asio::ip::tcp::endpoint(asio::ip::make_address("127.0.0.1"), server.tcp_port()));
+            flatbuffers::FlatBufferBuilder fbb;
+            auto name = fbb.CreateString("bench");
+            auto h = wire::CreateHello(fbb, PROTOCOL_VERSION, name, 0, uint32_t(kbps));
+            fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Hello, h.Union()), wire::ControlIdentifier());
+            send_control(c->tcp, fbb);
+            if (!read_control(c->tcp, body) || !verify_control(body)) {
+                st.SkipWithError("no welcome");
+                break;
+            }
+            const wire::Welcome* w = wire::GetControl(body.data())->body_as_Welcome();
+            c->session = w->session_id();
+            c->token = w->udp_token();
+            c->udp.open(asio::ip::udp::v4());
+            c->udp.bind(asio::ip::udp::endpoint(asio::ip::make_address("127.0.0.1"), 0));
+            c->udp.non_blocking(true);
+            c->udp.set_option(asio::socket_base::receive_buffer_size(1 << 20));
+            flatbuffers::FlatBufferBuilder b;
+            std::vector<uint8_t> pad(64, 0);
+            auto p = b.CreateVector(pad);
+            auto bo = wire::CreateBind(b, c->session, c->token, p);
+            b.Finish(wire::CreateDatagram(b, 0, 0, wire::DatagramBody::Bind, bo.Union()), wire::DatagramIdentifier());
+            c->udp.send_to(asio::buffer(b.GetBufferPointer(), b.GetSize()), srv);
+            cs.push_back(std::move(c));
+        }
+        const double seconds = 5.0;
+        const double t0 = now_seconds();
+        double last_ack = t0;
+        std::vector<pollfd> fds(cs.size());
+        alignas(16) uint8_t buf[2048];
+        ServerStats before = server.stats();
+        while (now_seconds() - t0 < seconds) {
+            for (size_t i = 0; i < cs.size(); ++i) fds[i] = {cs[i]->udp.native_handle(), POLLIN, 0};
+            ::poll(fds.data(), fds.size(), 5);
+            for (size_t i = 0; i < cs.size(); ++i) {
+                if (!fds[i].revents) continue;
+                auto& c = *cs[i];
+                for (;;) {
+                    asio::error_code ec;
+                    asio::ip::udp::endpoint from;
+                    size_t got = c.udp.receive_from(asio::buffer(buf), from, 0, ec);
+                    if (ec) break;
+                    const wire::Datagram* d = verify_datagram({buf, got});
+                    if (!d || d->body_type() != wire::DatagramBody::Frame) continue;
+                    ++c.datagrams;
+                    c.bytes += got + UDP_IP_OVERHEAD;
+                    ++c.since_ack;
+                    if (!c.any || int32_t(d->seq() - c.ack) > 0) {
+                        c.ack = d->seq();
+                        c.echo = d->send_time_us();
+                        c.any = true;
+                    }
+                }
+            }
+            if (now_seconds() - last_ack > 0.05) {  // ack everything received, 20 Hz
+                last_ack = now_seconds();
+                for (auto& cp : cs) {
+                    auto& c = *cp;
+                    if (!c.since_ack) continue;
+                    flatbuffers::FlatBufferBuilder fbb;
+                    auto a = wire::CreateAck(fbb, c.session, c.token, c.ack, 0xffffffffu, c.echo, 0);
+                    fbb.Finish(wire::CreateDatagram(fbb, 0, 0, wire::DatagramBody::Ack, a.Union()), wire::DatagramIdentifier());
+                    asio::error_code ec;
+                    c.udp.send_to(asio::buffer(fbb.GetBufferPointer(), fbb.GetSize()), srv, 0, ec);
+                    c.since_ack = 0;
+                }
+            }
+        }
+        ServerStats after = server.stats();
+        server.stop();
+        th.join();
+        double min_kbps = 1e18, sum_kbps = 0;
+        for (auto& c : cs) {
+            double k = double(c->bytes) * 8 / 1000 / seconds;
+            min_kbps = std::min(min_kbps, k);
+            sum_kbps += k;
+        }
+        const double ticks = double(after.ticks - before.ticks);
+        st.counters["mean_tick_ms"] = 1000.0 * (after.tick_seconds - before.tick_seconds) / std::max(1.0, ticks);
+        st.counters["ticks_per_s"] = ticks / seconds;
+        st.counters["core_load"] = (after.tick_seconds - before.tick_seconds) / seconds;
+        st.counters["client_kbps_mean"] = sum_kbps / double(cs.size());
+        st.counters["client_kbps_min"] = min_kbps;
+        st.counters["sessions"] = double(after.sessions_active);
+    }
+}
+BENCHMARK(BM_Loopback200Clients)->Args({200, 100, 256})->Args({200, 4, 256})->Iterations(1)->Unit(benchmark::kSecond);
+
+BENCHMARK_MAIN();
