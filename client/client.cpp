@@ -504,9 +504,11 @@ ClientReport run_client(const ClientOptions& opt) {
             if (opt.snap_to_ticks) d = std::floor(d);
             const bool verify_now = opt.verify && (display_count % size_t(std::max(1, opt.verify_every)) == 0);
             ++display_count;
+            const bool warm = now - t_first >= opt.warmup;
             for (size_t i = 0; i < views.size(); ++i) {
                 InstanceView& v = *views[i];
                 if (!v.buffer().covers(d) || !v.display(d)) continue;  // nothing that old received yet
+                if (!warm) continue;  // the display delay is still adapting
                 Acc& a = acc[i];
                 int k = v.target_bones();
                 a.k_sum += k;

@@ -27,6 +27,7 @@ struct ClientOptions {
     double max_delay_ms = 600;     // the delay adapts up to this to cover gaps between frames
     double display_rate = 30;      // displayed frames per second
     bool verify = false;           // measure displayed vertices against the reference
+    double warmup = 1.0;           // seconds of display not counted in bones/error statistics
     int verify_every = 1;          // verify every n-th displayed frame
     bool snap_to_ticks = false;    // display exactly on server ticks (no interpolation error)
     int blend_frames = 8;          // LodBlender frames for bones switching on/off

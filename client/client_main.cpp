@@ -26,6 +26,8 @@ static const char* kUsage =
     "  --blend-frames N    frames to blend a bone on/off (default 8)\n"
     "  --verify            measure displayed vertices against the reference (error metric)\n"
     "  --verify-every N    verify every N-th displayed frame (default 1)\n"
+    "  --warmup S          seconds of display left out of bones/error statistics while the\n"
+    "                      display delay adapts (default 1; the rate counts from the start)\n"
     "  --snap-to-ticks     display on server ticks only (isolates quantisation error)\n"
     "  --report json|text  final summary format on stdout (default text)\n"
     "  --cache DIR         asset cache directory (default ~/.cache/progskin)\n"
@@ -96,6 +98,7 @@ int main(int argc, char** argv) {
             else if (a == "--display-rate") opt.display_rate = std::stod(val());
             else if (a == "--blend-frames") opt.blend_frames = std::stoi(val());
             else if (a == "--verify") opt.verify = true;
+            else if (a == "--warmup") opt.warmup = std::stod(val());
             else if (a == "--verify-every") opt.verify_every = std::stoi(val());
             else if (a == "--snap-to-ticks") opt.snap_to_ticks = true;
             else if (a == "--report") {

@@ -14,7 +14,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)
 BUILD=${PROGSKIN_BUILD:-build}
-DURATION=6
+DURATION=8
 CAPS="16 24 32 48 64 96 128 192 256 0"
 while (($#)); do
   case "$1" in

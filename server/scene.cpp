@@ -8,6 +8,7 @@
 
 #include "error.h"
 #include "error_metric.h"
+#include "gltf_export.h"
 #include "gltf_import.h"
 #include "skinning.h"
 #include "wire.h"
@@ -143,10 +144,15 @@ std::shared_ptr<ServerAsset> load_server_asset(const std::string& path) {
     a->name = fs::path(path).filename().string();
     a->bytes = read_file(path);
     a->id = content_hash(a->bytes);
-    a->character = import_character(path);
+    ProgressiveAsset pa = load_progressive(path);
+    a->character = std::move(pa.character);
     a->selections = default_training_set(a->character);
-    FrameSet frames = sample_frames(a->character, a->selections, 30.0);
-    a->skin = build_progressive_skin(a->character, frames);
+    if (pa.progressive && pa.skin.bone_count() == int(a->character.joint_count())) {
+        a->skin = std::move(pa.skin);  // progressive glTF: joints already in progressive order
+        a->progressive_file = true;
+    } else {
+        a->skin = build_progressive_skin(a->character, sample_frames(a->character, a->selections, 30.0));
+    }
     finish_server_asset(*a);
     return a;
 }

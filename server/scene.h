@@ -25,6 +25,7 @@ struct ServerAsset {
     std::string path, name;          // file and its base name
     std::vector<uint8_t> bytes;      // the file as clients download it
     uint64_t id = 0;                 // content_hash(bytes)
+    bool progressive_file = false;   // the skin came from the file's PROGSKIN_progressive_skin extension
     Character character;
     ProgressiveSkin skin;
     std::vector<ClipSelection> selections;  // independently played clip groups

@@ -8,6 +8,7 @@
 
 #include "error.h"
 #include "error_metric.h"
+#include "gltf_export.h"
 #include "net_test_support.h"
 #include "wire.h"
 
@@ -132,4 +133,32 @@ TEST(NetLoopback, LivePosesPushedThroughTheLibraryApi) {
     pusher.join();
     EXPECT_EQ(r.characters, 1);
     EXPECT_EQ(r.bones_min, a.bone_count());
+}
+
+TEST(NetLoopback, ServesAProgressiveGltfWithoutRebuilding) {
+    const auto& fox = *default_assets()[0];
+    std::string path = RunningServer::cache_dir() + "/Fox.progressive.glb";
+    save_progressive(fox.character, fox.skin, path);
+    auto a = load_server_asset(path);
+    EXPECT_TRUE(a->progressive_file);
+    ASSERT_EQ(a->bone_count(), fox.bone_count());
+    for (int b = 0; b < a->bone_count(); ++b) EXPECT_EQ(a->skin.order[b], b);
+    ServerConfig cfg;
+    cfg.bind_address = "127.0.0.1";
+    InstanceSpec i;
+    i.selection = 1;
+    Server server(cfg, {a}, {i});
+    std::thread th([&] { server.run(); });
+    ClientOptions o;
+    o.port = server.tcp_port();
+    o.duration = 2.0;
+    o.cache_dir = RunningServer::cache_dir() + "/progressive";
+    o.verify = true;
+    o.snap_to_ticks = true;
+    ClientReport r = run_client(o);
+    server.stop();
+    th.join();
+    EXPECT_EQ(r.characters, 1);
+    EXPECT_EQ(r.bones_min, a->bone_count());
+    EXPECT_LT(r.max_pct, 0.02);
 }
