@@ -3,7 +3,8 @@
 // k = 2, 4, 8, 16, 32 next to Dem Bones (issue 4) with the ratio per cell.
 //
 //   bench_scratch --benchmark_filter=Build      # build time
-//   bench_scratch --report                      # the table in docs/performance.md
+//   bench_scratch --report [REST_FRAME|-1] [auto|collapse|top-down]
+//                                               # the table in docs/performance.md
 #include <benchmark/benchmark.h>
 
 #include <chrono>
@@ -68,7 +69,7 @@ struct Row {
     double dem[5];  // Dem Bones RMS % at k = 2, 4, 8, 16, 32 (issue 4)
 };
 
-int report(int rest_frame) {
+int report(int rest_frame, ScratchMethod method) {
     const Row rows[] = {
         {"Fox (Survey)", "Fox.glb", "Survey", {1.76, 0.395, 0.098, 0.035, 0.033}},
         {"CesiumMan (all clips)", "CesiumMan.glb", "all", {3.95, 1.64, 0.338, 0.153, 0.066}},
@@ -86,6 +87,7 @@ int report(int rest_frame) {
         ScratchOptions o;
         o.max_bones = 32;
         o.rest_frame = rest_frame;
+        o.method = method;
         const auto t0 = std::chrono::steady_clock::now();
         const ScratchResult s = build_from_vertices(a, o);
         const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -104,10 +106,14 @@ int report(int rest_frame) {
 }  // namespace
 
 int main(int argc, char** argv) {
+    // --report [REST_FRAME|-1] [auto|collapse|top-down]
     for (int i = 1; i < argc; ++i)
         if (!std::strcmp(argv[i], "--report")) {
             const int rest = (i + 1 < argc) ? std::atoi(argv[i + 1]) : -1;
-            return report(i + 1 < argc ? rest : -1);
+            ScratchMethod m = ScratchMethod::Auto;
+            if (i + 2 < argc && !std::strcmp(argv[i + 2], "collapse")) m = ScratchMethod::Collapse;
+            if (i + 2 < argc && !std::strcmp(argv[i + 2], "top-down")) m = ScratchMethod::TopDown;
+            return report(rest, m);
         }
     benchmark::Initialize(&argc, argv);
     benchmark::RunSpecifiedBenchmarks();

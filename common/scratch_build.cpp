@@ -14,6 +14,7 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <optional>
 
 #include <glm/gtc/matrix_transform.hpp>
 
@@ -186,10 +187,23 @@ public:
         recompute_all();
     }
 
+    // Full-detail decomposition (see decompose() below).
+    void decompose(int bones, double target_sq, int iterations, const std::function<void()>& tick);
+    void refine_weights_candidates(int candidates);
+    void refine_bind();
+    void update_centers();
+    // Renumbers bones: new bone i is old bone order[i]; parents are reset.
+    void permute(const std::vector<int>& order);
+    void set_parent(int b, int p) { bones_[size_t(b)].parent = p; }
+    double fit_error(size_t v, const std::vector<M34>& M) const {
+        double e = 0;
+        for (size_t f = 0; f < F_; ++f) e += (xf(M[f], P_[v]) - A_[f * V_ + v]).squaredNorm();
+        return e;
+    }
+
     // Global refinement (see refine() below).
     void refine(int sweeps, const std::function<void()>& tick);
     void refine_transforms(int first_bone);
-    void refine_weights();
     void refine_weights_full();
 
 private:
@@ -393,61 +407,6 @@ void Builder::refine_transforms(int first_bone) {
     }
 }
 
-// Weight update that keeps the skin progressive: for every bone b of a
-// vertex, the split of w_b + w_parent(b) between b and its parent is re-solved
-// by least squares (clamped to [0, 1]). Levels where b is inactive see only the
-// sum, so they are unchanged; the full skin's error does not increase.
-void Builder::refine_weights() {
-    for (size_t v = 0; v < V_; ++v) {
-        bool changed = false;
-        for (int i = 0; i < nslot_[v]; ++i) {
-            const int b = slot_bone_[v][i];
-            if (b == 0) continue;
-            const int p = bones_[size_t(b)].parent;
-            int ip = -1;
-            for (int j = 0; j < nslot_[v]; ++j)
-                if (slot_bone_[v][j] == p) ip = j;
-            if (ip < 0 && nslot_[v] >= kSlots) continue;
-            const double wb = slot_w_[v][i], wp = ip >= 0 ? slot_w_[v][ip] : 0.0, tot = wb + wp;
-            if (!(tot > 1e-9)) continue;
-            const std::vector<M34>& Mb = bones_[size_t(b)].M;
-            const std::vector<M34>& Mp = bones_[size_t(p)].M;
-            double num = 0, den = 0;
-            for (size_t f = 0; f < F_; ++f) {
-                const V3 xb = xf(Mb[f], P_[v]), xp = xf(Mp[f], P_[v]);
-                const V3 r0 = R_[f * V_ + v] - wb * xb - wp * xp + tot * xp;
-                const V3 d = tot * (xb - xp);
-                num += (A_[f * V_ + v] - r0).dot(d);
-                den += d.squaredNorm();
-            }
-            if (!(den > 0)) continue;
-            const double beta = std::clamp(num / den, 0.0, 1.0);
-            const double nb = beta * tot, np = tot - nb;
-            if (std::abs(nb - wb) < 1e-12) continue;
-            slot_w_[v][i] = nb;
-            if (ip >= 0) {
-                slot_w_[v][ip] = np;
-            } else {
-                slot_bone_[v][nslot_[v]] = p;
-                slot_w_[v][nslot_[v]] = np;
-                ++nslot_[v];
-            }
-            changed = true;
-        }
-        // Drop empty slots (keep bone b's slot only while it carries weight).
-        int n = 0;
-        for (int i = 0; i < nslot_[v]; ++i)
-            if (slot_w_[v][i] > 1e-12) {
-                slot_bone_[v][n] = slot_bone_[v][i];
-                slot_w_[v][n] = slot_w_[v][i];
-                ++n;
-            }
-        if (n == 0) continue;  // cannot happen: weights sum to 1
-        nslot_[v] = n;
-        if (changed) recompute_vertex(v);
-    }
-}
-
 // Non-negative least squares on the normal equations (Lawson-Hanson):
 // minimise w'Gw - 2h'w, w >= 0, over the index set `allowed`.
 Eigen::VectorXd nnls(const Eigen::MatrixXd& G, const Eigen::VectorXd& h, const std::vector<int>& allowed) {
@@ -498,68 +457,286 @@ Eigen::VectorXd nnls(const Eigen::MatrixXd& G, const Eigen::VectorXd& h, const s
     return w;
 }
 
-// SSDR weight update: per vertex, non-negative weights over all bones summing
-// to 1 (a stiff penalty row), at most 4 kept (the largest, then re-solved);
+void Builder::refine_weights_full() { refine_weights_candidates(bone_count()); }
+
+// SSDR weight update: per vertex, non-negative weights summing to 1 (a stiff
+// penalty row) over the `candidates` bones that alone predict its trajectory
+// best plus its current ones, at most 4 kept (the largest, then re-solved);
 // accepted only where the vertex's error decreases.
-void Builder::refine_weights_full() {
+void Builder::refine_weights_candidates(int candidates) {
     const int B = bone_count();
     if (B < 2) return;
-    Eigen::MatrixXd G(B, B);
-    Eigen::VectorXd h(B);
-    std::vector<V3> y(static_cast<size_t>(B));
-    std::vector<int> all(static_cast<size_t>(B));
-    std::iota(all.begin(), all.end(), 0);
+    std::vector<double> eb(static_cast<size_t>(B));
+    std::vector<int> cand, idx(static_cast<size_t>(B));
+    std::vector<V3> y;
     for (size_t v = 0; v < V_; ++v) {
-        G.setZero();
-        h.setZero();
+        if (candidates < B) {
+            for (int b = 0; b < B; ++b) eb[size_t(b)] = fit_error(v, bones_[size_t(b)].M);
+            std::iota(idx.begin(), idx.end(), 0);
+            std::partial_sort(idx.begin(), idx.begin() + candidates, idx.end(),
+                              [&](int a, int b) { return eb[size_t(a)] < eb[size_t(b)]; });
+            cand.assign(idx.begin(), idx.begin() + candidates);
+            for (int i = 0; i < nslot_[v]; ++i)
+                if (std::find(cand.begin(), cand.end(), slot_bone_[v][i]) == cand.end()) cand.push_back(slot_bone_[v][i]);
+        } else {
+            cand.resize(size_t(B));
+            std::iota(cand.begin(), cand.end(), 0);
+        }
+        const int n = int(cand.size());
+        Eigen::MatrixXd G = Eigen::MatrixXd::Zero(n, n);
+        Eigen::VectorXd h = Eigen::VectorXd::Zero(n);
+        y.resize(size_t(n));
         for (size_t f = 0; f < F_; ++f) {
-            for (int b = 0; b < B; ++b) y[size_t(b)] = xf(bones_[size_t(b)].M[f], P_[v]);
+            for (int i = 0; i < n; ++i) y[size_t(i)] = xf(bones_[size_t(cand[size_t(i)])].M[f], P_[v]);
             const V3& a = A_[f * V_ + v];
-            for (int i = 0; i < B; ++i) {
+            for (int i = 0; i < n; ++i) {
                 h[i] += y[size_t(i)].dot(a);
-                for (int j = i; j < B; ++j) G(i, j) += y[size_t(i)].dot(y[size_t(j)]);
+                for (int j = i; j < n; ++j) G(i, j) += y[size_t(i)].dot(y[size_t(j)]);
             }
         }
-        for (int i = 0; i < B; ++i)
+        for (int i = 0; i < n; ++i)
             for (int j = 0; j < i; ++j) G(i, j) = G(j, i);
-        const double lambda = 1e4 * std::max(1e-300, G.trace() / B);
+        const double lambda = 1e4 * std::max(1e-300, G.trace() / n);
         G.array() += lambda;
         h.array() += lambda;
+        std::vector<int> all(static_cast<size_t>(n));
+        std::iota(all.begin(), all.end(), 0);
         Eigen::VectorXd w = nnls(G, h, all);
-        std::vector<int> idx(static_cast<size_t>(B));
-        std::iota(idx.begin(), idx.end(), 0);
-        std::sort(idx.begin(), idx.end(), [&](int a, int b) { return w[a] > w[b]; });
+        std::vector<int> ord(all);
+        std::sort(ord.begin(), ord.end(), [&](int a, int b) { return w[a] > w[b]; });
         std::vector<int> keep;
-        for (int i = 0; i < B && int(keep.size()) < kSlots; ++i)
-            if (w[idx[size_t(i)]] > 1e-9) keep.push_back(idx[size_t(i)]);
+        for (int i = 0; i < n && int(keep.size()) < kSlots; ++i)
+            if (w[ord[size_t(i)]] > 1e-9) keep.push_back(ord[size_t(i)]);
         if (keep.empty()) continue;
-        if (std::count_if(w.data(), w.data() + B, [](double x) { return x > 1e-9; }) > kSlots) w = nnls(G, h, keep);
+        if (std::count_if(w.data(), w.data() + n, [](double x) { return x > 1e-9; }) > kSlots) w = nnls(G, h, keep);
         const double sum = w.sum();
         if (!(sum > 0) || !w.allFinite()) continue;
-        // Error of the candidate.
         double e = 0;
         for (size_t f = 0; f < F_; ++f) {
             V3 r = V3::Zero();
-            for (int b : keep) r += (w[b] / sum) * xf(bones_[size_t(b)].M[f], P_[v]);
+            for (int i : keep) r += (w[i] / sum) * xf(bones_[size_t(cand[size_t(i)])].M[f], P_[v]);
             e += (A_[f * V_ + v] - r).squaredNorm();
         }
         if (!(e < E_[v])) continue;
         nslot_[v] = 0;
-        for (int b : keep) {
-            if (!(w[b] > 0)) continue;
-            slot_bone_[v][nslot_[v]] = b;
-            slot_w_[v][nslot_[v]] = w[b] / sum;
+        for (int i : keep) {
+            if (!(w[i] > 0)) continue;
+            slot_bone_[v][nslot_[v]] = cand[size_t(i)];
+            slot_w_[v][nslot_[v]] = w[i] / sum;
             ++nslot_[v];
         }
         recompute_vertex(v);
     }
 }
 
+// Full-detail decomposition with N bones (SSDR-style, no mesh connectivity):
+// (1) hard clustering of the vertices by rigid motion: starting from one
+// cluster (the root fit), repeatedly split the cluster whose split lowers the
+// error most (2-means between the cluster's rigid motion and a new one seeded
+// at the bind-pose neighbours of its worst-fitted vertex), then reassign every
+// vertex to the bone whose per-frame rigid transform predicts its trajectory
+// best and refit (k-means in trajectory space); (2) alternate Gauss-Seidel
+// weighted Procrustes per bone, per-vertex NNLS weights (<= 4 influences, sum
+// 1) and per-vertex least-squares bind positions until the error stalls.
+// Splitting stops early once the squared error sum <= target_sq.
+void Builder::decompose(int N, double target_sq, int iters, const std::function<void()>& tick) {
+    std::vector<int> lab(V_, 0);
+    std::vector<double> err(V_);
+    for (size_t v = 0; v < V_; ++v) err[v] = fit_error(v, bones_[0].M);
+    auto total = [&]() { return std::accumulate(err.begin(), err.end(), 0.0); };
+    std::vector<std::vector<size_t>> mem;
+    auto members = [&]() {
+        mem.assign(bones_.size(), {});
+        for (size_t v = 0; v < V_; ++v) mem[size_t(lab[v])].push_back(v);
+    };
+    // k-means rounds: assign, refit, drop empty bones.
+    auto relabel = [&](int rounds) {
+        for (int r = 0; r < rounds; ++r) {
+            bool changed = false;
+            for (size_t v = 0; v < V_; ++v) {
+                int best = lab[v];
+                double be = fit_error(v, bones_[size_t(best)].M);
+                for (int b = 0; b < int(bones_.size()); ++b) {
+                    if (b == lab[v]) continue;
+                    const double e = fit_error(v, bones_[size_t(b)].M);
+                    if (e < be) {
+                        be = e;
+                        best = b;
+                    }
+                }
+                changed |= best != lab[v];
+                lab[v] = best;
+                err[v] = be;
+            }
+            members();
+            std::vector<int> keep_map(bones_.size(), -1);
+            std::vector<Bone> kept;
+            for (size_t b = 0; b < bones_.size(); ++b) {
+                if (mem[b].empty()) continue;
+                keep_map[b] = int(kept.size());
+                kept.push_back(std::move(bones_[b]));
+                if (mem[b].size() >= 3) kept.back().M = fit_set(mem[b]);
+            }
+            bones_ = std::move(kept);
+            for (size_t v = 0; v < V_; ++v) {
+                lab[v] = keep_map[size_t(lab[v])];
+                err[v] = fit_error(v, bones_[size_t(lab[v])].M);
+            }
+            if (!changed) break;
+        }
+    };
+    for (int splits = 0; int(bones_.size()) < N && splits < 2 * N + 8; ++splits) {  // relabel may drop bones
+        const double tot = total();
+        if (!(tot > 0) || (target_sq > 0 && tot <= target_sq)) break;
+        members();
+        std::vector<int> cl(bones_.size());
+        std::iota(cl.begin(), cl.end(), 0);
+        std::vector<double> cerr(bones_.size(), 0.0);
+        for (size_t v = 0; v < V_; ++v) cerr[size_t(lab[v])] += err[v];
+        std::sort(cl.begin(), cl.end(), [&](int a, int b) { return cerr[size_t(a)] > cerr[size_t(b)]; });
+        double best_gain = 0;
+        int best_c = -1;
+        std::vector<M34> best_new, best_old;
+        std::vector<size_t> best_moved;
+        for (size_t ci = 0; ci < std::min<size_t>(cl.size(), 3); ++ci) {
+            const int c = cl[ci];
+            std::vector<size_t> m = mem[size_t(c)];
+            if (m.size() < 2) continue;
+            const size_t seed = *std::max_element(m.begin(), m.end(), [&](size_t a, size_t b) { return err[a] < err[b]; });
+            if (!(err[seed] > 0)) continue;
+            const size_t n0 = std::min(m.size(), std::clamp<size_t>(m.size() / 8, 4, 40));
+            std::nth_element(m.begin(), m.begin() + long(n0 - 1), m.end(), [&](size_t a, size_t b) {
+                return (P_[a] - P_[seed]).squaredNorm() < (P_[b] - P_[seed]).squaredNorm();
+            });
+            std::vector<M34> Tn = fit_set(std::vector<size_t>(m.begin(), m.begin() + long(n0)));
+            std::vector<M34> To = bones_[size_t(c)].M;
+            std::vector<size_t> sn, so;
+            double gain = 0;
+            for (int it = 0; it < 8; ++it) {
+                sn.clear();
+                so.clear();
+                double after = 0, before = 0;
+                for (size_t v : m) {
+                    const double en = fit_error(v, Tn), eo = fit_error(v, To);
+                    (en < eo ? sn : so).push_back(v);
+                    after += std::min(en, eo);
+                    before += err[v];
+                }
+                gain = before - after;
+                if (sn.empty() || so.empty() || it == 7) break;
+                if (sn.size() >= 3) Tn = fit_set(sn);
+                if (so.size() >= 3) To = fit_set(so);
+            }
+            if (!sn.empty() && gain > best_gain) {
+                best_gain = gain;
+                best_c = c;
+                best_new = Tn;
+                best_old = To;
+                best_moved = sn;
+            }
+        }
+        if (best_c < 0 || !(best_gain > 1e-12 * tot)) break;
+        const int k = int(bones_.size());
+        Bone nb;
+        nb.M = std::move(best_new);
+        bones_.push_back(std::move(nb));
+        bones_[size_t(best_c)].M = std::move(best_old);
+        for (size_t v : best_moved) lab[v] = k;
+        for (size_t v : mem[size_t(best_c)]) err[v] = fit_error(v, bones_[size_t(lab[v])].M);
+        if (bones_.size() <= 64 || (bones_.size() & (bones_.size() - 1)) == 0) relabel(2);
+        tick();
+    }
+    relabel(4);
+    // Trimmed refit: each bone's motion from the better-fitted half of its
+    // members (vertices blended between parts spoil the plain fit), so that
+    // the alternation starts next to the rigid parts' own motions.
+    members();
+    for (size_t b = 0; b < bones_.size(); ++b) {
+        std::vector<size_t> m = mem[b];
+        if (m.size() < 8) continue;
+        std::nth_element(m.begin(), m.begin() + long(m.size() / 2), m.end(),
+                         [&](size_t x, size_t y) { return err[x] < err[y]; });
+        m.resize(m.size() / 2 + 1);
+        bones_[b].M = fit_set(m);
+    }
+    // Hard weights, then alternation.
+    for (size_t v = 0; v < V_; ++v) {
+        nslot_[v] = 1;
+        slot_bone_[v] = {lab[v], 0, 0, 0};
+        slot_w_[v] = {1.0, 0, 0, 0};
+    }
+    for (Bone& b : bones_) b.parent = -1;
+    recompute_all();
+    for (int it = 0; it < iters; ++it) {
+        const double before = total_error();
+        refine_weights_candidates(8);
+        refine_transforms(0);
+        if (opt_.update_bind) refine_bind();
+        tick();
+        if (!(total_error() < before * (1 - 1e-6))) break;
+    }
+    update_centers();
+}
+
+// Per vertex: the bind position minimising its error with weights and
+// transforms fixed (3x3 least squares), kept when it lowers the error.
+void Builder::refine_bind() {
+    for (size_t v = 0; v < V_; ++v) {
+        M3 H = M3::Zero();
+        V3 g = V3::Zero();
+        for (size_t f = 0; f < F_; ++f) {
+            M3 Af = M3::Zero();
+            V3 cf = V3::Zero();
+            for (int i = 0; i < nslot_[v]; ++i) {
+                const M34& M = bones_[size_t(slot_bone_[v][i])].M[f];
+                Af += slot_w_[v][i] * M.leftCols<3>();
+                cf += slot_w_[v][i] * M.col(3);
+            }
+            H += Af.transpose() * Af;
+            g += Af.transpose() * (A_[f * V_ + v] - cf);
+        }
+        const V3 p = H.ldlt().solve(g);
+        if (!p.allFinite()) continue;
+        const V3 old = P_[v];
+        const double eold = E_[v];
+        P_[v] = p;
+        recompute_vertex(v);
+        if (!(E_[v] < eold)) {
+            P_[v] = old;
+            recompute_vertex(v);
+        }
+    }
+}
+
+void Builder::update_centers() {
+    std::vector<double> ws(bones_.size(), 0.0);
+    std::vector<V3> cs(bones_.size(), V3::Zero());
+    for (size_t v = 0; v < V_; ++v)
+        for (int i = 0; i < nslot_[v]; ++i) {
+            ws[size_t(slot_bone_[v][i])] += slot_w_[v][i];
+            cs[size_t(slot_bone_[v][i])] += slot_w_[v][i] * P_[v];
+        }
+    for (size_t b = 0; b < bones_.size(); ++b)
+        if (ws[b] > 0) bones_[b].center = cs[b] / ws[b];
+}
+
+void Builder::permute(const std::vector<int>& order) {
+    std::vector<int> inv(bones_.size(), -1);
+    std::vector<Bone> nb(order.size());
+    for (size_t i = 0; i < order.size(); ++i) {
+        nb[i] = bones_[size_t(order[i])];
+        nb[i].parent = -1;
+        inv[size_t(order[i])] = int(i);
+    }
+    bones_ = std::move(nb);
+    for (size_t v = 0; v < V_; ++v)
+        for (int i = 0; i < nslot_[v]; ++i) slot_bone_[v][i] = inv[size_t(slot_bone_[v][i])];
+}
+
 void Builder::refine(int sweeps, const std::function<void()>& tick) {
     for (int s = 0; s < sweeps; ++s) {
         refine_transforms(0);
-        if (opt_.free_weights) refine_weights_full();
-        else refine_weights();
+        refine_weights_full();
         tick();
     }
 }
@@ -745,51 +922,144 @@ std::vector<LodError> scratch_error_table(const Character& c, const ProgressiveS
     return table;
 }
 
-ScratchResult build_from_vertices(const VertexAnimation& an, const ScratchOptions& opt) {
-    an.validate();
-    if (opt.max_bones < 1 || opt.max_bones > 1024) throw Error(an.source + ": bone count must be in 1..1024");
-    if (opt.max_error_pct < 0 || !std::isfinite(opt.max_error_pct)) throw Error(an.source + ": --max-error must be >= 0");
-    double diag = an.diagonal > 0 ? an.diagonal : frame_diagonal(an, opt.rest_frame >= 0 ? size_t(opt.rest_frame) : 0);
-    if (!(diag > 0)) diag = 1.0;  // a single point: report in units
+namespace {
+
+// Resamples the fitted character's clip and evaluates the error table.
+void finish(ScratchResult& r, const VertexAnimation& an, double diag) {
+    r.frames = sample_frames(r.character, {select_clips(r.character, "all")}, an.fps);
+    if (r.frames.frame_count() != an.frame_count)
+        throw Error(an.source + ": internal: resampled " + std::to_string(r.frames.frame_count()) + " frames of " +
+                    std::to_string(an.frame_count));
+    r.skin.error = scratch_error_table(r.character, r.skin, r.frames, an, diag);
+}
+
+int first_increase(const std::vector<LodError>& t) {
+    for (size_t k = 1; k < t.size(); ++k)
+        if (t[k].rms > t[k - 1].rms) return int(k);
+    return 0;
+}
+
+// Mean over k of log RMS: the figure Auto compares (every k counts alike).
+double mean_log_rms(const std::vector<LodError>& t, int upto) {
+    double s = 0;
+    for (int k = 1; k <= upto; ++k) s += std::log(std::max(1e-300, t[size_t(std::min<int>(k, int(t.size())) - 1)].rms));
+    return s / upto;
+}
+
+// Top-down: bones added one at a time (each splits weight from its parent),
+// then SSDR refinement; the safety net cuts the skin at a rise of the table.
+ScratchResult build_top_down(const VertexAnimation& an, const ScratchOptions& opt, double diag,
+                             const std::function<void()>& tick) {
     Builder b(an, opt);
-    const int total_steps = opt.max_bones + opt.refine_sweeps;
-    int step = 0;
-    auto tick = [&]() {
-        if (opt.progress) opt.progress(++step, total_steps);
-    };
     b.fit_root();
     tick();
     const double n = double(an.vertex_count) * double(an.frame_count);
     auto rms_pct = [&]() { return 100.0 * std::sqrt(b.total_error() / n) / diag; };
+    int steps = 1;
     while (b.bone_count() < opt.max_bones) {
         if (opt.max_error_pct > 0 && rms_pct() <= opt.max_error_pct) break;
         if (!b.add_bone()) break;
-        if (opt.step_sweeps > 0)
-            for (int i = 0; i < opt.step_sweeps; ++i) b.refine_transforms(0);
         tick();
+        ++steps;
     }
-    step = opt.max_bones;
+    for (; steps < opt.max_bones; ++steps) tick();
     b.refine(opt.refine_sweeps, tick);
-    if (opt.progress) opt.progress(total_steps, total_steps);
-
     ScratchResult r;
     for (int attempt = 0;; ++attempt) {
         r.character = make_character(an, b, opt.similarity);
-        r.frames = sample_frames(r.character, {select_clips(r.character, "all")}, an.fps);
-        if (r.frames.frame_count() != an.frame_count)
-            throw Error(an.source + ": internal: resampled " + std::to_string(r.frames.frame_count()) + " frames of " +
-                        std::to_string(an.frame_count));
         r.skin = make_skin(r.character, b, diag);
-        r.skin.error = scratch_error_table(r.character, r.skin, r.frames, an, diag);
+        finish(r, an, diag);
         // Safety net: the table must be non-increasing (float rounding of the
         // keys could break a tie); drop the bones from the first increase on.
-        int bad = 0;
-        for (size_t k = 1; k < r.skin.error.size() && !bad; ++k)
-            if (r.skin.error[k].rms > r.skin.error[k - 1].rms) bad = int(k);
+        const int bad = first_increase(r.skin.error);
         if (!bad || attempt > 4) break;
         b.truncate(bad);
     }
     return r;
+}
+
+// Collapse: full-detail decomposition (Builder::decompose), then the greedy
+// collapse of progressive_skin.cpp (strategy Flatten: least-error order, new
+// hierarchy, least-squares corrections) on the fitted character, re-expressed
+// with joints in progressive order.
+ScratchResult build_collapse(const VertexAnimation& an, const ScratchOptions& opt, double diag,
+                             const std::function<void()>& tick, const std::function<void(int, int)>& collapse_progress) {
+    const double n = double(an.vertex_count) * double(an.frame_count);
+    double target_sq = 0;
+    if (opt.max_error_pct > 0) target_sq = n * std::pow(opt.max_error_pct * diag / 100.0, 2);
+    int bones = opt.max_bones;
+    for (int attempt = 0;; ++attempt) {
+        Builder b(an, opt);
+        b.fit_root();
+        b.decompose(bones, target_sq, opt.iterations, tick);
+        ScratchResult r;
+        Character c = make_character(an, b, opt.similarity);
+        const FrameSet fr = sample_frames(c, {select_clips(c, "all")}, an.fps);
+        ProgressiveSkin ps;
+        if (b.bone_count() > 1) {
+            BuildOptions bo;
+            bo.strategy = Strategy::Flatten;
+            bo.fit_corrections = true;
+            bo.progress = collapse_progress;
+            ps = build_progressive_skin(c, fr, bo);
+            b.permute(ps.order);
+            for (int j = 1; j < b.bone_count(); ++j) b.set_parent(j, ps.parents[size_t(j)]);
+            r.character = make_character(an, b, opt.similarity);
+            r.skin = std::move(ps);
+            std::iota(r.skin.order.begin(), r.skin.order.end(), 0);
+        } else {
+            r.character = std::move(c);
+            r.skin = make_skin(r.character, b, diag);
+        }
+        r.skin.strategy = Strategy::Scratch;
+        r.skin.diagonal = diag;
+        finish(r, an, diag);
+        const int bad = first_increase(r.skin.error);
+        if (!bad || attempt > 3 || bones <= 1) return r;
+        bones = bad;  // rebuild with fewer bones (rare: the collapse only adds error to the fit)
+    }
+}
+
+}  // namespace
+
+ScratchResult build_from_vertices(const VertexAnimation& an, const ScratchOptions& opt) {
+    an.validate();
+    if (opt.max_bones < 1 || opt.max_bones > 1024) throw Error(an.source + ": bone count must be in 1..1024");
+    if (opt.max_error_pct < 0 || !std::isfinite(opt.max_error_pct)) throw Error(an.source + ": --max-error must be >= 0");
+    if (opt.rest_frame >= 0 && size_t(opt.rest_frame) >= an.frame_count)
+        throw Error(an.source + ": --rest-frame " + std::to_string(opt.rest_frame) + " out of range (" +
+                    std::to_string(an.frame_count) + " frames)");
+    if (opt.iterations < 0 || opt.refine_sweeps < 0) throw Error(an.source + ": iterations must be >= 0");
+    double diag = an.diagonal > 0 ? an.diagonal : frame_diagonal(an, opt.rest_frame >= 0 ? size_t(opt.rest_frame) : 0);
+    if (!(diag > 0)) diag = 1.0;  // a single point: report in units
+    const bool td = opt.method != ScratchMethod::Collapse, co = opt.method != ScratchMethod::TopDown;
+    // Progress: top-down bones + sweeps, then decomposition splits +
+    // iterations + collapse steps.
+    const int td_steps = td ? opt.max_bones + opt.refine_sweeps : 0;
+    const int co_steps = co ? 2 * opt.max_bones + opt.iterations : 0;
+    const int total = td_steps + co_steps;
+    int step = 0;
+    auto report = [&](int s) {
+        step = std::clamp(s, step, total - 1);
+        if (opt.progress) opt.progress(step, total);
+    };
+    auto tick = [&]() { report(step + 1); };
+    std::optional<ScratchResult> best;
+    if (td) {
+        best = build_top_down(an, opt, diag, tick);
+        report(td_steps);
+    }
+    if (co) {
+        const int base = td_steps;
+        auto cprog = [&](int s, int t) { report(base + opt.max_bones + opt.iterations + (t > 0 ? s * opt.max_bones / t : 0)); };
+        ScratchResult r = build_collapse(an, opt, diag, tick, cprog);
+        const int upto = std::max(r.skin.bone_count(), best ? best->skin.bone_count() : 0);
+        if (!best || first_increase(best->skin.error) ||
+            (!first_increase(r.skin.error) && mean_log_rms(r.skin.error, upto) < mean_log_rms(best->skin.error, upto)))
+            best = std::move(r);
+    }
+    if (opt.progress) opt.progress(total, total);
+    return std::move(*best);
 }
 
 }  // namespace progskin

@@ -30,6 +30,7 @@
 //
 // Memory O(V*F + B*F); time O(B * V * F) per bone added plus refinement.
 #pragma once
+#include <cstdint>
 #include <functional>
 #include <string>
 
@@ -40,20 +41,28 @@
 
 namespace progskin {
 
+// How the skin is built (docs/algorithms.md "Build from scratch").
+enum class ScratchMethod : uint8_t {
+    Auto,       // both below, keep the one with the lower mean log RMS over k = 1..B
+    Collapse,   // full-detail decomposition, then made progressive by greedy collapse
+    TopDown,    // bones added one at a time, each splitting weight from its parent
+};
+
 struct ScratchOptions {
     int max_bones = 16;          // stop at this many bones (--bones)
     double max_error_pct = 0;    // stop once RMS <= this % of the diagonal (--max-error); 0 = off
     int rest_frame = -1;         // bind pose: -1 = per-vertex mean over frames, else this frame
     bool similarity = false;     // bones may scale uniformly
+    ScratchMethod method = ScratchMethod::Auto;  // --method
+    // Collapse: alternation iterations of the decomposition (stops earlier
+    // when the error stalls) and whether bind positions are re-fitted.
+    int iterations = 30;
+    bool update_bind = true;
+    // Top-down: global refinement sweeps after the greedy build (0 = none).
     int refine_sweeps = 4;
-    // Refinement weight update: true = per-vertex NNLS over all bones (SSDR),
-    // false = only re-split each bone's weight with its progressive parent.
-    bool free_weights = true;
-    int step_sweeps = 0;         // transform sweeps after each bone added (experimental)       // global refinement sweeps after the greedy build (0 = none)
-    // Progress (step, total): steps are bones added then refinement sweeps.
+    // Progress (step, total).
     std::function<void(int, int)> progress;
 };
-
 struct ScratchResult {
     Character character;
     ProgressiveSkin skin;

@@ -43,12 +43,17 @@ usage:
       kept, PROGSKIN_progressive_skin extension on the skin). OUT ending in
       .gltf is written as JSON with embedded buffers, anything else as .glb.
   progskin build --from-vertices IN -o OUT.glb [--bones N] [--max-error PERCENT]
-                 [--rest-frame F] [--similarity] [--clip SPEC] [--fps 30] [--quiet]
+                 [--rest-frame F] [--similarity] [--method auto|collapse|top-down]
+                 [--clip SPEC] [--fps 30] [--quiet]
       Build a progressive skin from scratch for a vertex animation: IN is a
       glTF with morph-target animation, a PC2 point cache (.pc2), or any
       skinned glTF evaluated as vertices (its skeleton then forgotten; --clip
-      as above). Bones are added top-down until N bones (default 16) or until
-      the RMS error is at most PERCENT % of the bounding-box diagonal. Bind
+      as above). Up to N bones (default 16), fewer once the RMS error is at
+      most PERCENT % of the bounding-box diagonal. --method collapse fits a
+      full-detail skin (motion clustering, then alternating rigid transforms,
+      weights and bind positions) and orders its bones by greedy collapse with
+      least-squares corrections; top-down adds bones one at a time; auto
+      (default) builds both and keeps the lower mean log error over k. Bind
       pose: per-vertex mean over frames, or frame F. --similarity lets bones
       scale uniformly. The output plays in any glTF viewer (rigid TRS joint
       animation) and carries the error table (strategy "scratch").
@@ -210,9 +215,13 @@ int cmd_build_from_vertices(const Args& a) {
     }
     so.rest_frame = a.has("--rest-frame") ? to_int("--rest-frame", a.get("--rest-frame")) : -1;
     so.similarity = a.has("--similarity");
-    if (const char* e = std::getenv("PROGSKIN_SCRATCH_STEP_SWEEPS")) so.step_sweeps = std::atoi(e);
-    if (const char* e = std::getenv("PROGSKIN_SCRATCH_SWEEPS")) so.refine_sweeps = std::atoi(e);
-    if (const char* e = std::getenv("PROGSKIN_SCRATCH_FREE_WEIGHTS")) so.free_weights = std::atoi(e) != 0;
+    if (a.has("--method")) {
+        const std::string m = a.get("--method");
+        if (m == "auto") so.method = ScratchMethod::Auto;
+        else if (m == "collapse") so.method = ScratchMethod::Collapse;
+        else if (m == "top-down" || m == "topdown") so.method = ScratchMethod::TopDown;
+        else throw UsageError("--method must be auto, collapse or top-down");
+    }
     const bool quiet = a.has("--quiet");
     const VertexAnimation anim = load_vertex_animation(a.positional[0], vo);
     if (!quiet)
@@ -244,13 +253,14 @@ int cmd_build_from_vertices(const Args& a) {
 
 int cmd_build(int argc, char** argv) {
     Args a = parse(argc, argv, 2, {"--plain-copy", "--quiet", "--help", "--from-vertices", "--similarity"},
-                   {"-o", "--strategy", "--clip", "--fps", "--character", "--bones", "--max-error", "--rest-frame"});
+                   {"-o", "--strategy", "--clip", "--fps", "--character", "--bones", "--max-error", "--rest-frame",
+                    "--method"});
     if (a.has("--help")) {
         std::fputs(kUsage, stdout);
         return 0;
     }
     if (a.has("--from-vertices")) return cmd_build_from_vertices(a);
-    for (const char* k : {"--bones", "--max-error", "--rest-frame", "--similarity"})
+    for (const char* k : {"--bones", "--max-error", "--rest-frame", "--similarity", "--method"})
         if (a.has(k)) throw UsageError(std::string(k) + " needs --from-vertices");
     if (a.positional.size() != 1) throw UsageError("build needs exactly one input file");
     if (!a.has("-o")) throw UsageError("build needs -o OUT.glb");
