@@ -1,22 +1,16 @@
 // scratch_build.h — a progressive skin built from scratch for a mesh that has
 // only vertex animation (docs/algorithms.md, "Build from scratch").
 //
-// Bind pose: each vertex's mean over frames, or one chosen frame. Bone 0 (the
-// root) is, per frame, the least-squares rigid (optionally similarity)
-// transform of the whole mesh (Kabsch/Procrustes, Eigen SVD). Bones are then
-// added one at a time, top-down: seeded at the vertex with the largest
-// outstanding error, grown by motion similarity (the vertices a rigid fit of
-// the region predicts better than the current skin; no mesh connectivity
-// used), its parent is the bone the region draws its weight from, and each
-// vertex's share alpha in [0,1] of its parent weight moved to the new bone is
-// solved by least squares together with the bone's per-frame rigid transform
-// (alternating, weighted Procrustes). Because a bone only ever takes weight
-// from its progressive parent, copy-down of an inactive bone (palette.h,
-// identity correction) gives back exactly the skin before the bone was added,
-// so every prefix k is the skin of step k and e(k) is non-increasing. A final
-// refinement alternates transform and weight updates of all bones against an
-// objective summed over every LOD k (see the .cpp), accepted only when it
-// lowers that objective and keeps the table non-increasing.
+// Two methods (ScratchMethod; Auto builds both and keeps the lower mean log
+// RMS over k). Collapse: a full-detail decomposition (motion clustering by
+// rigid trajectory fits, no mesh connectivity; then alternating per-vertex
+// NNLS weights, Gauss-Seidel weighted Procrustes per bone and per-vertex bind
+// positions), ordered by the greedy collapse of progressive_skin.h (strategy
+// Flatten, least-squares corrections). TopDown: bone 0 is the whole mesh's
+// per-frame Procrustes fit, bones are added one at a time each taking weight
+// from its progressive parent, then SSDR refinement sweeps. Either way the
+// table is evaluated honestly and is non-increasing (see the .cpp and
+// docs/algorithms.md "Build from scratch").
 //
 // Output: a Character with one root node (identity, not a joint) whose
 // children are the B joints (flat), each with rigid per-frame TRS animation
@@ -25,7 +19,7 @@
 // centroid of its vertices), joints in progressive order (order = identity),
 // so sample_frames(character, {select_clips(character, "all")}, fps)
 // reproduces the skinning matrices of the fit; and the ProgressiveSkin with
-// strategy Scratch, identity corrections, and the error table evaluated
+// strategy Scratch, its corrections (identity for top-down), and the error table evaluated
 // honestly with lod_positions against the input animation.
 //
 // Memory O(V*F + B*F); time O(B * V * F) per bone added plus refinement.
