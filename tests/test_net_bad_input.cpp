@@ -225,3 +225,22 @@ TEST(NetBadInput, VerifierAndDecoderSurviveFuzzing) {
     }
     std::printf("fuzz: %zu of 100000 mutated buffers passed verification (all handled)\n", accepted);
 }
+
+TEST(NetBadInput, SilentClientsAreTimedOut) {
+    ServerConfig cfg;
+    cfg.client_timeout = 1.0;
+    RunningServer s({}, cfg);
+    asio::io_context io;
+    tcp::socket t(io);
+    t.connect(tcp::endpoint(asio::ip::make_address("127.0.0.1"), s.server->tcp_port()));
+    flatbuffers::FlatBufferBuilder fbb;
+    auto name = fbb.CreateString("silent");
+    auto h = wire::CreateHello(fbb, PROTOCOL_VERSION, name, 0, 64);
+    fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Hello, h.Union()), wire::ControlIdentifier());
+    std::vector<uint8_t> m;
+    frame_control(fbb, m);
+    asio::write(t, asio::buffer(m));
+    // Welcomed, then never binds nor acks: dropped after client_timeout.
+    EXPECT_TRUE(closed_within(t, 3000));
+    EXPECT_GE(s.server->stats().timeouts, 1u);
+}
