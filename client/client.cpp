@@ -3,13 +3,17 @@
 // until BindAck or a Frame -> frames + Acks (+ Stats each second) -> Goodbye.
 #include "client.h"
 
+#include <netinet/in.h>
 #include <poll.h>
+#include <sys/socket.h>
+#include <time.h>
 
 #include <algorithm>
 #include <asio.hpp>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <thread>
@@ -200,6 +204,41 @@ udp::endpoint resolve_udp(asio::io_context& io, const std::string& host, uint16_
     return *res.begin();
 }
 
+// Receives one datagram with the kernel's arrival time (SO_TIMESTAMPNS), so
+// the per-second rate bins reflect the wire even when this thread is late.
+// Returns -1 when nothing is pending; t is on the now_seconds() clock.
+ssize_t receive_stamped(udp::socket& s, uint8_t* buf, size_t cap, udp::endpoint& from, double& t) {
+    sockaddr_storage addr{};
+    iovec iov{buf, cap};
+    alignas(cmsghdr) char control[128];
+    msghdr msg{};
+    msg.msg_name = &addr;
+    msg.msg_namelen = sizeof addr;
+    msg.msg_iov = &iov;
+    msg.msg_iovlen = 1;
+    msg.msg_control = control;
+    msg.msg_controllen = sizeof control;
+    ssize_t n = ::recvmsg(s.native_handle(), &msg, MSG_DONTWAIT);
+    if (n < 0) return -1;
+    t = now_seconds();
+    for (cmsghdr* c = CMSG_FIRSTHDR(&msg); c; c = CMSG_NXTHDR(&msg, c)) {
+        if (c->cmsg_level == SOL_SOCKET && c->cmsg_type == SCM_TIMESTAMPNS) {
+            timespec ts;
+            std::memcpy(&ts, CMSG_DATA(c), sizeof ts);
+            timespec rt;
+            ::clock_gettime(CLOCK_REALTIME, &rt);
+            double age = double(rt.tv_sec - ts.tv_sec) + 1e-9 * double(rt.tv_nsec - ts.tv_nsec);
+            if (age > 0 && age < 5.0) t -= age;
+        }
+    }
+    if (addr.ss_family == AF_INET) {
+        const auto* in = reinterpret_cast<const sockaddr_in*>(&addr);
+        from = udp::endpoint(asio::ip::address_v4(ntohl(in->sin_addr.s_addr)), ntohs(in->sin_port));
+    }
+    if (msg.msg_flags & MSG_TRUNC) return ssize_t(cap);  // cap > MAX_DATAGRAM: dropped as malformed
+    return n;
+}
+
 }  // namespace
 
 ClientReport run_client(const ClientOptions& opt) {
@@ -292,6 +331,10 @@ ClientReport run_client(const ClientOptions& opt) {
     us.non_blocking(true);
     asio::error_code ig;
     us.set_option(asio::socket_base::receive_buffer_size(4 << 20), ig);
+    {
+        int on = 1;
+        ::setsockopt(us.native_handle(), SOL_SOCKET, SO_TIMESTAMPNS, &on, sizeof on);
+    }
     udp::endpoint server_udp = opt.udp_via_host.empty()
                                    ? resolve_udp(io, opt.host, w->udp_port())
                                    : resolve_udp(io, opt.udp_via_host, opt.udp_via_port);
@@ -424,10 +467,10 @@ ClientReport run_client(const ClientOptions& opt) {
         // UDP
         for (;;) {
             udp::endpoint from;
-            asio::error_code ec;
-            size_t n = us.receive_from(asio::buffer(buf, sizeof buf), from, 0, ec);
-            if (ec) break;
-            double t = now_seconds();
+            double t = 0;
+            const ssize_t got = receive_stamped(us, buf, sizeof buf, from, t);
+            if (got < 0) break;
+            const size_t n = size_t(got);
             const wire::Datagram* d = verify_datagram({buf, n});
             if (!d || from != server_udp) {
                 ++rep.malformed;

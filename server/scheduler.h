@@ -10,7 +10,9 @@
 // importance * (e(k_last) + gap_error(age) - e(k')) and every
 // further hull step k -> k'' importance * (e(k) - e(k'')). Bytes per step:
 // record_size per bone + a 6-byte chunk header for the first step; datagram
-// overheads are charged by WireCost. Cost: O(S log S) per client and tick for S
+// overheads are charged by WireCost. Among instances of one asset sent in a
+// tick, k is then made non-increasing in importance (swapping k keeps the
+// bytes). Cost: O(S log S) per client and tick for S
 // steps taken; O(instances) when everything fits (fast path). No allocation
 // after warm-up.
 #pragma once

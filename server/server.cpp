@@ -356,7 +356,7 @@ struct Server::Impl {
             float start = 0, end = 0;
             if (sp.selection >= 0) {
                 const ClipSelection& sel = a.selections[sp.selection];
-                for (int c : sel.clips) clips.push_back(a.character.clips[c].gltf_index >= 0 ? c : c);
+                for (int c : sel.clips) clips.push_back(c);
                 start = sel.start;
                 end = sel.end;
             }

@@ -25,7 +25,7 @@ static const char* kUsage =
     "                    same number unless --udp-port is given\n"
     "  --udp-port P      UDP frame stream port\n"
     "  --bind ADDR       address to listen on (default 0.0.0.0)\n"
-    "  --asset FILE      a glTF/glb character (progressive or plain; repeatable)\n"
+    "  --asset FILE ...  glTF/glb characters (progressive or plain; repeatable)\n"
     "  --crowd N         lay out N instances over the assets and their clips (default:\n"
     "                    one instance per asset and clip group)\n"
     "  --tick-rate HZ    ticks per second (default 30)\n"
@@ -64,7 +64,10 @@ int main(int argc, char** argv) {
             } else if (a == "--port") cfg.port = uint16_t(std::stoi(need(i)));
             else if (a == "--udp-port") cfg.udp_port = uint16_t(std::stoi(need(i)));
             else if (a == "--bind") cfg.bind_address = need(i);
-            else if (a == "--asset") asset_paths.push_back(need(i));
+            else if (a == "--asset") {
+                asset_paths.push_back(need(i));
+                while (i + 1 < argc && argv[i + 1][0] != '-') asset_paths.push_back(argv[++i]);  // --asset A B C
+            }
             else if (a == "--crowd") crowd = std::stoi(need(i));
             else if (a == "--tick-rate") cfg.tick_rate = std::stof(need(i));
             else if (a == "--max-clients") cfg.max_clients = std::stoi(need(i));
