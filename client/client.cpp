@@ -631,7 +631,8 @@ ClientReport run_client(const ClientOptions& opt) {
         }
         rep.instances.push_back(ir);
     }
-    rep.characters = counted;
+    rep.characters = 0;  // instances with at least one frame received
+    for (const auto& v : views) rep.characters += v->buffer().empty() ? 0 : 1;
     rep.bones_mean = counted ? ksum / counted : 0;
     rep.bones_min = counted ? kmin : 0;
     rep.bones_max = counted ? kmax : 0;
