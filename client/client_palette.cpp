@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "error.h"
+#include "progressive_skin.h"
 #include "skinning.h"
 
 namespace progskin::net {
@@ -77,15 +78,7 @@ bool InstanceView::display(double d) {
 void InstanceView::skin(std::vector<glm::vec3>& out) const {
     const Character& c = asset_->character;
     out.resize(c.vertex_count());
-    SkinningJob job;
-    job.positions = c.positions;
-    job.joints = asset_->skin.joints;
-    job.weights = asset_->skin.weights;
-    job.influences = asset_->skin.influences;
-    job.max_influences = asset_->skin.influences;
-    job.palette = palette_;
-    job.out_positions = out;
-    job.run();
+    skinning_job(c, asset_->skin, palette_, out).run();
 }
 
 void InstanceView::reference(double clip_time, std::vector<glm::vec3>& out) const {
@@ -95,15 +88,7 @@ void InstanceView::reference(double clip_time, std::vector<glm::vec3>& out) cons
     sample_skinning_matrices(c, clip_.selection, clip_time, ref_mats_);
     for (size_t j = 0; j < c.joint_count(); ++j) ref_palette_[j] = Mat34::from_glm(ref_mats_[j]);
     out.resize(c.vertex_count());
-    SkinningJob job;
-    job.positions = c.positions;
-    job.joints = c.joints;
-    job.weights = c.weights;
-    job.influences = c.influences;
-    job.max_influences = c.influences;
-    job.palette = ref_palette_;
-    job.out_positions = out;
-    job.run();
+    skinning_job(c, ref_palette_, out).run();
 }
 
 }  // namespace progskin::net

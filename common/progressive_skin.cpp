@@ -540,6 +540,31 @@ ProgressiveSkin build_progressive_skin(const Character& c, const FrameSet& frame
     return col.run();
 }
 
+SkinningJob skinning_job(const Character& c, const ProgressiveSkin& s, std::span<const Mat34> palette,
+                         std::span<glm::vec3> out_positions) {
+    SkinningJob j;
+    j.positions = c.positions;
+    j.joints = s.joints;
+    j.weights = s.weights;
+    j.influences = s.influences;
+    j.max_influences = s.influences;
+    j.palette = palette;
+    j.out_positions = out_positions;
+    return j;
+}
+
+SkinningJob skinning_job(const Character& c, std::span<const Mat34> palette, std::span<glm::vec3> out_positions) {
+    SkinningJob j;
+    j.positions = c.positions;
+    j.joints = c.joints;
+    j.weights = c.weights;
+    j.influences = c.influences;
+    j.max_influences = c.influences;
+    j.palette = palette;
+    j.out_positions = out_positions;
+    return j;
+}
+
 void lod_positions(const Character& c, const ProgressiveSkin& s, const FrameSet& frames, size_t f, int k,
                    std::span<glm::vec3> out) {
     const int B = s.bone_count();
@@ -550,14 +575,7 @@ void lod_positions(const Character& c, const ProgressiveSkin& s, const FrameSet&
     PaletteJob pj{s.parents, s.corrections, own, {}, palette};
     if (!pj.validate()) throw Error("lod_positions: invalid progressive skin");
     pj.run();
-    SkinningJob sj;
-    sj.positions = c.positions;
-    sj.joints = s.joints;
-    sj.weights = s.weights;
-    sj.influences = s.influences;
-    sj.max_influences = s.influences;
-    sj.palette = palette;
-    sj.out_positions = out;
+    const SkinningJob sj = skinning_job(c, s, palette, out);
     if (!sj.validate()) throw Error("lod_positions: invalid skinning data");
     sj.run();
 }

@@ -19,6 +19,7 @@
 #include "animation.h"
 #include "character.h"
 #include "math.h"
+#include "skinning.h"
 
 namespace progskin {
 
@@ -69,6 +70,14 @@ ProgressiveSkin build_progressive_skin(const Character& c, const FrameSet& frame
 // palette (palette.h) and skinning (skinning.h) against the reference.
 std::vector<LodError> evaluate_error_table(const Character& c, const ProgressiveSkin& s,
                                            const FrameSet& frames);
+
+// A skinning job over c's bind positions with the progressive skin's vertex
+// stream (all its influence slots); add normals / out_normals to skin normals.
+SkinningJob skinning_job(const Character& c, const ProgressiveSkin& s, std::span<const Mat34> palette,
+                         std::span<glm::vec3> out_positions);
+// The same with the character's own vertex stream (file joint order): the
+// full-detail reference when given the character's skinning matrices.
+SkinningJob skinning_job(const Character& c, std::span<const Mat34> palette, std::span<glm::vec3> out_positions);
 
 // Reconstructed vertices at frame f with k bones (copy-down with corrections).
 void lod_positions(const Character& c, const ProgressiveSkin& s, const FrameSet& frames, size_t f,

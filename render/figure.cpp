@@ -6,6 +6,7 @@
 
 #include "error.h"
 #include "error_metric.h"
+#include "progressive_skin.h"
 #include "skinning.h"
 
 namespace progskin::render {
@@ -26,16 +27,11 @@ void skin_lod_cpu(const Character& c, const ProgressiveSkin& s, std::span<const 
     positions.resize(c.vertex_count());
     const bool with_normals = normals && c.normals.size() == c.vertex_count();
     if (normals) normals->resize(with_normals ? c.vertex_count() : 0);
-    SkinningJob job;
-    job.positions = c.positions;
-    if (with_normals) job.normals = c.normals;
-    job.joints = s.joints;
-    job.weights = s.weights;
-    job.influences = s.influences;
-    job.max_influences = s.influences;
-    job.palette = palette;
-    job.out_positions = positions;
-    if (with_normals) job.out_normals = *normals;
+    SkinningJob job = skinning_job(c, s, palette, positions);
+    if (with_normals) {
+        job.normals = c.normals;
+        job.out_normals = *normals;
+    }
     if (!job.validate()) throw Error("skinning job invalid for this skin");
     job.run();
 }

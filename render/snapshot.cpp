@@ -7,6 +7,7 @@
 #include "image.h"
 #include "renderer.h"
 #include "scene.h"
+#include "progressive_skin.h"
 #include "skinning.h"
 
 namespace progskin::render {
@@ -61,14 +62,7 @@ bool render_snapshot(const std::vector<SnapshotCharacter>& chars, const std::str
         if (!sc.palette.empty()) {
             if (int(sc.palette.size()) != s.bone_count()) return fail("snapshot: palette size != bone count");
             tmp.resize(c.vertex_count());
-            SkinningJob job;
-            job.positions = c.positions;
-            job.joints = s.joints;
-            job.weights = s.weights;
-            job.influences = s.influences;
-            job.max_influences = s.influences;
-            job.palette = sc.palette;
-            job.out_positions = tmp;
+            const SkinningJob job = skinning_job(c, s, sc.palette, tmp);
             if (!job.validate()) return fail("snapshot: palette does not fit the skin");
             job.run();
             model_pos = tmp;

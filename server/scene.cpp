@@ -10,6 +10,7 @@
 #include "error_metric.h"
 #include "gltf_export.h"
 #include "gltf_import.h"
+#include "progressive_skin.h"
 #include "skinning.h"
 #include "wire.h"
 
@@ -114,15 +115,7 @@ void finish_server_asset(ServerAsset& a) {
                 for (size_t j = 0; j < c.joint_count(); ++j)
                     pal[j] = compose(interpolate(decompose(frames.frame(f)[j]), decompose(frames.frame(f + g)[j]), alpha));
                 reference_positions(c, frames, f + h, ref);
-                SkinningJob job;
-                job.positions = c.positions;
-                job.joints = c.joints;
-                job.weights = c.weights;
-                job.influences = c.influences;
-                job.max_influences = c.influences;
-                job.palette = pal;
-                job.out_positions = got;
-                job.run();
+                skinning_job(c, pal, got).run();
                 for (size_t v = 0; v < got.size(); ++v) {
                     glm::vec3 d = got[v] - ref[v];
                     sq += double(glm::dot(d, d));

@@ -7,6 +7,7 @@
 #include "bone_codec.h"
 #include "error_metric.h"
 #include "scene.h"
+#include "progressive_skin.h"
 #include "skinning.h"
 
 using namespace progskin;
@@ -67,14 +68,7 @@ static void measure(const std::string& file) {
             pal[j] = compose(decode_bone(rec, a->format));
         }
         for (auto* p : {&pal, &pal_exact}) {
-            SkinningJob job;
-            job.positions = c.positions;
-            job.joints = c.joints;
-            job.weights = c.weights;
-            job.influences = c.influences;
-            job.max_influences = c.influences;
-            job.palette = *p;
-            job.out_positions = p == &pal ? got : exact;
+            const SkinningJob job = skinning_job(c, *p, p == &pal ? got : exact);
             ASSERT_TRUE(job.validate());
             job.run();
         }
