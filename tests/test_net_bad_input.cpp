@@ -242,5 +242,6 @@ TEST(NetBadInput, SilentClientsAreTimedOut) {
     asio::write(t, asio::buffer(m));
     // Welcomed, then never binds nor acks: dropped after client_timeout.
     EXPECT_TRUE(closed_within(t, 3000));
+    for (int i = 0; i < 50 && s.server->stats().timeouts == 0; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(20));
     EXPECT_GE(s.server->stats().timeouts, 1u);
 }

@@ -60,11 +60,15 @@ TEST(NetBandwidth, CloserCharactersGetAtLeastAsManyBones) {
     ASSERT_EQ(r.instances.size(), inst.size());
     for (size_t i = 0; i < inst.size(); ++i) {
         std::printf("instance %zu at %.0f: %.2f bones\n", i, double(inst[i].position.z), r.instances[i].bones_mean);
+        // Time averages move in hull steps (e.g. 12 -> 20 bones for the Fox): one bone of slack.
         if (i > 0) {
-            EXPECT_GE(r.instances[i - 1].bones_mean + 0.5, r.instances[i].bones_mean) << "instance " << i;
+            EXPECT_GE(r.instances[i - 1].bones_mean + 1.0, r.instances[i].bones_mean) << "instance " << i;
+        }
+        if (i > 1) {
+            EXPECT_GE(r.instances[i - 2].bones_mean, r.instances[i].bones_mean) << "instance " << i;
         }
     }
-    EXPECT_GT(r.instances[0].bones_mean, r.instances.back().bones_mean);
+    EXPECT_GT(r.instances[0].bones_mean, r.instances.back().bones_mean + 3.0);
 }
 
 TEST(NetBandwidth, LossReorderingAndDuplicationDoNoHarm) {
