@@ -85,7 +85,7 @@ struct Bone {
 
 class Builder {
 public:
-    Builder(const VertexAnimation& an, const ScratchOptions& opt) : an_(an), opt_(opt) {
+    Builder(const VertexAnimation& an, const ScratchOptions& opt) : an_(&an), opt_(opt) {
         V_ = an.vertex_count;
         F_ = an.frame_count;
         A_.resize(V_ * F_);
@@ -205,6 +205,8 @@ public:
     void refine(int sweeps, const std::function<void()>& tick);
     void refine_transforms(int first_bone);
     void refine_weights_full();
+    // Multi-level refit of the per-frame transforms (see below).
+    void multilevel_refit(std::vector<M34>& corrections, int sweeps, bool fit_corrections);
 
 private:
     // Current reconstruction and errors from scratch.
@@ -354,7 +356,7 @@ private:
         return true;
     }
 
-    const VertexAnimation& an_;
+    const VertexAnimation* an_;
     ScratchOptions opt_;
     size_t V_ = 0, F_ = 0;
     std::vector<V3> A_, P_, R_;
@@ -733,6 +735,224 @@ void Builder::permute(const std::vector<int>& order) {
         for (int i = 0; i < nslot_[v]; ++i) slot_bone_[v][i] = inv[size_t(slot_bone_[v][i])];
 }
 
+// Multi-level refit of the per-frame transforms of a progressive skin (parents
+// set, corrections C fixed, weights fixed). Bone j's transform is used at every
+// level L > j (as itself and, through copy-down with corrections, by the
+// inactive bones that hang from it), never below. At level L vertex v is
+// reconstructed as sum over its owners o of M_o(f) u_{v,o,L}, u the homogeneous
+// sum of w_b K_b [p_v; 1] over the bones b that o stands in for (K_b the
+// composed corrections). The objective is sum over a set of levels of
+// lambda_L * E_L (E_L the squared error sum at level L, lambda_L = 1 / E_L at
+// the start: relative errors), minimised by Gauss-Seidel over bones: each
+// bone's per-frame weighted Procrustes against the other owners' residual at
+// all the levels where it is active (exact minimiser of its sub-problem, so
+// the objective never rises). Memory: one reconstruction per level, O(V*F).
+void Builder::multilevel_refit(std::vector<M34>& C, int sweeps, bool fit_corrections) {
+    const int B = bone_count();
+    if (B < 2 || sweeps <= 0) return;
+    std::vector<int> levels;
+    for (int L : {2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128})
+        if (L < B) levels.push_back(L);
+    levels.push_back(B);
+    const size_t NL = levels.size();
+    using V4 = Eigen::Vector4d;
+    using M4 = Eigen::Matrix4d;
+    auto hom = [](const M34& c) {
+        M4 m = M4::Identity();
+        m.topRows<3>() = c;
+        return m;
+    };
+    struct Item {
+        uint32_t v;
+        V4 u;
+    };
+    std::vector<std::vector<Item>> items(NL * size_t(B));  // [level][owner]
+    std::vector<std::vector<int>> up(NL, std::vector<int>(static_cast<size_t>(B)));
+    std::vector<std::vector<M4>> K(NL, std::vector<M4>(static_cast<size_t>(B), M4::Identity()));
+    auto build_items = [&]() {
+        for (auto& it : items) it.clear();
+        for (size_t li = 0; li < NL; ++li) {
+            const int L = levels[li];
+            for (int b = 0; b < B; ++b) {
+                K[li][size_t(b)].setIdentity();
+                if (b < L) {
+                    up[li][size_t(b)] = b;
+                    continue;
+                }
+                const int p = bones_[size_t(b)].parent;
+                up[li][size_t(b)] = up[li][size_t(p)];
+                K[li][size_t(b)] = K[li][size_t(p)] * hom(C[size_t(b)]);
+            }
+            for (size_t v = 0; v < V_; ++v) {
+                std::array<int, kSlots> ob{};
+                std::array<V4, kSlots> ou{};
+                int n = 0;
+                const V4 ph(P_[v].x(), P_[v].y(), P_[v].z(), 1.0);
+                for (int i = 0; i < nslot_[v]; ++i) {
+                    const int b = slot_bone_[v][i];
+                    const int o = up[li][size_t(b)];
+                    int j = 0;
+                    while (j < n && ob[j] != o) ++j;
+                    if (j == n) {
+                        ob[n] = o;
+                        ou[n++] = V4::Zero();
+                    }
+                    ou[j] += slot_w_[v][i] * (K[li][size_t(b)] * ph);
+                }
+                for (int j = 0; j < n; ++j)
+                    if (std::abs(ou[j][3]) > 1e-8) items[li * size_t(B) + size_t(ob[j])].push_back({uint32_t(v), ou[j]});
+            }
+        }
+    };
+    auto apply = [](const M34& M, const V4& u) -> V3 { return M.leftCols<3>() * u.head<3>() + M.col(3) * u[3]; };
+    std::vector<V3> R(NL * V_ * F_, V3::Zero());
+    std::vector<double> lam(NL, 1.0);
+    auto build_recon = [&](bool set_lambda) {
+        std::fill(R.begin(), R.end(), V3::Zero());
+        for (size_t li = 0; li < NL; ++li) {
+            V3* Rl = &R[li * V_ * F_];
+            for (int o = 0; o < B; ++o)
+                for (const Item& it : items[li * size_t(B) + size_t(o)])
+                    for (size_t f = 0; f < F_; ++f) Rl[f * V_ + it.v] += apply(bones_[size_t(o)].M[f], it.u);
+            if (!set_lambda) continue;
+            double e = 0;
+            for (size_t i = 0; i < V_ * F_; ++i) e += (A_[i] - Rl[i]).squaredNorm();
+            lam[li] = 1.0 / std::max(e, 1e-300);
+        }
+    };
+    // Children lists for the subtree test of the correction update.
+    std::vector<std::vector<int>> kids(static_cast<size_t>(B));
+    for (int b = 1; b < B; ++b) kids[size_t(bones_[size_t(b)].parent)].push_back(b);
+    for (int s = 0; s < sweeps; ++s) {
+        build_items();
+        build_recon(s == 0);
+        // Transforms: per bone, per frame, weighted Procrustes over the levels where it is active.
+        for (int j = 0; j < B; ++j) {
+            std::vector<M34>& M = bones_[size_t(j)].M;
+            for (size_t f = 0; f < F_; ++f) {
+                Procrustes pr;
+                for (size_t li = 0; li < NL; ++li) {
+                    if (levels[li] <= j) continue;
+                    const V3* Rl = &R[li * V_ * F_ + f * V_];
+                    for (const Item& it : items[li * size_t(B) + size_t(j)]) {
+                        const double w = it.u[3];
+                        if (w < 1e-8) continue;
+                        const V3 q = A_[f * V_ + it.v] - Rl[it.v] + apply(M[f], it.u);
+                        pr.add(V3(it.u.head<3>() / w), q / w, lam[li] * w * w);
+                    }
+                }
+                if (!(pr.W > 0)) continue;
+                const M34 Mn = pr.solve(opt_.similarity);
+                for (size_t li = 0; li < NL; ++li) {
+                    if (levels[li] <= j) continue;
+                    V3* Rl = &R[li * V_ * F_ + f * V_];
+                    for (const Item& it : items[li * size_t(B) + size_t(j)])
+                        Rl[it.v] += apply(Mn, it.u) - apply(M[f], it.u);
+                }
+                M[f] = Mn;
+            }
+        }
+        if (!fit_corrections) continue;
+        // Corrections: bone b's C_b (affine, 12 unknowns) acts at every level
+        // L <= b as G_L(f) C_b y_v, G_L(f) = M_o(f) K_L[parent(b)] (o the owner
+        // at level L), y_v = sum over v's slot bones b' in b's subtree of
+        // w K_{b'<-b} [p_v; 1] (corrections below b). Linear least squares.
+        std::vector<M4> Kb(static_cast<size_t>(B));  // corrections below the current b
+        std::vector<char> in_sub(static_cast<size_t>(B));
+        for (int b = 1; b < B; ++b) {
+            std::fill(in_sub.begin(), in_sub.end(), 0);
+            std::vector<int> stack{b};
+            Kb[size_t(b)].setIdentity();
+            while (!stack.empty()) {
+                const int x = stack.back();
+                stack.pop_back();
+                in_sub[size_t(x)] = 1;
+                for (int c : kids[size_t(x)]) {
+                    Kb[size_t(c)] = Kb[size_t(x)] * hom(C[size_t(c)]);
+                    stack.push_back(c);
+                }
+            }
+            std::vector<uint32_t> vs;
+            std::vector<V4> ys;
+            for (size_t v = 0; v < V_; ++v) {
+                V4 y = V4::Zero();
+                bool any = false;
+                const V4 ph(P_[v].x(), P_[v].y(), P_[v].z(), 1.0);
+                for (int i = 0; i < nslot_[v]; ++i) {
+                    const int bb = slot_bone_[v][i];
+                    if (!in_sub[size_t(bb)]) continue;
+                    y += slot_w_[v][i] * (Kb[size_t(bb)] * ph);
+                    any = true;
+                }
+                if (any) {
+                    vs.push_back(uint32_t(v));
+                    ys.push_back(y);
+                }
+            }
+            if (vs.empty()) continue;
+            Eigen::Matrix4d Y = Eigen::Matrix4d::Zero();
+            for (const V4& y : ys) Y += y * y.transpose();
+            Eigen::Matrix<double, 12, 12> N = Eigen::Matrix<double, 12, 12>::Zero();
+            Eigen::Matrix<double, 3, 4> Rm = Eigen::Matrix<double, 3, 4>::Zero();
+            const int p = bones_[size_t(b)].parent;
+            std::vector<size_t> lis;
+            for (size_t li = 0; li < NL; ++li) {
+                if (levels[li] > b) continue;
+                lis.push_back(li);
+                const int o = up[li][size_t(p)];
+                const M4& Kp = K[li][size_t(p)];
+                M3 Q = M3::Zero();
+                const V3* Rl = &R[li * V_ * F_];
+                for (size_t f = 0; f < F_; ++f) {
+                    const M34 G = bones_[size_t(o)].M[f] * Kp;
+                    const M3 Af = G.leftCols<3>();
+                    const V3 tf = G.col(3);
+                    Q += Af.transpose() * Af;
+                    Eigen::Matrix<double, 3, 4> Pf = Eigen::Matrix<double, 3, 4>::Zero();
+                    for (size_t i = 0; i < vs.size(); ++i) {
+                        const size_t v = vs[i];
+                        const V4& y = ys[i];
+                        const V3 cur = Af * (C[size_t(b)] * y) + tf * y[3];
+                        const V3 T = A_[f * V_ + v] - Rl[f * V_ + v] + cur - tf * y[3];
+                        Pf += T * y.transpose();
+                    }
+                    Rm += lam[li] * Af.transpose() * Pf;
+                }
+                for (int i = 0; i < 4; ++i)
+                    for (int j = 0; j < 4; ++j) N.block<3, 3>(3 * i, 3 * j) += lam[li] * Y(i, j) * Q;
+            }
+            if (lis.empty()) continue;
+            const double ridge = 1e-9 * std::max(N.trace() / 12.0, 1e-300);
+            Eigen::Matrix<double, 12, 1> rhs;
+            for (int col = 0; col < 4; ++col)
+                for (int row = 0; row < 3; ++row) rhs[3 * col + row] = Rm(row, col) + ridge * C[size_t(b)](row, col);
+            N.diagonal().array() += ridge;
+            const Eigen::Matrix<double, 12, 1> x = N.ldlt().solve(rhs);
+            if (!x.allFinite()) continue;
+            M34 Cn;
+            for (int col = 0; col < 4; ++col)
+                for (int row = 0; row < 3; ++row) Cn(row, col) = x[3 * col + row];
+            // Update the reconstructions of the levels where b stands in, and
+            // the composed corrections of b's subtree at those levels.
+            const M34 dC = Cn - C[size_t(b)];
+            for (size_t li : lis) {
+                const int o = up[li][size_t(p)];
+                const M4& Kp = K[li][size_t(p)];
+                V3* Rl = &R[li * V_ * F_];
+                for (size_t f = 0; f < F_; ++f) {
+                    const M3 Af = (bones_[size_t(o)].M[f] * Kp).leftCols<3>();
+                    for (size_t i = 0; i < vs.size(); ++i) Rl[f * V_ + vs[i]] += Af * (dC * ys[i]);
+                }
+            }
+            C[size_t(b)] = Cn;
+            for (size_t li : lis)
+                for (int x = b; x < B; ++x)
+                    if (in_sub[size_t(x)]) K[li][size_t(x)] = K[li][size_t(bones_[size_t(x)].parent)] * hom(C[size_t(x)]);
+        }
+    }
+    recompute_all();
+}
+
 void Builder::refine(int sweeps, const std::function<void()>& tick) {
     for (int s = 0; s < sweeps; ++s) {
         refine_transforms(0);
@@ -933,6 +1153,14 @@ void finish(ScratchResult& r, const VertexAnimation& an, double diag) {
     r.skin.error = scratch_error_table(r.character, r.skin, r.frames, an, diag);
 }
 
+void set_corrections(ProgressiveSkin& s, const std::vector<M34>& C) {
+    for (size_t j = 0; j < C.size() && j < s.corrections.size(); ++j) {
+        if (j == 0) continue;  // bone 0 is always active
+        for (int i = 0; i < 3; ++i)
+            for (int k = 0; k < 4; ++k) s.corrections[j].m[i * 4 + k] = float(C[j](i, k));
+    }
+}
+
 int first_increase(const std::vector<LodError>& t) {
     for (size_t k = 1; k < t.size(); ++k)
         if (t[k].rms > t[k - 1].rms) return int(k);
@@ -964,10 +1192,33 @@ ScratchResult build_top_down(const VertexAnimation& an, const ScratchOptions& op
     }
     for (; steps < opt.max_bones; ++steps) tick();
     b.refine(opt.refine_sweeps, tick);
+    std::vector<M34> corr;
+    if (opt.multilevel_sweeps > 0) {
+        ScratchResult r0;
+        r0.character = make_character(an, b, opt.similarity);
+        r0.skin = make_skin(r0.character, b, diag);
+        finish(r0, an, diag);
+        Builder b2 = b;
+        std::vector<M34> C(size_t(b.bone_count()), identity34());
+        b2.multilevel_refit(C, opt.multilevel_sweeps, true);
+        ScratchResult r2;
+        r2.character = make_character(an, b2, opt.similarity);
+        r2.skin = make_skin(r2.character, b2, diag);
+        set_corrections(r2.skin, C);
+        finish(r2, an, diag);
+        const int n = r0.skin.bone_count();
+        if (!first_increase(r2.skin.error) &&
+            (first_increase(r0.skin.error) || mean_log_rms(r2.skin.error, n) < mean_log_rms(r0.skin.error, n)))
+        {
+            b = std::move(b2);
+            corr = std::move(C);
+        }
+    }
     ScratchResult r;
     for (int attempt = 0;; ++attempt) {
         r.character = make_character(an, b, opt.similarity);
         r.skin = make_skin(r.character, b, diag);
+        if (!corr.empty()) set_corrections(r.skin, corr);
         finish(r, an, diag);
         // Safety net: the table must be non-increasing (float rounding of the
         // keys could break a tie); drop the bones from the first increase on.
@@ -1007,6 +1258,32 @@ ScratchResult build_collapse(const VertexAnimation& an, const ScratchOptions& op
             r.character = make_character(an, b, opt.similarity);
             r.skin = std::move(ps);
             std::iota(r.skin.order.begin(), r.skin.order.end(), 0);
+            if (opt.multilevel_sweeps > 0) {
+                std::vector<M34> C(size_t(b.bone_count()));
+                for (size_t j = 0; j < C.size(); ++j)
+                    for (int i = 0; i < 3; ++i)
+                        for (int k = 0; k < 4; ++k) C[j](i, k) = double(r.skin.corrections[j].m[i * 4 + k]);
+                Builder b2 = b;
+                b2.multilevel_refit(C, opt.multilevel_sweeps, true);
+                ScratchResult r2;
+                r2.character = make_character(an, b2, opt.similarity);
+                r2.skin = r.skin;
+                set_corrections(r2.skin, C);
+                r2.skin.strategy = Strategy::Scratch;
+                r2.skin.diagonal = diag;
+                finish(r2, an, diag);
+                r.skin.strategy = Strategy::Scratch;
+                r.skin.diagonal = diag;
+                finish(r, an, diag);
+                const int n = r.skin.bone_count();
+                if (!first_increase(r2.skin.error) &&
+                    (first_increase(r.skin.error) || mean_log_rms(r2.skin.error, n) < mean_log_rms(r.skin.error, n)))
+                    r = std::move(r2);
+                const int bad = first_increase(r.skin.error);
+                if (!bad || attempt > 3 || bones <= 1) return r;
+                bones = bad;
+                continue;
+            }
         } else {
             r.character = std::move(c);
             r.skin = make_skin(r.character, b, diag);

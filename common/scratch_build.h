@@ -54,6 +54,9 @@ struct ScratchOptions {
     bool update_bind = true;
     // Top-down: global refinement sweeps after the greedy build (0 = none).
     int refine_sweeps = 4;
+    // Both methods: Gauss-Seidel sweeps of the multi-level transform refit
+    // after the progressive order is known (0 = off).
+    int multilevel_sweeps = 8;
     // Progress (step, total).
     std::function<void(int, int)> progress;
 };
