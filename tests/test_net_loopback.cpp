@@ -128,7 +128,9 @@ TEST(NetLoopback, LivePosesPushedThroughTheLibraryApi) {
             std::this_thread::sleep_for(std::chrono::milliseconds(10));
         }
     });
-    ClientReport r = run_client(s.client(1.0));
+    ClientOptions o = s.client(1.5);
+    o.warmup = 0.5;
+    ClientReport r = run_client(o);
     run = false;
     pusher.join();
     EXPECT_EQ(r.characters, 1);
