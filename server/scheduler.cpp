@@ -150,11 +150,12 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     for (size_t i = 0; i < n; ++i)
         if (k_[i] > 0) out.push_back({int(i), k_[i]});
     std::sort(out.begin(), out.end(), by_importance);
-    // Among instances of one asset sent this tick, the more important ones get
+    // Among instances of one asset sent this tick, the strictly more important ones get
     // the larger k (same bytes: same record size, one chunk each).
     for (size_t i = 0; i < out.size(); ++i)
         for (size_t j = i + 1; j < out.size(); ++j)
-            if (frame.instances[out[i].instance].asset == frame.instances[out[j].instance].asset && out[j].k > out[i].k)
+            if (frame.instances[out[i].instance].asset == frame.instances[out[j].instance].asset && out[j].k > out[i].k &&
+                importance[out[i].instance] > importance[out[j].instance])
                 std::swap(out[i].k, out[j].k);
     return payload ? WireCost::wire(payload) : 0;
 }
