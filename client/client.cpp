@@ -288,6 +288,8 @@ ClientReport run_client(const ClientOptions& opt) {
         }
     std::vector<std::unique_ptr<InstanceView>> views;
     std::map<int, int> view_of_instance;
+    std::vector<int> instance_ids;
+    std::vector<glm::vec3> instance_positions;
     if (w->instances())
         for (const wire::Instance* in : *w->instances()) {
             if (in->asset() >= assets.size()) throw Error("server sent an instance of an unknown asset");
@@ -303,6 +305,9 @@ ClientReport run_client(const ClientOptions& opt) {
             ci.time_offset = in->time_offset();
             ci.speed = in->speed();
             view_of_instance[in->id()] = int(views.size());
+            instance_ids.push_back(in->id());
+            instance_positions.push_back(in->position() ? glm::vec3(in->position()->x(), in->position()->y(), in->position()->z())
+                                                        : glm::vec3(0.0f));
             views.push_back(std::make_unique<InstanceView>(ca, ci, opt.blend_frames));
         }
 
@@ -382,6 +387,7 @@ ClientReport run_client(const ClientOptions& opt) {
     double all_sq = 0, all_n = 0, all_max = 0;
     std::vector<glm::vec3> shown, ref;
     uint64_t display_count = 0;
+    double next_snapshot = 0;
 
     auto handle_frame = [&](const wire::Datagram* d, size_t n, double t) {
         const wire::Frame* f = d->body_as_Frame();
@@ -575,6 +581,19 @@ ClientReport run_client(const ClientOptions& opt) {
                 a.n += double(shown.size());
                 a.has_prev = opt.verify_every <= 1;
                 a.jump = std::max(a.jump, jump);
+            }
+            if (opt.on_snapshot && opt.snapshot_every > 0 && warm && now >= next_snapshot) {
+                next_snapshot = now + opt.snapshot_every;
+                DisplaySnapshot snap;
+                snap.seconds = now - t_first;
+                snap.rate_kbps = bins.size() >= 2 ? bins[bins.size() - 2] * 8.0 / 1000.0 : 0.0;
+                for (size_t i = 0; i < views.size(); ++i) {
+                    const InstanceView& v = *views[i];
+                    if (acc[i].frames == 0) continue;  // nothing displayed yet
+                    snap.characters.push_back({instance_ids[i], &v.asset().character, &v.asset().skin, v.palette(),
+                                               instance_positions[i], v.target_bones()});
+                }
+                if (!snap.characters.empty()) opt.on_snapshot(snap);
             }
             if (opt.verbose && bins.size() >= 2 && display_count % size_t(opt.display_rate) == 0)
                 std::fprintf(stderr, "progskin-client: %.1f s, %.1f kbit/s last second, %llu datagrams\n", now - t_first,

@@ -5,12 +5,32 @@
 // mode, measures the displayed vertices against the reference.
 #pragma once
 #include <cstdint>
+#include <functional>
+#include <span>
 #include <string>
 #include <vector>
 
+#include "character.h"
+#include "progressive_skin.h"
 #include "scheduler.h"  // ViewSpec
 
 namespace progskin::net {
+
+// What the client displays at one moment, handed to ClientOptions::on_snapshot
+// (a renderer draws it: render/snapshot.h). Spans are valid during the call.
+struct DisplayedCharacter {
+    int instance = 0;
+    const Character* character = nullptr;
+    const ProgressiveSkin* skin = nullptr;
+    std::span<const Mat34> palette;  // B matrices in progressive order (copy-down and blending applied)
+    glm::vec3 position{0.0f};        // world placement announced by the server
+    int bones = 0;                   // bones displayed (the LOD target)
+};
+struct DisplaySnapshot {
+    double seconds = 0;    // since streaming began
+    double rate_kbps = 0;  // over the last full second
+    std::vector<DisplayedCharacter> characters;
+};
 
 struct ClientOptions {
     std::string host = "127.0.0.1";
@@ -37,6 +57,10 @@ struct ClientOptions {
     bool verbose = false;          // per-second lines on stderr
     // Mid-run cap changes (seconds since streaming began, kbit/s): tests.
     std::vector<std::pair<double, double>> cap_schedule;
+    // Called about every snapshot_every seconds of display (after the warm-up)
+    // with what is shown; 0 or no callback: never.
+    double snapshot_every = 0;
+    std::function<void(const DisplaySnapshot&)> on_snapshot;
 };
 
 struct InstanceReport {

@@ -2,10 +2,14 @@
 // for a while and reports what it received and displayed (client.h).
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <string>
 
 #include "client.h"
 #include "error.h"
+#ifdef PROGSKIN_HAVE_RENDER
+#include "snapshot.h"
+#endif
 
 using namespace progskin;
 using namespace progskin::net;
@@ -35,6 +39,9 @@ static const char* kUsage =
     "  --token T           access token\n"
     "  --protocol-version N  claim another protocol version (testing refusals)\n"
     "  --verbose           per-second lines on stderr\n"
+    "  --snapshot-every S  every S seconds, render what is displayed to a PNG (off-screen\n"
+    "                      OpenGL, GPU-skinned from the client's palettes; needs render/)\n"
+    "  --snapshot-dir DIR  where the PNGs go (default snapshots/): snapshot_0000.png, ...\n"
     "  --help\n"
     "Exit codes: 0 ok, 1 runtime error (refused, unreachable, bad data), 2 bad arguments.\n";
 
@@ -61,6 +68,7 @@ static std::vector<float> floats(const std::string& s) {
 int main(int argc, char** argv) {
     ClientOptions opt;
     std::string report = "text";
+    std::string snapshot_dir = "snapshots";
     try {
         for (int i = 1; i < argc; ++i) {
             std::string a = argv[i];
@@ -109,14 +117,55 @@ int main(int argc, char** argv) {
             else if (a == "--token") opt.token = val();
             else if (a == "--protocol-version") opt.protocol_version = uint16_t(std::stoi(val()));
             else if (a == "--verbose") opt.verbose = true;
+            else if (a == "--snapshot-every") opt.snapshot_every = std::stod(val());
+            else if (a == "--snapshot-dir") snapshot_dir = val();
             else throw std::invalid_argument("unknown argument " + a);
         }
+        if (opt.snapshot_every < 0) throw std::invalid_argument("--snapshot-every must be positive");
+#ifndef PROGSKIN_HAVE_RENDER
+        if (opt.snapshot_every > 0) throw std::invalid_argument("--snapshot-every: this build has no renderer (render/)");
+#endif
         if (!(opt.duration > 0) || !(opt.display_rate > 0) || opt.max_kbps < 0 || opt.blend_frames < 1 || opt.verify_every < 1)
             throw std::invalid_argument("argument out of range");
     } catch (const std::exception& e) {
         std::fprintf(stderr, "progskin-client: %s\n%s", e.what(), kUsage);
         return 2;
     }
+#ifdef PROGSKIN_HAVE_RENDER
+    int snapshots = 0;
+    if (opt.snapshot_every > 0) {
+        std::error_code ec;
+        std::filesystem::create_directories(snapshot_dir, ec);
+        opt.on_snapshot = [&](const DisplaySnapshot& s) {
+            std::vector<render::SnapshotCharacter> chars;
+            for (const DisplayedCharacter& d : s.characters) {
+                render::SnapshotCharacter c;
+                c.character = d.character;
+                c.skin = d.skin;
+                c.palette = d.palette;
+                Mat34 place = Mat34::identity();
+                place.m[3] = d.position.x, place.m[7] = d.position.y, place.m[11] = d.position.z;
+                c.placement = place;
+                c.bones_received = d.bones;
+                c.label = "#" + std::to_string(d.instance);
+                chars.push_back(c);
+            }
+            render::SnapshotOptions so;
+            char title[160];
+            std::snprintf(title, sizeof title, "progskin-client  t = %.1f s  %.1f kbit/s", s.seconds, s.rate_kbps);
+            so.title = title;
+            char name[64];
+            std::snprintf(name, sizeof name, "/snapshot_%04d.png", snapshots);
+            std::string err;
+            if (render::render_snapshot(chars, snapshot_dir + name, so, &err)) {
+                ++snapshots;
+                if (opt.verbose) std::fprintf(stderr, "progskin-client: wrote %s%s\n", snapshot_dir.c_str(), name);
+            } else {
+                std::fprintf(stderr, "progskin-client: snapshot failed: %s\n", err.c_str());
+            }
+        };
+    }
+#endif
     try {
         ClientReport r = run_client(opt);
         if (report == "json") std::printf("%s\n", report_json(r).c_str());
