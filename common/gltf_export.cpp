@@ -63,34 +63,6 @@ nlohmann::json from_value(const tinygltf::Value& v) {
     return nullptr;
 }
 
-// Appends bytes to buffer 0 (4-byte aligned) and returns a new buffer view.
-int append_view(tinygltf::Model& m, const void* data, size_t bytes, int target) {
-    auto& buf = m.buffers[0].data;
-    while (buf.size() % 4) buf.push_back(0);
-    tinygltf::BufferView bv;
-    bv.buffer = 0;
-    bv.byteOffset = buf.size();
-    bv.byteLength = bytes;
-    bv.target = target;
-    const auto* p = static_cast<const unsigned char*>(data);
-    buf.insert(buf.end(), p, p + bytes);
-    m.bufferViews.push_back(bv);
-    return int(m.bufferViews.size() - 1);
-}
-
-int append_accessor(tinygltf::Model& m, const void* data, size_t bytes, int component, int type, size_t count,
-                    int target, bool normalized = false) {
-    tinygltf::Accessor a;
-    a.bufferView = append_view(m, data, bytes, target);
-    a.byteOffset = 0;
-    a.componentType = component;
-    a.type = type;
-    a.count = count;
-    a.normalized = normalized;
-    m.accessors.push_back(a);
-    return int(m.accessors.size() - 1);
-}
-
 // All buffers merged into buffer 0 so that a .glb has its single BIN chunk.
 void merge_buffers(tinygltf::Model& m) {
     if (m.buffers.empty()) m.buffers.emplace_back();
@@ -110,6 +82,34 @@ void merge_buffers(tinygltf::Model& m) {
 }
 
 }  // namespace
+
+// Appends bytes to buffer 0 (4-byte aligned) and returns a new buffer view.
+static int append_view(tinygltf::Model& m, const void* data, size_t bytes, int target) {
+    auto& buf = m.buffers[0].data;
+    while (buf.size() % 4) buf.push_back(0);
+    tinygltf::BufferView bv;
+    bv.buffer = 0;
+    bv.byteOffset = buf.size();
+    bv.byteLength = bytes;
+    bv.target = target;
+    const auto* p = static_cast<const unsigned char*>(data);
+    buf.insert(buf.end(), p, p + bytes);
+    m.bufferViews.push_back(bv);
+    return int(m.bufferViews.size() - 1);
+}
+
+int append_accessor(tinygltf::Model& m, const void* data, size_t bytes, int component, int type, size_t count,
+                    int target, bool normalized) {
+    tinygltf::Accessor a;
+    a.bufferView = append_view(m, data, bytes, target);
+    a.byteOffset = 0;
+    a.componentType = component;
+    a.type = type;
+    a.count = count;
+    a.normalized = normalized;
+    m.accessors.push_back(a);
+    return int(m.accessors.size() - 1);
+}
 
 nlohmann::json progressive_extension_json(const ProgressiveSkin& s) {
     nlohmann::json j;

@@ -43,6 +43,11 @@ nlohmann::json progressive_extension_json(const ProgressiveSkin& skin);
 // partial output on failure. Throws Error.
 void write_gltf(tinygltf::Model& model, const std::map<int, nlohmann::json>& skin_ext, const std::string& path);
 
+// Appends `bytes` of data to buffer 0 of m (4-byte aligned) behind a new
+// buffer view and accessor; returns the accessor index.
+int append_accessor(tinygltf::Model& m, const void* data, size_t bytes, int component, int type, size_t count,
+                    int target, bool normalized = false);
+
 // Reads a file; when it carries PROGSKIN_progressive_skin, the skin is read
 // from it (joints already in progressive order), else progressive = false.
 ProgressiveAsset load_progressive(const std::string& path, int character_index = 0);

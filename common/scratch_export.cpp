@@ -15,31 +15,6 @@ namespace progskin {
 
 namespace {
 
-int add_view(tinygltf::Model& m, const void* data, size_t bytes, int target) {
-    auto& buf = m.buffers[0].data;
-    while (buf.size() % 4) buf.push_back(0);
-    tinygltf::BufferView bv;
-    bv.buffer = 0;
-    bv.byteOffset = buf.size();
-    bv.byteLength = bytes;
-    bv.target = target;
-    const auto* p = static_cast<const unsigned char*>(data);
-    buf.insert(buf.end(), p, p + bytes);
-    m.bufferViews.push_back(bv);
-    return int(m.bufferViews.size() - 1);
-}
-
-int add_accessor(tinygltf::Model& m, const void* data, size_t bytes, int component, int type, size_t count,
-                 int target) {
-    tinygltf::Accessor a;
-    a.bufferView = add_view(m, data, bytes, target);
-    a.componentType = component;
-    a.type = type;
-    a.count = count;
-    m.accessors.push_back(a);
-    return int(m.accessors.size() - 1);
-}
-
 template <int N>
 void set_min_max(tinygltf::Accessor& a, const float* v, size_t count) {
     std::vector<double> lo(N, std::numeric_limits<double>::max()), hi(N, -std::numeric_limits<double>::max());
@@ -92,13 +67,13 @@ void save_scratch(const ScratchResult& r, const std::string& path) {
     tinygltf::Primitive prim;
     prim.mode = TINYGLTF_MODE_TRIANGLES;
     {
-        const int a = add_accessor(m, c.positions.data(), V * 12, TINYGLTF_COMPONENT_TYPE_FLOAT, TINYGLTF_TYPE_VEC3, V,
+        const int a = append_accessor(m, c.positions.data(), V * 12, TINYGLTF_COMPONENT_TYPE_FLOAT, TINYGLTF_TYPE_VEC3, V,
                                    TINYGLTF_TARGET_ARRAY_BUFFER);
         set_min_max<3>(m.accessors[size_t(a)], &c.positions[0].x, V);
         prim.attributes["POSITION"] = a;
     }
     if (c.normals.size() == V)
-        prim.attributes["NORMAL"] = add_accessor(m, c.normals.data(), V * 12, TINYGLTF_COMPONENT_TYPE_FLOAT,
+        prim.attributes["NORMAL"] = append_accessor(m, c.normals.data(), V * 12, TINYGLTF_COMPONENT_TYPE_FLOAT,
                                                  TINYGLTF_TYPE_VEC3, V, TINYGLTF_TARGET_ARRAY_BUFFER);
     std::vector<uint16_t> jj(V * 4, 0);
     std::vector<float> ww(V * 4, 0.0f);
@@ -107,12 +82,12 @@ void save_scratch(const ScratchResult& r, const std::string& path) {
             jj[v * 4 + i] = s.joints[v * s.influences + i];
             ww[v * 4 + i] = s.weights[v * s.influences + i];
         }
-    prim.attributes["JOINTS_0"] = add_accessor(m, jj.data(), jj.size() * 2, TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT,
+    prim.attributes["JOINTS_0"] = append_accessor(m, jj.data(), jj.size() * 2, TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT,
                                                TINYGLTF_TYPE_VEC4, V, TINYGLTF_TARGET_ARRAY_BUFFER);
-    prim.attributes["WEIGHTS_0"] = add_accessor(m, ww.data(), ww.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT,
+    prim.attributes["WEIGHTS_0"] = append_accessor(m, ww.data(), ww.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT,
                                                 TINYGLTF_TYPE_VEC4, V, TINYGLTF_TARGET_ARRAY_BUFFER);
     if (!c.triangles.empty())
-        prim.indices = add_accessor(m, c.triangles.data(), c.triangles.size() * 4, TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT,
+        prim.indices = append_accessor(m, c.triangles.data(), c.triangles.size() * 4, TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT,
                                     TINYGLTF_TYPE_SCALAR, c.triangles.size(), TINYGLTF_TARGET_ELEMENT_ARRAY_BUFFER);
     else
         prim.mode = TINYGLTF_MODE_POINTS;
@@ -131,7 +106,7 @@ void save_scratch(const ScratchResult& r, const std::string& path) {
     skin.skeleton = 0;
     for (int j = 0; j < B; ++j) skin.joints.push_back(j + 1);
     skin.inverseBindMatrices =
-        add_accessor(m, ibm.data(), ibm.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT, TINYGLTF_TYPE_MAT4, size_t(B), 0);
+        append_accessor(m, ibm.data(), ibm.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT, TINYGLTF_TYPE_MAT4, size_t(B), 0);
     m.skins.push_back(skin);
 
     // Animation: one sampler per channel, a shared time accessor.
@@ -141,7 +116,7 @@ void save_scratch(const ScratchResult& r, const std::string& path) {
     int time_acc = -1;
     for (const Channel& ch : clip.channels) {
         if (time_acc < 0) {
-            time_acc = add_accessor(m, ch.times.data(), ch.times.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT,
+            time_acc = append_accessor(m, ch.times.data(), ch.times.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT,
                                     TINYGLTF_TYPE_SCALAR, ch.times.size(), 0);
             set_min_max<1>(m.accessors[size_t(time_acc)], ch.times.data(), ch.times.size());
         }
@@ -150,7 +125,7 @@ void save_scratch(const ScratchResult& r, const std::string& path) {
         tinygltf::AnimationSampler smp;
         smp.input = time_acc;
         smp.interpolation = "LINEAR";
-        smp.output = add_accessor(m, ch.values.data(), ch.values.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT,
+        smp.output = append_accessor(m, ch.values.data(), ch.values.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT,
                                   rot ? TINYGLTF_TYPE_VEC4 : TINYGLTF_TYPE_VEC3, ch.values.size() / size_t(n), 0);
         anim.samplers.push_back(smp);
         tinygltf::AnimationChannel ac;
