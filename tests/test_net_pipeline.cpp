@@ -167,3 +167,29 @@ TEST(NetPipeline, SwitchingBonesBlendsWithoutPops) {
     std::printf("largest change of a vertex's error between frames: %.3f%% (no blend), %.3f%% (8-frame blend)\n", hard, soft);
     EXPECT_LT(soft, hard * 0.5);
 }
+
+// GUIDE.md §4: within every tick, of two instances of the same asset the more
+// important one never gets fewer bones. Deterministic (no sockets, no timing).
+TEST(NetPipeline, MoreImportantInstancesGetAtLeastAsManyBonesEveryTick) {
+    Pipeline p;
+    std::vector<float> imp(p.specs.size());
+    for (size_t i = 0; i < imp.size(); ++i) imp[i] = 1.0f / float(i + 1);  // farther along the line
+    int compared = 0;
+    for (size_t budget : {300u, 600u, 1200u, 2500u}) {
+        for (uint32_t t = 1; t <= 60; ++t) {
+            const EncodedFrame& f = p.enc.encode(t);
+            std::vector<Pick> picks;
+            p.sched.select(f, p.assets, imp, budget, 30.0f, picks);
+            p.sched.sent(picks, t);
+            for (const Pick& a : picks)
+                for (const Pick& b : picks) {
+                    if (p.specs[a.instance].asset != p.specs[b.instance].asset || imp[a.instance] <= imp[b.instance])
+                        continue;
+                    EXPECT_GE(a.k, b.k) << "tick " << t << " budget " << budget << ": instance " << a.instance
+                                        << " is more important than " << b.instance;
+                    ++compared;
+                }
+        }
+    }
+    EXPECT_GT(compared, 50);
+}
