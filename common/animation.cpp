@@ -291,13 +291,21 @@ FrameSet sample_frames(const Character& c, const std::vector<ClipSelection>& sel
     // floor(duration * fps) + 1 frames per selection (the epsilon absorbs float rounding of the end time).
     auto frame_count = [fps](const ClipSelection& sel) {
         const double duration = std::max(0.0, double(sel.end) - double(sel.start));
-        return size_t(std::floor(duration * fps + 1e-6)) + 1;
+        return std::floor(duration * fps + 1e-6) + 1.0;
     };
-    size_t total = 0;
+    double total_d = 0;
     for (const ClipSelection& sel : sels) {
         check_selection(c, sel);
-        total += frame_count(sel);
+        total_d += frame_count(sel);
     }
+    // Key times come from the file: a clip spanning days must not take the
+    // machine's memory (100,000 frames is 55 minutes at 30 fps).
+    if (total_d > double(kMaxSampledFrames))
+        throw Error(c.source + ": the selected clips span " + std::to_string(total_d / fps) + " s, " +
+                    std::to_string(size_t(total_d)) + " frames at " + std::to_string(fps) +
+                    " fps, more than the limit of " + std::to_string(kMaxSampledFrames) +
+                    " (choose a clip with --clip or a lower --fps)");
+    const size_t total = size_t(total_d);
     fs.times.reserve(total);
     fs.selection_of_frame.reserve(total);
     fs.skinning.reserve(total * c.joint_count());
@@ -305,7 +313,7 @@ FrameSet sample_frames(const Character& c, const std::vector<ClipSelection>& sel
     std::vector<glm::dmat4> m(c.joint_count());
     for (size_t k = 0; k < sels.size(); ++k) {
         const ClipSelection& sel = sels[k];
-        const size_t frames = frame_count(sel);
+        const size_t frames = size_t(frame_count(sel));
         for (size_t f = 0; f < frames; ++f) {
             const double t = double(sel.start) + double(f) / fps;
             evaluate_globals(c, sel, t, s);

@@ -50,6 +50,8 @@ struct FrameSet {
     size_t frame_count() const { return times.size(); }
     const Mat34* frame(size_t f) const { return skinning.data() + f * joint_count; }
 };
+// Throws Error when the selections would take more than kMaxSampledFrames.
+inline constexpr size_t kMaxSampledFrames = 100000;
 FrameSet sample_frames(const Character& c, const std::vector<ClipSelection>& sels, double fps);
 
 }  // namespace progskin

@@ -243,3 +243,20 @@ TEST(Frames, CountTimesAndLayout) {
     EXPECT_NEAR(m[1].m[0], 1.0, 1e-6);
     EXPECT_THROW(sample_frames(c, {select_clips(c, "a")}, 0.0), Error);
 }
+
+// Key times come from the file: a clip spanning days is refused with a clear
+// error instead of sampling millions of frames.
+TEST(Frames, HugeClipSpanIsRefused) {
+    Character c = two_bones();
+    c.source = "long.gltf";
+    add_clip(c, "forever", {channel(1, ChannelPath::Translation, Interpolation::Linear, {0.0f, 86400.0f},
+                                    {0, 1, 0, 0, 3, 0})});
+    try {
+        sample_frames(c, {select_clips(c, "forever")}, 30.0);
+        FAIL() << "expected an error";
+    } catch (const Error& e) {
+        EXPECT_NE(std::string(e.what()).find("long.gltf"), std::string::npos) << e.what();
+        EXPECT_NE(std::string(e.what()).find("limit"), std::string::npos) << e.what();
+    }
+    EXPECT_EQ(sample_frames(c, {select_clips(c, "forever")}, 1.0).frame_count(), 86401u);
+}
