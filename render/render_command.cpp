@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "animation.h"
+#include "cli_args.h"
 #include "error.h"
 #include "figure.h"
 #include "gltf_export.h"
@@ -35,16 +36,9 @@ const char* kRenderUsage = R"(usage: progskin render FILE [--clip SPEC] [--time 
   bones 1,2,4,all, W = 400 per panel, H = 520, azimuth 35, elevation 12.
 )";
 
-struct Usage : std::runtime_error {
-    using std::runtime_error::runtime_error;
-};
+using Usage = cli::UsageError;
 
-double number(const std::string& key, const std::string& v) {
-    char* end = nullptr;
-    const double d = std::strtod(v.c_str(), &end);
-    if (v.empty() || *end != '\0' || !std::isfinite(d)) throw Usage(key + ": '" + v + "' is not a number");
-    return d;
-}
+double number(const std::string& key, const std::string& v) { return cli::to_number(key, v); }
 
 int integer(const std::string& key, const std::string& v, int lo, int hi) {
     const double d = number(key, v);
@@ -57,33 +51,13 @@ int integer(const std::string& key, const std::string& v, int lo, int hi) {
 
 int render_command(int argc, char** argv) {
     try {
-        std::vector<std::string> pos;
-        std::map<std::string, std::string> opt;
         const std::vector<std::string> flags = {"--heatmap", "--flat", "--help", "--quiet"};
         const std::vector<std::string> valued = {"--clip",    "--time",    "--bones",     "-o",
                                                  "--width",   "--height",  "--azimuth",   "--elevation",
                                                  "--character"};
-        for (int i = 2; i < argc; ++i) {
-            std::string s = argv[i];
-            if (s.rfind("--", 0) == 0 || s == "-o") {
-                std::string key = s, value;
-                const auto eq = s.find('=');
-                if (eq != std::string::npos) {
-                    key = s.substr(0, eq);
-                    value = s.substr(eq + 1);
-                }
-                const bool is_flag = std::find(flags.begin(), flags.end(), key) != flags.end();
-                const bool is_valued = std::find(valued.begin(), valued.end(), key) != valued.end();
-                if (!is_flag && !is_valued) throw Usage("unknown option " + key);
-                if (is_valued && eq == std::string::npos) {
-                    if (i + 1 >= argc) throw Usage(key + " needs a value");
-                    value = argv[++i];
-                }
-                opt[key] = value;
-            } else {
-                pos.push_back(s);
-            }
-        }
+        cli::Args args = cli::parse(argc, argv, 2, flags, valued);
+        const std::vector<std::string>& pos = args.positional;
+        std::map<std::string, std::string>& opt = args.opts;
         if (opt.count("--help")) {
             std::fputs(kRenderUsage, stdout);
             return 0;
