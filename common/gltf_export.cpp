@@ -14,6 +14,7 @@
 #include <unistd.h>
 
 #include "error.h"
+#include "gltf_accessor.h"
 #include "gltf_import.h"
 
 namespace progskin {
@@ -22,10 +23,6 @@ namespace {
 
 constexpr const char* kExtension = "PROGSKIN_progressive_skin";
 
-bool keep_image_bytes(tinygltf::Image*, const int, std::string*, std::string*, int, int,
-                      const unsigned char*, int, void*) {
-    return true;  // images are carried through untouched, never decoded
-}
 bool no_image_write(const std::string*, const std::string*, const tinygltf::Image*, bool, std::string*, void*) {
     return false;  // keep the original uri / bufferView
 }
@@ -35,13 +32,8 @@ bool ends_with(const std::string& s, const std::string& suffix) {
 }
 
 tinygltf::Model load_model(const std::string& path) {
-    tinygltf::TinyGLTF loader;
-    loader.SetImageLoader(keep_image_bytes, nullptr);
     tinygltf::Model model;
-    std::string err, warn;
-    const bool ok = ends_with(path, ".glb") ? loader.LoadBinaryFromFile(&model, &err, &warn, path)
-                                            : loader.LoadASCIIFromFile(&model, &err, &warn, path);
-    if (!ok) throw Error(path + ": cannot read glTF: " + (err.empty() ? warn : err));
+    gltf::load_model(path, model);
     return model;
 }
 

@@ -5,6 +5,8 @@
 // done here so that every defect gets a message naming the file and the item.
 #include "gltf_import.h"
 
+#include "gltf_accessor.h"
+
 #include <tiny_gltf.h>
 
 #include <algorithm>
@@ -996,6 +998,23 @@ Character build_character(const Ctx& ctx, const std::vector<int>& skins, const s
 }
 
 }  // namespace
+
+namespace gltf {
+
+void load_model(const std::string& path, tinygltf::Model& model) { progskin::load_model(path, model); }
+
+std::vector<double> read_accessor(const std::string& path, const tinygltf::Model& model, int index, int components,
+                                  const std::string& what) {
+    const Ctx ctx{model, path};
+    AccessorData d = progskin::read_accessor(ctx, index, what);
+    if (d.components != components)
+        ctx.fail(what + ": accessor " + std::to_string(index) + " has " + std::to_string(d.components) +
+                 " components per element, expected " + std::to_string(components));
+    require_finite(ctx, d, what);
+    return std::move(d.values);
+}
+
+}  // namespace gltf
 
 std::vector<Character> import_gltf(const std::string& path, const ImportOptions& options) {
     tinygltf::Model model;

@@ -17,6 +17,7 @@
 #include "animation.h"
 #include "error.h"
 #include "error_metric.h"
+#include "gltf_accessor.h"
 #include "gltf_import.h"
 
 namespace progskin {
@@ -151,109 +152,11 @@ struct Gltf {
     [[noreturn]] void fail(const std::string& what) const { throw Error(path + ": " + what); }
 };
 
-bool skip_image(tinygltf::Image*, const int, std::string*, std::string*, int, int, const unsigned char*, int, void*) {
-    return true;
-}
-
-void load(Gltf& g) {
-    const std::vector<unsigned char> bytes = read_bytes(g.path);
-    tinygltf::TinyGLTF loader;
-    loader.SetImageLoader(skip_image, nullptr);
-    std::string err, warn;
-    const size_t slash = g.path.find_last_of("/\\");
-    const std::string dir = slash == std::string::npos ? std::string(".") : g.path.substr(0, slash);
-    bool ok;
-    if (bytes.size() >= 4 && std::memcmp(bytes.data(), "glTF", 4) == 0)
-        ok = loader.LoadBinaryFromMemory(&g.m, &err, &warn, bytes.data(), unsigned(bytes.size()), dir);
-    else
-        ok = loader.LoadASCIIFromString(&g.m, &err, &warn, reinterpret_cast<const char*>(bytes.data()),
-                                        unsigned(bytes.size()), dir);
-    if (!ok) g.fail("cannot read glTF: " + (err.empty() ? warn : err));
-}
-
-size_t comp_size(int ct) {
-    switch (ct) {
-        case TINYGLTF_COMPONENT_TYPE_BYTE:
-        case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE: return 1;
-        case TINYGLTF_COMPONENT_TYPE_SHORT:
-        case TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT: return 2;
-        case TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT:
-        case TINYGLTF_COMPONENT_TYPE_FLOAT: return 4;
-        default: return 0;
-    }
-}
-
-double decode(const unsigned char* p, int ct, bool normalized) {
-    switch (ct) {
-        case TINYGLTF_COMPONENT_TYPE_BYTE: {
-            const int8_t v = int8_t(p[0]);
-            return normalized ? std::max(v / 127.0, -1.0) : v;
-        }
-        case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE: return normalized ? p[0] / 255.0 : p[0];
-        case TINYGLTF_COMPONENT_TYPE_SHORT: {
-            const int16_t v = get_le<int16_t>(p);
-            return normalized ? std::max(v / 32767.0, -1.0) : v;
-        }
-        case TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT: {
-            const uint16_t v = get_le<uint16_t>(p);
-            return normalized ? v / 65535.0 : v;
-        }
-        case TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT: return get_le<uint32_t>(p);
-        case TINYGLTF_COMPONENT_TYPE_FLOAT: return get_le<float>(p);
-    }
-    return 0;
-}
-
-// Bytes [offset, offset + need) of a buffer view, bounds-checked.
-const unsigned char* view_at(const Gltf& g, int view, size_t offset, size_t need, const std::string& who) {
-    if (view < 0 || size_t(view) >= g.m.bufferViews.size()) g.fail(who + ": buffer view " + std::to_string(view) + " out of range");
-    const tinygltf::BufferView& bv = g.m.bufferViews[size_t(view)];
-    if (bv.buffer < 0 || size_t(bv.buffer) >= g.m.buffers.size()) g.fail(who + ": buffer out of range");
-    const auto& buf = g.m.buffers[size_t(bv.buffer)].data;
-    if (bv.byteOffset + bv.byteLength > buf.size()) g.fail(who + ": buffer view exceeds its buffer");
-    if (offset + need > bv.byteLength) g.fail(who + ": accessor exceeds its buffer view");
-    return buf.data() + bv.byteOffset + offset;
-}
+void load(Gltf& g) { gltf::load_model(g.path, g.m); }
 
 // Accessor `index` decoded to doubles (count * components), with its component count checked.
 std::vector<double> read_acc(const Gltf& g, int index, int components, const std::string& what) {
-    const std::string who = what + " (accessor " + std::to_string(index) + ")";
-    if (index < 0 || size_t(index) >= g.m.accessors.size()) g.fail(who + ": out of range");
-    const tinygltf::Accessor& a = g.m.accessors[size_t(index)];
-    const int n = tinygltf::GetNumComponentsInType(uint32_t(a.type));
-    if (n != components) g.fail(who + ": expected " + std::to_string(components) + " components, got " + std::to_string(n));
-    const size_t cs = comp_size(a.componentType);
-    if (!cs) g.fail(who + ": unsupported component type " + std::to_string(a.componentType));
-    const size_t elem = cs * size_t(n);
-    std::vector<double> out(a.count * size_t(n), 0.0);
-    if (a.bufferView >= 0) {
-        const tinygltf::BufferView& bv = g.m.bufferViews.at(size_t(a.bufferView));
-        const size_t stride = bv.byteStride ? bv.byteStride : elem;
-        if (stride < elem) g.fail(who + ": byte stride smaller than an element");
-        const size_t need = a.count ? (a.count - 1) * stride + elem : 0;
-        const unsigned char* p = view_at(g, a.bufferView, a.byteOffset, need, who);
-        for (size_t i = 0; i < a.count; ++i)
-            for (int c = 0; c < n; ++c) out[i * n + c] = decode(p + i * stride + c * cs, a.componentType, a.normalized);
-    }
-    if (a.sparse.isSparse) {
-        const size_t k = size_t(a.sparse.count);
-        if (k > a.count) g.fail(who + ": sparse count exceeds count");
-        const int ict = a.sparse.indices.componentType;
-        const size_t ics = comp_size(ict);
-        if (!ics || ict == TINYGLTF_COMPONENT_TYPE_FLOAT || ict == TINYGLTF_COMPONENT_TYPE_BYTE ||
-            ict == TINYGLTF_COMPONENT_TYPE_SHORT)
-            g.fail(who + ": bad sparse index type");
-        const unsigned char* ip = view_at(g, a.sparse.indices.bufferView, a.sparse.indices.byteOffset, k * ics, who);
-        const unsigned char* vp = view_at(g, a.sparse.values.bufferView, a.sparse.values.byteOffset, k * elem, who);
-        for (size_t i = 0; i < k; ++i) {
-            const size_t t = size_t(decode(ip + i * ics, ict, false));
-            if (t >= a.count) g.fail(who + ": sparse index out of range");
-            for (int c = 0; c < n; ++c) out[t * n + c] = decode(vp + i * elem + c * cs, a.componentType, a.normalized);
-        }
-    }
-    for (double x : out)
-        if (!std::isfinite(x)) g.fail(who + ": " + what + " contains NaN or Inf");
-    return out;
+    return gltf::read_accessor(g.path, g.m, index, components, what);
 }
 
 glm::dmat4 local_of(const tinygltf::Node& n) {
