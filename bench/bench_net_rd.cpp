@@ -27,9 +27,11 @@
 #include "scene.h"
 #include "scheduler.h"
 #include "wire.h"
+#include "../tests/net_test_support.h"
 
 using namespace progskin;
 using namespace progskin::net;
+using progskin::net::testing::client_asset;
 
 namespace {
 
@@ -58,18 +60,6 @@ const Assets& leaf_assets() {
     return a;
 }
 
-std::shared_ptr<ClientAsset> client_asset(const ServerAsset& s) {
-    auto c = std::make_shared<ClientAsset>();
-    c->name = s.name;
-    c->character = s.character;
-    c->skin.order = s.skin.order;
-    c->skin.parents = s.skin.parents;
-    c->skin.corrections = s.skin.corrections;
-    remap_skin_vertices(c->character, c->skin);
-    c->format = s.format;
-    c->diagonal = rest_diagonal(c->character);
-    return c;
-}
 
 enum class Method { Progressive, AllBones, LeafLod };
 

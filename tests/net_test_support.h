@@ -9,6 +9,8 @@
 #include <vector>
 
 #include "client.h"
+#include "client_palette.h"
+#include "error_metric.h"
 #include "scene.h"
 #include "server.h"
 
@@ -19,6 +21,21 @@ inline std::vector<std::shared_ptr<ServerAsset>>& default_assets() {
         load_server_asset(std::string(PROGSKIN_ASSETS) + "/Fox.glb"),
         load_server_asset(std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb")};
     return a;
+}
+
+// What a client holds after downloading a server asset (without the network).
+inline std::shared_ptr<ClientAsset> client_asset(const ServerAsset& s) {
+    auto c = std::make_shared<ClientAsset>();
+    c->name = s.name;
+    c->character = s.character;
+    c->skin.order = s.skin.order;
+    c->skin.parents = s.skin.parents;
+    c->skin.corrections = s.skin.corrections;
+    c->skin.error = s.skin.error;
+    remap_skin_vertices(c->character, c->skin);
+    c->format = s.format;
+    c->diagonal = rest_diagonal(c->character);
+    return c;
 }
 
 // One instance per asset and clip group (what progskin-server serves by default).

@@ -12,9 +12,11 @@
 #include "scene.h"
 #include "scheduler.h"
 #include "wire.h"
+#include "net_test_support.h"
 
 using namespace progskin;
 using namespace progskin::net;
+using progskin::net::testing::client_asset;
 
 namespace {
 
@@ -25,19 +27,6 @@ std::vector<std::shared_ptr<ServerAsset>>& shared_assets() {
     return a;
 }
 
-std::shared_ptr<ClientAsset> client_asset(const ServerAsset& s) {
-    auto c = std::make_shared<ClientAsset>();
-    c->name = s.name;
-    c->character = s.character;
-    c->skin.order = s.skin.order;
-    c->skin.parents = s.skin.parents;
-    c->skin.corrections = s.skin.corrections;
-    c->skin.error = s.skin.error;
-    remap_skin_vertices(c->character, c->skin);
-    c->format = s.format;
-    c->diagonal = rest_diagonal(c->character);
-    return c;
-}
 
 struct Pipeline {
     std::vector<std::shared_ptr<ServerAsset>> assets = shared_assets();
