@@ -540,29 +540,28 @@ ProgressiveSkin build_progressive_skin(const Character& c, const FrameSet& frame
     return col.run();
 }
 
-SkinningJob skinning_job(const Character& c, const ProgressiveSkin& s, std::span<const Mat34> palette,
-                         std::span<glm::vec3> out_positions) {
+namespace {
+SkinningJob make_job(const Character& c, std::span<const uint16_t> joints, std::span<const float> weights,
+                     int influences, std::span<const Mat34> palette, std::span<glm::vec3> out_positions) {
     SkinningJob j;
     j.positions = c.positions;
-    j.joints = s.joints;
-    j.weights = s.weights;
-    j.influences = s.influences;
-    j.max_influences = s.influences;
+    j.joints = joints;
+    j.weights = weights;
+    j.influences = influences;
+    j.max_influences = influences;
     j.palette = palette;
     j.out_positions = out_positions;
     return j;
 }
+}  // namespace
+
+SkinningJob skinning_job(const Character& c, const ProgressiveSkin& s, std::span<const Mat34> palette,
+                         std::span<glm::vec3> out_positions) {
+    return make_job(c, s.joints, s.weights, s.influences, palette, out_positions);
+}
 
 SkinningJob skinning_job(const Character& c, std::span<const Mat34> palette, std::span<glm::vec3> out_positions) {
-    SkinningJob j;
-    j.positions = c.positions;
-    j.joints = c.joints;
-    j.weights = c.weights;
-    j.influences = c.influences;
-    j.max_influences = c.influences;
-    j.palette = palette;
-    j.out_positions = out_positions;
-    return j;
+    return make_job(c, c.joints, c.weights, c.influences, palette, out_positions);
 }
 
 void lod_positions(const Character& c, const ProgressiveSkin& s, const FrameSet& frames, size_t f, int k,
