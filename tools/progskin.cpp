@@ -91,13 +91,12 @@ std::vector<ClipSelection> training_set(const Character& c, const std::string& s
     return {select_clips(c, spec)};
 }
 
-json table_json(const std::vector<LodError>& t, const std::vector<double>* distortion = nullptr) {
+json table_json(const std::vector<LodError>& t) {
     json a = json::array();
     for (size_t i = 0; i < t.size(); ++i) {
         const LodError& e = t[i];
         json row = {{"bones", e.bones}, {"rms", e.rms},         {"max", e.max},
                     {"rms_pct", e.rms_pct}, {"max_pct", e.max_pct}, {"influences", e.influences}};
-        if (distortion) row["distortion_pct"] = (*distortion)[i];
         if (e.distortion_pct >= 0) row["distortion_pct"] = e.distortion_pct;
         a.push_back(row);
     }
