@@ -2,11 +2,13 @@
 // baselines measured in the same run, same scene, same token-bucket pacing,
 // same datagram format and same client (interpolation, display delay chosen
 // per method to cover its largest update gap, at most 600 ms):
-//   progressive: scheduler.h (importance-weighted error removed per byte);
+//   progressive: scheduler.h (importance-weighted error removed per byte,
+//                deep bones refreshed less often than shallow ones);
 //   all_bones:   every update carries all bones of a character; characters
 //                are updated round-robin as the budget allows (fewer updates
-//                per second when the budget is short; its token bucket may
-//                hold one whole character, a burst the others do not get);
+//                per second when the budget is short). Every method's token
+//                bucket holds at least one whole character (this one's
+//                smallest useful datagram), so all three are paced alike;
 //   leaf_lod:    a static skeleton LOD: the leaf-pruning skin (deepest bones
 //                dropped first, plain copy-down), the largest k that fits
 //                every character every tick (k = 1 round-robin below that).
@@ -70,10 +72,11 @@ struct Result {
 Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbps, int ticks, int warm) {
     const Assets& assets = m == Method::LeafLod ? leaf_assets() : progressive_assets();
     FrameEncoder enc(assets, specs, 30.0f);
-    // The all-bones baseline needs room for one whole character per datagram.
+    // The all-bones baseline needs room for one whole character per datagram;
+    // every method gets that bucket depth (the same pacing for all).
     double min_depth = 0;
-    if (m == Method::AllBones)
-        for (const auto& a : assets) min_depth = std::max(min_depth, double(WireCost::wire(WireCost::kChunk + size_t(a->bone_count()) * a->format.size())));
+    for (const auto& a : progressive_assets())
+        min_depth = std::max(min_depth, double(WireCost::wire(WireCost::kChunk + size_t(a->bone_count()) * a->format.size())));
     RateController rate(cap_kbps, cap_kbps, min_depth);
     Scheduler sched;
     DatagramPacker packer;
@@ -94,7 +97,13 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
         }
     }
     std::vector<std::vector<std::vector<uint8_t>>> log(size_t(ticks) + 1);
-    std::vector<std::vector<int>> updates(n);
+    // The display delay covers, as the client's does (client.cpp), the largest
+    // gap after warm-up between updates of an instance and between refreshes
+    // of one bone (at most HOLD_TICKS: a longer one is a bone shown again).
+    std::vector<std::vector<int>> bone_tick(n);
+    std::vector<int> instance_tick(n, 0);
+    for (size_t i = 0; i < n; ++i) bone_tick[i].assign(size_t(assets[size_t(specs[i].asset)]->bone_count()), 0);
+    int gap = 1;
     size_t rr = 0, wire_total = 0;
     std::vector<Pick> picks;
     for (int t = 1; t <= ticks; ++t) {
@@ -125,13 +134,18 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
         rate.spend(w);
         if (m == Method::Progressive) sched.sent(picks, uint32_t(t));
         if (t > warm) wire_total += w;
-        for (const Pick& p : picks) updates[size_t(p.instance)].push_back(t);
+        for (const Pick& p : picks) {
+            int& last_update = instance_tick[size_t(p.instance)];
+            if (t > warm && last_update > 0) gap = std::max(gap, t - last_update);
+            last_update = t;
+            for (int b = 0; b < p.k; ++b) {
+                int& last = bone_tick[size_t(p.instance)][size_t(b)];
+                if (t > warm && last > 0 && t - last <= HOLD_TICKS) gap = std::max(gap, t - last);
+                last = t;
+            }
+        }
     }
     // Display delay covering the largest gap after warm-up (as the client adapts it).
-    int gap = 1;
-    for (const auto& u : updates)
-        for (size_t i = 1; i < u.size(); ++i)
-            if (u[i] > warm) gap = std::max(gap, u[i] - u[i - 1]);
     const int delay = std::min(18, gap + 1);
 
     std::vector<std::unique_ptr<InstanceView>> views;
@@ -151,7 +165,7 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
             const uint8_t* rec = fr->records()->data();
             for (const wire::Chunk* c : *fr->chunks()) {
                 InstanceView& v = *views[c->instance()];
-                v.buffer().add_chunk(fr->tick(), c->first(), c->count(), c->total(), rec);
+                v.buffer().add_chunk(fr->tick(), c->first(), c->count(), c->total(), rec, c->show());
                 rec += size_t(c->count()) * v.asset().format.size();
             }
         }

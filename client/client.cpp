@@ -420,9 +420,16 @@ ClientReport run_client(const ClientOptions& opt) {
                 InstanceView& v = *views[view_of_instance[c->instance()]];
                 const bool had = !v.buffer().empty();
                 const uint32_t prev = v.buffer().newest_tick();
-                if (!v.buffer().add_chunk(f->tick(), c->first(), c->count(), c->total(), rec)) ++rep.malformed;
-                else if (had && int32_t(f->tick() - prev) > 0 && tick_offset > -1e299)
-                    needed_delay = std::max(needed_delay, t * tick_rate + tick_offset - double(prev));
+                if (!v.buffer().add_chunk(f->tick(), c->first(), c->count(), c->total(), rec, c->show())) {
+                    ++rep.malformed;
+                } else if (had && tick_offset > -1e299) {
+                    // Cover the gap since the instance's newest frame and the gap
+                    // since these bones' previous frames (deep bones are refreshed
+                    // less often, scheduler.h).
+                    double since = int32_t(f->tick() - prev) > 0 ? double(prev) : double(f->tick());
+                    if (v.buffer().last_gap() > 0) since = std::min(since, double(f->tick()) - v.buffer().last_gap());
+                    if (since < double(f->tick())) needed_delay = std::max(needed_delay, t * tick_rate + tick_offset - since);
+                }
                 rec += size_t(c->count()) * v.asset().format.size();
             }
         // Ack state

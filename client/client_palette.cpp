@@ -56,10 +56,16 @@ bool InstanceView::display(double d) {
     blender_.set_target(k);
     blender_.step();
     const int n = blender_.needed();
-    BonePose p;
+    BonePose p, pp;
     for (int b = 0; b < n; ++b) {
-        if (buffer_.pose(b, d, p)) {
+        double held = 0;
+        const int parent = asset_->skin.parents[b];
+        if (buffer_.pose(b, d, p, &held)) {
             own_[b] = compose(p);
+            // Nothing newer carries this bone yet: hold it relative to its
+            // progressive parent (which may be fresher), not frozen in model space.
+            if (held < d && parent >= 0 && buffer_.pose(parent, held, pp))
+                own_[b] = mul(own_[parent], mul(compose(inverse(pp)), own_[b]));
         } else {  // never received: stand in from the parent
             int parent = asset_->skin.parents[b];
             own_[b] = parent >= 0 ? mul(own_[parent], asset_->skin.corrections[b]) : Mat34::identity();

@@ -18,8 +18,10 @@ PoseBuffer::PoseBuffer(int bone_count, RecordFormat fmt) : bones_(bone_count), f
     last_have_.assign(bone_count, 0);
 }
 
-bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const uint8_t* records) {
-    if (total < 1 || total > bones_ || first < 0 || count < 1 || first + count > total) return false;
+bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const uint8_t* records, int show) {
+    if (show == 0) show = total;
+    if (total < 1 || total > bones_ || first < 0 || count < 1 || first + count > total || show < total || show > bones_)
+        return false;
     Frame* f = nullptr;
     for (auto& x : frames_)
         if (x.used && x.tick == tick) f = &x;
@@ -35,15 +37,19 @@ bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const
         f->used = true;
         f->tick = tick;
         f->total = total;
+        f->show = show;
         f->ready = 0;
         std::fill(f->have.begin(), f->have.end(), 0);
     }
-    if (f->total != total) return false;
+    if (f->total != total || f->show != show) return false;
+    last_gap_ = 0;
     for (int i = 0; i < count; ++i) {
         int b = first + i;
         f->bones[b] = decode_bone(records + size_t(i) * fmt_.size(), fmt_);
         f->have[b] = 1;
         if (!last_have_[b] || !newer(last_tick_[b], tick)) {
+            const int32_t gap = int32_t(tick - last_tick_[b]);
+            if (last_have_[b] && gap <= HOLD_TICKS) last_gap_ = std::max(last_gap_, int(gap));
             last_[b] = f->bones[b];
             last_tick_[b] = tick;
             last_have_[b] = 1;
@@ -57,28 +63,27 @@ bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const
 }
 
 int PoseBuffer::bones_at(double d) const {
-    // Bones that can be shown at d: those present in a kept frame at or before
-    // d and in one after it (interpolated per bone), or, when nothing newer
-    // arrived yet, those of the newest frame before d (held).
-    int before = 0, after = 0, newest_before = 0;
-    const Frame* nb = nullptr;
+    const Frame* newest_before = nullptr;
+    const Frame* first_after = nullptr;
     for (const auto& f : frames_) {
         if (!f.used || f.ready == 0) continue;
         double t = double(int32_t(f.tick - newest_)) + double(newest_);
         if (t <= d) {
-            before = std::max(before, f.ready);
-            if (!nb || newer(f.tick, nb->tick)) nb = &f;
-        } else {
-            after = std::max(after, f.ready);
+            if (!newest_before || newer(f.tick, newest_before->tick)) newest_before = &f;
+        } else if (!first_after || newer(first_after->tick, f.tick)) {
+            first_after = &f;
         }
     }
-    newest_before = nb ? nb->ready : 0;
-    if (before == 0) return after;
-    if (after == 0) return newest_before;
-    return std::max(newest_before, std::min(before, after));
+    const Frame* f = newest_before ? newest_before : first_after;
+    if (!f) return 0;
+    int k = std::max(f->ready, f->show);
+    int have = 0;
+    while (have < k && last_have_[size_t(have)]) ++have;
+    return std::max(f->ready, have);
 }
 
-bool PoseBuffer::pose(int b, double d, BonePose& out) const {
+bool PoseBuffer::pose(int b, double d, BonePose& out, double* held_at) const {
+    if (held_at) *held_at = d + 1.0;
     const Frame* a = nullptr;
     const Frame* c = nullptr;
     for (const auto& f : frames_) {
@@ -96,7 +101,11 @@ bool PoseBuffer::pose(int b, double d, BonePose& out) const {
         out = interpolate(a->bones[b], c->bones[b], float((d - ta) / (tc - ta)));
         return true;
     }
-    if (a) { out = a->bones[b]; return true; }   // hold the newest
+    if (a) {  // hold the newest
+        out = a->bones[b];
+        if (held_at) *held_at = double(int32_t(a->tick - newest_)) + double(newest_);
+        return true;
+    }
     if (c) { out = c->bones[b]; return true; }
     if (last_have_[b]) { out = last_[b]; return true; }
     return false;

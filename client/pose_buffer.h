@@ -1,44 +1,56 @@
 // pose_buffer.h — the client's newest bones of one instance: decoded frame
 // chunks (datagram.fbs Chunk) merged per tick into a short history, and the
 // pose at any display time by interpolation (slerp per bone) between the two
-// frames around it, holding the newest value when nothing newer arrived.
+// frames around it that carry that bone, holding the newest value when nothing
+// newer arrived. The server refreshes deep bones less often than shallow ones
+// (scheduler.h): a bone stays shown for HOLD_TICKS after its newest frame.
 #pragma once
 #include <cstdint>
 #include <vector>
 
 #include "bone_codec.h"
+#include "wire.h"
 
 namespace progskin::net {
 
 class PoseBuffer {
 public:
-    static constexpr int kHistory = 32;  // frames kept per instance
+    static constexpr int kHistory = 48;  // frames kept per instance (>= HOLD_TICKS + the largest display delay)
 
     PoseBuffer() = default;
     PoseBuffer(int bone_count, RecordFormat fmt);
 
     // Decodes count records (fmt.size() bytes each) of bones first.. of the
-    // frame at `tick` whose prefix has `total` bones. Returns false (and
-    // changes nothing) when the chunk is inconsistent.
-    bool add_chunk(uint32_t tick, int first, int count, int total, const uint8_t* records);
+    // frame at `tick` whose prefix has `total` bones, of which the server
+    // wants `show` shown from this tick on (total <= show <= B; 0: total).
+    // Returns false (and changes nothing) when the chunk is inconsistent.
+    bool add_chunk(uint32_t tick, int first, int count, int total, const uint8_t* records, int show = 0);
 
     bool empty() const { return !any_; }
     uint32_t newest_tick() const { return newest_; }
     // True once a frame at or before display tick d has been received (the
     // display starts `delay` after the first frame, not before it).
     bool covers(double d) const { return any_ && d >= double(int32_t(first_ - newest_)) + double(newest_); }
-    // Bones shown at display tick d: the prefix present both in a kept frame at
-    // or before d and in one after it (each bone interpolated between its own
-    // frames), at least the newest frame's at or before d; 0 if none.
+    // Bones shown at display tick d: the `show` of the newest kept frame at or
+    // before d (before the first frame, that frame's), limited to the bones
+    // received so far; each bone is interpolated between its own frames.
     int bones_at(double d) const;
+    // The largest gap (ticks) between a bone's previous frame and the frame
+    // of the last accepted chunk, over the chunk's bones, counting gaps of at
+    // most HOLD_TICKS (longer ones are a bone shown again, not a refresh); 0
+    // when none. The client's display delay covers it.
+    int last_gap() const { return last_gap_; }
     // Pose of bone b at display tick d; false if bone b was never received.
-    bool pose(int b, double d, BonePose& out) const;
+    // held_at (optional): the tick of the frame whose value is held when no
+    // frame after d carries bone b yet, else a value > d.
+    bool pose(int b, double d, BonePose& out, double* held_at = nullptr) const;
     int bone_count() const { return bones_; }
 
 private:
     struct Frame {
         uint32_t tick = 0;
         int total = 0;     // bones chosen for this tick
+        int show = 0;      // bones to show from this tick on
         int ready = 0;     // contiguous prefix received
         bool used = false;
         std::vector<BonePose> bones;
@@ -51,6 +63,7 @@ private:
     std::vector<uint32_t> last_tick_;
     std::vector<uint8_t> last_have_;
     uint32_t newest_ = 0, first_ = 0;
+    int last_gap_ = 0;
     bool any_ = false;
 };
 

@@ -45,6 +45,14 @@ Mat34 compose(const BonePose& p) {
     return m;
 }
 
+BonePose inverse(const BonePose& p) {
+    BonePose q;
+    q.r = glm::conjugate(p.r);
+    q.s = p.s != 0.0f ? 1.0f / p.s : 1.0f;
+    q.t = -(q.r * p.t) * q.s;
+    return q;
+}
+
 BonePose interpolate(const BonePose& a, const BonePose& b, float t) {
     BonePose p;
     glm::quat qb = b.r;

@@ -37,6 +37,8 @@ struct BonePose {
 
 BonePose decompose(const Mat34& m);
 Mat34 compose(const BonePose& p);
+// The inverse transform (rotation, translation, uniform scale).
+BonePose inverse(const BonePose& p);
 // Interpolation between two poses of a bone: slerp (shortest path) for the
 // rotation, lerp for translation and scale.
 BonePose interpolate(const BonePose& a, const BonePose& b, float t);

@@ -47,7 +47,8 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
                 continue;
             }
             int count = std::min(fit, k - first);
-            chunks_.emplace_back(uint16_t(p.instance), uint8_t(first), uint8_t(count), uint8_t(k), uint8_t(0));
+            const int show = std::clamp(p.show, k, e.bone_count);
+            chunks_.emplace_back(uint16_t(p.instance), uint8_t(first), uint8_t(count), uint8_t(k), uint8_t(show));
             records_.insert(records_.end(), src + size_t(first) * e.record_size,
                             src + size_t(first + count) * e.record_size);
             first += count;

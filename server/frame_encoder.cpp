@@ -70,6 +70,7 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
             }
         }
         uint8_t* out = frame_.bytes.data() + e.offset;
+        e.model = live || s.selection < 0 ? int(a.selections.size()) : s.selection;
         if (live) {
             for (int b = 0; b < e.bone_count; ++b)
                 encode_bone(decompose(live_copy_[a.skin.order[b]]), a.format, out + size_t(b) * e.record_size);

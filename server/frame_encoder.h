@@ -18,6 +18,7 @@ struct EncodedInstance {
     int record_size = 12;
     size_t offset = 0;      // into EncodedFrame::bytes
     bool valid = false;     // false: live instance with no pose pushed yet
+    int model = 0;          // cost model of the scheduler: ServerAsset::Segment index (selection, or live)
 };
 
 struct EncodedFrame {

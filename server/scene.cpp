@@ -24,13 +24,13 @@ static std::vector<uint8_t> read_file(const std::string& path) {
     return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
 }
 
-std::vector<HullStep> error_hull(const std::vector<LodError>& error) {
+std::vector<HullStep> error_hull(const std::vector<double>& err) {
     // Points (k, e(k)) for k = 1..B; lower convex hull from k = 1 (monotone chain).
     std::vector<HullStep> steps;
-    const int B = int(error.size());
+    const int B = int(err.size());
     if (B <= 1) return steps;
     std::vector<int> h;  // hull vertex ks
-    auto e = [&](int k) { return error[k - 1].rms; };
+    auto e = [&](int k) { return err[size_t(k - 1)]; };
     for (int k = 1; k <= B; ++k) {
         while (h.size() >= 2) {
             int a = h[h.size() - 2], b = h.back();
@@ -44,6 +44,131 @@ std::vector<HullStep> error_hull(const std::vector<LodError>& error) {
     for (size_t i = 1; i < h.size(); ++i)
         steps.push_back({h[i - 1], h[i], std::max(0.0, e(h[i - 1]) - e(h[i]))});
     return steps;
+}
+
+double ServerAsset::Segment::gap_at(int model, double g) const {
+    const auto& t = gap[size_t(model)];
+    const int last = kGapTable - 1;
+    if (g <= 1) return 0;
+    if (g >= last) return t[last] * (g / last) * (g / last);
+    const int i = int(g);
+    return t[size_t(i)] + (t[size_t(i + 1)] - t[size_t(i)]) * (g - i);
+}
+
+// Segments of the scheduler's cost model (scene.h): the hull of e(k)^2; per
+// segment and clip selection, the collapse error over the selection's frames
+// and the interpolation error over gaps of 2..16 frames, sampled at a quarter,
+// half and three quarters of the gap from up to 24 start frames per selection.
+static void build_segments(ServerAsset& a, const FrameSet& frames) {
+    const Character& c = a.character;
+    const ProgressiveSkin& s = a.skin;
+    const size_t M = a.selections.size() + 1;  // models: selections, then all
+    std::vector<double> mse;
+    for (const auto& e : s.error) mse.push_back(e.rms * e.rms);
+    std::vector<std::vector<double>> sel_mse(M);
+    for (size_t m = 0; m + 1 < M; ++m)
+        for (const auto& e : evaluate_error_table(c, s, sample_frames(c, {a.selections[m]}, 30.0))) sel_mse[m].push_back(e.rms * e.rms);
+    sel_mse[M - 1] = mse;
+    a.segments.clear();
+    ServerAsset::Segment root;
+    root.from = 0;
+    root.to = 1;
+    for (size_t m = 0; m < M; ++m) {
+        const double e1 = sel_mse[m].empty() ? 0.0 : std::sqrt(sel_mse[m][0]);
+        root.collapse.push_back((a.diagonal + e1) * (a.diagonal + e1));
+    }
+    a.segments.push_back(root);
+    for (const HullStep& h : error_hull(mse)) {
+        ServerAsset::Segment seg;
+        seg.from = h.from;
+        seg.to = h.to;
+        for (size_t m = 0; m < M; ++m)
+            seg.collapse.push_back(sel_mse[m].size() >= size_t(h.to)
+                                       ? std::max(0.0, sel_mse[m][size_t(h.from - 1)] - sel_mse[m][size_t(h.to - 1)])
+                                       : h.gain);
+        a.segments.push_back(seg);
+    }
+    const size_t S = a.segments.size(), V = c.vertex_count(), J = c.joint_count();
+    for (auto& seg : a.segments) seg.gap.assign(M, {});
+    std::vector<int> seg_of_joint(J, 0);
+    for (size_t g = 0; g < S; ++g)
+        for (int b = a.segments[g].from; b < a.segments[g].to; ++b) seg_of_joint[size_t(s.order[size_t(b)])] = int(g);
+
+    const int I = c.influences;
+    std::vector<Mat34> diff(J);
+    std::vector<double> sum(S * M), samples(M), all(M);
+    std::vector<size_t> sel_frames(M - 1, 0);
+    for (int x : frames.selection_of_frame)
+        if (x >= 0 && size_t(x) + 1 < M) ++sel_frames[size_t(x)];
+    for (int g = 2; g < ServerAsset::kGapTable; ++g) {
+        std::fill(sum.begin(), sum.end(), 0.0);
+        std::fill(samples.begin(), samples.end(), 0.0);
+        std::fill(all.begin(), all.end(), 0.0);
+        for (size_t f = 0; f + size_t(g) < frames.frame_count(); ++f) {
+            const int sel = frames.selection_of_frame[f];
+            if (sel < 0 || size_t(sel) + 1 >= M || sel != frames.selection_of_frame[f + size_t(g)]) continue;
+            if (f % std::max<size_t>(1, sel_frames[size_t(sel)] / 24) != 0) continue;
+            int prev_h = 0;
+            for (int q = 1; q <= 3; ++q) {
+                const int h = std::clamp(int(std::lround(g * q / 4.0)), 1, g - 1);
+                if (h == prev_h) continue;
+                prev_h = h;
+                const float alpha = float(h) / float(g);
+                for (size_t j = 0; j < J; ++j) {
+                    Mat34 mm = compose(interpolate(decompose(frames.frame(f)[j]), decompose(frames.frame(f + size_t(g))[j]), alpha));
+                    for (int x = 0; x < 12; ++x) diff[j].m[x] = mm.m[x] - frames.frame(f + size_t(h))[j].m[x];
+                }
+                double* out = sum.data() + size_t(sel) * S;
+                for (size_t v = 0; v < V; ++v) {
+                    const glm::vec3 p = c.positions[v];
+                    glm::vec3 err[8];
+                    int segs[8], n = 0;
+                    for (int k = 0; k < I && k < 8; ++k) {
+                        const float w = c.weights[v * size_t(I) + size_t(k)];
+                        if (w == 0.0f) continue;
+                        const int j = c.joints[v * size_t(I) + size_t(k)];
+                        const float* d = diff[size_t(j)].m;
+                        glm::vec3 e{d[0] * p.x + d[1] * p.y + d[2] * p.z + d[3], d[4] * p.x + d[5] * p.y + d[6] * p.z + d[7],
+                                    d[8] * p.x + d[9] * p.y + d[10] * p.z + d[11]};
+                        int at = 0;
+                        while (at < n && segs[at] != seg_of_joint[size_t(j)]) ++at;
+                        if (at == n) {
+                            segs[n] = seg_of_joint[size_t(j)];
+                            err[n++] = glm::vec3(0.0f);
+                        }
+                        err[at] += w * e;
+                    }
+                    glm::vec3 total(0.0f);
+                    for (int k = 0; k < n; ++k) {
+                        out[size_t(segs[k])] += double(glm::dot(err[k], err[k]));
+                        total += err[k];
+                    }
+                    all[size_t(sel)] += double(glm::dot(total, total));
+                }
+                samples[size_t(sel)] += double(V);
+            }
+        }
+        for (size_t m = 0; m + 1 < M; ++m) {
+            samples[M - 1] += samples[m];
+            all[M - 1] += all[m];
+            for (size_t q = 0; q < S; ++q) sum[(M - 1) * S + q] += sum[m * S + q];
+        }
+        for (size_t m = 0; m < M; ++m) {
+            // Errors of bones that move together add up: scale the segments'
+            // errors so that they sum to the error of all bones interpolated.
+            double parts = 0;
+            for (size_t q = 0; q < S; ++q) parts += sum[m * S + q];
+            const double k = parts > 0 ? all[m] / parts : 1.0;
+            for (size_t q = 0; q < S; ++q) sum[m * S + q] *= k;
+        }
+        for (size_t m = 0; m < M; ++m)
+            for (size_t q = 0; q < S; ++q) {
+                // Clips shorter than the gap: grow from the previous gap as g^2.
+                auto& t = a.segments[q].gap[m];
+                t[size_t(g)] = samples[m] > 0 ? sum[m * S + q] / samples[m] * double(g - 1) / double(g)
+                                              : t[size_t(g - 1)] * double(g * g) / double((g - 1) * (g - 1));
+            }
+    }
 }
 
 void finish_server_asset(ServerAsset& a) {
@@ -99,36 +224,7 @@ void finish_server_asset(ServerAsset& a) {
     }
     a.motion = n > 0 ? std::sqrt(sum / n) : 0.0;
 
-    // Interpolation error over gaps of g frames (what a client shows between
-    // two frames g ticks apart at 30 Hz), sampled at the middle of the gap.
-    a.gap_error.assign(ServerAsset::kGapTable, 0.0);
-    {
-        std::vector<Mat34> pal(c.joint_count());
-        std::vector<glm::vec3> ref(c.vertex_count()), got(c.vertex_count());
-        for (int g = 2; g < ServerAsset::kGapTable; ++g) {
-            double sq = 0, cnt = 0;
-            const size_t stride = std::max<size_t>(1, frames.frame_count() / 24);
-            for (size_t f = 0; f + size_t(g) < frames.frame_count(); f += stride) {
-                if (frames.selection_of_frame[f] != frames.selection_of_frame[f + g]) continue;
-                const int h = g / 2;
-                const float alpha = float(h) / float(g);
-                for (size_t j = 0; j < c.joint_count(); ++j)
-                    pal[j] = compose(interpolate(decompose(frames.frame(f)[j]), decompose(frames.frame(f + g)[j]), alpha));
-                reference_positions(c, frames, f + h, ref);
-                skinning_job(c, pal, got).run();
-                for (size_t v = 0; v < got.size(); ++v) {
-                    glm::vec3 d = got[v] - ref[v];
-                    sq += double(glm::dot(d, d));
-                }
-                cnt += double(got.size());
-            }
-            // Clips shorter than the gap: extrapolate from the motion.
-            a.gap_error[g] = cnt > 0 ? std::sqrt(sq / cnt) : a.gap_error[g - 1] + a.motion / 30.0;
-        }
-    }
-
-    a.hull = error_hull(s.error);
-    a.e1 = s.error.empty() ? 0.0 : s.error[0].rms;
+    build_segments(a, frames);
 }
 
 std::shared_ptr<ServerAsset> load_server_asset(const std::string& path) {

@@ -2,6 +2,7 @@
 // the file bytes the clients download) and instances (an asset played with a
 // clip, a time offset and a position, or driven by live poses).
 #pragma once
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -14,8 +15,8 @@
 
 namespace progskin::net {
 
-// One step of the lower convex hull of the error table: going from `from`
-// bones to `to` bones removes `gain` of RMS error (model units).
+// One step of a lower convex hull of an error table: going from `from`
+// bones to `to` bones removes `gain` of error.
 struct HullStep {
     int from = 0, to = 0;
     double gain = 0;
@@ -32,15 +33,29 @@ struct ServerAsset {
     RecordFormat format;
     double diagonal = 1;
     double motion = 0;               // RMS vertex motion per second (model units/s)
-    // gap_error[g]: RMS error (model units) of a pose interpolated (slerp per
-    // bone) half-way between two frames g/30 s apart, g = 0..kGapTable-1
-    // (gap_error[0] = gap_error[1] = 0 by definition: consecutive frames).
+    // The scheduler's cost model (scheduler.h), per segment of the skin:
+    // segment 0 is bone 0, segment s >= 1 the bones [from, to) of one step of
+    // the lower convex hull of the squared error table e(k)^2. Each table has
+    // one entry per clip selection (what an instance plays) and a last one
+    // over all of them (live poses).
     static constexpr int kGapTable = 17;
-    std::vector<double> gap_error;
+    struct Segment {
+        int from = 0, to = 1;
+        // Squared RMS error (model units^2) the segment removes when shown:
+        // e(from)^2 - e(to)^2 over the selection's frames (segment 0:
+        // (diagonal + e(1))^2, nothing shown).
+        std::vector<double> collapse;
+        // gap[m][g]: mean squared vertex error (model units^2) over an
+        // interpolation interval of g frames at 30 Hz when only this segment's
+        // bones are interpolated (slerp) between frames g apart and every
+        // other bone is exact; gap[m][0] = gap[m][1] = 0. Beyond the table it
+        // grows as g^2 (a linear drift).
+        std::vector<std::array<double, kGapTable>> gap;
+        double gap_at(int model, double g) const;
+    };
+    std::vector<Segment> segments;
     double bind_radius = 0;          // max |bind-space position|
     double max_scale = 1;            // of the skinning matrices over the training frames
-    std::vector<HullStep> hull;      // lower convex hull of e(k), k = 1..B
-    double e1 = 0;                   // e(1): RMS error with only bone 0
     int bone_count() const { return skin.bone_count(); }
 };
 
@@ -50,8 +65,8 @@ std::shared_ptr<ServerAsset> load_server_asset(const std::string& path);
 // Builds the derived fields (format, hull, motion...) of an asset whose
 // character and skin are set; used by load_server_asset and by tests.
 void finish_server_asset(ServerAsset& a);
-// The lower convex hull of an error table (used by the scheduler).
-std::vector<HullStep> error_hull(const std::vector<LodError>& error);
+// The lower convex hull of the points (k, e[k - 1]), k = 1..B, as steps.
+std::vector<HullStep> error_hull(const std::vector<double>& e);
 
 struct InstanceSpec {
     int asset = 0;              // index into the server's asset list

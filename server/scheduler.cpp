@@ -40,29 +40,31 @@ std::vector<float> compute_importance(const ViewSpec& view, const std::vector<In
     return imp;
 }
 
-// Extra error of an interpolation gap of g frames (30 Hz) over consecutive frames.
-static double gap_cost(const ServerAsset& a, double g) {
-    const int last = int(a.gap_error.size()) - 1;
-    if (last < 1) return a.motion / 30.0 * std::max(0.0, g - 1.0);
-    if (g >= last) return a.gap_error[last] + a.motion / 30.0 * (g - last);
-    int i = int(g);
-    double f = g - i;
-    return a.gap_error[i] + (a.gap_error[std::min(i + 1, last)] - a.gap_error[i]) * f;
-}
-
 void Scheduler::reset(size_t n) {
     state_.assign(n, State{});
     k_.assign(n, 0);
+    steps_.assign(n, {});
     heap_.clear();
     heap_.reserve(n * 2);
+    price_ = 0;
+}
+
+int Scheduler::shown(int instance, uint32_t tick) const {
+    const State& s = state_[size_t(instance)];
+    int k = 0;
+    while (k < int(s.bone_tick.size()) && s.bone_tick[size_t(k)] != 0 && int32_t(tick - s.bone_tick[size_t(k)]) <= HOLD_TICKS) ++k;
+    return k;
 }
 
 size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                          std::span<const float> importance, size_t budget, float tick_rate, std::vector<Pick>& out) {
     out.clear();
-    tick_ = frame.tick;
     const size_t n = frame.instances.size();
     if (state_.size() != n) reset(n);
+    auto by_importance = [&](const Pick& a, const Pick& b) {
+        return importance[a.instance] > importance[b.instance] ||
+               (importance[a.instance] == importance[b.instance] && a.instance < b.instance);
+    };
 
     // Fast path: every bone of every (important) instance fits.
     size_t full = 0;
@@ -72,99 +74,128 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         full += WireCost::kChunk + size_t(e.bone_count) * e.record_size;
     }
     if (full == 0) return 0;
-    auto by_importance = [&](const Pick& a, const Pick& b) {
-        return importance[a.instance] > importance[b.instance] ||
-               (importance[a.instance] == importance[b.instance] && a.instance < b.instance);
-    };
     if (WireCost::wire(full) <= budget) {
         for (size_t i = 0; i < n; ++i) {
             const auto& e = frame.instances[i];
-            if (e.valid && importance[i] > 0.0f) out.push_back({int(i), e.bone_count});
+            if (e.valid && importance[i] > 0.0f) out.push_back({int(i), e.bone_count, e.bone_count});
         }
         std::sort(out.begin(), out.end(), by_importance);
+        price_ = 0;
         return WireCost::wire(full);
     }
 
-    // Greedy over steps by importance-weighted error removed per byte.
+    // Per instance: segment values (scheduler.h), then the upper concave hull
+    // of the cumulative (bytes, value) from (0, 0).
+    const double to30 = 30.0 / std::max(1.0f, tick_rate);
     heap_.clear();
     std::fill(k_.begin(), k_.end(), 0);
     for (size_t i = 0; i < n; ++i) {
+        auto& hull = steps_[i];
+        hull.clear();
         const auto& e = frame.instances[i];
         if (!e.valid || importance[i] <= 0.0f) continue;
-        const ServerAsset& a = *assets[e.asset];
-        const State& s = state_[i];
-        // Skipping this tick widens the client's interpolation gap to age + 1 ticks.
-        const double gap = double(frame.tick - s.last_tick) * 30.0 / std::max(1.0f, tick_rate);
-        double stale = s.k_last > 0 ? a.skin.error[s.k_last - 1].rms + gap_cost(a, gap) : a.e1 + a.diagonal;
-        // Best first target among k = 1 and the hull vertices.
-        double best = -1;
-        int best_to = 1, best_h = 0;
-        double err = a.e1;
-        for (int h = -1; h < int(a.hull.size()); ++h) {
-            int to = h < 0 ? 1 : a.hull[h].to;
-            if (h >= 0) err -= a.hull[h].gain;
-            size_t bytes = WireCost::kChunk + size_t(to) * e.record_size;
-            double r = importance[i] * std::max(0.0, stale - err) / double(bytes);
-            if (r > best) {
-                best = r;
-                best_to = to;
-                best_h = h + 1;
+        const ServerAsset& a = *assets[size_t(e.asset)];
+        State& st = state_[i];
+        if (st.bone_tick.size() != size_t(a.bone_count())) st.bone_tick.assign(size_t(a.bone_count()), 0);
+        // Squared error in screen units, summed over the instance's vertices
+        // (the RMS of GUIDE.md §2 pools all vertices of all characters).
+        const double w = double(importance[i]) * double(importance[i]) * double(a.character.vertex_count());
+        size_t bytes = 0;
+        double value = 0;
+        hull.push_back({0, 0, 0.0});
+        for (size_t q = 0; q < a.segments.size(); ++q) {
+            const ServerAsset::Segment& seg = a.segments[q];
+            const size_t b = size_t(seg.to - seg.from) * size_t(e.record_size) + (q == 0 ? WireCost::kChunk : 0);
+            const int m = std::clamp(e.model, 0, int(seg.gap.size()) - 1);
+            const uint32_t last = st.bone_tick[size_t(seg.to - 1)];
+            const int32_t age = int32_t(frame.tick - last);
+            double v;
+            if (last != 0 && age > 0 && age < HOLD_TICKS) {
+                const double g = double(age) * to30;
+                v = g * (g + 1.0) * (seg.gap_at(m, g + 1.0) - seg.gap_at(m, g));
+            } else if (last != 0 && age <= 0) {
+                v = 0;  // already sent this tick
+            } else {
+                // Not shown: worth its collapse error for the period it would be refreshed at.
+                double p = 1;
+                while (p < HOLD_TICKS && w * p * (p + 1) * (seg.gap_at(m, p + 1) - seg.gap_at(m, p)) < price_ * double(b)) p += 1;
+                v = p * std::max(0.0, seg.collapse[size_t(m)] - seg.gap_at(m, p));
             }
+            bytes += b;
+            value += w * v;
+            HullPoint pt{seg.to, bytes, value};
+            // Upper concave hull: drop points under the chord to the new point.
+            while (hull.size() >= 2) {
+                const HullPoint& p0 = hull[hull.size() - 2];
+                const HullPoint& p1 = hull.back();
+                const double cross = double(p1.bytes - p0.bytes) * (pt.value - p0.value) -
+                                     double(pt.bytes - p0.bytes) * (p1.value - p0.value);
+                if (cross >= 0) hull.pop_back();
+                else break;
+            }
+            hull.push_back(pt);
         }
-        if (best <= 0) continue;
-        heap_.push_back({best, int(i), best_to, best_h, WireCost::kChunk + size_t(best_to) * e.record_size});
-        std::push_heap(heap_.begin(), heap_.end());
+        if (hull.size() >= 2 && hull[1].value > hull[0].value) {
+            heap_.push_back({(hull[1].value - hull[0].value) / double(hull[1].bytes), int(i), 1});
+            std::push_heap(heap_.begin(), heap_.end());
+        }
     }
+    // Greedy over the instances' hull steps by value per byte.
     size_t payload = 0;
+    double price = 0;
     while (!heap_.empty()) {
         std::pop_heap(heap_.begin(), heap_.end());
-        Step st = heap_.back();
+        const Step s = heap_.back();
         heap_.pop_back();
-        const auto& e = frame.instances[st.instance];
-        const ServerAsset& a = *assets[e.asset];
-        int from = k_[st.instance];
-        size_t bytes = st.bytes;
-        int to = st.to;
+        const auto& e = frame.instances[size_t(s.instance)];
+        const auto& hull = steps_[size_t(s.instance)];
+        const HullPoint& from = hull[size_t(s.step - 1)];
+        const HullPoint& to = hull[size_t(s.step)];
+        size_t bytes = to.bytes - from.bytes;
         if (WireCost::wire(payload + bytes) > budget) {
+            if (price == 0) price = s.ratio;
             // Take as many bones of this step as fit, then stop this instance.
-            size_t fixed = from == 0 ? WireCost::kChunk : 0;
-            while (to > from + 1 && WireCost::wire(payload + fixed + size_t(to - from) * e.record_size) > budget) --to;
-            bytes = fixed + size_t(to - from) * e.record_size;
-            if (to <= from || WireCost::wire(payload + bytes) > budget) continue;
+            const size_t fixed = from.k == 0 ? WireCost::kChunk : 0;
+            int k = to.k;
+            while (k > from.k + 1 && WireCost::wire(payload + fixed + size_t(k - from.k) * size_t(e.record_size)) > budget) --k;
+            bytes = fixed + size_t(k - from.k) * size_t(e.record_size);
+            if (k <= from.k || WireCost::wire(payload + bytes) > budget) continue;
             payload += bytes;
-            k_[st.instance] = to;
+            k_[size_t(s.instance)] = k;
             continue;
         }
         payload += bytes;
-        k_[st.instance] = to;
-        if (st.hull_index < int(a.hull.size())) {
-            const HullStep& h = a.hull[st.hull_index];
-            size_t b = size_t(h.to - h.from) * e.record_size;
-            double r = importance[st.instance] * h.gain / double(b);
+        k_[size_t(s.instance)] = to.k;
+        if (size_t(s.step) + 1 < hull.size()) {
+            const HullPoint& nx = hull[size_t(s.step) + 1];
+            const double r = (nx.value - to.value) / double(nx.bytes - to.bytes);
             if (r > 0) {
-                heap_.push_back({r, st.instance, h.to, st.hull_index + 1, b});
+                heap_.push_back({r, s.instance, s.step + 1});
                 std::push_heap(heap_.begin(), heap_.end());
             }
         }
     }
+    // The price of a byte, smoothed over about ten ticks (the budget per tick varies).
+    price_ = 0.9 * price_ + 0.1 * price;
     for (size_t i = 0; i < n; ++i)
-        if (k_[i] > 0) out.push_back({int(i), k_[i]});
+        if (k_[i] > 0) {
+            // Shown from now on: this tick's bones and those refreshed within the hold.
+            const auto& bt = state_[i].bone_tick;
+            int show = k_[i];
+            while (show < int(bt.size()) && bt[size_t(show)] != 0 && int32_t(frame.tick - bt[size_t(show)]) < HOLD_TICKS) ++show;
+            out.push_back({int(i), k_[i], show});
+        }
     std::sort(out.begin(), out.end(), by_importance);
-    // Among instances of one asset sent this tick, the strictly more important ones get
-    // the larger k (same bytes: same record size, one chunk each).
-    for (size_t i = 0; i < out.size(); ++i)
-        for (size_t j = i + 1; j < out.size(); ++j)
-            if (frame.instances[out[i].instance].asset == frame.instances[out[j].instance].asset && out[j].k > out[i].k &&
-                importance[out[i].instance] > importance[out[j].instance])
-                std::swap(out[i].k, out[j].k);
     return payload ? WireCost::wire(payload) : 0;
 }
 
 void Scheduler::sent(std::span<const Pick> picks, uint32_t tick) {
     for (const Pick& p : picks) {
-        if (size_t(p.instance) >= state_.size()) state_.resize(size_t(p.instance) + 1);
-        state_[p.instance].k_last = p.k;
-        state_[p.instance].last_tick = tick;
+        if (size_t(p.instance) >= state_.size()) continue;
+        State& s = state_[size_t(p.instance)];
+        s.k_last = p.k;
+        if (s.bone_tick.size() < size_t(p.k)) s.bone_tick.resize(size_t(p.k), 0);
+        for (int b = 0; b < p.k; ++b) s.bone_tick[size_t(b)] = tick;
     }
 }
 

@@ -2,19 +2,25 @@
 // (GUIDE.md §4): the step that removes the most importance-weighted error per
 // wire byte goes first, until the client's byte budget for the tick is spent.
 //
-// Error model of an instance on the client: a fresh frame with k bones shows
-// e(k) (the skin's RMS error table, along its lower convex hull); frames sent
-// g ticks apart show in between about e(k_last) + gap_error(g) (the client
-// interpolates; ServerAsset::gap_error, extended by the motion beyond 16
-// frames). So the first step of an instance (0 -> k') is worth
-// importance * (e(k_last) + gap_error(age) - e(k')) and every
-// further hull step k -> k'' importance * (e(k) - e(k'')). Bytes per step:
-// record_size per bone + a 6-byte chunk header for the first step; datagram
-// overheads are charged by WireCost. Among instances of one asset sent in a
-// tick, k is then made non-increasing in importance (swapping k keeps the
-// bytes). Cost: O(S log S) per client and tick for S
-// steps taken; O(instances) when everything fits (fast path). No allocation
-// after warm-up.
+// Cost model (docs/protocol.md "Scheduling"). The client shows every bone
+// refreshed within the last HOLD_TICKS ticks, interpolating each bone between
+// its own frames, so a bone need not travel every tick: the scheduler keeps,
+// per instance, the tick each bone was last sent and values each segment of
+// the skin (ServerAsset::Segment: bone 0, then the steps of the hull of
+// e(k)^2) in importance^2 x squared error per tick:
+//   - a shown segment (refreshed a ticks ago) is worth refreshing now by
+//     V = a (a + 1) (G(a + 1) - G(a)), G its mean interpolation error over a
+//     gap: the saving of a refresh period of a instead of a + 1 ticks, per
+//     byte the price a period-a schedule pays (Lagrangian condition);
+//   - a segment not shown (never sent, or past the hold) is worth
+//     V = p (C - G(p)), C its collapse error and p the refresh period it would
+//     then get at the last tick's price of a byte.
+// A tick sends a prefix of the progressive order, so an instance's steps are
+// the upper concave hull of its cumulative (bytes, value) over segments; the
+// greedy takes steps across instances by value per byte (record_size per bone
+// + a 6-byte chunk header for the first step; datagram overheads are charged
+// by WireCost). Cost: O(instances x segments + S log S) per client and tick;
+// O(instances) when everything fits (fast path). No allocation after warm-up.
 #pragma once
 #include <cstdint>
 #include <span>
@@ -49,7 +55,8 @@ std::vector<float> compute_importance(const ViewSpec& view, const std::vector<In
 
 struct Pick {
     int instance = 0;
-    int k = 0;
+    int k = 0;     // bones 0..k-1 sent this tick
+    int show = 0;  // bones the client shows from this tick on (>= k; 0: k)
 };
 
 class Scheduler {
@@ -63,24 +70,32 @@ public:
     void sent(std::span<const Pick> picks, uint32_t tick);
 
     int last_k(int instance) const { return state_[instance].k_last; }
+    // Bones the client shows of an instance at `tick` (refreshed within HOLD_TICKS).
+    int shown(int instance, uint32_t tick) const;
+    // The price of a byte at the last tick (0 when everything fitted).
+    double price() const { return price_; }
 
 private:
     struct State {
-        int k_last = 0;          // bones of the last frame sent (0: never)
-        uint32_t last_tick = 0;
+        int k_last = 0;                     // bones of the last frame sent (0: never)
+        std::vector<uint32_t> bone_tick;    // per progressive bone, tick last sent (0: never)
     };
     struct Step {
         double ratio;
         int instance;
-        int to;
-        int hull_index;  // next hull step index after taking this
-        size_t bytes;
+        int step;    // index into steps_ of the instance
         bool operator<(const Step& o) const { return ratio < o.ratio; }
+    };
+    struct HullPoint {
+        int k;           // bones after this step
+        size_t bytes;    // cumulative bytes
+        double value;    // cumulative value
     };
     std::vector<State> state_;
     std::vector<int> k_;
+    std::vector<std::vector<HullPoint>> steps_;  // per instance: upper hull of (bytes, value), from (0, 0)
     std::vector<Step> heap_;
-    uint32_t tick_ = 0;
+    double price_ = 0;
 };
 
 }  // namespace progskin::net

@@ -30,13 +30,14 @@ std::vector<std::shared_ptr<ServerAsset>>& shared_assets() {
 
 struct Pipeline {
     std::vector<std::shared_ptr<ServerAsset>> assets = shared_assets();
-    std::vector<InstanceSpec> specs = crowd_layout(assets, 4);
-    FrameEncoder enc{assets, specs, 30.0f};
+    std::vector<InstanceSpec> specs;
+    FrameEncoder enc;
     Scheduler sched;
     DatagramPacker packer;
     std::vector<std::unique_ptr<InstanceView>> views;
     uint32_t seq = 0;
-    Pipeline(int blend = 8) {
+    explicit Pipeline(int blend = 8, std::vector<InstanceSpec> layout = crowd_layout(shared_assets(), 4))
+        : specs(std::move(layout)), enc(assets, specs, 30.0f) {
         for (const auto& s : specs) {
             ClipInfo ci;
             ci.selection = assets[s.asset]->selections[s.selection];
@@ -62,7 +63,7 @@ struct Pipeline {
             const uint8_t* rec = fr->records()->data();
             for (const wire::Chunk* c : *fr->chunks()) {
                 InstanceView& v = *views[c->instance()];
-                EXPECT_TRUE(v.buffer().add_chunk(fr->tick(), c->first(), c->count(), c->total(), rec));
+                EXPECT_TRUE(v.buffer().add_chunk(fr->tick(), c->first(), c->count(), c->total(), rec, c->show()));
                 rec += size_t(c->count()) * v.asset().format.size();
             }
         }
@@ -157,10 +158,13 @@ TEST(NetPipeline, SwitchingBonesBlendsWithoutPops) {
     EXPECT_LT(soft, hard * 0.5);
 }
 
-// GUIDE.md §4: within every tick, of two instances of the same asset the more
-// important one never gets fewer bones. Deterministic (no sockets, no timing).
+// GUIDE.md §4: within every tick, of two instances of the same asset playing
+// the same clip, the more important one is never shown fewer bones.
+// Deterministic (no sockets, no timing).
 TEST(NetPipeline, MoreImportantInstancesGetAtLeastAsManyBonesEveryTick) {
-    Pipeline p;
+    std::vector<InstanceSpec> layout = crowd_layout(shared_assets(), 6);
+    for (size_t i = 0; i < layout.size(); ++i) layout[i].selection = 0;  // Fox: Survey; CesiumMan: its clips
+    Pipeline p(8, layout);
     std::vector<float> imp(p.specs.size());
     for (size_t i = 0; i < imp.size(); ++i) imp[i] = 1.0f / float(i + 1);  // farther along the line
     int compared = 0;
@@ -172,9 +176,10 @@ TEST(NetPipeline, MoreImportantInstancesGetAtLeastAsManyBonesEveryTick) {
             p.sched.sent(picks, t);
             for (const Pick& a : picks)
                 for (const Pick& b : picks) {
-                    if (p.specs[a.instance].asset != p.specs[b.instance].asset || imp[a.instance] <= imp[b.instance])
+                    if (p.specs[a.instance].asset != p.specs[b.instance].asset ||
+                        p.specs[a.instance].selection != p.specs[b.instance].selection || imp[a.instance] <= imp[b.instance])
                         continue;
-                    EXPECT_GE(a.k, b.k) << "tick " << t << " budget " << budget << ": instance " << a.instance
+                    EXPECT_GE(a.show, b.show) << "tick " << t << " budget " << budget << ": instance " << a.instance
                                         << " is more important than " << b.instance;
                     ++compared;
                 }
