@@ -187,3 +187,47 @@ TEST(NetPipeline, MoreImportantInstancesGetAtLeastAsManyBonesEveryTick) {
     }
     EXPECT_GT(compared, 50);
 }
+
+// Per-bone refresh (scheduler.h): at half the full rate the server sends a
+// shorter prefix on most ticks and refreshes deep bones less often, and the
+// client keeps showing them (Chunk.show), interpolated between their own frames.
+TEST(NetPipeline, DeepBonesRefreshedLessOftenStayShown) {
+    Pipeline p;
+    const size_t n = p.specs.size();
+    std::vector<float> imp(n, 1.0f);
+    size_t full = 0;
+    for (const auto& s : p.specs) full += WireCost::kChunk + size_t(p.assets[s.asset]->bone_count()) * p.assets[s.asset]->format.size();
+    const size_t budget = WireCost::wire(full) / 2;
+    std::vector<double> sent(n, 0), picked(n, 0), displayed(n, 0), frames(n, 0);
+    const int delay = 8;
+    for (uint32_t t = 1; t <= 150; ++t) {
+        const EncodedFrame& f = p.enc.encode(t);
+        std::vector<Pick> picks;
+        p.sched.select(f, p.assets, imp, budget, 30.0f, picks);
+        std::vector<Pick> forced = picks;
+        p.tick(t, 0, imp, &forced);  // the same picks through packer and client
+        for (const Pick& k : picks) {
+            EXPECT_GE(k.show, k.k);
+            EXPECT_LE(k.show, p.assets[p.specs[k.instance].asset]->bone_count());
+            if (t > 40) {
+                sent[size_t(k.instance)] += k.k;
+                picked[size_t(k.instance)] += 1;
+            }
+        }
+        if (t > 40)
+            for (size_t i = 0; i < n; ++i)
+                if (p.views[i]->display(double(t - delay))) {
+                    displayed[i] += p.views[i]->target_bones();
+                    frames[i] += 1;
+                }
+    }
+    double more = 0;
+    for (size_t i = 0; i < n; ++i) {
+        ASSERT_GT(picked[i], 0) << "instance " << i;
+        ASSERT_GT(frames[i], 0) << "instance " << i;
+        std::printf("instance %zu: %.1f bones per update sent, %.1f displayed\n", i, sent[i] / picked[i], displayed[i] / frames[i]);
+        EXPECT_GE(displayed[i] / frames[i] + 0.5, sent[i] / picked[i]) << "instance " << i;
+        more += displayed[i] / frames[i] - sent[i] / picked[i];
+    }
+    EXPECT_GT(more / double(n), 0.5);  // deep bones stay shown between their refreshes (old scheduler: <= 0)
+}
