@@ -169,6 +169,15 @@ static void build_segments(ServerAsset& a, const FrameSet& frames) {
                                               : t[size_t(g - 1)] * double(g * g) / double((g - 1) * (g - 1));
             }
     }
+    for (auto& seg : a.segments) {
+        seg.refresh.assign(M, {});
+        seg.refresh_max.assign(M, {});
+        for (size_t m = 0; m < M; ++m)
+            for (int x = 1; x < ServerAsset::kGapTable; ++x) {
+                seg.refresh[m][size_t(x)] = x * (x + 1.0) * (seg.gap_at(int(m), x + 1.0) - seg.gap_at(int(m), x));
+                seg.refresh_max[m][size_t(x)] = std::max(seg.refresh[m][size_t(x)], x > 1 ? seg.refresh_max[m][size_t(x - 1)] : 0.0);
+            }
+    }
 }
 
 void finish_server_asset(ServerAsset& a) {

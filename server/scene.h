@@ -52,6 +52,10 @@ struct ServerAsset {
         // grows as g^2 (a linear drift).
         std::vector<std::array<double, kGapTable>> gap;
         double gap_at(int model, double g) const;
+        // refresh[m][a] = a (a + 1) (G(a + 1) - G(a)) for a = 1..kGapTable-1
+        // (scheduler.h), and its running maximum over 1..a (for the search of
+        // the period a price affords); [0] unused.
+        std::vector<std::array<double, kGapTable>> refresh, refresh_max;
     };
     std::vector<Segment> segments;
     double bind_radius = 0;          // max |bind-space position|

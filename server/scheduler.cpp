@@ -40,6 +40,8 @@ std::vector<float> compute_importance(const ViewSpec& view, const std::vector<In
     return imp;
 }
 
+static_assert(HOLD_TICKS < ServerAsset::kGapTable, "refresh tables cover every age below the hold");
+
 void Scheduler::reset(size_t n) {
     state_.assign(n, State{});
     k_.assign(n, 0);
@@ -112,14 +114,22 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
             double v;
             if (last != 0 && age > 0 && age < HOLD_TICKS) {
                 const double g = double(age) * to30;
-                v = g * (g + 1.0) * (seg.gap_at(m, g + 1.0) - seg.gap_at(m, g));
+                if (g == double(age)) v = seg.refresh[size_t(m)][size_t(age)];
+                else v = g * (g + 1.0) * (seg.gap_at(m, g + 1.0) - seg.gap_at(m, g));
             } else if (last != 0 && age <= 0) {
                 v = 0;  // already sent this tick
             } else {
-                // Not shown: worth its collapse error for the period it would be refreshed at.
-                double p = 1;
-                while (p < HOLD_TICKS && w * p * (p + 1) * (seg.gap_at(m, p + 1) - seg.gap_at(m, p)) < price_ * double(b)) p += 1;
-                v = p * std::max(0.0, seg.collapse[size_t(m)] - seg.gap_at(m, p));
+                // Not shown: worth its collapse error for the period it would be
+                // refreshed at, the first p whose refresh value reaches the price.
+                const auto& rmax = seg.refresh_max[size_t(m)];
+                const double x = price_ * double(b) / w;
+                int lo = 1, hi = HOLD_TICKS;
+                while (lo < hi) {
+                    const int mid = (lo + hi) / 2;
+                    if (rmax[size_t(mid)] >= x) hi = mid;
+                    else lo = mid + 1;
+                }
+                v = lo * std::max(0.0, seg.collapse[size_t(m)] - seg.gap[size_t(m)][size_t(lo)]);
             }
             bytes += b;
             value += w * v;
