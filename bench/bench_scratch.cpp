@@ -3,8 +3,9 @@
 // k = 2, 4, 8, 16, 32 next to Dem Bones (issue 4) with the ratio per cell.
 //
 //   bench_scratch --benchmark_filter=Build      # build time
-//   bench_scratch --report [REST_FRAME|-1] [auto|collapse|top-down]
+//   bench_scratch --report [REST_FRAME|-1] [auto|collapse|top-down|hybrid] [NAME]
 //                                               # the table in docs/performance.md
+//                                               # (NAME: only inputs whose name contains it)
 #include <benchmark/benchmark.h>
 
 #include <chrono>
@@ -69,7 +70,7 @@ struct Row {
     double dem[5];  // Dem Bones RMS % at k = 2, 4, 8, 16, 32 (issue 4)
 };
 
-int report(int rest_frame, ScratchMethod method) {
+int report(int rest_frame, ScratchMethod method, const char* only) {
     const Row rows[] = {
         {"Fox (Survey)", "Fox.glb", "Survey", {1.76, 0.395, 0.098, 0.035, 0.033}},
         {"CesiumMan (all clips)", "CesiumMan.glb", "all", {3.95, 1.64, 0.338, 0.153, 0.066}},
@@ -80,6 +81,7 @@ int report(int rest_frame, ScratchMethod method) {
                 rest_frame < 0 ? "per-vertex mean" : ("frame " + std::to_string(rest_frame)).c_str());
     std::printf("| input | frames | build s | k=2 | k=4 | k=8 | k=16 | k=32 |\n|---|---|---|---|---|---|---|---|\n");
     for (const Row& r : rows) {
+        if (only && !std::strstr(r.name, only)) continue;
         VertexAnimationOptions vo;
         vo.fps = 30;
         vo.clip = r.clip;
@@ -106,14 +108,15 @@ int report(int rest_frame, ScratchMethod method) {
 }  // namespace
 
 int main(int argc, char** argv) {
-    // --report [REST_FRAME|-1] [auto|collapse|top-down]
+    // --report [REST_FRAME|-1] [auto|collapse|top-down|hybrid] [NAME]
     for (int i = 1; i < argc; ++i)
         if (!std::strcmp(argv[i], "--report")) {
             const int rest = (i + 1 < argc) ? std::atoi(argv[i + 1]) : -1;
             ScratchMethod m = ScratchMethod::Auto;
             if (i + 2 < argc && !std::strcmp(argv[i + 2], "collapse")) m = ScratchMethod::Collapse;
             if (i + 2 < argc && !std::strcmp(argv[i + 2], "top-down")) m = ScratchMethod::TopDown;
-            return report(rest, m);
+            if (i + 2 < argc && !std::strcmp(argv[i + 2], "hybrid")) m = ScratchMethod::Hybrid;
+            return report(rest, m, i + 3 < argc ? argv[i + 3] : nullptr);
         }
     benchmark::Initialize(&argc, argv);
     benchmark::RunSpecifiedBenchmarks();

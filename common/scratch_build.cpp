@@ -85,6 +85,19 @@ struct Bone {
 
 class Builder {
 public:
+    // A new bone's share alpha of a vertex's parent weight and the error
+    // decrease it gives.
+    struct Share {
+        double alpha = 0, gain = 0;
+    };
+    // A candidate bone: motion Mk, parent p, shares alpha of the vertices S.
+    struct Proposal {
+        int p = 0;
+        std::vector<M34> Mk;
+        std::vector<size_t> S;
+        std::vector<Share> sh;
+        double gain = 0;
+    };
     Builder(const VertexAnimation& an, const ScratchOptions& opt) : an_(&an), opt_(opt) {
         V_ = an.vertex_count;
         F_ = an.frame_count;
@@ -141,6 +154,16 @@ public:
     bool add_bone() {
         const double total = total_error();
         if (!(total > 0)) return false;
+        size_t seed = 0;
+        std::optional<Proposal> c = grown_proposal(total, seed);
+        if (!c) return false;
+        commit(std::move(*c), seed);
+        return true;
+    }
+
+    // The region-grown bone from the first of the 6 worst-fitted vertices
+    // that gives a useful bone (its seed in `seed`).
+    std::optional<Proposal> grown_proposal(double total, size_t& seed) const {
         std::vector<size_t> seeds(V_);
         std::iota(seeds.begin(), seeds.end(), 0);
         const size_t tries = std::min<size_t>(V_, 6);
@@ -148,9 +171,78 @@ public:
                           [&](size_t a, size_t b) { return E_[a] > E_[b]; });
         for (size_t t = 0; t < tries; ++t) {
             if (!(E_[seeds[t]] > 1e-12 * total)) break;
-            if (try_seed(seeds[t], total)) return true;
+            Proposal c = seed_proposal(seeds[t]);
+            if (c.gain > 1e-7 * total) {
+                seed = seeds[t];
+                return c;
+            }
         }
-        return false;
+        return std::nullopt;
+    }
+
+    // One bone added top-down, the best (largest error decrease) of the
+    // region-grown bone from the worst vertex and bones starting from the
+    // given motions (a full-detail decomposition's bones; the 3 most promising
+    // are tried); false when none gives a useful bone.
+    bool add_bone_from(const std::vector<std::vector<M34>>& motions) {
+        const double total = total_error();
+        if (!(total > 0)) return false;
+        std::optional<Proposal> best;
+        size_t best_seed = 0;
+        // Screening: each motion's region (the vertices it predicts better
+        // than the skin does by half) and rough gain sum (E_v - e_v) there;
+        // the share alternation runs for the 3 best.
+        struct Screen {
+            double rough = 0;
+            size_t m = 0;
+        };
+        std::vector<Screen> screen;
+        for (size_t m = 0; m < motions.size(); ++m) {
+            Screen sc{0, m};
+            size_t count = 0;
+            for (size_t v = 0; v < V_; ++v) {
+                const double e = fit_error(v, motions[m]);
+                if (e < 0.5 * E_[v]) {
+                    sc.rough += E_[v] - e;
+                    ++count;
+                }
+            }
+            if (count >= 3) screen.push_back(sc);
+        }
+        const size_t keep = std::min<size_t>(screen.size(), 3);
+        std::partial_sort(screen.begin(), screen.begin() + long(keep), screen.end(),
+                          [](const Screen& a, const Screen& b) { return a.rough > b.rough; });
+        std::vector<double> eT(V_);
+        for (size_t i = 0; i < keep; ++i) {
+            const std::vector<M34>& T = motions[screen[i].m];
+            std::vector<size_t> region;
+            size_t seed = 0;
+            double seed_gain = -1;
+            for (size_t v = 0; v < V_; ++v) {
+                eT[v] = fit_error(v, T);
+                if (eT[v] < 0.5 * E_[v]) {
+                    region.push_back(v);
+                    if (E_[v] - eT[v] > seed_gain) {
+                        seed_gain = E_[v] - eT[v];
+                        seed = v;
+                    }
+                }
+            }
+            Proposal c = propose(T, region, eT);
+            if (!best || c.gain > best->gain) {
+                best = std::move(c);
+                best_seed = seed;
+            }
+        }
+        size_t seed = 0;
+        std::optional<Proposal> grown = grown_proposal(total, seed);
+        if (grown && (!best || grown->gain > best->gain)) {
+            best = std::move(grown);
+            best_seed = seed;
+        }
+        if (!best || !(best->gain > 1e-7 * total)) return false;
+        commit(std::move(*best), best_seed);
+        return true;
     }
 
     int bone_count() const { return int(bones_.size()); }
@@ -205,8 +297,12 @@ public:
     void refine(int sweeps, const std::function<void()>& tick);
     void refine_transforms(int first_bone);
     void refine_weights_full();
-    // Multi-level refit of the per-frame transforms (see below).
-    void multilevel_refit(std::vector<M34>& corrections, int sweeps, bool fit_corrections);
+    // Multi-level weight and bind update (see below).
+    void multilevel_weights(const std::vector<int>& levels, const std::vector<double>& lam,
+                            const std::vector<std::vector<int>>& up, const std::vector<std::vector<Eigen::Matrix4d>>& K);
+    // Multi-level refit of transforms, corrections, weights (see below).
+    void multilevel_refit(std::vector<M34>& corrections, int sweeps, bool fit_corrections, bool fit_weights,
+                          const std::vector<int>& extra_levels = {});
 
 private:
     // Current reconstruction and errors from scratch.
@@ -242,9 +338,6 @@ private:
 
     // Least-squares share alpha of vertex v's parent weight w_p moved to a bone
     // moving with Mk, and the error decrease it gives.
-    struct Share {
-        double alpha = 0, gain = 0;
-    };
     Share solve_share(size_t v, int p, double wp, const std::vector<M34>& Mk) const {
         const std::vector<M34>& Mp = bones_[size_t(p)].M;
         double num = 0, den = 0;
@@ -263,7 +356,8 @@ private:
         return s;
     }
 
-    bool try_seed(size_t seed, double total) {
+    // A bone grown from a seed vertex (see grown_proposal).
+    Proposal seed_proposal(size_t seed) const {
         // Initial region: the seed's nearest vertices in the bind pose.
         const size_t n0 = std::min(V_, std::clamp<size_t>(V_ / size_t(4 * std::max(1, opt_.max_bones)), 8, 200));
         std::vector<size_t> idx(V_);
@@ -289,6 +383,13 @@ private:
             if (next.size() < 3 || next == region) break;
             region = std::move(next);
         }
+        return propose(std::move(T), region, eT);
+    }
+
+    // The share/transform alternation for a new bone starting from motion T,
+    // with the region (vertices T predicts well, eT their errors under T)
+    // choosing the parent.
+    Proposal propose(std::vector<M34> T, const std::vector<size_t>& region, const std::vector<double>& eT) const {
         // Parent: the bone the region's improvement draws its weight from.
         std::vector<double> score(bones_.size(), 0.0);
         for (size_t v : region)
@@ -324,8 +425,20 @@ private:
             sh[i] = solve_share(S[i], p, weight_on(S[i], p), Mk);
             gain += sh[i].gain;
         }
-        if (!(gain > 1e-7 * total)) return false;
-        // Commit.
+        Proposal out;
+        out.p = p;
+        out.Mk = std::move(Mk);
+        out.S = std::move(S);
+        out.sh = std::move(sh);
+        out.gain = gain;
+        return out;
+    }
+
+    void commit(Proposal&& c, size_t seed) {
+        const int p = c.p;
+        std::vector<M34>& Mk = c.Mk;
+        const std::vector<size_t>& S = c.S;
+        const std::vector<Share>& sh = c.sh;
         const int k = int(bones_.size());
         Bone b;
         b.parent = p;
@@ -353,7 +466,6 @@ private:
         bones_.push_back(std::move(b));
         for (size_t i = 0; i < S.size(); ++i)
             if (sh[i].alpha > 0) recompute_vertex(S[i]);
-        return true;
     }
 
     const VertexAnimation* an_;
@@ -746,13 +858,21 @@ void Builder::permute(const std::vector<int>& order) {
 // the start: relative errors), minimised by Gauss-Seidel over bones: each
 // bone's per-frame weighted Procrustes against the other owners' residual at
 // all the levels where it is active (exact minimiser of its sub-problem, so
-// the objective never rises). Memory: one reconstruction per level, O(V*F).
-void Builder::multilevel_refit(std::vector<M34>& C, int sweeps, bool fit_corrections) {
+// the objective never rises). The levels: 2, 3, 4, 6, 8, 12, 16, 24, 32, ...
+// below B, B, and extra_levels (those where an earlier refit's table rose).
+// With fit_weights each sweep ends with multilevel_weights (weights and bind
+// positions for the same objective). Memory: one reconstruction per level,
+// O(V*F).
+void Builder::multilevel_refit(std::vector<M34>& C, int sweeps, bool fit_corrections, bool fit_weights,
+                               const std::vector<int>& extra_levels) {
     const int B = bone_count();
     if (B < 2 || sweeps <= 0) return;
     std::vector<int> levels;
     for (int L : {2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128})
         if (L < B) levels.push_back(L);
+    for (int L : extra_levels)
+        if (L >= 2 && L < B && std::find(levels.begin(), levels.end(), L) == levels.end()) levels.push_back(L);
+    std::sort(levels.begin(), levels.end());
     levels.push_back(B);
     const size_t NL = levels.size();
     using V4 = Eigen::Vector4d;
@@ -852,105 +972,237 @@ void Builder::multilevel_refit(std::vector<M34>& C, int sweeps, bool fit_correct
                 M[f] = Mn;
             }
         }
-        if (!fit_corrections) continue;
-        // Corrections: bone b's C_b (affine, 12 unknowns) acts at every level
-        // L <= b as G_L(f) C_b y_v, G_L(f) = M_o(f) K_L[parent(b)] (o the owner
-        // at level L), y_v = sum over v's slot bones b' in b's subtree of
-        // w K_{b'<-b} [p_v; 1] (corrections below b). Linear least squares.
-        std::vector<M4> Kb(static_cast<size_t>(B));  // corrections below the current b
-        std::vector<char> in_sub(static_cast<size_t>(B));
-        for (int b = 1; b < B; ++b) {
-            std::fill(in_sub.begin(), in_sub.end(), 0);
-            std::vector<int> stack{b};
-            Kb[size_t(b)].setIdentity();
-            while (!stack.empty()) {
-                const int x = stack.back();
-                stack.pop_back();
-                in_sub[size_t(x)] = 1;
-                for (int c : kids[size_t(x)]) {
-                    Kb[size_t(c)] = Kb[size_t(x)] * hom(C[size_t(c)]);
-                    stack.push_back(c);
-                }
-            }
-            std::vector<uint32_t> vs;
-            std::vector<V4> ys;
-            for (size_t v = 0; v < V_; ++v) {
-                V4 y = V4::Zero();
-                bool any = false;
-                const V4 ph(P_[v].x(), P_[v].y(), P_[v].z(), 1.0);
-                for (int i = 0; i < nslot_[v]; ++i) {
-                    const int bb = slot_bone_[v][i];
-                    if (!in_sub[size_t(bb)]) continue;
-                    y += slot_w_[v][i] * (Kb[size_t(bb)] * ph);
-                    any = true;
-                }
-                if (any) {
-                    vs.push_back(uint32_t(v));
-                    ys.push_back(y);
-                }
-            }
-            if (vs.empty()) continue;
-            Eigen::Matrix4d Y = Eigen::Matrix4d::Zero();
-            for (const V4& y : ys) Y += y * y.transpose();
-            Eigen::Matrix<double, 12, 12> N = Eigen::Matrix<double, 12, 12>::Zero();
-            Eigen::Matrix<double, 3, 4> Rm = Eigen::Matrix<double, 3, 4>::Zero();
-            const int p = bones_[size_t(b)].parent;
-            std::vector<size_t> lis;
-            for (size_t li = 0; li < NL; ++li) {
-                if (levels[li] > b) continue;
-                lis.push_back(li);
-                const int o = up[li][size_t(p)];
-                const M4& Kp = K[li][size_t(p)];
-                M3 Q = M3::Zero();
-                const V3* Rl = &R[li * V_ * F_];
-                for (size_t f = 0; f < F_; ++f) {
-                    const M34 G = bones_[size_t(o)].M[f] * Kp;
-                    const M3 Af = G.leftCols<3>();
-                    const V3 tf = G.col(3);
-                    Q += Af.transpose() * Af;
-                    Eigen::Matrix<double, 3, 4> Pf = Eigen::Matrix<double, 3, 4>::Zero();
-                    for (size_t i = 0; i < vs.size(); ++i) {
-                        const size_t v = vs[i];
-                        const V4& y = ys[i];
-                        const V3 cur = Af * (C[size_t(b)] * y) + tf * y[3];
-                        const V3 T = A_[f * V_ + v] - Rl[f * V_ + v] + cur - tf * y[3];
-                        Pf += T * y.transpose();
+        if (fit_corrections) {
+            // Corrections: bone b's C_b (affine, 12 unknowns) acts at every level
+            // L <= b as G_L(f) C_b y_v, G_L(f) = M_o(f) K_L[parent(b)] (o the owner
+            // at level L), y_v = sum over v's slot bones b' in b's subtree of
+            // w K_{b'<-b} [p_v; 1] (corrections below b). Linear least squares.
+            std::vector<M4> Kb(static_cast<size_t>(B));  // corrections below the current b
+            std::vector<char> in_sub(static_cast<size_t>(B));
+            for (int b = 1; b < B; ++b) {
+                std::fill(in_sub.begin(), in_sub.end(), 0);
+                std::vector<int> stack{b};
+                Kb[size_t(b)].setIdentity();
+                while (!stack.empty()) {
+                    const int x = stack.back();
+                    stack.pop_back();
+                    in_sub[size_t(x)] = 1;
+                    for (int c : kids[size_t(x)]) {
+                        Kb[size_t(c)] = Kb[size_t(x)] * hom(C[size_t(c)]);
+                        stack.push_back(c);
                     }
-                    Rm += lam[li] * Af.transpose() * Pf;
                 }
-                for (int i = 0; i < 4; ++i)
-                    for (int j = 0; j < 4; ++j) N.block<3, 3>(3 * i, 3 * j) += lam[li] * Y(i, j) * Q;
-            }
-            if (lis.empty()) continue;
-            const double ridge = 1e-9 * std::max(N.trace() / 12.0, 1e-300);
-            Eigen::Matrix<double, 12, 1> rhs;
-            for (int col = 0; col < 4; ++col)
-                for (int row = 0; row < 3; ++row) rhs[3 * col + row] = Rm(row, col) + ridge * C[size_t(b)](row, col);
-            N.diagonal().array() += ridge;
-            const Eigen::Matrix<double, 12, 1> x = N.ldlt().solve(rhs);
-            if (!x.allFinite()) continue;
-            M34 Cn;
-            for (int col = 0; col < 4; ++col)
-                for (int row = 0; row < 3; ++row) Cn(row, col) = x[3 * col + row];
-            // Update the reconstructions of the levels where b stands in, and
-            // the composed corrections of b's subtree at those levels.
-            const M34 dC = Cn - C[size_t(b)];
-            for (size_t li : lis) {
-                const int o = up[li][size_t(p)];
-                const M4& Kp = K[li][size_t(p)];
-                V3* Rl = &R[li * V_ * F_];
-                for (size_t f = 0; f < F_; ++f) {
-                    const M3 Af = (bones_[size_t(o)].M[f] * Kp).leftCols<3>();
-                    for (size_t i = 0; i < vs.size(); ++i) Rl[f * V_ + vs[i]] += Af * (dC * ys[i]);
+                std::vector<uint32_t> vs;
+                std::vector<V4> ys;
+                for (size_t v = 0; v < V_; ++v) {
+                    V4 y = V4::Zero();
+                    bool any = false;
+                    const V4 ph(P_[v].x(), P_[v].y(), P_[v].z(), 1.0);
+                    for (int i = 0; i < nslot_[v]; ++i) {
+                        const int bb = slot_bone_[v][i];
+                        if (!in_sub[size_t(bb)]) continue;
+                        y += slot_w_[v][i] * (Kb[size_t(bb)] * ph);
+                        any = true;
+                    }
+                    if (any) {
+                        vs.push_back(uint32_t(v));
+                        ys.push_back(y);
+                    }
                 }
+                if (vs.empty()) continue;
+                Eigen::Matrix4d Y = Eigen::Matrix4d::Zero();
+                for (const V4& y : ys) Y += y * y.transpose();
+                Eigen::Matrix<double, 12, 12> N = Eigen::Matrix<double, 12, 12>::Zero();
+                Eigen::Matrix<double, 3, 4> Rm = Eigen::Matrix<double, 3, 4>::Zero();
+                const int p = bones_[size_t(b)].parent;
+                std::vector<size_t> lis;
+                for (size_t li = 0; li < NL; ++li) {
+                    if (levels[li] > b) continue;
+                    lis.push_back(li);
+                    const int o = up[li][size_t(p)];
+                    const M4& Kp = K[li][size_t(p)];
+                    M3 Q = M3::Zero();
+                    const V3* Rl = &R[li * V_ * F_];
+                    for (size_t f = 0; f < F_; ++f) {
+                        const M34 G = bones_[size_t(o)].M[f] * Kp;
+                        const M3 Af = G.leftCols<3>();
+                        const V3 tf = G.col(3);
+                        Q += Af.transpose() * Af;
+                        Eigen::Matrix<double, 3, 4> Pf = Eigen::Matrix<double, 3, 4>::Zero();
+                        for (size_t i = 0; i < vs.size(); ++i) {
+                            const size_t v = vs[i];
+                            const V4& y = ys[i];
+                            const V3 cur = Af * (C[size_t(b)] * y) + tf * y[3];
+                            const V3 T = A_[f * V_ + v] - Rl[f * V_ + v] + cur - tf * y[3];
+                            Pf += T * y.transpose();
+                        }
+                        Rm += lam[li] * Af.transpose() * Pf;
+                    }
+                    for (int i = 0; i < 4; ++i)
+                        for (int j = 0; j < 4; ++j) N.block<3, 3>(3 * i, 3 * j) += lam[li] * Y(i, j) * Q;
+                }
+                if (lis.empty()) continue;
+                const double ridge = 1e-9 * std::max(N.trace() / 12.0, 1e-300);
+                Eigen::Matrix<double, 12, 1> rhs;
+                for (int col = 0; col < 4; ++col)
+                    for (int row = 0; row < 3; ++row) rhs[3 * col + row] = Rm(row, col) + ridge * C[size_t(b)](row, col);
+                N.diagonal().array() += ridge;
+                const Eigen::Matrix<double, 12, 1> x = N.ldlt().solve(rhs);
+                if (!x.allFinite()) continue;
+                M34 Cn;
+                for (int col = 0; col < 4; ++col)
+                    for (int row = 0; row < 3; ++row) Cn(row, col) = x[3 * col + row];
+                // Update the reconstructions of the levels where b stands in, and
+                // the composed corrections of b's subtree at those levels.
+                const M34 dC = Cn - C[size_t(b)];
+                for (size_t li : lis) {
+                    const int o = up[li][size_t(p)];
+                    const M4& Kp = K[li][size_t(p)];
+                    V3* Rl = &R[li * V_ * F_];
+                    for (size_t f = 0; f < F_; ++f) {
+                        const M3 Af = (bones_[size_t(o)].M[f] * Kp).leftCols<3>();
+                        for (size_t i = 0; i < vs.size(); ++i) Rl[f * V_ + vs[i]] += Af * (dC * ys[i]);
+                    }
+                }
+                C[size_t(b)] = Cn;
+                for (size_t li : lis)
+                    for (int x = b; x < B; ++x)
+                        if (in_sub[size_t(x)]) K[li][size_t(x)] = K[li][size_t(bones_[size_t(x)].parent)] * hom(C[size_t(x)]);
             }
-            C[size_t(b)] = Cn;
-            for (size_t li : lis)
-                for (int x = b; x < B; ++x)
-                    if (in_sub[size_t(x)]) K[li][size_t(x)] = K[li][size_t(bones_[size_t(x)].parent)] * hom(C[size_t(x)]);
         }
+        if (fit_weights) multilevel_weights(levels, lam, up, K);
     }
     recompute_all();
+}
+
+// Multi-level weight and bind update (transforms and corrections fixed).
+// Vertex v's reconstruction at level L is sum_b w_b M_o(f) K_{L,b} [p_v; 1] (o
+// the owner of b at level L), linear in the weights and affine in p_v, so the
+// weighted sum over the levels sum_L lambda_L sum_f |a_vf - ...|^2 is one
+// quadratic per vertex in each. With Q_ab = sum_f M_a(f)^T M_b(f) (4x4 per bone
+// pair) and q_vb = sum_f M_b(f)^T a_vf it costs O(levels * n^2) per vertex
+// instead of O(levels * frames * n^2). Weights: NNLS (sum 1 by a stiff penalty
+// row) over the vertex's current bones plus the 6 bones whose own motion
+// predicts its trajectory best, at most 4 kept; then the bind position by 3x3
+// least squares; each accepted only when the vertex's multi-level objective
+// decreases. Vertices are independent.
+void Builder::multilevel_weights(const std::vector<int>& levels, const std::vector<double>& lam,
+                                 const std::vector<std::vector<int>>& up,
+                                 const std::vector<std::vector<Eigen::Matrix4d>>& K) {
+    using M4 = Eigen::Matrix4d;
+    using V4 = Eigen::Vector4d;
+    const int B = bone_count();
+    const size_t NL = levels.size();
+    const int extra = std::min(B, 6);
+    std::vector<M4> Q(size_t(B) * size_t(B), M4::Zero());
+    for (size_t f = 0; f < F_; ++f)
+        for (int a = 0; a < B; ++a)
+            for (int b = a; b < B; ++b) {
+                const M34& Ma = bones_[size_t(a)].M[f];
+                const M34& Mb = bones_[size_t(b)].M[f];
+                Q[size_t(a) * size_t(B) + size_t(b)].noalias() += Ma.transpose() * Mb;
+            }
+    for (int a = 0; a < B; ++a)
+        for (int b = 0; b < a; ++b) Q[size_t(a) * size_t(B) + size_t(b)] = Q[size_t(b) * size_t(B) + size_t(a)].transpose();
+    auto Qof = [&](int a, int b) -> const M4& { return Q[size_t(a) * size_t(B) + size_t(b)]; };
+    std::vector<V4> q(static_cast<size_t>(B));
+    std::vector<double> eb(static_cast<size_t>(B));
+    std::vector<int> cand, idx(static_cast<size_t>(B));
+    std::vector<V4> u;
+    std::vector<int> own;
+    for (size_t v = 0; v < V_; ++v) {
+        std::fill(q.begin(), q.end(), V4::Zero());
+        for (size_t f = 0; f < F_; ++f) {
+            const V3& a = A_[f * V_ + v];
+            for (int b = 0; b < B; ++b) q[size_t(b)].noalias() += bones_[size_t(b)].M[f].transpose() * a;
+        }
+        const V4 ph(P_[v].x(), P_[v].y(), P_[v].z(), 1.0);
+        // Own-motion fit errors (up to the constant sum_f |a|^2).
+        for (int b = 0; b < B; ++b) eb[size_t(b)] = ph.dot(Qof(b, b) * ph) - 2 * ph.dot(q[size_t(b)]);
+        std::iota(idx.begin(), idx.end(), 0);
+        std::partial_sort(idx.begin(), idx.begin() + extra, idx.end(),
+                          [&](int a, int b) { return eb[size_t(a)] < eb[size_t(b)]; });
+        cand.clear();
+        for (int i = 0; i < nslot_[v]; ++i) cand.push_back(slot_bone_[v][i]);
+        for (int i = 0; i < extra; ++i)
+            if (std::find(cand.begin(), cand.end(), idx[size_t(i)]) == cand.end()) cand.push_back(idx[size_t(i)]);
+        const int n = int(cand.size());
+        Eigen::MatrixXd G = Eigen::MatrixXd::Zero(n, n);
+        Eigen::VectorXd h = Eigen::VectorXd::Zero(n);
+        u.resize(size_t(n));
+        own.resize(size_t(n));
+        for (size_t li = 0; li < NL; ++li) {
+            for (int i = 0; i < n; ++i) {
+                u[size_t(i)] = K[li][size_t(cand[size_t(i)])] * ph;
+                own[size_t(i)] = up[li][size_t(cand[size_t(i)])];
+            }
+            for (int i = 0; i < n; ++i) {
+                h[i] += lam[li] * u[size_t(i)].dot(q[size_t(own[size_t(i)])]);
+                for (int j = i; j < n; ++j)
+                    G(i, j) += lam[li] * u[size_t(i)].dot(Qof(own[size_t(i)], own[size_t(j)]) * u[size_t(j)]);
+            }
+        }
+        for (int i = 0; i < n; ++i)
+            for (int j = 0; j < i; ++j) G(i, j) = G(j, i);
+        // Current weights' objective (up to the constant sum lambda |a|^2).
+        Eigen::VectorXd w0 = Eigen::VectorXd::Zero(n);
+        for (int i = 0; i < nslot_[v]; ++i) w0[i] = slot_w_[v][i];
+        const double obj0 = w0.dot(G * w0) - 2 * h.dot(w0);
+        const double lambda = 1e4 * std::max(1e-300, G.trace() / n);
+        Eigen::MatrixXd Gp = G.array() + lambda;
+        Eigen::VectorXd hp = h.array() + lambda;
+        std::vector<int> all(static_cast<size_t>(n));
+        std::iota(all.begin(), all.end(), 0);
+        Eigen::VectorXd w = nnls(Gp, hp, all);
+        std::vector<int> ord(all);
+        std::sort(ord.begin(), ord.end(), [&](int a, int b) { return w[a] > w[b]; });
+        std::vector<int> keep;
+        for (int i = 0; i < n && int(keep.size()) < kSlots; ++i)
+            if (w[ord[size_t(i)]] > 1e-9) keep.push_back(ord[size_t(i)]);
+        if (!keep.empty()) {
+            if (std::count_if(w.data(), w.data() + n, [](double x) { return x > 1e-9; }) > kSlots)
+                w = nnls(Gp, hp, keep);
+            const double sum = w.sum();
+            if (sum > 0 && w.allFinite()) {
+                w /= sum;
+                const double obj = w.dot(G * w) - 2 * h.dot(w);
+                if (obj < obj0 - 1e-12 * std::abs(obj0)) {
+                    nslot_[v] = 0;
+                    for (int i : keep) {
+                        if (!(w[i] > 0)) continue;
+                        slot_bone_[v][nslot_[v]] = cand[size_t(i)];
+                        slot_w_[v][nslot_[v]] = w[i];
+                        ++nslot_[v];
+                    }
+                }
+            }
+        }
+        if (!opt_.update_bind) continue;
+        // Bind: z_i = K_i [p; 1] = Kc_i p + kt_i; objective p'Hp - 2 g'p + const.
+        M3 H = M3::Zero();
+        V3 g = V3::Zero();
+        for (size_t li = 0; li < NL; ++li) {
+            for (int i = 0; i < nslot_[v]; ++i) {
+                const int bi = slot_bone_[v][i];
+                const M4& Ki = K[li][size_t(bi)];
+                const int oi = up[li][size_t(bi)];
+                const double wi = lam[li] * slot_w_[v][i];
+                g += wi * Ki.leftCols<3>().transpose() * q[size_t(oi)];
+                for (int j = 0; j < nslot_[v]; ++j) {
+                    const int bj = slot_bone_[v][j];
+                    const M4& Kj = K[li][size_t(bj)];
+                    const M4& Qij = Qof(oi, up[li][size_t(bj)]);
+                    const double wij = wi * slot_w_[v][j];
+                    H += wij * Ki.leftCols<3>().transpose() * Qij * Kj.leftCols<3>();
+                    g -= wij * Ki.leftCols<3>().transpose() * Qij * Kj.col(3);
+                }
+            }
+        }
+        const V3 p = H.ldlt().solve(g);
+        if (!p.allFinite()) continue;
+        auto objective = [&](const V3& x) { return x.dot(H * x) - 2 * g.dot(x); };
+        if (objective(p) < objective(P_[v])) P_[v] = p;
+    }
 }
 
 void Builder::refine(int sweeps, const std::function<void()>& tick) {
@@ -1174,10 +1426,44 @@ double mean_log_rms(const std::vector<LodError>& t, int upto) {
     return s / upto;
 }
 
+// The multi-level refit of b (progressive order, parents, corrections C),
+// evaluated honestly by make(refitted builder, corrections). Where the table
+// rises (a level between the refitted ones got worse than the level below),
+// that level is added to the refitted levels and the refit repeated from b (at
+// most twice); failing that, the refit without the weight update. Nothing when
+// no refit gives a non-increasing table.
+template <class Make>
+std::optional<ScratchResult> refit_monotone(const Builder& b, const std::vector<M34>& C0, const ScratchOptions& opt,
+                                            const Make& make) {
+    std::vector<int> extra;
+    const int tries = opt.multilevel_weights ? 3 : 0;
+    for (int attempt = 0; attempt <= tries; ++attempt) {
+        const bool weights = attempt < tries;  // the last attempt without the weight update
+        Builder b2 = b;
+        std::vector<M34> C = C0;
+        b2.multilevel_refit(C, opt.multilevel_sweeps, true, weights, extra);
+        ScratchResult r = make(b2, C, weights);
+        const std::vector<LodError>& t = r.skin.error;
+        bool rises = false, added = false;
+        for (size_t k = 1; k < t.size(); ++k)
+            if (t[k].rms > t[k - 1].rms) {
+                rises = true;
+                if (std::find(extra.begin(), extra.end(), int(k) + 1) == extra.end()) {
+                    extra.push_back(int(k) + 1);
+                    added = true;
+                }
+            }
+        if (!rises) return r;
+        if (weights && !added) attempt = tries - 1;  // nothing new to refit: go on without the weights
+    }
+    return std::nullopt;
+}
+
 // Top-down: bones added one at a time (each splits weight from its parent),
 // then SSDR refinement; the safety net cuts the skin at a rise of the table.
 ScratchResult build_top_down(const VertexAnimation& an, const ScratchOptions& opt, double diag,
-                             const std::function<void()>& tick) {
+                             const std::function<void()>& tick,
+                             const std::vector<std::vector<M34>>* motions = nullptr) {
     Builder b(an, opt);
     b.fit_root();
     tick();
@@ -1186,39 +1472,35 @@ ScratchResult build_top_down(const VertexAnimation& an, const ScratchOptions& op
     int steps = 1;
     while (b.bone_count() < opt.max_bones) {
         if (opt.max_error_pct > 0 && rms_pct() <= opt.max_error_pct) break;
-        if (!b.add_bone()) break;
+        if (!(motions ? b.add_bone_from(*motions) : b.add_bone())) break;
         tick();
         ++steps;
     }
     for (; steps < opt.max_bones; ++steps) tick();
     b.refine(opt.refine_sweeps, tick);
-    std::vector<M34> corr;
     if (opt.multilevel_sweeps > 0) {
         ScratchResult r0;
         r0.character = make_character(an, b, opt.similarity);
         r0.skin = make_skin(r0.character, b, diag);
         finish(r0, an, diag);
-        Builder b2 = b;
-        std::vector<M34> C(size_t(b.bone_count()), identity34());
-        b2.multilevel_refit(C, opt.multilevel_sweeps, true);
-        ScratchResult r2;
-        r2.character = make_character(an, b2, opt.similarity);
-        r2.skin = make_skin(r2.character, b2, diag);
-        set_corrections(r2.skin, C);
-        finish(r2, an, diag);
+        auto make = [&](const Builder& b2, const std::vector<M34>& C, bool) {
+            ScratchResult r2;
+            r2.character = make_character(an, b2, opt.similarity);
+            r2.skin = make_skin(r2.character, b2, diag);
+            set_corrections(r2.skin, C);
+            finish(r2, an, diag);
+            return r2;
+        };
+        std::optional<ScratchResult> r2 =
+            refit_monotone(b, std::vector<M34>(size_t(b.bone_count()), identity34()), opt, make);
         const int n = r0.skin.bone_count();
-        if (!first_increase(r2.skin.error) &&
-            (first_increase(r0.skin.error) || mean_log_rms(r2.skin.error, n) < mean_log_rms(r0.skin.error, n)))
-        {
-            b = std::move(b2);
-            corr = std::move(C);
-        }
+        if (r2 && (first_increase(r0.skin.error) || mean_log_rms(r2->skin.error, n) < mean_log_rms(r0.skin.error, n)))
+            return std::move(*r2);
     }
     ScratchResult r;
     for (int attempt = 0;; ++attempt) {
         r.character = make_character(an, b, opt.similarity);
         r.skin = make_skin(r.character, b, diag);
-        if (!corr.empty()) set_corrections(r.skin, corr);
         finish(r, an, diag);
         // Safety net: the table must be non-increasing (float rounding of the
         // keys could break a tie); drop the bones from the first increase on.
@@ -1234,7 +1516,8 @@ ScratchResult build_top_down(const VertexAnimation& an, const ScratchOptions& op
 // hierarchy, least-squares corrections) on the fitted character, re-expressed
 // with joints in progressive order.
 ScratchResult build_collapse(const VertexAnimation& an, const ScratchOptions& opt, double diag,
-                             const std::function<void()>& tick, const std::function<void(int, int)>& collapse_progress) {
+                             const std::function<void()>& tick, const std::function<void(int, int)>& collapse_progress,
+                             std::vector<std::vector<M34>>* motions = nullptr) {
     const double n = double(an.vertex_count) * double(an.frame_count);
     double target_sq = 0;
     if (opt.max_error_pct > 0) target_sq = n * std::pow(opt.max_error_pct * diag / 100.0, 2);
@@ -1243,6 +1526,8 @@ ScratchResult build_collapse(const VertexAnimation& an, const ScratchOptions& op
         Builder b(an, opt);
         b.fit_root();
         b.decompose(bones, target_sq, opt.iterations, tick);
+        if (motions && attempt == 0)
+            for (const Bone& bone : b.bones()) motions->push_back(bone.M);
         ScratchResult r;
         Character c = make_character(an, b, opt.similarity);
         const FrameSet fr = sample_frames(c, {select_clips(c, "all")}, an.fps);
@@ -1263,22 +1548,25 @@ ScratchResult build_collapse(const VertexAnimation& an, const ScratchOptions& op
                 for (size_t j = 0; j < C.size(); ++j)
                     for (int i = 0; i < 3; ++i)
                         for (int k = 0; k < 4; ++k) C[j](i, k) = double(r.skin.corrections[j].m[i * 4 + k]);
-                Builder b2 = b;
-                b2.multilevel_refit(C, opt.multilevel_sweeps, true);
-                ScratchResult r2;
-                r2.character = make_character(an, b2, opt.similarity);
-                r2.skin = r.skin;
-                set_corrections(r2.skin, C);
-                r2.skin.strategy = Strategy::Scratch;
-                r2.skin.diagonal = diag;
-                finish(r2, an, diag);
                 r.skin.strategy = Strategy::Scratch;
                 r.skin.diagonal = diag;
                 finish(r, an, diag);
+                auto make = [&](const Builder& b2, const std::vector<M34>& Cn, bool weights) {
+                    ScratchResult r2;
+                    r2.character = make_character(an, b2, opt.similarity);
+                    r2.skin = r.skin;
+                    if (weights) {  // the refit changed the weights: largest first
+                        r2.skin.joints = r2.character.joints;
+                        r2.skin.weights = r2.character.weights;
+                    }
+                    set_corrections(r2.skin, Cn);
+                    finish(r2, an, diag);
+                    return r2;
+                };
+                std::optional<ScratchResult> r2 = refit_monotone(b, C, opt, make);
                 const int n = r.skin.bone_count();
-                if (!first_increase(r2.skin.error) &&
-                    (first_increase(r.skin.error) || mean_log_rms(r2.skin.error, n) < mean_log_rms(r.skin.error, n)))
-                    r = std::move(r2);
+                if (r2 && (first_increase(r.skin.error) || mean_log_rms(r2->skin.error, n) < mean_log_rms(r.skin.error, n)))
+                    r = std::move(*r2);
                 const int bad = first_increase(r.skin.error);
                 if (!bad || attempt > 3 || bones <= 1) return r;
                 bones = bad;
@@ -1309,11 +1597,13 @@ ScratchResult build_from_vertices(const VertexAnimation& an, const ScratchOption
     if (opt.iterations < 0 || opt.refine_sweeps < 0) throw Error(an.source + ": iterations must be >= 0");
     double diag = an.diagonal > 0 ? an.diagonal : frame_diagonal(an, opt.rest_frame >= 0 ? size_t(opt.rest_frame) : 0);
     if (!(diag > 0)) diag = 1.0;  // a single point: report in units
-    const bool td = opt.method != ScratchMethod::Collapse, co = opt.method != ScratchMethod::TopDown;
-    // Progress: top-down bones + sweeps, then decomposition splits +
-    // iterations + collapse steps.
-    const int td_steps = td ? opt.max_bones + opt.refine_sweeps : 0;
+    const bool td = opt.method == ScratchMethod::TopDown;
+    const bool hy = opt.method == ScratchMethod::Auto || opt.method == ScratchMethod::Hybrid;
+    const bool co = opt.method == ScratchMethod::Auto || opt.method == ScratchMethod::Collapse || hy;
+    // Progress: decomposition splits + iterations + collapse steps, then
+    // top-down bones + sweeps.
     const int co_steps = co ? 2 * opt.max_bones + opt.iterations : 0;
+    const int td_steps = (td || hy) ? opt.max_bones + opt.refine_sweeps : 0;
     const int total = td_steps + co_steps;
     int step = 0;
     auto report = [&](int s) {
@@ -1321,20 +1611,22 @@ ScratchResult build_from_vertices(const VertexAnimation& an, const ScratchOption
         if (opt.progress) opt.progress(step, total);
     };
     auto tick = [&]() { report(step + 1); };
+    // Keeps r when it is better (a table that is not non-increasing never is).
     std::optional<ScratchResult> best;
-    if (td) {
-        best = build_top_down(an, opt, diag, tick);
-        report(td_steps);
-    }
-    if (co) {
-        const int base = td_steps;
-        auto cprog = [&](int s, int t) { report(base + opt.max_bones + opt.iterations + (t > 0 ? s * opt.max_bones / t : 0)); };
-        ScratchResult r = build_collapse(an, opt, diag, tick, cprog);
+    auto offer = [&](ScratchResult&& r) {
         const int upto = std::max(r.skin.bone_count(), best ? best->skin.bone_count() : 0);
         if (!best || first_increase(best->skin.error) ||
             (!first_increase(r.skin.error) && mean_log_rms(r.skin.error, upto) < mean_log_rms(best->skin.error, upto)))
             best = std::move(r);
+    };
+    std::vector<std::vector<M34>> motions;  // the decomposition's bones, the hybrid's proposals
+    if (co) {
+        auto cprog = [&](int s, int t) { report(opt.max_bones + opt.iterations + (t > 0 ? s * opt.max_bones / t : 0)); };
+        offer(build_collapse(an, opt, diag, tick, cprog, hy ? &motions : nullptr));
+        report(co_steps);
     }
+    if (td) offer(build_top_down(an, opt, diag, tick));
+    if (hy) offer(build_top_down(an, opt, diag, tick, &motions));
     if (opt.progress) opt.progress(total, total);
     return std::move(*best);
 }

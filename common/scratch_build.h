@@ -1,16 +1,19 @@
 // scratch_build.h — a progressive skin built from scratch for a mesh that has
 // only vertex animation (docs/algorithms.md, "Build from scratch").
 //
-// Two methods (ScratchMethod; Auto builds both and keeps the lower mean log
-// RMS over k). Collapse: a full-detail decomposition (motion clustering by
+// Three methods (ScratchMethod; Auto builds Collapse and Hybrid and keeps the
+// lower mean log RMS over k). Collapse: a full-detail decomposition (motion clustering by
 // rigid trajectory fits, no mesh connectivity; then alternating per-vertex
 // NNLS weights, Gauss-Seidel weighted Procrustes per bone and per-vertex bind
 // positions), ordered by the greedy collapse of progressive_skin.h (strategy
 // Flatten, least-squares corrections). TopDown: bone 0 is the whole mesh's
 // per-frame Procrustes fit, bones are added one at a time each taking weight
-// from its progressive parent, then SSDR refinement sweeps. Either way the
-// table is evaluated honestly and is non-increasing (see the .cpp and
-// docs/algorithms.md "Build from scratch").
+// from its progressive parent, then SSDR refinement sweeps. Hybrid: top-down,
+// each new bone the best of the region-grown one and bones started from the
+// Collapse decomposition's motions. All end with the multi-level refit
+// (transforms, corrections, weights and bind positions for a weighted sum of
+// several levels' errors). Either way the table is evaluated honestly and is
+// non-increasing (see the .cpp and docs/algorithms.md "Build from scratch").
 //
 // Output: a Character with one root node (identity, not a joint) whose
 // children are the B joints (flat), each with rigid per-frame TRS animation
@@ -37,9 +40,11 @@ namespace progskin {
 
 // How the skin is built (docs/algorithms.md "Build from scratch").
 enum class ScratchMethod : uint8_t {
-    Auto,       // both below, keep the one with the lower mean log RMS over k = 1..B
-    Collapse,   // full-detail decomposition, then made progressive by greedy collapse
-    TopDown,    // bones added one at a time, each splitting weight from its parent
+    Auto,      // Collapse and Hybrid, keep the one with the lower mean log RMS over k = 1..B
+    Collapse,  // full-detail decomposition, then made progressive by greedy collapse
+    TopDown,   // bones added one at a time, each splitting weight from its parent
+    Hybrid,    // top-down, each new bone the best of the region-grown one and the
+               // full-detail decomposition's bones (as starting motions)
 };
 
 struct ScratchOptions {
@@ -54,9 +59,14 @@ struct ScratchOptions {
     bool update_bind = true;
     // Top-down: global refinement sweeps after the greedy build (0 = none).
     int refine_sweeps = 4;
-    // Both methods: Gauss-Seidel sweeps of the multi-level transform refit
-    // after the progressive order is known (0 = off).
+    // All methods: Gauss-Seidel sweeps of the multi-level refit after the
+    // progressive order is known (0 = off).
     int multilevel_sweeps = 8;
+    // Whether the multi-level refit also re-fits the weights and (with
+    // update_bind) the bind positions for the sum of the levels' errors, not
+    // only full detail (when that table rises somewhere, the refit without
+    // them is the fallback).
+    bool multilevel_weights = true;
     // Progress (step, total).
     std::function<void(int, int)> progress;
 };

@@ -126,6 +126,20 @@ TEST(Scratch, RecoversKnownRigidSkin) {
     }
 }
 
+TEST(Scratch, HybridIsProgressive) {
+    // Top-down with the decomposition's bones as proposals, then the
+    // multi-level refit (weights included): the table stays non-increasing
+    // and full detail beats one bone by far.
+    const VertexAnimation an = synthetic(4);
+    ScratchOptions o;
+    o.max_bones = 6;
+    o.method = ScratchMethod::Hybrid;
+    const ScratchResult r = build_from_vertices(an, o);
+    expect_non_increasing(r.skin.error);
+    EXPECT_GE(r.skin.bone_count(), 4);
+    EXPECT_LT(r.skin.error.back().rms, 0.1 * r.skin.error.front().rms);
+}
+
 TEST(Scratch, SkinMatchesSampledCharacter) {
     const VertexAnimation an = synthetic(3);
     ScratchOptions o;

@@ -49,7 +49,7 @@ usage:
       kept, PROGSKIN_progressive_skin extension on the skin). OUT ending in
       .gltf is written as JSON with embedded buffers, anything else as .glb.
   progskin build --from-vertices IN -o OUT.glb [--bones N] [--max-error PERCENT]
-                 [--rest-frame F] [--similarity] [--method auto|collapse|top-down]
+                 [--rest-frame F] [--similarity] [--method auto|collapse|hybrid|top-down]
                  [--clip SPEC] [--fps 30] [--quiet]
       Build a progressive skin from scratch for a vertex animation: IN is a
       glTF with morph-target animation, a PC2 point cache (.pc2), or any
@@ -58,8 +58,10 @@ usage:
       most PERCENT % of the bounding-box diagonal. --method collapse fits a
       full-detail skin (motion clustering, then alternating rigid transforms,
       weights and bind positions) and orders its bones by greedy collapse with
-      least-squares corrections; top-down adds bones one at a time; auto
-      (default) builds both and keeps the lower mean log error over k. Bind
+      least-squares corrections; top-down adds bones one at a time; hybrid
+      adds bones one at a time, each the best of a region-grown bone and the
+      collapse's full-detail bones; auto (default) builds collapse and hybrid
+      and keeps the lower mean log error over k. Bind
       pose: per-vertex mean over frames, or frame F. --similarity lets bones
       scale uniformly. The output plays in any glTF viewer (rigid TRS joint
       animation) and carries the error table (strategy "scratch").
@@ -167,7 +169,8 @@ int cmd_build_from_vertices(const Args& a) {
         if (m == "auto") so.method = ScratchMethod::Auto;
         else if (m == "collapse") so.method = ScratchMethod::Collapse;
         else if (m == "top-down" || m == "topdown") so.method = ScratchMethod::TopDown;
-        else throw UsageError("--method must be auto, collapse or top-down");
+        else if (m == "hybrid") so.method = ScratchMethod::Hybrid;
+        else throw UsageError("--method must be auto, collapse, hybrid or top-down");
     }
     const bool quiet = a.has("--quiet");
     const VertexAnimation anim = load_vertex_animation(a.positional[0], vo);
