@@ -1427,34 +1427,38 @@ double mean_log_rms(const std::vector<LodError>& t, int upto) {
 }
 
 // The multi-level refit of b (progressive order, parents, corrections C),
-// evaluated honestly by make(refitted builder, corrections). Where the table
-// rises (a level between the refitted ones got worse than the level below),
-// that level is added to the refitted levels and the refit repeated from b (at
-// most twice); failing that, the refit without the weight update. Nothing when
-// no refit gives a non-increasing table.
+// evaluated honestly by make(refitted builder, corrections, weights refitted).
+// Where the table rises (a level got worse than the level below), that level
+// joins the refitted levels and the refit continues for another
+// multilevel_sweeps sweeps (at most twice); failing that, the refit of b
+// without the weight update. Nothing when no refit gives a non-increasing
+// table.
 template <class Make>
 std::optional<ScratchResult> refit_monotone(const Builder& b, const std::vector<M34>& C0, const ScratchOptions& opt,
                                             const Make& make) {
     std::vector<int> extra;
     const int tries = opt.multilevel_weights ? 3 : 0;
+    std::optional<Builder> cur;  // the last refit with weights, continued by the next attempt
+    std::vector<M34> Ccur;
     for (int attempt = 0; attempt <= tries; ++attempt) {
         const bool weights = attempt < tries;  // the last attempt without the weight update
-        Builder b2 = b;
-        std::vector<M34> C = C0;
+        const bool warm = weights && cur.has_value();
+        Builder b2 = warm ? std::move(*cur) : b;
+        std::vector<M34> C = warm ? Ccur : C0;
         b2.multilevel_refit(C, opt.multilevel_sweeps, true, weights, extra);
         ScratchResult r = make(b2, C, weights);
         const std::vector<LodError>& t = r.skin.error;
-        bool rises = false, added = false;
+        bool rises = false;
         for (size_t k = 1; k < t.size(); ++k)
             if (t[k].rms > t[k - 1].rms) {
                 rises = true;
-                if (std::find(extra.begin(), extra.end(), int(k) + 1) == extra.end()) {
-                    extra.push_back(int(k) + 1);
-                    added = true;
-                }
+                if (std::find(extra.begin(), extra.end(), int(k) + 1) == extra.end()) extra.push_back(int(k) + 1);
             }
         if (!rises) return r;
-        if (weights && !added) attempt = tries - 1;  // nothing new to refit: go on without the weights
+        if (weights) {
+            cur = std::move(b2);
+            Ccur = std::move(C);
+        }
     }
     return std::nullopt;
 }
@@ -1622,7 +1626,8 @@ ScratchResult build_from_vertices(const VertexAnimation& an, const ScratchOption
     std::vector<std::vector<M34>> motions;  // the decomposition's bones, the hybrid's proposals
     if (co) {
         auto cprog = [&](int s, int t) { report(opt.max_bones + opt.iterations + (t > 0 ? s * opt.max_bones / t : 0)); };
-        offer(build_collapse(an, opt, diag, tick, cprog, hy ? &motions : nullptr));
+        ScratchResult r = build_collapse(an, opt, diag, tick, cprog, hy ? &motions : nullptr);
+        if (opt.method != ScratchMethod::Hybrid) offer(std::move(r));  // Hybrid: only the motions
         report(co_steps);
     }
     if (td) offer(build_top_down(an, opt, diag, tick));
