@@ -84,26 +84,36 @@ int PoseBuffer::bones_at(double d) const {
 
 bool PoseBuffer::pose(int b, double d, BonePose& out, double* held_at) const {
     if (held_at) *held_at = d + 1.0;
-    const Frame* a = nullptr;
-    const Frame* c = nullptr;
+    // The two nearest frames carrying bone b at or before d (a, a0) and after it (c, c1).
+    const Frame *a = nullptr, *a0 = nullptr, *c = nullptr, *c1 = nullptr;
     for (const auto& f : frames_) {
         if (!f.used || f.ready <= b) continue;
         double t = double(int32_t(f.tick - newest_)) + double(newest_);
         if (t <= d) {
-            if (!a || newer(f.tick, a->tick)) a = &f;
+            if (!a || newer(f.tick, a->tick)) {
+                a0 = a;
+                a = &f;
+            } else if (!a0 || newer(f.tick, a0->tick)) {
+                a0 = &f;
+            }
         } else if (!c || newer(c->tick, f.tick)) {
+            c1 = c;
             c = &f;
+        } else if (!c1 || newer(c1->tick, f.tick)) {
+            c1 = &f;
         }
     }
+    auto time = [&](const Frame* f) { return double(int32_t(f->tick - newest_)) + double(newest_); };
     if (a && c) {
-        double ta = double(int32_t(a->tick - newest_)) + double(newest_);
-        double tc = double(int32_t(c->tick - newest_)) + double(newest_);
-        out = interpolate(a->bones[b], c->bones[b], float((d - ta) / (tc - ta)));
+        if (a0 && c1)
+            out = interpolate_cubic(a0->bones[b], a->bones[b], c->bones[b], c1->bones[b], time(a0), time(a), time(c), time(c1), d);
+        else
+            out = interpolate(a->bones[b], c->bones[b], float((d - time(a)) / (time(c) - time(a))));
         return true;
     }
     if (a) {  // hold the newest
         out = a->bones[b];
-        if (held_at) *held_at = double(int32_t(a->tick - newest_)) + double(newest_);
+        if (held_at) *held_at = time(a);
         return true;
     }
     if (c) { out = c->bones[b]; return true; }

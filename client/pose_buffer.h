@@ -1,8 +1,9 @@
 // pose_buffer.h — the client's newest bones of one instance: decoded frame
 // chunks (datagram.fbs Chunk) merged per tick into a short history, and the
-// pose at any display time by interpolation (slerp per bone) between the two
-// frames around it that carry that bone, holding the newest value when nothing
-// newer arrived. The server refreshes deep bones less often than shallow ones
+// pose at any display time by interpolation per bone between the two frames
+// around it that carry that bone (cubic Hermite when a further frame on each
+// side carries it too, else slerp/lerp), holding the newest value when
+// nothing newer arrived. The server refreshes deep bones less often than shallow ones
 // (scheduler.h): a bone stays shown for HOLD_TICKS after its newest frame.
 #pragma once
 #include <cstdint>

@@ -53,6 +53,27 @@ BonePose inverse(const BonePose& p) {
     return q;
 }
 
+BonePose interpolate_cubic(const BonePose& p0, const BonePose& a, const BonePose& b, const BonePose& p3, double t0,
+                           double ta, double tb, double t3, double t) {
+    const double h = tb - ta;
+    if (!(h > 0) || !(ta > t0) || !(t3 > tb)) return interpolate(a, b, float(h > 0 ? (t - ta) / h : 0.0));
+    const double u = (t - ta) / h, u2 = u * u, u3 = u2 * u;
+    const float h00 = float(2 * u3 - 3 * u2 + 1), h10 = float((u3 - 2 * u2 + u) * h), h01 = float(-2 * u3 + 3 * u2),
+                h11 = float((u3 - u2) * h);
+    const float ia = float(1.0 / (tb - t0)), ib = float(1.0 / (t3 - ta));
+    auto align = [&](glm::quat q) { return glm::dot(a.r, q) < 0.0f ? -q : q; };
+    const glm::vec4 q0 = glm::vec4(align(p0.r).x, align(p0.r).y, align(p0.r).z, align(p0.r).w);
+    const glm::vec4 qa(a.r.x, a.r.y, a.r.z, a.r.w);
+    const glm::quat bq = align(b.r), q3q = align(p3.r);
+    const glm::vec4 qb(bq.x, bq.y, bq.z, bq.w), q3(q3q.x, q3q.y, q3q.z, q3q.w);
+    const glm::vec4 q = h00 * qa + h10 * (qb - q0) * ia + h01 * qb + h11 * (q3 - qa) * ib;
+    BonePose p;
+    p.r = glm::normalize(glm::quat(q.w, q.x, q.y, q.z));
+    p.t = h00 * a.t + h10 * (b.t - p0.t) * ia + h01 * b.t + h11 * (p3.t - a.t) * ib;
+    p.s = h00 * a.s + h10 * (b.s - p0.s) * ia + h01 * b.s + h11 * (p3.s - a.s) * ib;
+    return p;
+}
+
 BonePose interpolate(const BonePose& a, const BonePose& b, float t) {
     BonePose p;
     glm::quat qb = b.r;

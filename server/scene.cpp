@@ -114,8 +114,17 @@ static void build_segments(ServerAsset& a, const FrameSet& frames) {
                 if (h == prev_h) continue;
                 prev_h = h;
                 const float alpha = float(h) / float(g);
+                // What the client does: cubic over the neighbours f - g and f + 2g
+                // when they exist (same clip), else slerp/lerp.
+                const bool cubic = f >= size_t(g) && f + 2 * size_t(g) < frames.frame_count() &&
+                                   frames.selection_of_frame[f - size_t(g)] == sel &&
+                                   frames.selection_of_frame[f + 2 * size_t(g)] == sel;
                 for (size_t j = 0; j < J; ++j) {
-                    Mat34 mm = compose(interpolate(decompose(frames.frame(f)[j]), decompose(frames.frame(f + size_t(g))[j]), alpha));
+                    const BonePose pa = decompose(frames.frame(f)[j]), pb = decompose(frames.frame(f + size_t(g))[j]);
+                    Mat34 mm = compose(cubic ? interpolate_cubic(decompose(frames.frame(f - size_t(g))[j]), pa, pb,
+                                                                 decompose(frames.frame(f + 2 * size_t(g))[j]), -double(g), 0.0,
+                                                                 double(g), 2.0 * g, double(h))
+                                             : interpolate(pa, pb, alpha));
                     for (int x = 0; x < 12; ++x) diff[j].m[x] = mm.m[x] - frames.frame(f + size_t(h))[j].m[x];
                 }
                 double* out = sum.data() + size_t(sel) * S;
@@ -171,12 +180,13 @@ static void build_segments(ServerAsset& a, const FrameSet& frames) {
     }
     for (auto& seg : a.segments) {
         seg.refresh.assign(M, {});
-        seg.refresh_max.assign(M, {});
-        for (size_t m = 0; m < M; ++m)
-            for (int x = 1; x < ServerAsset::kGapTable; ++x) {
+        seg.show_value.assign(M, 0.0);
+        for (size_t m = 0; m < M; ++m) {
+            for (int x = 1; x < ServerAsset::kGapTable; ++x)
                 seg.refresh[m][size_t(x)] = x * (x + 1.0) * (seg.gap_at(int(m), x + 1.0) - seg.gap_at(int(m), x));
-                seg.refresh_max[m][size_t(x)] = std::max(seg.refresh[m][size_t(x)], x > 1 ? seg.refresh_max[m][size_t(x - 1)] : 0.0);
-            }
+            for (int p = 1; p < HOLD_TICKS; ++p)
+                seg.show_value[m] = std::max(seg.show_value[m], p * (seg.collapse[m] - seg.gap[m][size_t(p)]));
+        }
     }
 }
 

@@ -47,7 +47,8 @@ struct ServerAsset {
         std::vector<double> collapse;
         // gap[m][g]: mean squared vertex error (model units^2) over an
         // interpolation interval of g frames at 30 Hz when only this segment's
-        // bones are interpolated (slerp) between frames g apart and every
+        // bones are interpolated between frames g apart as the client does
+        // (cubic over the neighbours g before and after, pose_buffer.h) and every
         // other bone is exact; gap[m][0] = gap[m][1] = 0. Beyond the table it
         // grows as g^2 (a linear drift).
         std::vector<std::array<double, kGapTable>> gap;
@@ -55,7 +56,11 @@ struct ServerAsset {
         // refresh[m][a] = a (a + 1) (G(a + 1) - G(a)) for a = 1..kGapTable-1
         // (scheduler.h), and its running maximum over 1..a (for the search of
         // the period a price affords); [0] unused.
-        std::vector<std::array<double, kGapTable>> refresh, refresh_max;
+        std::vector<std::array<double, kGapTable>> refresh;
+        // show_value[m] = max over p < HOLD_TICKS of p (C - G(p)): showing the
+        // segment, refreshed every p ticks, saves C - G(p) per tick for the
+        // bytes of one refresh every p ticks (scheduler.h).
+        std::vector<double> show_value;
     };
     std::vector<Segment> segments;
     double bind_radius = 0;          // max |bind-space position|

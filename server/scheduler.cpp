@@ -116,20 +116,15 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
                 const double g = double(age) * to30;
                 if (g == double(age)) v = seg.refresh[size_t(m)][size_t(age)];
                 else v = g * (g + 1.0) * (seg.gap_at(m, g + 1.0) - seg.gap_at(m, g));
+                // Last tick of the hold: without a refresh the segment is dropped,
+                // so refreshing it is worth at least showing it.
+                if (age == HOLD_TICKS - 1) v = std::max(v, seg.show_value[size_t(m)]);
             } else if (last != 0 && age <= 0) {
                 v = 0;  // already sent this tick
             } else {
-                // Not shown: worth its collapse error for the period it would be
-                // refreshed at, the first p whose refresh value reaches the price.
-                const auto& rmax = seg.refresh_max[size_t(m)];
-                const double x = price_ * double(b) / w;
-                int lo = 1, hi = HOLD_TICKS;
-                while (lo < hi) {
-                    const int mid = (lo + hi) / 2;
-                    if (rmax[size_t(mid)] >= x) hi = mid;
-                    else lo = mid + 1;
-                }
-                v = lo * std::max(0.0, seg.collapse[size_t(m)] - seg.gap[size_t(m)][size_t(lo)]);
+                // Not shown: worth its collapse error over the refresh period that
+                // makes showing it most worthwhile (scene.h show_value).
+                v = seg.show_value[size_t(m)];
             }
             bytes += b;
             value += w * v;
@@ -146,7 +141,8 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
             hull.push_back(pt);
         }
         if (hull.size() >= 2 && hull[1].value > hull[0].value) {
-            heap_.push_back({(hull[1].value - hull[0].value) / double(hull[1].bytes), int(i), 1});
+            const uint32_t stale = st.bone_tick[0] != 0 ? frame.tick - st.bone_tick[0] : UINT32_MAX;
+            heap_.push_back({(hull[1].value - hull[0].value) / double(hull[1].bytes), int(i), 1, stale});
             std::push_heap(heap_.begin(), heap_.end());
         }
     }
@@ -180,21 +176,38 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
             const HullPoint& nx = hull[size_t(s.step) + 1];
             const double r = (nx.value - to.value) / double(nx.bytes - to.bytes);
             if (r > 0) {
-                heap_.push_back({r, s.instance, s.step + 1});
+                heap_.push_back({r, s.instance, s.step + 1, s.age});
                 std::push_heap(heap_.begin(), heap_.end());
             }
         }
     }
     // The price of a byte, smoothed over about ten ticks (the budget per tick varies).
-    price_ = 0.9 * price_ + 0.1 * price;
+    price_ = 0.9 * price_ + 0.1 * price;  // informational (price())
+    // Of two instances of one asset playing the same clip, the more important
+    // one gets the longer prefix this tick (same bytes), so its bones are never
+    // staler than the other's and it is never shown fewer (GUIDE.md §4).
     for (size_t i = 0; i < n; ++i)
-        if (k_[i] > 0) {
-            // Shown from now on: this tick's bones and those refreshed within the hold.
-            const auto& bt = state_[i].bone_tick;
-            int show = k_[i];
-            while (show < int(bt.size()) && bt[size_t(show)] != 0 && int32_t(frame.tick - bt[size_t(show)]) < HOLD_TICKS) ++show;
-            out.push_back({int(i), k_[i], show});
+        if (k_[i] > 0) out.push_back({int(i), 0, 0});
+    for (size_t x = 0; x < out.size(); ++x) {
+        const size_t i = size_t(out[x].instance);
+        for (size_t y = x + 1; y < out.size(); ++y) {
+            const size_t j = size_t(out[y].instance);
+            if (frame.instances[i].asset != frame.instances[j].asset ||
+                frame.instances[i].model != frame.instances[j].model || importance[i] == importance[j])
+                continue;
+            const size_t hi = importance[i] > importance[j] ? i : j, lo = hi == i ? j : i;
+            if (k_[lo] > k_[hi]) std::swap(k_[lo], k_[hi]);
         }
+    }
+    for (Pick& pk : out) {
+        // Shown from now on: this tick's bones and those refreshed within the hold.
+        const size_t i = size_t(pk.instance);
+        const auto& bt = state_[i].bone_tick;
+        pk.k = k_[i];
+        pk.show = pk.k;
+        while (pk.show < int(bt.size()) && bt[size_t(pk.show)] != 0 && int32_t(frame.tick - bt[size_t(pk.show)]) < HOLD_TICKS)
+            ++pk.show;
+    }
     std::sort(out.begin(), out.end(), by_importance);
     return payload ? WireCost::wire(payload) : 0;
 }

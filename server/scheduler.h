@@ -13,8 +13,13 @@
 //     gap: the saving of a refresh period of a instead of a + 1 ticks, per
 //     byte the price a period-a schedule pays (Lagrangian condition);
 //   - a segment not shown (never sent, or past the hold) is worth
-//     V = p (C - G(p)), C its collapse error and p the refresh period it would
-//     then get at the last tick's price of a byte.
+//     V = max over p < HOLD_TICKS of p (C - G(p)), C its collapse error: shown
+//     and refreshed every p ticks it saves C - G(p) per tick for one
+//     refresh's bytes every p ticks; on the last tick of the hold a shown
+//     segment's refresh is worth at least that (else it is dropped).
+// Of two instances of one asset playing the same clip sent in a tick, the
+// more important gets the longer prefix (same bytes); equal ratios go to the
+// instance sent least recently.
 // A tick sends a prefix of the progressive order, so an instance's steps are
 // the upper concave hull of its cumulative (bytes, value) over segments; the
 // greedy takes steps across instances by value per byte (record_size per bone
@@ -84,7 +89,8 @@ private:
         double ratio;
         int instance;
         int step;    // index into steps_ of the instance
-        bool operator<(const Step& o) const { return ratio < o.ratio; }
+        uint32_t age;  // ticks since the instance was last sent (ties go to the stalest)
+        bool operator<(const Step& o) const { return ratio < o.ratio || (ratio == o.ratio && age < o.age); }
     };
     struct HullPoint {
         int k;           // bones after this step
