@@ -138,7 +138,7 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
             int& last_update = instance_tick[size_t(p.instance)];
             if (t > warm && last_update > 0) gap = std::max(gap, t - last_update);
             last_update = t;
-            for (int b = 0; b < p.k; ++b) {
+            for (int b = p.first; b < p.k; ++b) {
                 int& last = bone_tick[size_t(p.instance)][size_t(b)];
                 if (t > warm && last > 0 && t - last <= HOLD_TICKS) gap = std::max(gap, t - last);
                 last = t;

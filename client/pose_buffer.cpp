@@ -39,6 +39,7 @@ bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const
         f->total = total;
         f->show = show;
         f->ready = 0;
+        f->count = 0;
         std::fill(f->have.begin(), f->have.end(), 0);
     }
     if (f->total != total || f->show != show) return false;
@@ -46,6 +47,7 @@ bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const
     for (int i = 0; i < count; ++i) {
         int b = first + i;
         f->bones[b] = decode_bone(records + size_t(i) * fmt_.size(), fmt_);
+        if (!f->have[b]) ++f->count;
         f->have[b] = 1;
         if (!last_have_[b] || !newer(last_tick_[b], tick)) {
             const int32_t gap = int32_t(tick - last_tick_[b]);
@@ -66,7 +68,7 @@ int PoseBuffer::bones_at(double d) const {
     const Frame* newest_before = nullptr;
     const Frame* first_after = nullptr;
     for (const auto& f : frames_) {
-        if (!f.used || f.ready == 0) continue;
+        if (!f.used || f.count == 0) continue;
         double t = double(int32_t(f.tick - newest_)) + double(newest_);
         if (t <= d) {
             if (!newest_before || newer(f.tick, newest_before->tick)) newest_before = &f;
@@ -87,7 +89,7 @@ bool PoseBuffer::pose(int b, double d, BonePose& out, double* held_at) const {
     // The two nearest frames carrying bone b at or before d (a, a0) and after it (c, c1).
     const Frame *a = nullptr, *a0 = nullptr, *c = nullptr, *c1 = nullptr;
     for (const auto& f : frames_) {
-        if (!f.used || f.ready <= b) continue;
+        if (!f.used || !f.have[size_t(b)]) continue;
         double t = double(int32_t(f.tick - newest_)) + double(newest_);
         if (t <= d) {
             if (!a || newer(f.tick, a->tick)) {

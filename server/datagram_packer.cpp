@@ -38,7 +38,8 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
         const EncodedInstance& e = frame.instances[p.instance];
         const int k = std::min(p.k, e.bone_count);
         const uint8_t* src = frame.records(p.instance);
-        int first = 0;
+        int first = std::clamp(p.first, 0, k);
+        const int show = std::clamp(p.show, k, e.bone_count);
         while (first < k) {
             size_t used = records_.size() + (chunks_.size() + 1) * WireCost::kChunk;
             int fit = used >= room ? 0 : int((room - used) / size_t(e.record_size));
@@ -47,8 +48,7 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
                 continue;
             }
             int count = std::min(fit, k - first);
-            const int show = std::clamp(p.show, k, e.bone_count);
-            chunks_.emplace_back(uint16_t(p.instance), uint8_t(first), uint8_t(count), uint8_t(k), uint8_t(show));
+            chunks_.emplace_back(uint16_t(p.instance), uint8_t(first), uint8_t(count), uint8_t(show), uint8_t(show));
             records_.insert(records_.end(), src + size_t(first) * e.record_size,
                             src + size_t(first + count) * e.record_size);
             first += count;

@@ -25,6 +25,9 @@ public:
 
     void refill(double dt_seconds);
     size_t budget() const;          // bytes allowed now (0: wait)
+    // The sender wanted to send more than the budget allowed this tick (the
+    // estimate may probe upward even if the bucket did not run dry).
+    void mark_limited() { limited_ = true; }
     void spend(size_t wire_bytes);  // after sending
     void on_sent(uint32_t seq, uint32_t send_us, size_t wire_bytes);
     void on_ack(uint32_t ack, uint32_t ack_bits, uint32_t echo_us, uint32_t hold_us, uint32_t now_us);

@@ -44,8 +44,8 @@ static_assert(HOLD_TICKS < ServerAsset::kGapTable, "refresh tables cover every a
 
 void Scheduler::reset(size_t n) {
     state_.assign(n, State{});
-    k_.assign(n, 0);
-    steps_.assign(n, {});
+    items_.assign(n, {});
+    chain_.assign(n, {});
     heap_.clear();
     heap_.reserve(n * 2);
     price_ = 0;
@@ -83,17 +83,18 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         }
         std::sort(out.begin(), out.end(), by_importance);
         price_ = 0;
+        limited_ = false;
         return WireCost::wire(full);
     }
 
-    // Per instance: segment values (scheduler.h), then the upper concave hull
-    // of the cumulative (bytes, value) from (0, 0).
+    // Per instance and segment: value and bytes (scheduler.h). Shown segments
+    // (a prefix) are refresh items on their own; the segments after them can
+    // only be shown in order, so only the first of them is offered at a time.
     const double to30 = 30.0 / std::max(1.0f, tick_rate);
     heap_.clear();
-    std::fill(k_.begin(), k_.end(), 0);
     for (size_t i = 0; i < n; ++i) {
-        auto& hull = steps_[i];
-        hull.clear();
+        auto& items = items_[i];
+        items.clear();
         const auto& e = frame.instances[i];
         if (!e.valid || importance[i] <= 0.0f) continue;
         const ServerAsset& a = *assets[size_t(e.asset)];
@@ -102,114 +103,144 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         // Squared error in screen units, summed over the instance's vertices
         // (the RMS of GUIDE.md §2 pools all vertices of all characters).
         const double w = double(importance[i]) * double(importance[i]) * double(a.character.vertex_count());
-        size_t bytes = 0;
-        double value = 0;
-        hull.push_back({0, 0, 0.0});
+        const uint32_t stale = st.bone_tick[0] != 0 ? frame.tick - st.bone_tick[0] : UINT32_MAX;
+        bool shown = true;
         for (size_t q = 0; q < a.segments.size(); ++q) {
             const ServerAsset::Segment& seg = a.segments[q];
-            const size_t b = size_t(seg.to - seg.from) * size_t(e.record_size) + (q == 0 ? WireCost::kChunk : 0);
             const int m = std::clamp(e.model, 0, int(seg.gap.size()) - 1);
-            const uint32_t last = st.bone_tick[size_t(seg.to - 1)];
-            const int32_t age = int32_t(frame.tick - last);
+            const size_t b = size_t(seg.to - seg.from) * size_t(e.record_size) + WireCost::kChunk;
+            // Shown: bone 0 once received (the client never drops it), every
+            // further bone up to here refreshed within the hold.
+            for (int x = seg.from; x < seg.to && shown; ++x) {
+                const uint32_t t = st.bone_tick[size_t(x)];
+                if (t == 0 || (x > 0 && int32_t(frame.tick - t) >= HOLD_TICKS)) shown = false;
+            }
             double v;
-            if (last != 0 && age > 0 && age < HOLD_TICKS) {
+            if (shown) {
+                const int32_t age = std::max(1, int32_t(frame.tick - st.bone_tick[size_t(seg.to - 1)]));
                 const double g = double(age) * to30;
-                if (g == double(age)) v = seg.refresh[size_t(m)][size_t(age)];
+                if (g == double(age) && age < ServerAsset::kGapTable) v = seg.refresh[size_t(m)][size_t(age)];
                 else v = g * (g + 1.0) * (seg.gap_at(m, g + 1.0) - seg.gap_at(m, g));
                 // Last tick of the hold: without a refresh the segment is dropped,
                 // so refreshing it is worth at least showing it.
-                if (age == HOLD_TICKS - 1) v = std::max(v, seg.show_value[size_t(m)]);
-            } else if (last != 0 && age <= 0) {
-                v = 0;  // already sent this tick
+                if (q > 0 && age >= HOLD_TICKS - 1) v = std::max(v, seg.show_value[size_t(m)]);
             } else {
                 // Not shown: worth its collapse error over the refresh period that
                 // makes showing it most worthwhile (scene.h show_value).
                 v = seg.show_value[size_t(m)];
             }
-            bytes += b;
-            value += w * v;
-            HullPoint pt{seg.to, bytes, value};
-            // Upper concave hull: drop points under the chord to the new point.
-            while (hull.size() >= 2) {
-                const HullPoint& p0 = hull[hull.size() - 2];
-                const HullPoint& p1 = hull.back();
-                const double cross = double(p1.bytes - p0.bytes) * (pt.value - p0.value) -
-                                     double(pt.bytes - p0.bytes) * (p1.value - p0.value);
-                if (cross >= 0) hull.pop_back();
-                else break;
-            }
-            hull.push_back(pt);
+            items.push_back({w * v / double(b), b, seg.from, seg.to, shown, false});
+            if (shown && items.back().ratio > 0) heap_.push_back({items.back().ratio, int(i), int(q), stale, false});
         }
-        if (hull.size() >= 2 && hull[1].value > hull[0].value) {
-            const uint32_t stale = st.bone_tick[0] != 0 ? frame.tick - st.bone_tick[0] : UINT32_MAX;
-            heap_.push_back({(hull[1].value - hull[0].value) / double(hull[1].bytes), int(i), 1, stale});
-            std::push_heap(heap_.begin(), heap_.end());
+        // The unshown segments can only be shown in order: the upper concave
+        // hull of their cumulative (bytes, value), offered one step at a time.
+        auto& chain = chain_[i];
+        chain.clear();
+        size_t u = 0;
+        while (u < items.size() && items[u].shown) ++u;
+        if (u < items.size()) {
+            chain.push_back({int(u), 0, 0.0});
+            size_t cb = 0;
+            double cv = 0;
+            for (size_t q = u; q < items.size(); ++q) {
+                cb += items[q].bytes;
+                cv += items[q].ratio * double(items[q].bytes);
+                const ChainPoint pt{int(q + 1), cb, cv};
+                while (chain.size() >= 2) {
+                    const ChainPoint& p0 = chain[chain.size() - 2];
+                    const ChainPoint& p1 = chain.back();
+                    const double cross = double(p1.bytes - p0.bytes) * (pt.value - p0.value) -
+                                         double(pt.bytes - p0.bytes) * (p1.value - p0.value);
+                    if (cross >= 0) chain.pop_back();
+                    else break;
+                }
+                chain.push_back(pt);
+            }
+            if (chain.size() >= 2 && chain[1].value > 0)
+                heap_.push_back({chain[1].value / double(chain[1].bytes), int(i), 1, stale, true});
         }
     }
-    // Greedy over the instances' hull steps by value per byte.
+    // Greedy over the items by value per byte.
+    std::make_heap(heap_.begin(), heap_.end());
     size_t payload = 0;
     double price = 0;
     while (!heap_.empty()) {
+        if (WireCost::wire(payload + WireCost::kChunk + 12) > budget) {  // not even one more bone fits
+            if (price == 0) price = heap_.front().ratio;
+            break;
+        }
         std::pop_heap(heap_.begin(), heap_.end());
         const Step s = heap_.back();
         heap_.pop_back();
-        const auto& e = frame.instances[size_t(s.instance)];
-        const auto& hull = steps_[size_t(s.instance)];
-        const HullPoint& from = hull[size_t(s.step - 1)];
-        const HullPoint& to = hull[size_t(s.step)];
-        size_t bytes = to.bytes - from.bytes;
-        if (WireCost::wire(payload + bytes) > budget) {
-            if (price == 0) price = s.ratio;
-            // Take as many bones of this step as fit, then stop this instance.
-            const size_t fixed = from.k == 0 ? WireCost::kChunk : 0;
-            int k = to.k;
-            while (k > from.k + 1 && WireCost::wire(payload + fixed + size_t(k - from.k) * size_t(e.record_size)) > budget) --k;
-            bytes = fixed + size_t(k - from.k) * size_t(e.record_size);
-            if (k <= from.k || WireCost::wire(payload + bytes) > budget) continue;
+        auto& items = items_[size_t(s.instance)];
+        if (s.chain) {
+            const auto& chain = chain_[size_t(s.instance)];
+            const ChainPoint& p0 = chain[size_t(s.step - 1)];
+            const ChainPoint& p1 = chain[size_t(s.step)];
+            // Records of the step, plus a chunk header unless it extends a chosen range.
+            size_t bytes = p1.bytes - p0.bytes - size_t(p1.end - p0.end) * WireCost::kChunk;
+            if (!((p0.end > 0 && items[size_t(p0.end - 1)].chosen) || (size_t(p1.end) < items.size() && items[size_t(p1.end)].chosen)))
+                bytes += WireCost::kChunk;
+            if (WireCost::wire(payload + bytes) > budget) {
+                if (price == 0) price = s.ratio;
+                continue;
+            }
             payload += bytes;
-            k_[size_t(s.instance)] = k;
+            for (int q = p0.end; q < p1.end; ++q) items[size_t(q)].chosen = true;
+            if (size_t(s.step) + 1 < chain.size()) {
+                const ChainPoint& p2 = chain[size_t(s.step) + 1];
+                const double r = (p2.value - p1.value) / double(p2.bytes - p1.bytes);
+                if (r > 0) {
+                    heap_.push_back({r, s.instance, s.step + 1, s.age, true});
+                    std::push_heap(heap_.begin(), heap_.end());
+                }
+            }
             continue;
         }
-        payload += bytes;
-        k_[size_t(s.instance)] = to.k;
-        if (size_t(s.step) + 1 < hull.size()) {
-            const HullPoint& nx = hull[size_t(s.step) + 1];
-            const double r = (nx.value - to.value) / double(nx.bytes - to.bytes);
-            if (r > 0) {
-                heap_.push_back({r, s.instance, s.step + 1, s.age});
-                std::push_heap(heap_.begin(), heap_.end());
-            }
+        SegItem& it = items[size_t(s.step)];
+        const size_t q = size_t(s.step);
+        const size_t bytes = it.bytes - ((q > 0 && items[q - 1].chosen) || (q + 1 < items.size() && items[q + 1].chosen) ? WireCost::kChunk : 0);
+        if (WireCost::wire(payload + bytes) > budget) {
+            if (price == 0) price = s.ratio;
+            continue;  // a smaller item may still fit
         }
+        payload += bytes;
+        it.chosen = true;
     }
+    // Limited: something did not fit (also zero-value bones, so that the rate
+    // estimate keeps probing up to the full rate, where everything goes).
+    limited_ = price > 0;
+    for (size_t i = 0; i < n && !limited_; ++i)
+        for (const SegItem& it : items_[i])
+            if (!it.chosen) {
+                limited_ = true;
+                break;
+            }
     // The price of a byte, smoothed over about ten ticks (the budget per tick varies).
     price_ = 0.9 * price_ + 0.1 * price;  // informational (price())
-    // Of two instances of one asset playing the same clip, the more important
-    // one gets the longer prefix this tick (same bytes), so its bones are never
-    // staler than the other's and it is never shown fewer (GUIDE.md §4).
-    for (size_t i = 0; i < n; ++i)
-        if (k_[i] > 0) out.push_back({int(i), 0, 0});
-    for (size_t x = 0; x < out.size(); ++x) {
-        const size_t i = size_t(out[x].instance);
-        for (size_t y = x + 1; y < out.size(); ++y) {
-            const size_t j = size_t(out[y].instance);
-            if (frame.instances[i].asset != frame.instances[j].asset ||
-                frame.instances[i].model != frame.instances[j].model || importance[i] == importance[j])
-                continue;
-            const size_t hi = importance[i] > importance[j] ? i : j, lo = hi == i ? j : i;
-            if (k_[lo] > k_[hi]) std::swap(k_[lo], k_[hi]);
+    // Picks: the chosen segments of each instance merged into ranges; show = the
+    // prefix of segments shown from now on (chosen now or refreshed within the hold).
+    for (size_t i = 0; i < n; ++i) {
+        const auto& items = items_[i];
+        int show = 0;
+        for (const SegItem& it : items) {
+            if (!(it.chosen || it.shown)) break;
+            show = it.to;
         }
+        const size_t before = out.size();
+        for (const SegItem& it : items) {
+            if (!it.chosen) continue;
+            if (out.size() > before && out.back().k == it.from) out.back().k = it.to;
+            else out.push_back({int(i), it.to, 0, it.from});
+        }
+        for (size_t x = before; x < out.size(); ++x) out[x].show = std::max(show, out.back().k);
     }
-    for (Pick& pk : out) {
-        // Shown from now on: this tick's bones and those refreshed within the hold.
-        const size_t i = size_t(pk.instance);
-        const auto& bt = state_[i].bone_tick;
-        pk.k = k_[i];
-        pk.show = pk.k;
-        while (pk.show < int(bt.size()) && bt[size_t(pk.show)] != 0 && int32_t(frame.tick - bt[size_t(pk.show)]) < HOLD_TICKS)
-            ++pk.show;
-    }
-    std::sort(out.begin(), out.end(), by_importance);
-    return payload ? WireCost::wire(payload) : 0;
+    std::stable_sort(out.begin(), out.end(), by_importance);
+    // Estimated bytes: one chunk header per range (each item was charged one).
+    size_t est = 0;
+    for (const Pick& p : out)
+        est += WireCost::kChunk + size_t(p.k - p.first) * size_t(frame.instances[size_t(p.instance)].record_size);
+    return est ? WireCost::wire(est) : 0;
 }
 
 void Scheduler::sent(std::span<const Pick> picks, uint32_t tick) {
@@ -218,7 +249,7 @@ void Scheduler::sent(std::span<const Pick> picks, uint32_t tick) {
         State& s = state_[size_t(p.instance)];
         s.k_last = p.k;
         if (s.bone_tick.size() < size_t(p.k)) s.bone_tick.resize(size_t(p.k), 0);
-        for (int b = 0; b < p.k; ++b) s.bone_tick[size_t(b)] = tick;
+        for (int b = std::max(0, p.first); b < p.k; ++b) s.bone_tick[size_t(b)] = tick;
     }
 }
 

@@ -2,30 +2,30 @@
 // (GUIDE.md §4): the step that removes the most importance-weighted error per
 // wire byte goes first, until the client's byte budget for the tick is spent.
 //
-// Cost model (docs/protocol.md "Scheduling"). The client shows every bone
-// refreshed within the last HOLD_TICKS ticks, interpolating each bone between
-// its own frames, so a bone need not travel every tick: the scheduler keeps,
-// per instance, the tick each bone was last sent and values each segment of
-// the skin (ServerAsset::Segment: bone 0, then the steps of the hull of
-// e(k)^2) in importance^2 x squared error per tick:
+// Cost model (docs/protocol.md "Scheduling"). The client shows the bones the
+// server says (Chunk.show) and interpolates each bone between its own frames,
+// so a bone need not travel every tick, nor with the bones before it: the
+// scheduler keeps, per instance, the tick each bone was last sent and values
+// each segment of the skin (ServerAsset::Segment: bone 0, then the steps of
+// the hull of e(k)^2) in importance^2 x vertices x squared error per tick:
 //   - a shown segment (refreshed a ticks ago) is worth refreshing now by
 //     V = a (a + 1) (G(a + 1) - G(a)), G its mean interpolation error over a
 //     gap: the saving of a refresh period of a instead of a + 1 ticks, per
-//     byte the price a period-a schedule pays (Lagrangian condition);
-//   - a segment not shown (never sent, or past the hold) is worth
-//     V = max over p < HOLD_TICKS of p (C - G(p)), C its collapse error: shown
-//     and refreshed every p ticks it saves C - G(p) per tick for one
-//     refresh's bytes every p ticks; on the last tick of the hold a shown
-//     segment's refresh is worth at least that (else it is dropped).
-// Of two instances of one asset playing the same clip sent in a tick, the
-// more important gets the longer prefix (same bytes); equal ratios go to the
-// instance sent least recently.
-// A tick sends a prefix of the progressive order, so an instance's steps are
-// the upper concave hull of its cumulative (bytes, value) over segments; the
-// greedy takes steps across instances by value per byte (record_size per bone
-// + a 6-byte chunk header for the first step; datagram overheads are charged
-// by WireCost). Cost: O(instances x segments + S log S) per client and tick;
-// O(instances) when everything fits (fast path). No allocation after warm-up.
+//     byte the price a period-a schedule pays (Lagrangian condition); on the
+//     last tick of the hold at least its show value (else it is dropped);
+//   - a segment not shown (never sent, or past the hold) is worth its show
+//     value max over p < HOLD_TICKS of p (C - G(p)), C its collapse error:
+//     shown and refreshed every p ticks it saves C - G(p) per tick for one
+//     refresh's bytes every p ticks.
+// Shown segments are items of their own (a chunk with first > 0 when the
+// bones before it are not due); the segments not shown can only be shown in
+// order, so they are offered as the steps of the upper concave hull of their
+// cumulative (bytes, value). A heap takes items of all instances by value per
+// byte (records + a 6-byte chunk header unless the item extends a chosen
+// range; datagram overheads are charged by WireCost); equal ratios go to the
+// instance sent least recently. Cost: O(instances x segments + S log S) per
+// client and tick for S items offered; O(instances) when everything fits
+// (fast path). No allocation after warm-up.
 #pragma once
 #include <cstdint>
 #include <span>
@@ -60,15 +60,17 @@ std::vector<float> compute_importance(const ViewSpec& view, const std::vector<In
 
 struct Pick {
     int instance = 0;
-    int k = 0;     // bones 0..k-1 sent this tick
-    int show = 0;  // bones the client shows from this tick on (>= k; 0: k)
+    int k = 0;      // bones first..k-1 sent this tick
+    int show = 0;   // bones the client shows from this tick on (>= k; 0: k)
+    int first = 0;  // (an instance may have several picks with disjoint ranges in one tick)
 };
 
 class Scheduler {
 public:
     void reset(size_t instance_count);
-    // Fills `out` with (instance, k) in decreasing importance, k >= 1, within
-    // budget wire bytes. Returns the estimated wire bytes.
+    // Fills `out` with picks (instance, bones first..k-1, show) in decreasing
+    // importance, several disjoint ranges per instance possible, within budget
+    // wire bytes. Returns the estimated wire bytes.
     size_t select(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                   std::span<const float> importance, size_t budget, float tick_rate, std::vector<Pick>& out);
     // Records that `picks` went out at `tick`.
@@ -77,8 +79,10 @@ public:
     int last_k(int instance) const { return state_[instance].k_last; }
     // Bones the client shows of an instance at `tick` (refreshed within HOLD_TICKS).
     int shown(int instance, uint32_t tick) const;
-    // The price of a byte at the last tick (0 when everything fitted).
+    // The price of a byte, smoothed over recent ticks (0 when everything fitted).
     double price() const { return price_; }
+    // Something of positive value did not fit in the last select's budget.
+    bool limited() const { return limited_; }
 
 private:
     struct State {
@@ -88,20 +92,29 @@ private:
     struct Step {
         double ratio;
         int instance;
-        int step;    // index into steps_ of the instance
+        int step;      // shown segment: index into items_; chain step: index into chain_
         uint32_t age;  // ticks since the instance was last sent (ties go to the stalest)
+        bool chain;    // a step of the unshown segments' hull
         bool operator<(const Step& o) const { return ratio < o.ratio || (ratio == o.ratio && age < o.age); }
     };
-    struct HullPoint {
-        int k;           // bones after this step
-        size_t bytes;    // cumulative bytes
-        double value;    // cumulative value
+    struct SegItem {
+        double ratio;    // value per byte
+        size_t bytes;    // records + one chunk header
+        int from, to;    // bones
+        bool shown;      // the client shows it now
+        bool chosen;     // sent this tick
     };
     std::vector<State> state_;
-    std::vector<int> k_;
-    std::vector<std::vector<HullPoint>> steps_;  // per instance: upper hull of (bytes, value), from (0, 0)
+    struct ChainPoint {
+        int end;       // items [previous end, end) of the instance
+        size_t bytes;  // cumulative
+        double value;  // cumulative
+    };
+    std::vector<std::vector<SegItem>> items_;       // per instance, per segment
+    std::vector<std::vector<ChainPoint>> chain_;    // per instance: upper hull over the unshown segments
     std::vector<Step> heap_;
     double price_ = 0;
+    bool limited_ = false;
 };
 
 }  // namespace progskin::net

@@ -470,6 +470,7 @@ struct Server::Impl {
             size_t budget = s->rate.budget();
             if (!budget) continue;
             s->scheduler.select(*frame, assets, s->importance, budget, cfg.tick_rate, picks);
+            if (s->scheduler.limited()) s->rate.mark_limited();
             if (picks.empty()) continue;
             out_dgrams.clear();
             uint32_t first_seq = s->seq;
