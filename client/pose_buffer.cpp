@@ -38,7 +38,6 @@ bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const
         f->tick = tick;
         f->total = total;
         f->show = show;
-        f->ready = 0;
         f->count = 0;
         std::fill(f->have.begin(), f->have.end(), 0);
     }
@@ -57,7 +56,6 @@ bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const
             last_have_[b] = 1;
         }
     }
-    while (f->ready < f->total && f->have[f->ready]) ++f->ready;
     if (!any_ || newer(tick, newest_)) newest_ = tick;
     if (!any_ || newer(first_, tick)) first_ = tick;
     any_ = true;
@@ -78,10 +76,10 @@ int PoseBuffer::bones_at(double d) const {
     }
     const Frame* f = newest_before ? newest_before : first_after;
     if (!f) return 0;
-    int k = std::max(f->ready, f->show);
+    // show >= total >= the bones this frame carries, all of which were received.
     int have = 0;
-    while (have < k && last_have_[size_t(have)]) ++have;
-    return std::max(f->ready, have);
+    while (have < f->show && last_have_[size_t(have)]) ++have;
+    return have;
 }
 
 bool PoseBuffer::pose(int b, double d, BonePose& out, double* held_at) const {

@@ -52,7 +52,6 @@ private:
         uint32_t tick = 0;
         int total = 0;     // bones chosen for this tick
         int show = 0;      // bones to show from this tick on
-        int ready = 0;     // contiguous prefix received
         int count = 0;     // bones received (not necessarily a prefix)
         bool used = false;
         std::vector<BonePose> bones;

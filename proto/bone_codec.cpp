@@ -61,11 +61,12 @@ BonePose interpolate_cubic(const BonePose& p0, const BonePose& a, const BonePose
     const float h00 = float(2 * u3 - 3 * u2 + 1), h10 = float((u3 - 2 * u2 + u) * h), h01 = float(-2 * u3 + 3 * u2),
                 h11 = float((u3 - u2) * h);
     const float ia = float(1.0 / (tb - t0)), ib = float(1.0 / (t3 - ta));
-    auto align = [&](glm::quat q) { return glm::dot(a.r, q) < 0.0f ? -q : q; };
-    const glm::vec4 q0 = glm::vec4(align(p0.r).x, align(p0.r).y, align(p0.r).z, align(p0.r).w);
-    const glm::vec4 qa(a.r.x, a.r.y, a.r.z, a.r.w);
-    const glm::quat bq = align(b.r), q3q = align(p3.r);
-    const glm::vec4 qb(bq.x, bq.y, bq.z, bq.w), q3(q3q.x, q3q.y, q3q.z, q3q.w);
+    // Quaternion components, on a's hemisphere.
+    auto comp = [&](const glm::quat& q) {
+        const glm::vec4 v(q.x, q.y, q.z, q.w);
+        return glm::dot(a.r, q) < 0.0f ? -v : v;
+    };
+    const glm::vec4 q0 = comp(p0.r), qa = comp(a.r), qb = comp(b.r), q3 = comp(p3.r);
     const glm::vec4 q = h00 * qa + h10 * (qb - q0) * ia + h01 * qb + h11 * (q3 - qa) * ib;
     BonePose p;
     p.r = glm::normalize(glm::quat(q.w, q.x, q.y, q.z));

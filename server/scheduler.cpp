@@ -48,14 +48,6 @@ void Scheduler::reset(size_t n) {
     chain_.assign(n, {});
     heap_.clear();
     heap_.reserve(n * 2);
-    price_ = 0;
-}
-
-int Scheduler::shown(int instance, uint32_t tick) const {
-    const State& s = state_[size_t(instance)];
-    int k = 0;
-    while (k < int(s.bone_tick.size()) && s.bone_tick[size_t(k)] != 0 && int32_t(tick - s.bone_tick[size_t(k)]) <= HOLD_TICKS) ++k;
-    return k;
 }
 
 size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
@@ -82,7 +74,6 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
             if (e.valid && importance[i] > 0.0f) out.push_back({int(i), e.bone_count, e.bone_count});
         }
         std::sort(out.begin(), out.end(), by_importance);
-        price_ = 0;
         limited_ = false;
         return WireCost::wire(full);
     }
@@ -163,12 +154,8 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     // Greedy over the items by value per byte.
     std::make_heap(heap_.begin(), heap_.end());
     size_t payload = 0;
-    double price = 0;
     while (!heap_.empty()) {
-        if (WireCost::wire(payload + WireCost::kChunk + 12) > budget) {  // not even one more bone fits
-            if (price == 0) price = heap_.front().ratio;
-            break;
-        }
+        if (WireCost::wire(payload + WireCost::kChunk + 12) > budget) break;  // not even one more bone fits
         std::pop_heap(heap_.begin(), heap_.end());
         const Step s = heap_.back();
         heap_.pop_back();
@@ -181,10 +168,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
             size_t bytes = p1.bytes - p0.bytes - size_t(p1.end - p0.end) * WireCost::kChunk;
             if (!((p0.end > 0 && items[size_t(p0.end - 1)].chosen) || (size_t(p1.end) < items.size() && items[size_t(p1.end)].chosen)))
                 bytes += WireCost::kChunk;
-            if (WireCost::wire(payload + bytes) > budget) {
-                if (price == 0) price = s.ratio;
-                continue;
-            }
+            if (WireCost::wire(payload + bytes) > budget) continue;
             payload += bytes;
             for (int q = p0.end; q < p1.end; ++q) items[size_t(q)].chosen = true;
             if (size_t(s.step) + 1 < chain.size()) {
@@ -200,24 +184,19 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         SegItem& it = items[size_t(s.step)];
         const size_t q = size_t(s.step);
         const size_t bytes = it.bytes - ((q > 0 && items[q - 1].chosen) || (q + 1 < items.size() && items[q + 1].chosen) ? WireCost::kChunk : 0);
-        if (WireCost::wire(payload + bytes) > budget) {
-            if (price == 0) price = s.ratio;
-            continue;  // a smaller item may still fit
-        }
+        if (WireCost::wire(payload + bytes) > budget) continue;  // a smaller item may still fit
         payload += bytes;
         it.chosen = true;
     }
-    // Limited: something did not fit (also zero-value bones, so that the rate
-    // estimate keeps probing up to the full rate, where everything goes).
-    limited_ = price > 0;
+    // Limited: something was left unsent (zero-value bones too, so that the
+    // rate estimate keeps probing up to the full rate, where everything goes).
+    limited_ = false;
     for (size_t i = 0; i < n && !limited_; ++i)
         for (const SegItem& it : items_[i])
             if (!it.chosen) {
                 limited_ = true;
                 break;
             }
-    // The price of a byte, smoothed over about ten ticks (the budget per tick varies).
-    price_ = 0.9 * price_ + 0.1 * price;  // informational (price())
     // Picks: the chosen segments of each instance merged into ranges; show = the
     // prefix of segments shown from now on (chosen now or refreshed within the hold).
     for (size_t i = 0; i < n; ++i) {
@@ -247,7 +226,6 @@ void Scheduler::sent(std::span<const Pick> picks, uint32_t tick) {
     for (const Pick& p : picks) {
         if (size_t(p.instance) >= state_.size()) continue;
         State& s = state_[size_t(p.instance)];
-        s.k_last = p.k;
         if (s.bone_tick.size() < size_t(p.k)) s.bone_tick.resize(size_t(p.k), 0);
         for (int b = std::max(0, p.first); b < p.k; ++b) s.bone_tick[size_t(b)] = tick;
     }

@@ -76,18 +76,12 @@ public:
     // Records that `picks` went out at `tick`.
     void sent(std::span<const Pick> picks, uint32_t tick);
 
-    int last_k(int instance) const { return state_[instance].k_last; }
-    // Bones the client shows of an instance at `tick` (refreshed within HOLD_TICKS).
-    int shown(int instance, uint32_t tick) const;
-    // The price of a byte, smoothed over recent ticks (0 when everything fitted).
-    double price() const { return price_; }
-    // Something of positive value did not fit in the last select's budget.
+    // The last select left something unsent (so the rate estimate may probe up).
     bool limited() const { return limited_; }
 
 private:
     struct State {
-        int k_last = 0;                     // bones of the last frame sent (0: never)
-        std::vector<uint32_t> bone_tick;    // per progressive bone, tick last sent (0: never)
+        std::vector<uint32_t> bone_tick;  // per progressive bone, tick last sent (0: never)
     };
     struct Step {
         double ratio;
@@ -113,7 +107,6 @@ private:
     std::vector<std::vector<SegItem>> items_;       // per instance, per segment
     std::vector<std::vector<ChainPoint>> chain_;    // per instance: upper hull over the unshown segments
     std::vector<Step> heap_;
-    double price_ = 0;
     bool limited_ = false;
 };
 
