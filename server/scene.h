@@ -53,9 +53,8 @@ struct ServerAsset {
         // grows as g^2 (a linear drift).
         std::vector<std::array<double, kGapTable>> gap;
         double gap_at(int model, double g) const;
-        // refresh[m][a] = a (a + 1) (G(a + 1) - G(a)) for a = 1..kGapTable-1
-        // (scheduler.h), and its running maximum over 1..a (for the search of
-        // the period a price affords); [0] unused.
+        // refresh[m][a] = a (a + 1) (G(a + 1) - G(a)) for a = 1..kGapTable-1,
+        // the value of a refresh at age a at 30 Hz (scheduler.h); [0] unused.
         std::vector<std::array<double, kGapTable>> refresh;
         // show_value[m] = max over p < HOLD_TICKS of p (C - G(p)): showing the
         // segment, refreshed every p ticks, saves C - G(p) per tick for the

@@ -40,7 +40,7 @@ std::vector<float> compute_importance(const ViewSpec& view, const std::vector<In
     return imp;
 }
 
-static_assert(HOLD_TICKS < ServerAsset::kGapTable, "refresh tables cover every age below the hold");
+static_assert(HOLD_TICKS < ServerAsset::kGapTable, "the gap and refresh tables cover every age below the hold");
 
 void Scheduler::reset(size_t n) {
     state_.assign(n, State{});
@@ -80,7 +80,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
 
     // Per instance and segment: value and bytes (scheduler.h). Shown segments
     // (a prefix) are refresh items on their own; the segments after them can
-    // only be shown in order, so only the first of them is offered at a time.
+    // only be shown in order, so they are offered as the steps of their hull.
     const double to30 = 30.0 / std::max(1.0f, tick_rate);
     heap_.clear();
     for (size_t i = 0; i < n; ++i) {
