@@ -26,15 +26,7 @@ void remap_skin_vertices(const Character& c, ProgressiveSkin& skin) {
 }
 
 double ClipInfo::clip_time(double tick, double tick_rate) const {
-    double dur = selection.duration();
-    double t = time_offset + tick / tick_rate * speed;
-    if (dur > 0) {
-        t = std::fmod(t, dur);
-        if (t < 0) t += dur;
-    } else {
-        t = 0;
-    }
-    return selection.start + t;
+    return selection.looped(time_offset + tick / tick_rate * speed);
 }
 
 InstanceView::InstanceView(std::shared_ptr<const ClientAsset> asset, ClipInfo clip, int blend_frames)

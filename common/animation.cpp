@@ -211,6 +211,14 @@ ClipSelection make_selection(const Character& c, std::vector<int> clips) {
 
 }  // namespace
 
+double ClipSelection::looped(double t) const {
+    const double dur = duration();
+    if (!(dur > 0)) return start;
+    t = std::fmod(t, dur);
+    if (t < 0) t += dur;
+    return start + t;
+}
+
 ClipSelection select_clips(const Character& c, const std::string& spec) {
     const std::string whole = trim(spec);
     if (whole == "all") {

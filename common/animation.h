@@ -20,6 +20,9 @@ struct ClipSelection {
     float start = 0.0f;      // time range of the selection (min start, max end)
     float end = 0.0f;
     float duration() const { return end - start; }
+    // Clip time of a selection played in a loop, t seconds after its start
+    // (any t, also negative): start + t wrapped into [0, duration).
+    double looped(double t) const;
 };
 
 // Parse a --clip argument: a name, an index, "all" (every clip played

@@ -33,16 +33,7 @@ FrameEncoder::FrameEncoder(std::vector<std::shared_ptr<ServerAsset>> assets, std
 double FrameEncoder::clip_time(int instance, double tick) const {
     const auto& s = specs_[instance];
     if (s.selection < 0) return 0.0;
-    const ClipSelection& sel = assets_[s.asset]->selections[s.selection];
-    double dur = sel.duration();
-    double t = s.time_offset + tick / tick_rate_ * s.speed;
-    if (dur > 0) {
-        t = std::fmod(t, dur);
-        if (t < 0) t += dur;
-    } else {
-        t = 0;
-    }
-    return sel.start + t;
+    return assets_[s.asset]->selections[s.selection].looped(s.time_offset + tick / tick_rate_ * s.speed);
 }
 
 void FrameEncoder::push_pose(int instance, std::span<const Mat34> skinning) {

@@ -284,6 +284,19 @@ std::vector<InstanceSpec> crowd_layout(const std::vector<std::shared_ptr<ServerA
     return out;
 }
 
+std::vector<InstanceSpec> default_instances(const std::vector<std::shared_ptr<ServerAsset>>& assets) {
+    std::vector<InstanceSpec> out;
+    for (size_t a = 0; a < assets.size(); ++a)
+        for (size_t s = 0; s < assets[a]->selections.size(); ++s) {
+            InstanceSpec i;
+            i.asset = int(a);
+            i.selection = int(s);
+            i.position = glm::vec3(float(out.size()) * float(assets[a]->diagonal), 0.0f, 0.0f);
+            out.push_back(i);
+        }
+    return out;
+}
+
 std::vector<std::string> default_asset_paths(const std::string& hint_dir) {
     std::vector<fs::path> roots;
     fs::path p = hint_dir.empty() ? fs::current_path() : fs::path(hint_dir);

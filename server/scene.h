@@ -87,6 +87,9 @@ struct InstanceSpec {
 // Lays out n instances cycling over assets and their clip selections, on a
 // grid spaced by the largest asset diagonal, with varied time offsets.
 std::vector<InstanceSpec> crowd_layout(const std::vector<std::shared_ptr<ServerAsset>>& assets, int n);
+// One instance per asset and clip group, side by side along x (what
+// progskin-server serves without --crowd).
+std::vector<InstanceSpec> default_instances(const std::vector<std::shared_ptr<ServerAsset>>& assets);
 
 // The bundled default character set (assets/Fox.glb, assets/CesiumMan.glb),
 // searched relative to `hint_dir` (a directory), then its parents, then PROGSKIN_ASSETS.

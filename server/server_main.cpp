@@ -107,18 +107,7 @@ int main(int argc, char** argv) {
         if (crowd > 0) {
             instances = crowd_layout(assets, crowd);
         } else {
-            int n = 0;
-            for (const auto& a : assets) n += int(a->selections.size());
-            instances = crowd_layout(assets, 0);
-            for (size_t ai = 0; ai < assets.size(); ++ai)
-                for (size_t si = 0; si < assets[ai]->selections.size(); ++si) {
-                    InstanceSpec s;
-                    s.asset = int(ai);
-                    s.selection = int(si);
-                    s.position = glm::vec3(float(instances.size()) * float(assets[ai]->diagonal), 0.0f, 0.0f);
-                    instances.push_back(s);
-                }
-            (void)n;
+            instances = default_instances(assets);
         }
         Server server(cfg, assets, instances);
         g_server = &server;

@@ -38,20 +38,6 @@ inline std::shared_ptr<ClientAsset> client_asset(const ServerAsset& s) {
     return c;
 }
 
-// One instance per asset and clip group (what progskin-server serves by default).
-inline std::vector<InstanceSpec> default_instances(const std::vector<std::shared_ptr<ServerAsset>>& assets) {
-    std::vector<InstanceSpec> out;
-    for (size_t a = 0; a < assets.size(); ++a)
-        for (size_t s = 0; s < assets[a]->selections.size(); ++s) {
-            InstanceSpec i;
-            i.asset = int(a);
-            i.selection = int(s);
-            i.position = glm::vec3(float(out.size()) * float(assets[a]->diagonal), 0, 0);
-            out.push_back(i);
-        }
-    return out;
-}
-
 class RunningServer {
 public:
     explicit RunningServer(std::vector<InstanceSpec> instances = {}, ServerConfig cfg = {}) {
