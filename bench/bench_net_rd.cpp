@@ -25,6 +25,7 @@
 #include "datagram_packer.h"
 #include "error_metric.h"
 #include "frame_encoder.h"
+#include "frame_reader.h"
 #include "rate_controller.h"
 #include "scene.h"
 #include "scheduler.h"
@@ -76,7 +77,7 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
     // every method gets that bucket depth (the same pacing for all).
     double min_depth = 0;
     for (const auto& a : progressive_assets())
-        min_depth = std::max(min_depth, double(WireCost::wire(WireCost::kChunk + size_t(a->bone_count()) * a->format.size())));
+        min_depth = std::max(min_depth, double(WireCost::wire(WireCost::header(a->bone_count()) + size_t(a->bone_count()) * a->format.size())));
     RateController rate(cap_kbps, cap_kbps, min_depth);
     Scheduler sched;
     DatagramPacker packer;
@@ -89,7 +90,7 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
         for (const auto& a : assets) kmax = std::min(kmax, a->bone_count());
         for (int k = kmax; k >= 1; --k) {
             size_t payload = 0;
-            for (const auto& s : specs) payload += WireCost::kChunk + size_t(std::min(k, assets[s.asset]->bone_count())) * assets[s.asset]->format.size();
+            for (const auto& s : specs) payload += WireCost::header(assets[s.asset]->bone_count()) + size_t(std::min(k, assets[s.asset]->bone_count())) * assets[s.asset]->format.size();
             if (WireCost::wire(payload) * 30.0 <= 0.94 * cap_kbps * 125.0) {
                 leaf_k = k;
                 break;
@@ -121,7 +122,7 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
                     size_t i = (rr + c) % n;
                     const auto& a = *assets[specs[i].asset];
                     int k = m == Method::AllBones ? a.bone_count() : std::min(leaf_k, a.bone_count());
-                    size_t b = WireCost::kChunk + size_t(k) * a.format.size();
+                    size_t b = WireCost::header(a.bone_count()) + size_t(k) * a.format.size();
                     if (WireCost::wire(payload + b) > budget) break;
                     payload += b;
                     picks.push_back({int(i), k});
@@ -162,12 +163,10 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
         for (const auto& d : log[size_t(t)]) {
             const wire::Datagram* g = verify_datagram(d);
             const wire::Frame* fr = g->body_as_Frame();
-            const uint8_t* rec = fr->records()->data();
-            for (const wire::Chunk* c : *fr->chunks()) {
-                InstanceView& v = *views[c->instance()];
-                v.buffer().add_chunk(fr->tick(), c->first(), c->count(), c->total(), rec, c->show());
-                rec += size_t(c->count()) * v.asset().format.size();
-            }
+            auto record_size = [&](uint16_t i) { return i < views.size() ? views[i]->asset().format.size() : 0; };
+            read_frame(*fr, record_size, [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
+                views[i]->buffer().add_chunk(fr->tick(), first, count, show, rec, show);
+            });
         }
         const double d = double(t - delay);
         if (t - delay <= warm) continue;

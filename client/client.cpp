@@ -25,6 +25,7 @@
 #include "client_palette.h"
 #include "error.h"
 #include "error_metric.h"
+#include "frame_reader.h"
 #include "gltf_import.h"
 #include "wire.h"
 
@@ -403,35 +404,30 @@ ClientReport run_client(const ClientOptions& opt) {
             ++rep.duplicates;
             return;
         }
-        // Validate every chunk before applying any.
-        size_t need = 0;
-        if (f->chunks()) {
-            for (const wire::Chunk* c : *f->chunks()) {
-                auto it = view_of_instance.find(c->instance());
-                if (it == view_of_instance.end()) { ++rep.malformed; return; }
-                need += size_t(c->count()) * views[it->second]->asset().format.size();
+        // Every chunk is checked before any is applied (proto/frame_reader.h).
+        auto record_size = [&](uint16_t instance) {
+            auto it = view_of_instance.find(instance);
+            return it == view_of_instance.end() ? 0 : views[it->second]->asset().format.size();
+        };
+        auto apply = [&](uint16_t instance, int first, int count, int show, const uint8_t* rec) {
+            InstanceView& v = *views[view_of_instance[instance]];
+            const bool had = !v.buffer().empty();
+            const uint32_t prev = v.buffer().newest_tick();
+            if (!v.buffer().add_chunk(f->tick(), first, count, show, rec, show)) {
+                ++rep.malformed;
+            } else if (had && tick_offset > -1e299) {
+                // Cover the gap since the instance's newest frame and the gap
+                // since these bones' previous frames (deep bones are refreshed
+                // less often, scheduler.h).
+                double since = int32_t(f->tick() - prev) > 0 ? double(prev) : double(f->tick());
+                if (v.buffer().last_gap() > 0) since = std::min(since, double(f->tick()) - v.buffer().last_gap());
+                if (since < double(f->tick())) needed_delay = std::max(needed_delay, t * tick_rate + tick_offset - since);
             }
+        };
+        if (!read_frame(*f, record_size, apply)) {
+            ++rep.malformed;
+            return;
         }
-        size_t have = f->records() ? f->records()->size() : 0;
-        if (need != have) { ++rep.malformed; return; }
-        const uint8_t* rec = have ? f->records()->data() : nullptr;
-        if (f->chunks())
-            for (const wire::Chunk* c : *f->chunks()) {
-                InstanceView& v = *views[view_of_instance[c->instance()]];
-                const bool had = !v.buffer().empty();
-                const uint32_t prev = v.buffer().newest_tick();
-                if (!v.buffer().add_chunk(f->tick(), c->first(), c->count(), c->total(), rec, c->show())) {
-                    ++rep.malformed;
-                } else if (had && tick_offset > -1e299) {
-                    // Cover the gap since the instance's newest frame and the gap
-                    // since these bones' previous frames (deep bones are refreshed
-                    // less often, scheduler.h).
-                    double since = int32_t(f->tick() - prev) > 0 ? double(prev) : double(f->tick());
-                    if (v.buffer().last_gap() > 0) since = std::min(since, double(f->tick()) - v.buffer().last_gap());
-                    if (since < double(f->tick())) needed_delay = std::max(needed_delay, t * tick_rate + tick_offset - since);
-                }
-                rec += size_t(c->count()) * v.asset().format.size();
-            }
         // Ack state
         if (!any_frame) {
             ack = seq;

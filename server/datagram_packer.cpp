@@ -5,6 +5,7 @@
 #include <cassert>
 
 #include "error.h"
+#include "frame_reader.h"
 #include "wire.h"
 
 namespace progskin::net {
@@ -13,19 +14,20 @@ void DatagramPacker::flush(uint32_t tick, uint32_t& seq, std::vector<std::vector
     if (chunks_.empty()) return;
     fbb_.Clear();
     auto ch = fbb_.CreateVectorOfStructs(chunks_.data(), chunks_.size());
-    auto rec = fbb_.CreateVector(records_.data(), records_.size());
-    auto fr = wire::CreateFrame(fbb_, tick, ch, rec);
+    auto pl = fbb_.CreateVector(payload_.data(), payload_.size());
+    auto fr = wire::CreateFrame(fbb_, tick, ch, pl);
     auto dg = wire::CreateDatagram(fbb_, seq++, now_us32(), wire::DatagramBody::Frame, fr.Union());
     fbb_.Finish(dg, wire::DatagramIdentifier());
     const size_t size = fbb_.GetSize();
     // WireCost::kFrameOverhead must cover the tables; this is what the tests check.
-    if (size > MAX_DATAGRAM || size > records_.size() + chunks_.size() * WireCost::kChunk + WireCost::kFrameOverhead)
-        throw Error("datagram_packer: frame overhead " + std::to_string(size - records_.size() - chunks_.size() * 6) +
+    const size_t body = payload_.size() + chunks_.size() * WireCost::kChunk;
+    if (size > MAX_DATAGRAM || size > body + WireCost::kFrameOverhead)
+        throw Error("datagram_packer: frame overhead " + std::to_string(size - body) +
                     " bytes exceeds WireCost::kFrameOverhead");
     out.emplace_back(fbb_.GetBufferPointer(), fbb_.GetBufferPointer() + size);
     wire += size + UDP_IP_OVERHEAD;
     chunks_.clear();
-    records_.clear();
+    payload_.clear();
 }
 
 size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> picks, uint32_t& seq,
@@ -33,26 +35,50 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
     const size_t room = MAX_DATAGRAM - WireCost::kFrameOverhead;
     size_t wire = 0;
     chunks_.clear();
-    records_.clear();
-    for (const Pick& p : picks) {
-        const EncodedInstance& e = frame.instances[p.instance];
-        const int k = std::min(p.k, e.bone_count);
-        const uint8_t* src = frame.records(p.instance);
-        int first = std::clamp(p.first, 0, k);
-        const int show = std::clamp(p.show, k, e.bone_count);
-        while (first < k) {
-            size_t used = records_.size() + (chunks_.size() + 1) * WireCost::kChunk;
-            int fit = used >= room ? 0 : int((room - used) / size_t(e.record_size));
-            if (fit <= 0) {
+    payload_.clear();
+    // Adjacent picks of one instance (the scheduler's ranges of it) share a chunk.
+    for (size_t g = 0; g < picks.size();) {
+        const int instance = picks[g].instance;
+        size_t g_end = g + 1;
+        while (g_end < picks.size() && picks[g_end].instance == instance) ++g_end;
+        const EncodedInstance& e = frame.instances[size_t(instance)];
+        const uint8_t* src = frame.records(instance);
+        const size_t rs = size_t(e.record_size);
+        int show = 0;
+        for (size_t p = g; p < g_end; ++p) show = std::max(show, std::clamp(std::max(picks[p].show, picks[p].k), 0, e.bone_count));
+        // Bones of the group in increasing order: ranges [first, k), as the
+        // scheduler emits them (sorted, disjoint); a chunk takes as many as fit.
+        size_t p = g;
+        int bone = -1;
+        auto next_bone = [&]() {
+            for (; p < g_end; ++p) {
+                const int lo = std::clamp(picks[p].first, 0, e.bone_count), hi = std::min(picks[p].k, e.bone_count);
+                const int b = std::max(bone + 1, lo);
+                if (b < hi) return b;
+            }
+            return -1;
+        };
+        bone = next_bone();
+        while (bone >= 0) {
+            const size_t mb = mask_bytes(bone, show);
+            const size_t used = payload_.size() + (chunks_.size() + 1) * WireCost::kChunk + mb;
+            if (used + rs > room) {
                 flush(frame.tick, seq, out, wire);
                 continue;
             }
-            int count = std::min(fit, k - first);
-            chunks_.emplace_back(uint16_t(p.instance), uint8_t(first), uint8_t(count), uint8_t(show), uint8_t(show));
-            records_.insert(records_.end(), src + size_t(first) * e.record_size,
-                            src + size_t(first + count) * e.record_size);
-            first += count;
+            const int first = bone;
+            const size_t mask_at = payload_.size();
+            payload_.resize(mask_at + mb, 0);
+            size_t fit = (room - used) / rs;
+            while (bone >= 0 && fit > 0) {
+                payload_[mask_at + size_t(bone - first) / 8] |= uint8_t(1u << ((bone - first) % 8));
+                payload_.insert(payload_.end(), src + size_t(bone) * rs, src + size_t(bone + 1) * rs);
+                --fit;
+                bone = next_bone();
+            }
+            chunks_.emplace_back(uint16_t(instance), uint8_t(first), uint8_t(show));
         }
+        g = g_end;
     }
     flush(frame.tick, seq, out, wire);
     return wire;

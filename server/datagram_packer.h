@@ -1,7 +1,9 @@
 // datagram_packer.h — turns one client's picks of a tick into frame-stream
 // datagrams (datagram.fbs Frame) of at most MAX_DATAGRAM bytes, copying the
-// pre-encoded bone records (no re-encoding). A pick's records may be split
-// across datagrams (Chunk.first/count); chunks go out in pick order.
+// pre-encoded bone records (no re-encoding). Adjacent picks of one instance
+// share one chunk (its bone mask, then its records: proto/frame_reader.h); a
+// chunk that does not fit continues in the next datagram (Chunk.first);
+// chunks go out in pick order.
 #pragma once
 #include <cstdint>
 #include <span>
@@ -26,7 +28,7 @@ private:
     void flush(uint32_t tick, uint32_t& seq, std::vector<std::vector<uint8_t>>& out, size_t& wire);
     flatbuffers::FlatBufferBuilder fbb_{1400};
     std::vector<wire::Chunk> chunks_;
-    std::vector<uint8_t> records_;
+    std::vector<uint8_t> payload_;  // bone masks and records (proto/frame_reader.h)
 };
 
 }  // namespace progskin::net

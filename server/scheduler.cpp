@@ -10,13 +10,13 @@ namespace progskin::net {
 
 size_t WireCost::datagrams(size_t payload) {
     // room for one split chunk header and the tail a record does not fill
-    const size_t cap = MAX_DATAGRAM - kFrameOverhead - kChunk - 14;
+    const size_t cap = MAX_DATAGRAM - kFrameOverhead - kSplitChunk - 14;
     return std::max<size_t>(1, (payload + cap - 1) / cap);
 }
 
 size_t WireCost::wire(size_t payload) {
     size_t n = datagrams(payload);
-    return payload + n * (kFrameOverhead + UDP_IP_OVERHEAD) + (n - 1) * kChunk;
+    return payload + n * (kFrameOverhead + UDP_IP_OVERHEAD) + (n - 1) * kSplitChunk;
 }
 
 std::vector<float> compute_importance(const ViewSpec& view, const std::vector<InstanceSpec>& instances,
@@ -46,6 +46,8 @@ void Scheduler::reset(size_t n) {
     state_.assign(n, State{});
     items_.assign(n, {});
     chain_.assign(n, {});
+    paid_.assign(n, 0);
+    chain_next_.assign(n, 0);
     heap_.clear();
     heap_.reserve(n * 2);
 }
@@ -65,7 +67,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     for (size_t i = 0; i < n; ++i) {
         const auto& e = frame.instances[i];
         if (!e.valid || importance[i] <= 0.0f) continue;
-        full += WireCost::kChunk + size_t(e.bone_count) * e.record_size;
+        full += WireCost::header(e.bone_count) + size_t(e.bone_count) * e.record_size;
     }
     if (full == 0) return 0;
     if (WireCost::wire(full) <= budget) {
@@ -89,6 +91,9 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         const auto& e = frame.instances[i];
         if (!e.valid || importance[i] <= 0.0f) continue;
         const ServerAsset& a = *assets[size_t(e.asset)];
+        const double header = double(WireCost::header(e.bone_count));
+        paid_[i] = 0;
+        chain_next_[i] = 0;
         State& st = state_[i];
         if (st.bone_tick.size() != size_t(a.bone_count())) st.bone_tick.assign(size_t(a.bone_count()), 0);
         // Squared error in screen units, summed over the instance's vertices
@@ -99,7 +104,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         for (size_t q = 0; q < a.segments.size(); ++q) {
             const ServerAsset::Segment& seg = a.segments[q];
             const int m = std::clamp(e.model, 0, int(seg.gap.size()) - 1);
-            const size_t b = size_t(seg.to - seg.from) * size_t(e.record_size) + WireCost::kChunk;
+            const size_t b = size_t(seg.to - seg.from) * size_t(e.record_size);
             // Shown: bone 0 once received (the client never drops it), every
             // further bone up to here refreshed within the hold.
             for (int x = seg.from; x < seg.to && shown; ++x) {
@@ -120,8 +125,8 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
                 // makes showing it most worthwhile (scene.h show_value).
                 v = seg.show_value[size_t(m)];
             }
-            items.push_back({w * v / double(b), b, seg.from, seg.to, shown, false});
-            if (shown && items.back().ratio > 0) heap_.push_back({items.back().ratio, int(i), int(q), stale, false});
+            items.push_back({w * v, b, seg.from, seg.to, shown, false});
+            if (shown && w * v > 0) heap_.push_back({w * v / (double(b) + header), int(i), int(q), stale, false, false});
         }
         // The unshown segments can only be shown in order: the upper concave
         // hull of their cumulative (bytes, value), offered one step at a time.
@@ -135,7 +140,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
             double cv = 0;
             for (size_t q = u; q < items.size(); ++q) {
                 cb += items[q].bytes;
-                cv += items[q].ratio * double(items[q].bytes);
+                cv += items[q].value;
                 const ChainPoint pt{int(q + 1), cb, cv};
                 while (chain.size() >= 2) {
                     const ChainPoint& p0 = chain[chain.size() - 2];
@@ -147,46 +152,55 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
                 }
                 chain.push_back(pt);
             }
-            if (chain.size() >= 2 && chain[1].value > 0)
-                heap_.push_back({chain[1].value / double(chain[1].bytes), int(i), 1, stale, true});
+            if (chain.size() >= 2 && chain[1].value > 0) {
+                heap_.push_back({chain[1].value / (double(chain[1].bytes) + header), int(i), 1, stale, true, false});
+                chain_next_[i] = 1;
+            }
         }
     }
     // Greedy over the items by value per byte.
     std::make_heap(heap_.begin(), heap_.end());
     size_t payload = 0;
     while (!heap_.empty()) {
-        if (WireCost::wire(payload + WireCost::kChunk + 12) > budget) break;  // not even one more bone fits
+        if (WireCost::wire(payload + 12) > budget) break;  // not even one more record fits
         std::pop_heap(heap_.begin(), heap_.end());
         const Step s = heap_.back();
         heap_.pop_back();
-        auto& items = items_[size_t(s.instance)];
+        const size_t inst = size_t(s.instance);
+        if (!s.paid && paid_[inst]) continue;  // offered again at its records-only ratio
+        const size_t header = paid_[inst] ? 0 : WireCost::header(frame.instances[inst].bone_count);
+        auto& items = items_[inst];
         if (s.chain) {
-            const auto& chain = chain_[size_t(s.instance)];
+            const auto& chain = chain_[inst];
             const ChainPoint& p0 = chain[size_t(s.step - 1)];
             const ChainPoint& p1 = chain[size_t(s.step)];
-            // Records of the step, plus a chunk header unless it extends a chosen range.
-            size_t bytes = p1.bytes - p0.bytes - size_t(p1.end - p0.end) * WireCost::kChunk;
-            if (!((p0.end > 0 && items[size_t(p0.end - 1)].chosen) || (size_t(p1.end) < items.size() && items[size_t(p1.end)].chosen)))
-                bytes += WireCost::kChunk;
-            if (WireCost::wire(payload + bytes) > budget) continue;
+            const size_t bytes = p1.bytes - p0.bytes + header;
+            if (WireCost::wire(payload + bytes) > budget) {
+                chain_next_[inst] = 0;
+                continue;
+            }
             payload += bytes;
             for (int q = p0.end; q < p1.end; ++q) items[size_t(q)].chosen = true;
+            chain_next_[inst] = 0;
+            if (!paid_[inst]) pay(s.instance, s.age);
             if (size_t(s.step) + 1 < chain.size()) {
                 const ChainPoint& p2 = chain[size_t(s.step) + 1];
                 const double r = (p2.value - p1.value) / double(p2.bytes - p1.bytes);
                 if (r > 0) {
-                    heap_.push_back({r, s.instance, s.step + 1, s.age, true});
+                    heap_.push_back({r, s.instance, s.step + 1, s.age, true, true});
                     std::push_heap(heap_.begin(), heap_.end());
+                    chain_next_[inst] = s.step + 1;
                 }
             }
             continue;
         }
         SegItem& it = items[size_t(s.step)];
-        const size_t q = size_t(s.step);
-        const size_t bytes = it.bytes - ((q > 0 && items[q - 1].chosen) || (q + 1 < items.size() && items[q + 1].chosen) ? WireCost::kChunk : 0);
+        if (it.chosen) continue;
+        const size_t bytes = it.bytes + header;
         if (WireCost::wire(payload + bytes) > budget) continue;  // a smaller item may still fit
         payload += bytes;
         it.chosen = true;
+        if (!paid_[inst]) pay(s.instance, s.age);
     }
     // Limited: something was left unsent (zero-value bones too, so that the
     // rate estimate keeps probing up to the full rate, where everything goes).
@@ -215,11 +229,33 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         for (size_t x = before; x < out.size(); ++x) out[x].show = std::max(show, out.back().k);
     }
     std::stable_sort(out.begin(), out.end(), by_importance);
-    // Estimated bytes: one chunk header per range (each item was charged one).
+    // Estimated bytes: one chunk header per instance (its ranges are adjacent).
     size_t est = 0;
-    for (const Pick& p : out)
-        est += WireCost::kChunk + size_t(p.k - p.first) * size_t(frame.instances[size_t(p.instance)].record_size);
+    for (size_t x = 0; x < out.size(); ++x) {
+        const auto& e = frame.instances[size_t(out[x].instance)];
+        if (x == 0 || out[x - 1].instance != out[x].instance) est += WireCost::header(e.bone_count);
+        est += size_t(out[x].k - out[x].first) * size_t(e.record_size);
+    }
     return est ? WireCost::wire(est) : 0;
+}
+
+void Scheduler::pay(int instance, uint32_t age) {
+    const size_t i = size_t(instance);
+    paid_[i] = 1;
+    const auto& items = items_[i];
+    for (size_t q = 0; q < items.size(); ++q) {
+        const SegItem& it = items[q];
+        if (!it.shown || it.chosen || !(it.value > 0)) continue;
+        heap_.push_back({it.value / double(it.bytes), instance, int(q), age, false, true});
+        std::push_heap(heap_.begin(), heap_.end());
+    }
+    if (const int c = chain_next_[i]; c > 0) {
+        const auto& chain = chain_[i];
+        const double r = (chain[size_t(c)].value - chain[size_t(c - 1)].value) /
+                         double(chain[size_t(c)].bytes - chain[size_t(c - 1)].bytes);
+        heap_.push_back({r, instance, c, age, true, true});
+        std::push_heap(heap_.begin(), heap_.end());
+    }
 }
 
 void Scheduler::sent(std::span<const Pick> picks, uint32_t tick) {

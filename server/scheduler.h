@@ -21,9 +21,12 @@
 // bones before it are not due); the segments not shown can only be shown in
 // order, so they are offered as the steps of the upper concave hull of their
 // cumulative (bytes, value). A heap takes items of all instances by value per
-// byte (records + a 6-byte chunk header unless the item extends a chosen
-// range; datagram overheads are charged by WireCost); equal ratios go to the
-// instance sent least recently. Cost: O(instances x segments + S log S) per
+// byte: their records, plus the instance's chunk header (WireCost::header:
+// struct and bone mask, one per instance and tick whatever bones it carries)
+// for the first item of an instance in the tick; once an instance's header is
+// paid its remaining items are offered again at their records-only ratio.
+// Datagram overheads are charged by WireCost; equal ratios go to the instance
+// sent least recently. Cost: O(instances x segments + S log S) per
 // client and tick for S items offered; O(instances) when everything fits
 // (fast path). No allocation after warm-up.
 #pragma once
@@ -32,6 +35,7 @@
 #include <vector>
 
 #include "frame_encoder.h"
+#include "wire.h"
 
 namespace progskin::net {
 
@@ -39,7 +43,11 @@ namespace progskin::net {
 // carrying `payload` bytes of chunk headers and records in one tick.
 struct WireCost {
     static constexpr size_t kFrameOverhead = 80;  // Datagram + Frame FlatBuffer tables (datagram_packer.cpp checks)
-    static constexpr size_t kChunk = 6;           // one Chunk struct
+    static constexpr size_t kChunk = 4;           // one Chunk struct
+    static constexpr size_t kSplitChunk = kChunk + (MAX_BONES + 7) / 8;  // a chunk continued in another datagram
+    // Chunk struct + bone mask for an instance of `bones` bones (at most; a
+    // chunk starting at bone first > 0 has a shorter mask).
+    static constexpr size_t header(int bones) { return kChunk + (size_t(bones) + 7) / 8; }
     static size_t datagrams(size_t payload);
     static size_t wire(size_t payload);
 };
@@ -89,15 +97,19 @@ private:
         int step;      // shown segment: index into items_; chain step: index into chain_
         uint32_t age;  // ticks since the instance was last sent (ties go to the stalest)
         bool chain;    // a step of the unshown segments' hull
+        bool paid;     // ratio without the chunk header (offered once the instance's header is paid)
         bool operator<(const Step& o) const { return ratio < o.ratio || (ratio == o.ratio && age < o.age); }
     };
     struct SegItem {
-        double ratio;    // value per byte
-        size_t bytes;    // records + one chunk header
+        double value;    // importance-weighted squared error removed per tick
+        size_t bytes;    // records
         int from, to;    // bones
         bool shown;      // the client shows it now
         bool chosen;     // sent this tick
     };
+    // An instance's first item of the tick paid its chunk header: offer its
+    // pending items again at their records-only ratio.
+    void pay(int instance, uint32_t age);
     std::vector<State> state_;
     struct ChainPoint {
         int end;       // items [previous end, end) of the instance
@@ -106,6 +118,8 @@ private:
     };
     std::vector<std::vector<SegItem>> items_;       // per instance, per segment
     std::vector<std::vector<ChainPoint>> chain_;    // per instance: upper hull over the unshown segments
+    std::vector<uint8_t> paid_;                     // per instance: chunk header paid this tick
+    std::vector<int> chain_next_;                   // per instance: chain step offered now (0: none)
     std::vector<Step> heap_;
     bool limited_ = false;
 };

@@ -9,6 +9,7 @@
 #include "datagram_packer.h"
 #include "error_metric.h"
 #include "frame_encoder.h"
+#include "frame_reader.h"
 #include "scene.h"
 #include "scheduler.h"
 #include "wire.h"
@@ -60,12 +61,10 @@ struct Pipeline {
             EXPECT_NE(g, nullptr);
             EXPECT_LE(d.size(), MAX_DATAGRAM);
             const wire::Frame* fr = g->body_as_Frame();
-            const uint8_t* rec = fr->records()->data();
-            for (const wire::Chunk* c : *fr->chunks()) {
-                InstanceView& v = *views[c->instance()];
-                EXPECT_TRUE(v.buffer().add_chunk(fr->tick(), c->first(), c->count(), c->total(), rec, c->show()));
-                rec += size_t(c->count()) * v.asset().format.size();
-            }
+            auto record_size = [&](uint16_t i) { return i < views.size() ? views[i]->asset().format.size() : 0; };
+            EXPECT_TRUE(read_frame(*fr, record_size, [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
+                EXPECT_TRUE(views[i]->buffer().add_chunk(fr->tick(), first, count, show, rec, show));
+            }));
         }
         return wire;
     }
@@ -196,7 +195,7 @@ TEST(NetPipeline, DeepBonesRefreshedLessOftenStayShown) {
     const size_t n = p.specs.size();
     std::vector<float> imp(n, 1.0f);
     size_t full = 0;
-    for (const auto& s : p.specs) full += WireCost::kChunk + size_t(p.assets[s.asset]->bone_count()) * p.assets[s.asset]->format.size();
+    for (const auto& s : p.specs) full += WireCost::header(p.assets[s.asset]->bone_count()) + size_t(p.assets[s.asset]->bone_count()) * p.assets[s.asset]->format.size();
     const size_t budget = WireCost::wire(full) / 2;
     std::vector<double> sent(n, 0), picked(n, 0), displayed(n, 0), frames(n, 0);
     const int delay = 8;

@@ -1,0 +1,80 @@
+// frame_reader.h — the chunk layout of a Frame (datagram.fbs, protocol
+// version 3), written by server/datagram_packer.cpp and read here by every
+// receiver (client, tests, benchmarks, fuzz target).
+//
+// Frame.payload holds, per chunk in chunk order, a bone mask of
+// mask_bytes(first, show) bytes (bit j of byte j / 8, least significant bit
+// first: bone first + j is carried), then one record per set bit, in
+// increasing bone order.
+//
+// read_frame(frame, record_size, run) checks every length and index of a
+// verified Frame before anything is applied:
+//   record_size(instance) -> int: the record bytes of that instance's asset,
+//       0 when the instance is unknown;
+//   run(instance, first, count, show, records): called for every run of
+//       consecutive bones carried, in payload order (records: count records).
+// Returns false, having called run for nothing, when a chunk names an unknown
+// instance, has show == 0 or first >= show, a mask runs past the payload or
+// has bits set at or past show, carries no bone, its records run past the
+// payload, or when bytes are left over after the last chunk. Whether show
+// fits the asset's bone count is the receiver's check (PoseBuffer::add_chunk).
+// O(payload bytes), no allocation.
+#pragma once
+#include <bit>
+#include <cstddef>
+#include <cstdint>
+
+#include "datagram_generated.h"
+
+namespace progskin::net {
+
+// Bytes of the bone mask of a chunk covering bones first..show-1.
+constexpr size_t mask_bytes(int first, int show) { return show > first ? size_t(show - first + 7) / 8 : 0; }
+
+template <class RecordSize, class Run>
+bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run) {
+    const auto* chunks = frame.chunks();
+    const auto* payload = frame.payload();
+    const uint8_t* data = payload ? payload->data() : nullptr;
+    const size_t size = payload ? payload->size() : 0;
+    // Pass 0 checks everything; pass 1 calls run.
+    for (int pass = 0; pass < 2; ++pass) {
+        size_t at = 0;
+        if (chunks) {
+            for (const wire::Chunk* c : *chunks) {
+                const int rs = record_size(c->instance());
+                const int first = c->first(), show = c->show();
+                if (rs <= 0 || first >= show) return false;
+                const size_t mb = mask_bytes(first, show);
+                if (size - at < mb) return false;
+                const uint8_t* mask = data + at;
+                at += mb;
+                const int bits = show - first;
+                if (bits % 8 != 0 && (mask[mb - 1] >> (bits % 8)) != 0) return false;
+                size_t carried = 0;
+                for (size_t i = 0; i < mb; ++i) carried += size_t(std::popcount(mask[i]));
+                if (carried == 0 || (size - at) / size_t(rs) < carried) return false;
+                if (pass == 1) {
+                    const uint8_t* rec = data + at;
+                    int j = 0;
+                    while (j < bits) {
+                        if (!(mask[j / 8] >> (j % 8) & 1)) {
+                            ++j;
+                            continue;
+                        }
+                        int e = j + 1;
+                        while (e < bits && (mask[e / 8] >> (e % 8) & 1)) ++e;
+                        run(c->instance(), first + j, e - j, show, rec);
+                        rec += size_t(e - j) * size_t(rs);
+                        j = e;
+                    }
+                }
+                at += carried * size_t(rs);
+            }
+        }
+        if (at != size) return false;
+    }
+    return true;
+}
+
+}  // namespace progskin::net
