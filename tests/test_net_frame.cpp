@@ -1,0 +1,192 @@
+// The Frame layout of protocol version 3 (proto/frame_reader.h): what the
+// packer writes reads back bone for bone, and every malformed chunk is
+// refused before anything is applied.
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <map>
+#include <random>
+
+#include "datagram_packer.h"
+#include "frame_encoder.h"
+#include "frame_reader.h"
+#include "scene.h"
+#include "scheduler.h"
+#include "wire.h"
+
+using namespace progskin;
+using namespace progskin::net;
+
+namespace {
+
+// A Datagram with one Frame of the given chunks and payload bytes.
+std::vector<uint8_t> frame_datagram(const std::vector<wire::Chunk>& chunks, const std::vector<uint8_t>& payload) {
+    flatbuffers::FlatBufferBuilder fbb;
+    auto ch = fbb.CreateVectorOfStructs(chunks.data(), chunks.size());
+    auto pl = fbb.CreateVector(payload.data(), payload.size());
+    auto fr = wire::CreateFrame(fbb, 7, ch, pl);
+    fbb.Finish(wire::CreateDatagram(fbb, 1, 0, wire::DatagramBody::Frame, fr.Union()), wire::DatagramIdentifier());
+    return {fbb.GetBufferPointer(), fbb.GetBufferPointer() + fbb.GetSize()};
+}
+
+struct ChunkRun {
+    int instance, first, count, show;
+    size_t offset;  // of the records in the payload
+};
+
+// read_frame over a datagram, instances 0..2 known with 12-byte records.
+bool read_datagram(const std::vector<uint8_t>& d, std::vector<ChunkRun>& runs) {
+    runs.clear();
+    const wire::Datagram* g = verify_datagram(d);
+    if (!g || !g->body_as_Frame()) return false;
+    const wire::Frame& f = *g->body_as_Frame();
+    const uint8_t* base = f.payload() ? f.payload()->data() : nullptr;
+    const size_t size = f.payload() ? f.payload()->size() : 0;
+    return read_frame(
+        f, [](uint16_t i) { return i < 3 ? 12 : 0; },
+        [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
+            EXPECT_GE(rec, base);
+            EXPECT_LE(rec + size_t(count) * 12, base + size);
+            runs.push_back({i, first, count, show, size_t(rec - base)});
+        });
+}
+
+}  // namespace
+
+TEST(NetFrame, ReadsMaskRunsAndRecords) {
+    // Instance 1, bones 3..12 of show 13 with bones 3,4,5, 9, 11 carried;
+    // instance 0, bone 0 of show 1.
+    // Mask over bones 3..12 (10 bits, 2 bytes): bones 3,4,5 -> bits 0,1,2;
+    // bone 9 -> bit 6; bone 11 -> bit 8.
+    std::vector<uint8_t> pl = {0b01000111, 0b00000001};
+    pl.resize(pl.size() + 5 * 12, 0xAB);
+    pl.push_back(0b1);
+    pl.resize(pl.size() + 12, 0xCD);
+    std::vector<ChunkRun> runs;
+    ASSERT_TRUE(read_datagram(frame_datagram({{1, 3, 13}, {0, 0, 1}}, pl), runs));
+    ASSERT_EQ(runs.size(), 4u);
+    EXPECT_EQ(runs[0].first, 3);
+    EXPECT_EQ(runs[0].count, 3);
+    EXPECT_EQ(runs[0].offset, 2u);
+    EXPECT_EQ(runs[1].first, 9);
+    EXPECT_EQ(runs[1].count, 1);
+    EXPECT_EQ(runs[1].offset, 2u + 36);
+    EXPECT_EQ(runs[2].first, 11);
+    EXPECT_EQ(runs[2].offset, 2u + 48);
+    EXPECT_EQ(runs[2].show, 13);
+    EXPECT_EQ(runs[3].instance, 0);
+    EXPECT_EQ(runs[3].first, 0);
+    EXPECT_EQ(runs[3].offset, 2u + 60 + 1);
+}
+
+TEST(NetFrame, RefusesEveryMalformedChunkBeforeApplyingAny) {
+    std::vector<uint8_t> good = {0b00000101};  // bones 0 and 2 of show 3
+    good.resize(1 + 24, 1);
+    std::vector<ChunkRun> runs;
+    ASSERT_TRUE(read_datagram(frame_datagram({{0, 0, 3}}, good), runs));
+    EXPECT_EQ(runs.size(), 2u);
+
+    struct Case {
+        const char* what;
+        std::vector<wire::Chunk> chunks;
+        std::vector<uint8_t> payload;
+    };
+    std::vector<uint8_t> bits_past_show = good;
+    bits_past_show[0] |= 0b1000;  // bone 3 with show 3
+    std::vector<uint8_t> empty_mask = good;
+    empty_mask[0] = 0;
+    std::vector<uint8_t> short_records(good.begin(), good.end() - 1);
+    std::vector<uint8_t> trailing = good;
+    trailing.push_back(0);
+    std::vector<uint8_t> two = good;  // a good chunk, then a bad one: nothing applied
+    two.insert(two.end(), good.begin(), good.end());
+    const std::vector<Case> cases = {
+        {"unknown instance", {{9, 0, 3}}, good},
+        {"show 0", {{0, 0, 0}}, good},
+        {"first >= show", {{0, 3, 3}}, good},
+        {"mask bits at or past show", {{0, 0, 3}}, bits_past_show},
+        {"no bone carried", {{0, 0, 3}}, empty_mask},
+        {"records past the payload", {{0, 0, 3}}, short_records},
+        {"bytes left over", {{0, 0, 3}}, trailing},
+        {"mask past the payload", {{0, 0, 200}}, {}},
+        {"second chunk bad", {{0, 0, 3}, {3, 0, 3}}, two},
+        {"chunks without payload", {{0, 0, 3}}, {}},
+    };
+    for (const Case& c : cases) {
+        EXPECT_FALSE(read_datagram(frame_datagram(c.chunks, c.payload), runs)) << c.what;
+        EXPECT_TRUE(runs.empty()) << c.what;
+    }
+}
+
+TEST(NetFrame, RandomFramesAreRefusedOrReadInBounds) {
+    std::mt19937 rng(3);
+    int accepted = 0;
+    std::vector<ChunkRun> runs;
+    for (int i = 0; i < 20000; ++i) {
+        std::vector<wire::Chunk> chunks(rng() % 4);
+        for (auto& c : chunks) c = wire::Chunk(uint16_t(rng() % 4), uint8_t(rng() % 8), uint8_t(rng() % 24));
+        std::vector<uint8_t> pl(rng() % 80);
+        for (auto& b : pl) b = uint8_t(rng() % 3 ? rng() % 4 : rng());
+        accepted += read_datagram(frame_datagram(chunks, pl), runs);  // bounds checked in read_datagram()
+    }
+    EXPECT_GT(accepted, 0);
+}
+
+// The packer's datagrams carry exactly the picked bones, each record
+// byte-identical to the encoder's, one chunk per instance and datagram, and
+// no more wire bytes than the scheduler's estimate (WireCost).
+TEST(NetFrame, PackerRoundTripsPicksOverSeveralDatagrams) {
+    const std::vector<std::shared_ptr<ServerAsset>> assets = {
+        load_server_asset(std::string(PROGSKIN_ASSETS) + "/Fox.glb"),
+        load_server_asset(std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb")};
+    const auto specs = crowd_layout(assets, 12);
+    FrameEncoder enc(assets, specs, 30.0f);
+    const EncodedFrame& f = enc.encode(5);
+    std::vector<Pick> picks;
+    std::map<std::pair<int, int>, bool> want;
+    size_t est = 0;
+    for (int i = 0; i < int(specs.size()); ++i) {
+        const int B = f.instances[size_t(i)].bone_count;
+        const size_t rs = size_t(f.instances[size_t(i)].record_size);
+        est += WireCost::header(B);
+        // Three disjoint ranges for even instances, everything for odd ones.
+        std::vector<std::pair<int, int>> ranges = i % 2 ? std::vector<std::pair<int, int>>{{0, B}}
+                                                        : std::vector<std::pair<int, int>>{{0, 2}, {5, 9}, {B - 3, B}};
+        for (auto [a, b] : ranges) {
+            picks.push_back({i, b, B, a});
+            for (int x = a; x < b; ++x) want[{i, x}] = true;
+            est += size_t(b - a) * rs;
+        }
+    }
+    DatagramPacker packer;
+    uint32_t seq = 0;
+    std::vector<std::vector<uint8_t>> out;
+    const size_t wire = packer.pack(f, picks, seq, out);
+    ASSERT_GE(out.size(), 2u);  // the picks do not fit one datagram
+    EXPECT_LE(wire, WireCost::wire(est));
+    std::map<std::pair<int, int>, int> got;
+    for (const auto& d : out) {
+        ASSERT_LE(d.size(), MAX_DATAGRAM);
+        const wire::Datagram* g = verify_datagram(d);
+        ASSERT_NE(g, nullptr);
+        const wire::Frame& fr = *g->body_as_Frame();
+        EXPECT_EQ(fr.tick(), 5u);
+        std::map<int, int> chunks_of;
+        for (const wire::Chunk* c : *fr.chunks()) ++chunks_of[c->instance()];
+        for (auto [i, n] : chunks_of) EXPECT_EQ(n, 1) << "instance " << i;
+        auto size_of = [&](uint16_t i) { return i < specs.size() ? f.instances[i].record_size : 0; };
+        ASSERT_TRUE(read_frame(fr, size_of, [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
+            const size_t rs = size_t(f.instances[i].record_size);
+            EXPECT_EQ(show, f.instances[i].bone_count);
+            for (int x = first; x < first + count; ++x) {
+                ++got[{i, x}];
+                EXPECT_EQ(0, std::memcmp(rec + size_t(x - first) * rs, f.records(i) + size_t(x) * rs, rs));
+            }
+        }));
+    }
+    EXPECT_EQ(got.size(), want.size());
+    for (const auto& [key, n] : got) {
+        EXPECT_EQ(n, 1);
+        EXPECT_TRUE(want.count(key)) << key.first << " " << key.second;
+    }
+}
