@@ -17,8 +17,8 @@
 //     value max over p < HOLD_TICKS of p (C - G(p)), C its collapse error:
 //     shown and refreshed every p ticks it saves C - G(p) per tick for one
 //     refresh's bytes every p ticks.
-// Shown segments are items of their own (a chunk with first > 0 when the
-// bones before it are not due); the segments not shown can only be shown in
+// Shown segments are items of their own (the chunk's bone mask carries only
+// the bones that are due); the segments not shown can only be shown in
 // order, so they are offered as the steps of the upper concave hull of their
 // cumulative (bytes, value). A heap takes items of all instances by value per
 // byte: their records, plus the instance's chunk header (WireCost::header:
