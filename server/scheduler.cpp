@@ -48,6 +48,9 @@ void Scheduler::reset(size_t n) {
     chain_.assign(n, {});
     paid_.assign(n, 0);
     chain_next_.assign(n, 0);
+    header_.assign(n, 0);
+    order_.assign(n, {});
+    order_at_.assign(n, 0);
     heap_.clear();
     heap_.reserve(n * 2);
 }
@@ -94,6 +97,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         const double header = double(WireCost::header(e.bone_count));
         paid_[i] = 0;
         chain_next_[i] = 0;
+        header_[i] = WireCost::header(e.bone_count);
         State& st = state_[i];
         if (st.bone_tick.size() != size_t(a.bone_count())) st.bone_tick.assign(size_t(a.bone_count()), 0);
         // Squared error in screen units, summed over the instance's vertices
@@ -125,11 +129,11 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
                 // makes showing it most worthwhile (scene.h show_value).
                 v = seg.show_value[size_t(m)];
             }
-            items.push_back({w * v, b, seg.from, seg.to, shown, false});
-            if (shown && w * v > 0) heap_.push_back({w * v / (double(b) + header), int(i), int(q), stale, false, false});
+            items.push_back({w * v, b, seg.from, seg.to, shown, false, false});
         }
         // The unshown segments can only be shown in order: the upper concave
         // hull of their cumulative (bytes, value), offered one step at a time.
+        offer_unpaid(int(i), stale);
         auto& chain = chain_[i];
         chain.clear();
         size_t u = 0;
@@ -195,12 +199,24 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
             continue;
         }
         SegItem& it = items[size_t(s.step)];
-        if (it.chosen) continue;
+        if (it.chosen) {
+            if (s.paid) offer_paid(s.instance, s.age);
+            continue;
+        }
         const size_t bytes = it.bytes + header;
-        if (WireCost::wire(payload + bytes) > budget) continue;  // a smaller item may still fit
+        if (WireCost::wire(payload + bytes) > budget) {  // a smaller item may still fit
+            if (s.paid) {
+                offer_paid(s.instance, s.age);
+            } else {
+                it.tried = true;
+                offer_unpaid(s.instance, s.age);
+            }
+            continue;
+        }
         payload += bytes;
         it.chosen = true;
         if (!paid_[inst]) pay(s.instance, s.age);
+        else offer_paid(s.instance, s.age);
     }
     // Limited: something was left unsent (zero-value bones too, so that the
     // rate estimate keeps probing up to the full rate, where everything goes).
@@ -239,16 +255,38 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     return est ? WireCost::wire(est) : 0;
 }
 
+void Scheduler::offer_unpaid(int instance, uint32_t age) {
+    const auto& items = items_[size_t(instance)];
+    const double header = double(header_[size_t(instance)]);
+    int best = -1;
+    double best_ratio = 0;
+    for (size_t q = 0; q < items.size(); ++q) {
+        const SegItem& it = items[q];
+        if (!it.shown || it.chosen || it.tried || !(it.value > 0)) continue;
+        const double r = it.value / (double(it.bytes) + header);
+        if (r > best_ratio) {
+            best_ratio = r;
+            best = int(q);
+        }
+    }
+    if (best < 0) return;
+    heap_.push_back({best_ratio, instance, best, age, false, false});
+    std::push_heap(heap_.begin(), heap_.end());
+}
+
 void Scheduler::pay(int instance, uint32_t age) {
     const size_t i = size_t(instance);
     paid_[i] = 1;
     const auto& items = items_[i];
-    for (size_t q = 0; q < items.size(); ++q) {
-        const SegItem& it = items[q];
-        if (!it.shown || it.chosen || !(it.value > 0)) continue;
-        heap_.push_back({it.value / double(it.bytes), instance, int(q), age, false, true});
-        std::push_heap(heap_.begin(), heap_.end());
-    }
+    auto& order = order_[i];
+    order.clear();
+    for (size_t q = 0; q < items.size(); ++q)
+        if (items[q].shown && !items[q].chosen && items[q].value > 0) order.push_back(int(q));
+    std::sort(order.begin(), order.end(), [&](int a, int b) {
+        return items[size_t(a)].value * double(items[size_t(b)].bytes) > items[size_t(b)].value * double(items[size_t(a)].bytes);
+    });
+    order_at_[i] = 0;
+    offer_paid(instance, age);
     if (const int c = chain_next_[i]; c > 0) {
         const auto& chain = chain_[i];
         const double r = (chain[size_t(c)].value - chain[size_t(c - 1)].value) /
@@ -256,6 +294,18 @@ void Scheduler::pay(int instance, uint32_t age) {
         heap_.push_back({r, instance, c, age, true, true});
         std::push_heap(heap_.begin(), heap_.end());
     }
+}
+
+void Scheduler::offer_paid(int instance, uint32_t age) {
+    const size_t i = size_t(instance);
+    const auto& items = items_[i];
+    const auto& order = order_[i];
+    size_t& at = order_at_[i];
+    while (at < order.size() && items[size_t(order[at])].chosen) ++at;
+    if (at == order.size()) return;
+    const SegItem& it = items[size_t(order[at++])];
+    heap_.push_back({it.value / double(it.bytes), instance, order[at - 1], age, false, true});
+    std::push_heap(heap_.begin(), heap_.end());
 }
 
 void Scheduler::sent(std::span<const Pick> picks, uint32_t tick) {

@@ -106,10 +106,16 @@ private:
         int from, to;    // bones
         bool shown;      // the client shows it now
         bool chosen;     // sent this tick
+        bool tried;      // offered with the chunk header and did not fit
     };
-    // An instance's first item of the tick paid its chunk header: offer its
-    // pending items again at their records-only ratio.
+    // Each instance has at most one shown item and one chain step in the heap
+    // at a time. Before its chunk header is paid: its best shown item by value
+    // per (records + header) (offer_unpaid); once paid (pay): its shown items
+    // in order of value per record byte, the next offered when one is taken
+    // or does not fit (offer_paid), and its chain step at the records-only ratio.
+    void offer_unpaid(int instance, uint32_t age);
     void pay(int instance, uint32_t age);
+    void offer_paid(int instance, uint32_t age);
     std::vector<State> state_;
     struct ChainPoint {
         int end;       // items [previous end, end) of the instance
@@ -120,6 +126,9 @@ private:
     std::vector<std::vector<ChainPoint>> chain_;    // per instance: upper hull over the unshown segments
     std::vector<uint8_t> paid_;                     // per instance: chunk header paid this tick
     std::vector<int> chain_next_;                   // per instance: chain step offered now (0: none)
+    std::vector<size_t> header_;                    // per instance: WireCost::header of its bones
+    std::vector<std::vector<int>> order_;           // per instance (once paid): shown items by value per byte
+    std::vector<size_t> order_at_;                  // per instance: next in order_ to offer
     std::vector<Step> heap_;
     bool limited_ = false;
 };
