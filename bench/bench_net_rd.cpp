@@ -68,6 +68,7 @@ enum class Method { Progressive, AllBones, LeafLod };
 
 struct Result {
     double rate_kbps = 0, bones = 0, rms = 0, max = 0, delay_ms = 0;
+    double header_pct = 0;  // share of the wire bytes in chunk structs and bone masks
 };
 
 Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbps, int ticks, int warm) {
@@ -158,15 +159,19 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
         views.push_back(std::make_unique<InstanceView>(client_asset(*assets[s.asset]), ci, 8));
     }
     double sq = 0, cnt = 0, mx = 0, bones = 0, frames = 0;
+    size_t header_bytes = 0;
     std::vector<glm::vec3> shown, ref;
     for (int t = 1; t <= ticks; ++t) {
         for (const auto& d : log[size_t(t)]) {
             const wire::Datagram* g = verify_datagram(d);
             const wire::Frame* fr = g->body_as_Frame();
             auto record_size = [&](uint16_t i) { return i < views.size() ? views[i]->asset().format.size() : 0; };
+            size_t records = 0;
             read_frame(*fr, record_size, [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
                 views[i]->buffer().add_chunk(fr->tick(), first, count, show, rec, show);
+                records += size_t(count) * size_t(record_size(i));
             });
+            if (t > warm) header_bytes += fr->chunks()->size() * WireCost::kChunk + fr->payload()->size() - records;
         }
         const double d = double(t - delay);
         if (t - delay <= warm) continue;
@@ -193,6 +198,7 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
     r.rms = cnt > 0 ? std::sqrt(sq / cnt) : 0;
     r.max = mx;
     r.delay_ms = delay * 1000.0 / 30.0;
+    r.header_pct = wire_total ? 100.0 * double(header_bytes) / double(wire_total) : 0;
     return r;
 }
 
@@ -242,14 +248,14 @@ int main(int argc, char** argv) {
     benchmark::RunSpecifiedBenchmarks();
     benchmark::Shutdown();
     if (table().empty()) return 0;
-    std::printf("\n| scene | cap kbit/s | method | rate kbit/s | bones/char | RMS %% diag | max %% diag | delay ms |\n");
-    std::printf("|---|---|---|---|---|---|---|---|\n");
+    std::printf("\n| scene | cap kbit/s | method | rate kbit/s | bones/char | RMS %% diag | max %% diag | delay ms | chunk headers %% of bytes |\n");
+    std::printf("|---|---|---|---|---|---|---|---|---|\n");
     const char* names[3] = {"progressive", "all bones, fewer updates", "static leaf LOD"};
     for (const auto& [key, r] : table()) {
         for (int m = 0; m < 3; ++m)
-            std::printf("| %s | %d | %s | %.1f | %.1f | %.4f | %.3f | %.0f |\n", key.first == 0 ? "default (4)" : "crowd (24)",
-                        key.second, names[m], r[m].rate_kbps, r[m].bones, r[m].rms, r[m].max, r[m].delay_ms);
-        std::printf("| | | progressive / best baseline RMS | | | **%.2f** | | |\n",
+            std::printf("| %s | %d | %s | %.1f | %.1f | %.4f | %.3f | %.0f | %.1f |\n", key.first == 0 ? "default (4)" : "crowd (24)",
+                        key.second, names[m], r[m].rate_kbps, r[m].bones, r[m].rms, r[m].max, r[m].delay_ms, r[m].header_pct);
+        std::printf("| | | progressive / best baseline RMS | | | **%.2f** | | | |\n",
                     r[0].rms / std::max(1e-9, std::min(r[1].rms, r[2].rms)));
     }
     return 0;

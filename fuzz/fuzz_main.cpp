@@ -1,8 +1,13 @@
-// libFuzzer driver for the glTF importer (scripts/fuzz.sh builds it with
-// clang -fsanitize=fuzzer,address,undefined).
+// libFuzzer driver: the glTF importer, or with PROGSKIN_FUZZ_FRAME_STREAM the
+// frame stream (scripts/fuzz.sh builds them with clang
+// -fsanitize=fuzzer,address,undefined).
 #include "fuzz_targets.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
+#ifdef PROGSKIN_FUZZ_FRAME_STREAM
+    progskin::fuzz::frame_stream(data, size);
+#else
     progskin::fuzz::gltf_import(data, size);
+#endif
     return 0;
 }

@@ -1,6 +1,6 @@
 // fuzz_targets.h — entry points for fuzzing the parts that read bytes from
-// outside: glTF files (the importer and the pose sampler) and protocol
-// buffers (the FlatBuffers verifiers of both channels). Each must return
+// outside: glTF files (the importer and the pose sampler) and the frame
+// stream (the datagram verifier, the frame layout reader, the pose buffer). Each must return
 // normally for every input: bad input is a progskin::Error or a rejected
 // buffer, never a crash, a hang or an unbounded allocation.
 //
@@ -16,5 +16,13 @@ namespace progskin::fuzz {
 // .gltf file, imports every character, samples a few poses. Returns 1 when the
 // file was accepted, 0 when it was refused with an Error.
 int gltf_import(const uint8_t* data, size_t size);
+
+// (fuzz_net_targets.cpp, built with the streaming library.) Treats the bytes
+// as one received UDP datagram the way the client does: verify_datagram, then
+// for a Frame read_frame (proto/frame_reader.h) into the PoseBuffers of a
+// fixed scene (instances 0..3: 24 and 19 bones, 12- and 14-byte records) and
+// a few interpolated poses; for an Ack or Bind its fields. Returns 1 when the
+// datagram was accepted, 0 when it was dropped.
+int frame_stream(const uint8_t* data, size_t size);
 
 }  // namespace progskin::fuzz

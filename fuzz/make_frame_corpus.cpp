@@ -1,0 +1,69 @@
+// make_frame_corpus.cpp — writes the seed corpus of the frame-stream fuzz
+// target (fuzz/corpus/frame): real datagrams of the default character set
+// (progskin-server's scene without arguments) as the server packs them at
+// several budgets, and one Bind, BindAck and Ack.
+//
+//   build/fuzz/make_frame_corpus fuzz/corpus/frame
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include "datagram_packer.h"
+#include "frame_encoder.h"
+#include "scene.h"
+#include "scheduler.h"
+#include "wire.h"
+
+using namespace progskin;
+using namespace progskin::net;
+
+static void write(const std::filesystem::path& dir, const std::string& name, const std::vector<uint8_t>& d) {
+    std::ofstream(dir / name, std::ios::binary).write(reinterpret_cast<const char*>(d.data()), std::streamsize(d.size()));
+}
+
+static std::vector<uint8_t> finish(flatbuffers::FlatBufferBuilder& fbb, wire::DatagramBody type, flatbuffers::Offset<void> body) {
+    fbb.Finish(wire::CreateDatagram(fbb, 9, 123456, type, body), wire::DatagramIdentifier());
+    return {fbb.GetBufferPointer(), fbb.GetBufferPointer() + fbb.GetSize()};
+}
+
+int main(int argc, char** argv) {
+    if (argc != 2 || std::string(argv[1]) == "--help") {
+        std::fprintf(stderr, "usage: make_frame_corpus DIR\nWrites the frame-stream fuzz seeds into DIR.\n");
+        return argc == 2 ? 0 : 2;
+    }
+    const std::filesystem::path dir = argv[1];
+    std::filesystem::create_directories(dir);
+    std::vector<std::shared_ptr<ServerAsset>> assets = {load_server_asset(std::string(PROGSKIN_ASSETS) + "/Fox.glb"),
+                                                        load_server_asset(std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb")};
+    const auto specs = default_instances(assets);
+    FrameEncoder enc(assets, specs, 30.0f);
+    std::vector<float> imp = compute_importance(ViewSpec{}, specs, assets);
+    const size_t budgets[] = {200, 500, 1100, 20000};
+    for (size_t budget : budgets) {
+        Scheduler sched;
+        DatagramPacker packer;
+        uint32_t seq = 0;
+        for (uint32_t t = 1; t <= 40; ++t) {
+            const EncodedFrame& f = enc.encode(t);
+            std::vector<Pick> picks;
+            sched.select(f, assets, imp, budget, 30.0f, picks);
+            std::vector<std::vector<uint8_t>> out;
+            packer.pack(f, picks, seq, out);
+            sched.sent(picks, t);
+            if (t % 13 != 1) continue;  // ticks 1, 14, 27, 40: first frames and refreshes
+            for (size_t i = 0; i < out.size(); ++i)
+                write(dir, "frame-" + std::to_string(budget) + "-t" + std::to_string(t) + "-" + std::to_string(i), out[i]);
+        }
+    }
+    flatbuffers::FlatBufferBuilder fbb;
+    std::vector<uint8_t> pad(64, 0);
+    auto p = fbb.CreateVector(pad);
+    write(dir, "bind", finish(fbb, wire::DatagramBody::Bind, wire::CreateBind(fbb, 0x1234, 0x5678, p).Union()));
+    fbb.Clear();
+    write(dir, "bind-ack", finish(fbb, wire::DatagramBody::BindAck, wire::CreateBindAck(fbb, 0x1234).Union()));
+    fbb.Clear();
+    write(dir, "ack", finish(fbb, wire::DatagramBody::Ack, wire::CreateAck(fbb, 0x1234, 0x5678, 40, 0xfffffffbu, 99, 250).Union()));
+    std::printf("make_frame_corpus: wrote %s\n", dir.string().c_str());
+    return 0;
+}
