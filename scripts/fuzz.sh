@@ -7,7 +7,7 @@
 #   scripts/fuzz.sh [SECONDS] [gltf|frame]      (default 60 gltf)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-case "${1:-}" in -h|--help) sed -n '2,8p' "$0" | sed 's/^# \{0,1\}//'; exit 0;; esac
+case "${1:-}" in -h|--help) sed -n '2,7p' "$0" | sed 's/^# \{0,1\}//'; exit 0;; esac
 secs=${1:-60}
 target=${2:-gltf}
 case "$target" in
