@@ -7,7 +7,21 @@ namespace progskin::net {
 
 static constexpr double kMinKbps = 8.0;
 
-double RateController::depth_bytes(double kbps) const { return std::max(min_depth_, 0.10 * kbps * 125.0); }
+// Bucket depth: 10 % of a second of the target, and at least 470 bytes (room
+// for ~400-byte datagrams, whose 108 bytes of datagram headers are then about
+// a quarter of them) where that is at most 35 % of a second; min_depth for
+// senders that need more. The fill makes up the rest of 1.04 x the target
+// per second (at most 0.94), so any one-second window carries at most 1.04 x
+// the target (unless min_depth alone exceeds 79 % of a second).
+double RateController::depth_bytes(double kbps) const {
+    const double second = kbps * 125.0;
+    return std::max({min_depth_, 0.10 * second, std::min(470.0, 0.35 * second)});
+}
+
+double RateController::fill_fraction(double kbps) const {
+    const double second = std::max(1.0, kbps * 125.0);
+    return std::clamp(1.04 - depth_bytes(kbps) / second, 0.25, 0.94);
+}
 
 RateController::RateController(double cap_kbps, double initial_kbps, double min_depth_bytes)
     : cap_kbps_(cap_kbps), min_depth_(min_depth_bytes) {
@@ -22,7 +36,7 @@ void RateController::set_cap(double cap_kbps) {
 
 void RateController::refill(double dt) {
     double t = target_kbps();
-    fill_ = 0.94 * t * 125.0 * dt;
+    fill_ = fill_fraction(t) * t * 125.0 * dt;
     tokens_ = std::min(depth_bytes(t), tokens_ + fill_);
 }
 

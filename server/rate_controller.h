@@ -5,10 +5,13 @@
 // windows; probe up
 // by 10% per 250 ms otherwise while the budget is used), never above the cap.
 //
-// Pacing is a token bucket in wire bytes: filled at 94% of the target rate,
-// at most 10% of a second of the target deep, so the wire bytes in any one
-// second stay <= 1.04 * target <= 1.04 * cap. A tick sends only when the bucket
-// holds at least min(400, depth - one tick's fill) bytes, so slow links get fewer, fuller datagrams.
+// Pacing is a token bucket in wire bytes: 10% of a second of the target deep,
+// or 470 bytes on slow links (below 60 kbit/s: fewer, fuller datagrams, so
+// that the 108 bytes of datagram headers do not eat the budget), filled at
+// 1.04 x the target minus the depth per second (94% from 60 kbit/s up, 81% at
+// 16 kbit/s), so the wire bytes in any one second stay <= 1.04 * target <=
+// 1.04 * cap. A tick sends only when the bucket holds at least min(400, depth
+// - one tick's fill) bytes.
 #pragma once
 #include <cstddef>
 #include <cstdint>
@@ -49,6 +52,7 @@ private:
     };
     void mark(uint32_t seq);
     double depth_bytes(double kbps) const;
+    double fill_fraction(double kbps) const;
     double cap_kbps_, min_depth_, estimate_kbps_;
     double tokens_ = 0, fill_ = 0;
     bool limited_ = false;  // the budget ran out since the last update
