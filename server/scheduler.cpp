@@ -94,7 +94,6 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         const auto& e = frame.instances[i];
         if (!e.valid || importance[i] <= 0.0f) continue;
         const ServerAsset& a = *assets[size_t(e.asset)];
-        const double header = double(WireCost::header(e.bone_count));
         paid_[i] = 0;
         chain_next_[i] = 0;
         header_[i] = WireCost::header(e.bone_count);
@@ -157,7 +156,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
                 chain.push_back(pt);
             }
             if (chain.size() >= 2 && chain[1].value > 0) {
-                heap_.push_back({chain[1].value / (double(chain[1].bytes) + header), int(i), 1, stale, true, false});
+                heap_.push_back({chain[1].value / double(chain[1].bytes + header_[i]), int(i), 1, stale, true, false});
                 chain_next_[i] = 1;
             }
         }
@@ -172,7 +171,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         heap_.pop_back();
         const size_t inst = size_t(s.instance);
         if (!s.paid && paid_[inst]) continue;  // offered again at its records-only ratio
-        const size_t header = paid_[inst] ? 0 : WireCost::header(frame.instances[inst].bone_count);
+        const size_t header = paid_[inst] ? 0 : header_[inst];
         auto& items = items_[inst];
         if (s.chain) {
             const auto& chain = chain_[inst];
