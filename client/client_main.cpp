@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <string>
 
+#include "cli_args.h"
 #include "client.h"
 #include "error.h"
 #ifdef PROGSKIN_HAVE_RENDER
@@ -49,7 +50,7 @@ static bool split_host_port(const std::string& s, std::string& host, uint16_t& p
     auto c = s.rfind(':');
     if (c == std::string::npos) return false;
     host = s.substr(0, c);
-    port = uint16_t(std::stoi(s.substr(c + 1)));
+    port = cli::to_port(s, s.substr(c + 1));
     return !host.empty();
 }
 
@@ -59,7 +60,7 @@ static std::vector<float> floats(const std::string& s) {
     while (p <= s.size()) {
         size_t q = s.find(',', p);
         if (q == std::string::npos) q = s.size();
-        v.push_back(std::stof(s.substr(p, q - p)));
+        v.push_back(float(cli::to_number(s, s.substr(p, q - p))));
         p = q + 1;
     }
     return v;
@@ -83,7 +84,7 @@ int main(int argc, char** argv) {
                 if (!split_host_port(val(), opt.host, opt.port)) throw std::invalid_argument("--server needs HOST:PORT");
             } else if (a == "--udp-via") {
                 if (!split_host_port(val(), opt.udp_via_host, opt.udp_via_port)) throw std::invalid_argument("--udp-via needs HOST:PORT");
-            } else if (a == "--max-kbps") opt.max_kbps = std::stod(val());
+            } else if (a == "--max-kbps") opt.max_kbps = cli::to_number(a, val());
             else if (a == "--view") {
                 std::string v = val();
                 if (v.rfind("camera:", 0) == 0) {
@@ -100,14 +101,14 @@ int main(int argc, char** argv) {
                     throw std::invalid_argument("--view camera:... or weights:...");
                 }
                 opt.send_view = true;
-            } else if (a == "--duration") opt.duration = std::stod(val());
-            else if (a == "--delay-ms") opt.delay_ms = std::stod(val());
-            else if (a == "--max-delay-ms") opt.max_delay_ms = std::stod(val());
-            else if (a == "--display-rate") opt.display_rate = std::stod(val());
-            else if (a == "--blend-frames") opt.blend_frames = std::stoi(val());
+            } else if (a == "--duration") opt.duration = cli::to_number(a, val());
+            else if (a == "--delay-ms") opt.delay_ms = cli::to_number(a, val());
+            else if (a == "--max-delay-ms") opt.max_delay_ms = cli::to_number(a, val());
+            else if (a == "--display-rate") opt.display_rate = cli::to_number(a, val());
+            else if (a == "--blend-frames") opt.blend_frames = cli::to_int(a, val());
             else if (a == "--verify") opt.verify = true;
-            else if (a == "--warmup") opt.warmup = std::stod(val());
-            else if (a == "--verify-every") opt.verify_every = std::stoi(val());
+            else if (a == "--warmup") opt.warmup = cli::to_number(a, val());
+            else if (a == "--verify-every") opt.verify_every = cli::to_int(a, val());
             else if (a == "--snap-to-ticks") opt.snap_to_ticks = true;
             else if (a == "--report") {
                 report = val();
@@ -115,9 +116,9 @@ int main(int argc, char** argv) {
             } else if (a == "--cache") opt.cache_dir = val();
             else if (a == "--name") opt.name = val();
             else if (a == "--token") opt.token = val();
-            else if (a == "--protocol-version") opt.protocol_version = uint16_t(std::stoi(val()));
+            else if (a == "--protocol-version") opt.protocol_version = cli::to_port(a, val());
             else if (a == "--verbose") opt.verbose = true;
-            else if (a == "--snapshot-every") opt.snapshot_every = std::stod(val());
+            else if (a == "--snapshot-every") opt.snapshot_every = cli::to_number(a, val());
             else if (a == "--snapshot-dir") snapshot_dir = val();
             else throw std::invalid_argument("unknown argument " + a);
         }

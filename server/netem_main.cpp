@@ -6,9 +6,11 @@
 #include <string>
 #include <thread>
 
+#include "cli_args.h"
 #include "link_emulator.h"
 
 using namespace progskin::net;
+namespace cli = progskin::cli;
 
 static const char* kUsage =
     "usage: progskin-netem --to HOST:UDPPORT [options]\n"
@@ -49,18 +51,18 @@ int main(int argc, char** argv) {
                 std::fputs(kUsage, stdout);
                 return 0;
             } else if (a == "--to") to = val();
-            else if (a == "--listen") listen = uint16_t(std::stoi(val()));
+            else if (a == "--listen") listen = cli::to_port(a, val());
             else if (a == "--bind") bind = val();
-            else if (a == "--rate-kbps") cfg.rate_kbps = std::stod(val());
-            else if (a == "--delay-ms") cfg.delay_ms = std::stod(val());
-            else if (a == "--jitter-ms") cfg.jitter_ms = std::stod(val());
-            else if (a == "--loss") cfg.loss = std::stod(val());
-            else if (a == "--reorder") cfg.reorder = std::stod(val());
-            else if (a == "--duplicate") cfg.duplicate = std::stod(val());
-            else if (a == "--queue-ms") cfg.queue_ms = std::stod(val());
+            else if (a == "--rate-kbps") cfg.rate_kbps = cli::to_number(a, val());
+            else if (a == "--delay-ms") cfg.delay_ms = cli::to_number(a, val());
+            else if (a == "--jitter-ms") cfg.jitter_ms = cli::to_number(a, val());
+            else if (a == "--loss") cfg.loss = cli::to_number(a, val());
+            else if (a == "--reorder") cfg.reorder = cli::to_number(a, val());
+            else if (a == "--duplicate") cfg.duplicate = cli::to_number(a, val());
+            else if (a == "--queue-ms") cfg.queue_ms = cli::to_number(a, val());
             else if (a == "--both-ways") cfg.both_ways = true;
-            else if (a == "--seed") cfg.seed = std::stoull(val());
-            else if (a == "--duration") duration = std::stod(val());
+            else if (a == "--seed") cfg.seed = uint64_t(cli::to_int(a, val()));
+            else if (a == "--duration") duration = cli::to_number(a, val());
             else throw std::invalid_argument("unknown argument " + a);
         }
     } catch (const std::exception& e) {
@@ -72,8 +74,19 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "progskin-netem: --to HOST:PORT is required\n%s", kUsage);
         return 2;
     }
+    uint16_t to_port = 0;
     try {
-        LinkEmulator link(cfg, to.substr(0, colon), uint16_t(std::stoi(to.substr(colon + 1))), bind, listen);
+        to_port = cli::to_port("--to", to.substr(colon + 1));
+        for (double p : {cfg.loss, cfg.reorder, cfg.duplicate})
+            if (!(p >= 0 && p <= 1)) throw cli::UsageError("--loss, --reorder and --duplicate are probabilities (0..1)");
+        if (cfg.rate_kbps < 0 || cfg.delay_ms < 0 || cfg.jitter_ms < 0 || cfg.queue_ms < 0 || duration < 0)
+            throw cli::UsageError("rates, times and durations must not be negative");
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "progskin-netem: %s\n%s", e.what(), kUsage);
+        return 2;
+    }
+    try {
+        LinkEmulator link(cfg, to.substr(0, colon), to_port, bind, listen);
         std::signal(SIGINT, on_signal);
         std::signal(SIGTERM, on_signal);
         link.start();

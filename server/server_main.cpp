@@ -9,6 +9,7 @@
 #include <thread>
 #include <vector>
 
+#include "cli_args.h"
 #include "error.h"
 #include "server.h"
 #include "wire.h"
@@ -61,27 +62,27 @@ int main(int argc, char** argv) {
             if (a == "--help" || a == "-h") {
                 std::fputs(kUsage, stdout);
                 return 0;
-            } else if (a == "--port") cfg.port = uint16_t(std::stoi(need(i)));
-            else if (a == "--udp-port") cfg.udp_port = uint16_t(std::stoi(need(i)));
+            } else if (a == "--port") cfg.port = cli::to_port(a, need(i));
+            else if (a == "--udp-port") cfg.udp_port = cli::to_port(a, need(i));
             else if (a == "--bind") cfg.bind_address = need(i);
             else if (a == "--asset") {
                 asset_paths.push_back(need(i));
                 while (i + 1 < argc && argv[i + 1][0] != '-') asset_paths.push_back(argv[++i]);  // --asset A B C
             }
-            else if (a == "--crowd") crowd = std::stoi(need(i));
-            else if (a == "--tick-rate") cfg.tick_rate = std::stof(need(i));
-            else if (a == "--max-clients") cfg.max_clients = std::stoi(need(i));
-            else if (a == "--max-kbps") cfg.max_kbps = std::stod(need(i));
+            else if (a == "--crowd") crowd = cli::to_int(a, need(i));
+            else if (a == "--tick-rate") cfg.tick_rate = float(cli::to_number(a, need(i)));
+            else if (a == "--max-clients") cfg.max_clients = cli::to_int(a, need(i));
+            else if (a == "--max-kbps") cfg.max_kbps = cli::to_number(a, need(i));
             else if (a == "--token") cfg.token = need(i);
-            else if (a == "--duration") duration = std::stod(need(i));
+            else if (a == "--duration") duration = cli::to_number(a, need(i));
             else if (a == "--verbose") cfg.verbose = true;
             else {
                 std::fprintf(stderr, "progskin-server: unknown argument %s\n%s", a.c_str(), kUsage);
                 return 2;
             }
         }
-    } catch (const std::exception&) {
-        std::fprintf(stderr, "progskin-server: bad number in arguments\n%s", kUsage);
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "progskin-server: %s\n%s", e.what(), kUsage);
         return 2;
     }
     if (!(cfg.tick_rate > 0 && cfg.tick_rate <= 240) || crowd < 0 || cfg.max_clients < 1 || cfg.max_kbps <= 0) {

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <array>
+#include <utility>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -45,6 +46,21 @@ TEST(NetCli, HelpAndExitCodes) {
         EXPECT_NE(h.out.find("usage:"), std::string::npos) << name;
         CmdResult bad = run(bin(name) + " --no-such-flag");
         EXPECT_EQ(bad.code, 2) << name;
+    }
+    // Numbers are parsed whole and the error names the option (exit 2, nothing started).
+    const std::pair<const char*, const char*> bad_values[] = {
+        {"progskin-server --crowd 3x", "--crowd"},
+        {"progskin-server --port 70000", "--port"},
+        {"progskin-client --duration 1s", "--duration"},
+        {"progskin-netem --to 127.0.0.1:7777 --loss 2", "--loss"},
+        {"progskin-netem --to 127.0.0.1:7777 --seed 1.5", "--seed"},
+    };
+    for (const auto& [cmd, option] : bad_values) {
+        const std::string c = cmd;
+        const std::string name = c.substr(0, c.find(' '));
+        CmdResult r = run(bin(name) + c.substr(c.find(' ')));
+        EXPECT_EQ(r.code, 2) << cmd;
+        EXPECT_NE(r.out.find(option), std::string::npos) << cmd << ": " << r.out;
     }
     if (!built("progskin-client")) GTEST_SKIP();
     CmdResult refused = run(bin("progskin-client") + " --server 127.0.0.1:1 --duration 1");

@@ -1,9 +1,12 @@
 // cli_args.h — the command-line parsing shared by the progskin commands:
 // positional arguments, flags and valued options (--key VALUE or --key=VALUE),
-// unknown options refused with a UsageError (exit code 2 in every command).
+// unknown options refused with a UsageError (exit code 2 in every command),
+// and strict numbers (to_number, to_int, to_port: the whole value must parse,
+// the error names the option) for the streaming commands' own loops too.
 #pragma once
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <map>
 #include <stdexcept>
 #include <string>
@@ -67,6 +70,12 @@ inline int to_int(const std::string& key, const std::string& v) {
     const double d = to_number(key, v);
     if (d != std::floor(d) || d < 0 || d > 1e9) throw UsageError(key + ": '" + v + "' is not a non-negative integer");
     return int(d);
+}
+
+inline uint16_t to_port(const std::string& key, const std::string& v) {
+    const int p = to_int(key, v);
+    if (p > 65535) throw UsageError(key + ": '" + v + "' is not a port (0-65535)");
+    return uint16_t(p);
 }
 
 }  // namespace progskin::cli
