@@ -468,7 +468,7 @@ private:
             if (sh[i].alpha > 0) recompute_vertex(S[i]);
     }
 
-    const VertexAnimation* an_;
+    [[maybe_unused]] const VertexAnimation* an_;  // the input, for diagnostics
     ScratchOptions opt_;
     size_t V_ = 0, F_ = 0;
     std::vector<V3> A_, P_, R_;
