@@ -571,6 +571,33 @@ Eigen::VectorXd nnls(const Eigen::MatrixXd& G, const Eigen::VectorXd& h, const s
     return w;
 }
 
+// One vertex's weights: minimise w'Gw - 2h'w over w >= 0 with sum(w) = 1
+// enforced by a stiff penalty row (lambda = 1e4 x the mean diagonal, added
+// to every entry of G and h), at most kSlots of them non-zero (the largest
+// kept and re-solved). Returns false when no positive, finite solution is
+// left; else w normalised to sum 1 and keep, its non-zero indices by
+// decreasing weight.
+bool sparse_weights(const Eigen::MatrixXd& G, const Eigen::VectorXd& h, Eigen::VectorXd& w, std::vector<int>& keep) {
+    const int n = int(G.rows());
+    const double lambda = 1e4 * std::max(1e-300, G.trace() / n);
+    const Eigen::MatrixXd Gp = G.array() + lambda;
+    const Eigen::VectorXd hp = h.array() + lambda;
+    std::vector<int> all(static_cast<size_t>(n));
+    std::iota(all.begin(), all.end(), 0);
+    w = nnls(Gp, hp, all);
+    std::vector<int> ord(all);
+    std::sort(ord.begin(), ord.end(), [&](int a, int b) { return w[a] > w[b]; });
+    keep.clear();
+    for (int i = 0; i < n && int(keep.size()) < kSlots; ++i)
+        if (w[ord[size_t(i)]] > 1e-9) keep.push_back(ord[size_t(i)]);
+    if (keep.empty()) return false;
+    if (std::count_if(w.data(), w.data() + n, [](double x) { return x > 1e-9; }) > kSlots) w = nnls(Gp, hp, keep);
+    const double sum = w.sum();
+    if (!(sum > 0) || !w.allFinite()) return false;
+    w /= sum;
+    return true;
+}
+
 void Builder::refine_weights_full() { refine_weights_candidates(bone_count()); }
 
 // SSDR weight update: per vertex, non-negative weights summing to 1 (a stiff
@@ -610,25 +637,13 @@ void Builder::refine_weights_candidates(int candidates) {
         }
         for (int i = 0; i < n; ++i)
             for (int j = 0; j < i; ++j) G(i, j) = G(j, i);
-        const double lambda = 1e4 * std::max(1e-300, G.trace() / n);
-        G.array() += lambda;
-        h.array() += lambda;
-        std::vector<int> all(static_cast<size_t>(n));
-        std::iota(all.begin(), all.end(), 0);
-        Eigen::VectorXd w = nnls(G, h, all);
-        std::vector<int> ord(all);
-        std::sort(ord.begin(), ord.end(), [&](int a, int b) { return w[a] > w[b]; });
+        Eigen::VectorXd w;
         std::vector<int> keep;
-        for (int i = 0; i < n && int(keep.size()) < kSlots; ++i)
-            if (w[ord[size_t(i)]] > 1e-9) keep.push_back(ord[size_t(i)]);
-        if (keep.empty()) continue;
-        if (std::count_if(w.data(), w.data() + n, [](double x) { return x > 1e-9; }) > kSlots) w = nnls(G, h, keep);
-        const double sum = w.sum();
-        if (!(sum > 0) || !w.allFinite()) continue;
+        if (!sparse_weights(G, h, w, keep)) continue;
         double e = 0;
         for (size_t f = 0; f < F_; ++f) {
             V3 r = V3::Zero();
-            for (int i : keep) r += (w[i] / sum) * xf(bones_[size_t(cand[size_t(i)])].M[f], P_[v]);
+            for (int i : keep) r += w[i] * xf(bones_[size_t(cand[size_t(i)])].M[f], P_[v]);
             e += (A_[f * V_ + v] - r).squaredNorm();
         }
         if (!(e < E_[v])) continue;
@@ -636,7 +651,7 @@ void Builder::refine_weights_candidates(int candidates) {
         for (int i : keep) {
             if (!(w[i] > 0)) continue;
             slot_bone_[v][nslot_[v]] = cand[size_t(i)];
-            slot_w_[v][nslot_[v]] = w[i] / sum;
+            slot_w_[v][nslot_[v]] = w[i];
             ++nslot_[v];
         }
         recompute_vertex(v);
@@ -1148,32 +1163,17 @@ void Builder::multilevel_weights(const std::vector<int>& levels, const std::vect
         Eigen::VectorXd w0 = Eigen::VectorXd::Zero(n);
         for (int i = 0; i < nslot_[v]; ++i) w0[i] = slot_w_[v][i];
         const double obj0 = w0.dot(G * w0) - 2 * h.dot(w0);
-        const double lambda = 1e4 * std::max(1e-300, G.trace() / n);
-        Eigen::MatrixXd Gp = G.array() + lambda;
-        Eigen::VectorXd hp = h.array() + lambda;
-        std::vector<int> all(static_cast<size_t>(n));
-        std::iota(all.begin(), all.end(), 0);
-        Eigen::VectorXd w = nnls(Gp, hp, all);
-        std::vector<int> ord(all);
-        std::sort(ord.begin(), ord.end(), [&](int a, int b) { return w[a] > w[b]; });
+        Eigen::VectorXd w;
         std::vector<int> keep;
-        for (int i = 0; i < n && int(keep.size()) < kSlots; ++i)
-            if (w[ord[size_t(i)]] > 1e-9) keep.push_back(ord[size_t(i)]);
-        if (!keep.empty()) {
-            if (std::count_if(w.data(), w.data() + n, [](double x) { return x > 1e-9; }) > kSlots)
-                w = nnls(Gp, hp, keep);
-            const double sum = w.sum();
-            if (sum > 0 && w.allFinite()) {
-                w /= sum;
-                const double obj = w.dot(G * w) - 2 * h.dot(w);
-                if (obj < obj0 - 1e-12 * std::abs(obj0)) {
-                    nslot_[v] = 0;
-                    for (int i : keep) {
-                        if (!(w[i] > 0)) continue;
-                        slot_bone_[v][nslot_[v]] = cand[size_t(i)];
-                        slot_w_[v][nslot_[v]] = w[i];
-                        ++nslot_[v];
-                    }
+        if (sparse_weights(G, h, w, keep)) {
+            const double obj = w.dot(G * w) - 2 * h.dot(w);
+            if (obj < obj0 - 1e-12 * std::abs(obj0)) {
+                nslot_[v] = 0;
+                for (int i : keep) {
+                    if (!(w[i] > 0)) continue;
+                    slot_bone_[v][nslot_[v]] = cand[size_t(i)];
+                    slot_w_[v][nslot_[v]] = w[i];
+                    ++nslot_[v];
                 }
             }
         }
