@@ -26,7 +26,6 @@
 #include "datagram_packer.h"
 #include "error_metric.h"
 #include "frame_encoder.h"
-#include "frame_reader.h"
 #include "rate_controller.h"
 #include "scene.h"
 #include "scheduler.h"
@@ -35,6 +34,7 @@
 
 using namespace progskin;
 using namespace progskin::net;
+using progskin::net::testing::apply_frame;
 using progskin::net::testing::client_asset;
 
 namespace {
@@ -168,12 +168,7 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
         for (const auto& d : log[size_t(t)]) {
             const wire::Datagram* g = verify_datagram(d);
             const wire::Frame* fr = g->body_as_Frame();
-            auto record_size = [&](uint16_t i) { return i < views.size() ? views[i]->asset().format.size() : 0; };
-            size_t records = 0;
-            read_frame(*fr, record_size, [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
-                views[i]->buffer().add_chunk(fr->tick(), first, count, show, rec, show);
-                records += size_t(count) * size_t(record_size(i));
-            });
+            const size_t records = apply_frame(*fr, views).record_bytes;
             if (t > warm) header_bytes += fr->chunks()->size() * WireCost::kChunk + fr->payload()->size() - records;
         }
         const double d = double(t - delay);

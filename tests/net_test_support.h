@@ -11,6 +11,7 @@
 #include "client.h"
 #include "client_palette.h"
 #include "error_metric.h"
+#include "frame_reader.h"
 #include "scene.h"
 #include "server.h"
 
@@ -21,6 +22,25 @@ inline std::vector<std::shared_ptr<ServerAsset>>& default_assets() {
         load_server_asset(std::string(PROGSKIN_ASSETS) + "/Fox.glb"),
         load_server_asset(std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb")};
     return a;
+}
+
+// What the client does with one Frame, without the network: every run of
+// bones into its instance's pose buffer (proto/frame_reader.h). read: the
+// frame passed read_frame; refused: runs the pose buffer refused;
+// record_bytes: the records applied.
+struct FrameApplied {
+    bool read = false;
+    int refused = 0;
+    size_t record_bytes = 0;
+};
+inline FrameApplied apply_frame(const wire::Frame& f, std::vector<std::unique_ptr<InstanceView>>& views) {
+    FrameApplied r;
+    auto record_size = [&](uint16_t i) { return i < views.size() ? views[i]->asset().format.size() : 0; };
+    r.read = read_frame(f, record_size, [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
+        if (!views[i]->buffer().add_chunk(f.tick(), first, count, show, rec, show)) ++r.refused;
+        r.record_bytes += size_t(count) * size_t(record_size(i));
+    });
+    return r;
 }
 
 // What a client holds after downloading a server asset (without the network).

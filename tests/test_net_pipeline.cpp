@@ -9,7 +9,6 @@
 #include "datagram_packer.h"
 #include "error_metric.h"
 #include "frame_encoder.h"
-#include "frame_reader.h"
 #include "scene.h"
 #include "scheduler.h"
 #include "wire.h"
@@ -17,6 +16,8 @@
 
 using namespace progskin;
 using namespace progskin::net;
+using progskin::net::testing::apply_frame;
+using progskin::net::testing::FrameApplied;
 using progskin::net::testing::client_asset;
 
 namespace {
@@ -61,10 +62,9 @@ struct Pipeline {
             EXPECT_NE(g, nullptr);
             EXPECT_LE(d.size(), MAX_DATAGRAM);
             const wire::Frame* fr = g->body_as_Frame();
-            auto record_size = [&](uint16_t i) { return i < views.size() ? views[i]->asset().format.size() : 0; };
-            EXPECT_TRUE(read_frame(*fr, record_size, [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
-                EXPECT_TRUE(views[i]->buffer().add_chunk(fr->tick(), first, count, show, rec, show));
-            }));
+            const FrameApplied a = apply_frame(*fr, views);
+            EXPECT_TRUE(a.read);
+            EXPECT_EQ(a.refused, 0);
         }
         return wire;
     }
