@@ -3,26 +3,13 @@
 // cleanly. scripts/fuzz.sh runs the coverage-guided libFuzzer driver.
 #include <gtest/gtest.h>
 
-#include <filesystem>
-#include <fstream>
-#include <iterator>
 #include <random>
 
+#include "fuzz_corpus.h"
 #include "fuzz_targets.h"
 
-namespace fs = std::filesystem;
-
-static std::vector<std::vector<uint8_t>> corpus(const char* sub) {
-    std::vector<std::vector<uint8_t>> out;
-    for (const auto& e : fs::directory_iterator(fs::path(PROGSKIN_FUZZ_CORPUS) / sub)) {
-        std::ifstream f(e.path(), std::ios::binary);
-        out.emplace_back(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
-    }
-    return out;
-}
-
 TEST(FuzzCorpus, GltfImportAcceptsOrRefusesEveryInput) {
-    const auto inputs = corpus("gltf");
+    const auto inputs = read_corpus("gltf");
     ASSERT_GE(inputs.size(), 10u);
     int accepted = 0;
     for (const auto& in : inputs) accepted += progskin::fuzz::gltf_import(in.data(), in.size());
@@ -32,7 +19,7 @@ TEST(FuzzCorpus, GltfImportAcceptsOrRefusesEveryInput) {
 
 TEST(FuzzCorpus, GltfImportSurvivesMutations) {
     std::mt19937 rng(5);
-    const auto inputs = corpus("gltf");
+    const auto inputs = read_corpus("gltf");
     int refused = 0, tried = 0;
     for (int i = 0; i < 3000; ++i) {
         std::vector<uint8_t> d = inputs[size_t(rng()) % inputs.size()];

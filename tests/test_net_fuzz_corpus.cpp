@@ -4,40 +4,24 @@
 // scripts/fuzz.sh frame runs the coverage-guided libFuzzer driver.
 #include <gtest/gtest.h>
 
-#include <filesystem>
-#include <fstream>
-#include <iterator>
 #include <random>
 
+#include "fuzz_corpus.h"
 #include "fuzz_targets.h"
 
-namespace fs = std::filesystem;
-
-// The seeds written by make_frame_corpus (real datagrams) or, with
-// found = true, also the inputs libFuzzer found (fuzz-*, mostly malformed).
-static std::vector<std::vector<uint8_t>> frame_corpus(bool found) {
-    std::vector<std::vector<uint8_t>> out;
-    for (const auto& e : fs::directory_iterator(fs::path(PROGSKIN_FUZZ_CORPUS) / "frame")) {
-        if (!found && e.path().filename().string().rfind("fuzz-", 0) == 0) continue;
-        std::ifstream f(e.path(), std::ios::binary);
-        out.emplace_back(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
-    }
-    return out;
-}
-
 TEST(NetFuzzCorpus, FrameStreamAcceptsEverySeedAndSurvivesTheFoundInputs) {
-    const auto seeds = frame_corpus(false);
+    const auto seeds = read_corpus("frame", false);  // the real datagrams, not the found inputs
     ASSERT_GE(seeds.size(), 10u);
     for (const auto& in : seeds) EXPECT_EQ(progskin::fuzz::frame_stream(in.data(), in.size()), 1);
     int accepted = 0;  // the found inputs: each accepted or dropped, none crashes
-    const auto all = frame_corpus(true);
+    const auto all = read_corpus("frame");
     for (const auto& in : all) accepted += progskin::fuzz::frame_stream(in.data(), in.size());
     EXPECT_LT(accepted, int(all.size()));
 }
 
 TEST(NetFuzzCorpus, FrameStreamSurvivesMutations) {
     std::mt19937 rng(17);
-    const auto inputs = frame_corpus(true);
+    const auto inputs = read_corpus("frame");
     int dropped = 0, tried = 0;
     for (int i = 0; i < 100000; ++i) {
         std::vector<uint8_t> d = inputs[size_t(rng()) % inputs.size()];
