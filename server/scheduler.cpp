@@ -187,8 +187,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
             chain_next_[inst] = 0;
             if (!paid_[inst]) pay(s.instance, s.age);
             if (size_t(s.step) + 1 < chain.size()) {
-                const ChainPoint& p2 = chain[size_t(s.step) + 1];
-                const double r = (p2.value - p1.value) / double(p2.bytes - p1.bytes);
+                const double r = step_ratio(chain, s.step + 1);
                 if (r > 0) {
                     heap_.push_back({r, s.instance, s.step + 1, s.age, true, true});
                     std::push_heap(heap_.begin(), heap_.end());
@@ -254,6 +253,10 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     return est ? WireCost::wire(est) : 0;
 }
 
+double Scheduler::step_ratio(const std::vector<ChainPoint>& chain, int c) {
+    return (chain[size_t(c)].value - chain[size_t(c - 1)].value) / double(chain[size_t(c)].bytes - chain[size_t(c - 1)].bytes);
+}
+
 void Scheduler::offer_unpaid(int instance, uint32_t age) {
     const auto& items = items_[size_t(instance)];
     const double header = double(header_[size_t(instance)]);
@@ -287,10 +290,7 @@ void Scheduler::pay(int instance, uint32_t age) {
     order_at_[i] = 0;
     offer_paid(instance, age);
     if (const int c = chain_next_[i]; c > 0) {
-        const auto& chain = chain_[i];
-        const double r = (chain[size_t(c)].value - chain[size_t(c - 1)].value) /
-                         double(chain[size_t(c)].bytes - chain[size_t(c - 1)].bytes);
-        heap_.push_back({r, instance, c, age, true, true});
+        heap_.push_back({step_ratio(chain_[i], c), instance, c, age, true, true});
         std::push_heap(heap_.begin(), heap_.end());
     }
 }

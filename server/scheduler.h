@@ -122,6 +122,8 @@ private:
         size_t bytes;  // cumulative
         double value;  // cumulative
     };
+    // Value per record byte of hull step c (from point c - 1 to c).
+    static double step_ratio(const std::vector<ChainPoint>& chain, int c);
     std::vector<std::vector<SegItem>> items_;       // per instance, per segment
     std::vector<std::vector<ChainPoint>> chain_;    // per instance: upper hull over the unshown segments
     std::vector<uint8_t> paid_;                     // per instance: chunk header paid this tick
