@@ -10,6 +10,7 @@
 #include "datagram_packer.h"
 #include "frame_encoder.h"
 #include "frame_reader.h"
+#include "net_test_support.h"
 #include "scene.h"
 #include "scheduler.h"
 #include "wire.h"
@@ -136,9 +137,7 @@ TEST(NetFrame, RandomFramesAreRefusedOrReadInBounds) {
 // byte-identical to the encoder's, one chunk per instance and datagram, and
 // no more wire bytes than the scheduler's estimate (WireCost).
 TEST(NetFrame, PackerRoundTripsPicksOverSeveralDatagrams) {
-    const std::vector<std::shared_ptr<ServerAsset>> assets = {
-        load_server_asset(std::string(PROGSKIN_ASSETS) + "/Fox.glb"),
-        load_server_asset(std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb")};
+    const auto& assets = progskin::net::testing::default_assets();
     const auto specs = crowd_layout(assets, 12);
     FrameEncoder enc(assets, specs, 30.0f);
     const EncodedFrame& f = enc.encode(5);
