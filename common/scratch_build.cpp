@@ -282,6 +282,16 @@ public:
     // Full-detail decomposition (see decompose() below).
     void decompose(int bones, double target_sq, int iterations, const std::function<void()>& tick);
     void refine_weights_candidates(int candidates);
+    // Vertex v's influences := bones cand[i] with weights w[i], i in keep (w[i] > 0).
+    void set_slots(size_t v, const std::vector<int>& keep, const Eigen::VectorXd& w, const std::vector<int>& cand) {
+        nslot_[v] = 0;
+        for (int i : keep) {
+            if (!(w[i] > 0)) continue;
+            slot_bone_[v][nslot_[v]] = cand[size_t(i)];
+            slot_w_[v][nslot_[v]] = w[i];
+            ++nslot_[v];
+        }
+    }
     void refine_bind();
     void update_centers();
     // Renumbers bones: new bone i is old bone order[i]; parents are reset.
@@ -647,13 +657,7 @@ void Builder::refine_weights_candidates(int candidates) {
             e += (A_[f * V_ + v] - r).squaredNorm();
         }
         if (!(e < E_[v])) continue;
-        nslot_[v] = 0;
-        for (int i : keep) {
-            if (!(w[i] > 0)) continue;
-            slot_bone_[v][nslot_[v]] = cand[size_t(i)];
-            slot_w_[v][nslot_[v]] = w[i];
-            ++nslot_[v];
-        }
+        set_slots(v, keep, w, cand);
         recompute_vertex(v);
     }
 }
@@ -1167,15 +1171,7 @@ void Builder::multilevel_weights(const std::vector<int>& levels, const std::vect
         std::vector<int> keep;
         if (sparse_weights(G, h, w, keep)) {
             const double obj = w.dot(G * w) - 2 * h.dot(w);
-            if (obj < obj0 - 1e-12 * std::abs(obj0)) {
-                nslot_[v] = 0;
-                for (int i : keep) {
-                    if (!(w[i] > 0)) continue;
-                    slot_bone_[v][nslot_[v]] = cand[size_t(i)];
-                    slot_w_[v][nslot_[v]] = w[i];
-                    ++nslot_[v];
-                }
-            }
+            if (obj < obj0 - 1e-12 * std::abs(obj0)) set_slots(v, keep, w, cand);
         }
         if (!opt_.update_bind) continue;
         // Bind: z_i = K_i [p; 1] = Kc_i p + kt_i; objective p'Hp - 2 g'p + const.
