@@ -1,5 +1,5 @@
 #!/bin/bash
-# usage: run.sh TAG METHOD BONES [ENV=..]...
+# usage: scratch-run.sh TAG METHOD BONES [ENV=..]...
 # Builds CesiumMan with the experiment switches (ENV=VALUE ...) and prints one log line.
 # Run from anywhere after applying a patch and building build-scratch/tools/progskin.
 tag=$1; m=$2; nb=$3; shift 3
