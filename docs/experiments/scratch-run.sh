@@ -8,11 +8,10 @@ s=$(date +%s.%N)
 env "$@" build-scratch/tools/progskin build --from-vertices ../shared/assets/CesiumMan.glb --clip all --fps 30 --bones $nb --method $m -o /tmp/x_$tag.glb --quiet || exit 1
 e=$(date +%s.%N)
 build-scratch/tools/progskin inspect /tmp/x_$tag.glb --json > /tmp/x_$tag.json
-python3 - /tmp/x_$tag.json "$tag $m $* ($(echo "$e - $s" | bc | cut -c1-5)s)" <<'PY'
+python3 - /tmp/x_$tag.json "$tag $m $*" "$s" "$e" <<'PY'
 import json,sys
-j=json.load(open(sys.argv[1])); t=j['strategies']['scratch']
-t=t['table'] if isinstance(t,dict) else t
-r=[x['rms_pct'] for x in t]
+sys.argv[2] += ' (%.2fs)' % (float(sys.argv[4]) - float(sys.argv[3]))
+r=[x['rms_pct'] for x in json.load(open(sys.argv[1]))['strategies']['scratch']]
 g=lambda k: r[min(k,len(r))-1]
 mono=all(r[i]<=r[i-1] for i in range(1,len(r)))
 print(sys.argv[2], ' '.join('%.3g'%g(k) for k in (2,4,8,16,32)), 'e19=%.3g'%g(19), 'ratios %.2f %.2f %.2f'%(g(4)/1.64,g(8)/0.338,g(16)/0.153), 'mono' if mono else 'RISE')
