@@ -1,11 +1,12 @@
 #!/bin/bash
 # usage: scratch-run.sh TAG METHOD BONES [ENV=..]...
 # Builds CesiumMan with the experiment switches (ENV=VALUE ...) and prints one log line.
+# PSK_EXTRA (in the environment of this script) adds build options, e.g. PSK_EXTRA='--rest-frame 0'.
 # Run from anywhere after applying a patch and building build-scratch/tools/progskin.
 tag=$1; m=$2; nb=$3; shift 3
 cd "$(dirname "$0")/../.."
 s=$(date +%s.%N)
-env "$@" build-scratch/tools/progskin build --from-vertices ../shared/assets/CesiumMan.glb --clip all --fps 30 --bones $nb --method $m -o /tmp/x_$tag.glb --quiet || exit 1
+env "$@" build-scratch/tools/progskin build --from-vertices ../shared/assets/CesiumMan.glb --clip all --fps 30 --bones $nb --method $m $PSK_EXTRA -o /tmp/x_$tag.glb --quiet || exit 1
 e=$(date +%s.%N)
 build-scratch/tools/progskin inspect /tmp/x_$tag.glb --json > /tmp/x_$tag.json
 python3 - /tmp/x_$tag.json "$tag $m $*" "$s" "$e" <<'PY'
