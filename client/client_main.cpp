@@ -116,7 +116,7 @@ int main(int argc, char** argv) {
             } else if (a == "--cache") opt.cache_dir = val();
             else if (a == "--name") opt.name = val();
             else if (a == "--token") opt.token = val();
-            else if (a == "--protocol-version") opt.protocol_version = cli::to_port(a, val());
+            else if (a == "--protocol-version") opt.protocol_version = cli::to_u16(a, val());
             else if (a == "--verbose") opt.verbose = true;
             else if (a == "--snapshot-every") opt.snapshot_every = cli::to_number(a, val());
             else if (a == "--snapshot-dir") snapshot_dir = val();

@@ -1,7 +1,7 @@
 // cli_args.h — the command-line parsing shared by the progskin commands:
 // positional arguments, flags and valued options (--key VALUE or --key=VALUE),
 // unknown options refused with a UsageError (exit code 2 in every command),
-// and strict numbers (to_number, to_int, to_port: the whole value must parse,
+// and strict numbers (to_number, to_int, to_u16, to_port: the whole value must parse,
 // the error names the option) for the streaming commands' own loops too.
 #pragma once
 #include <algorithm>
@@ -72,10 +72,13 @@ inline int to_int(const std::string& key, const std::string& v) {
     return int(d);
 }
 
-inline uint16_t to_port(const std::string& key, const std::string& v) {
+// An integer 0..65535; `what` names it in the error ("a port").
+inline uint16_t to_u16(const std::string& key, const std::string& v, const char* what = "a 16-bit integer") {
     const int p = to_int(key, v);
-    if (p > 65535) throw UsageError(key + ": '" + v + "' is not a port (0-65535)");
+    if (p > 65535) throw UsageError(key + ": '" + v + "' is not " + what + " (0-65535)");
     return uint16_t(p);
 }
+
+inline uint16_t to_port(const std::string& key, const std::string& v) { return to_u16(key, v, "a port"); }
 
 }  // namespace progskin::cli

@@ -98,7 +98,7 @@ public:
         std::vector<Share> sh;
         double gain = 0;
     };
-    Builder(const VertexAnimation& an, const ScratchOptions& opt) : an_(&an), opt_(opt) {
+    Builder(const VertexAnimation& an, const ScratchOptions& opt) : opt_(opt) {
         V_ = an.vertex_count;
         F_ = an.frame_count;
         A_.resize(V_ * F_);
@@ -119,11 +119,6 @@ public:
         nslot_.assign(V_, 0);
         R_.assign(V_ * F_, V3::Zero());
         E_.assign(V_, 0.0);
-        // Total variance for the distortion-style stopping rule.
-        V3 mean = V3::Zero();
-        for (const V3& a : A_) mean += a;
-        scale_ = 0;
-        for (size_t v = 0; v < V_; ++v) scale_ += (P_[v] - P_[0]).squaredNorm();
     }
 
     const std::vector<Bone>& bones() const { return bones_; }
@@ -478,7 +473,6 @@ private:
             if (sh[i].alpha > 0) recompute_vertex(S[i]);
     }
 
-    [[maybe_unused]] const VertexAnimation* an_;  // the input, for diagnostics
     ScratchOptions opt_;
     size_t V_ = 0, F_ = 0;
     std::vector<V3> A_, P_, R_;
@@ -487,7 +481,6 @@ private:
     std::vector<std::array<int, kSlots>> slot_bone_;
     std::vector<std::array<double, kSlots>> slot_w_;
     std::vector<int> nslot_;
-    double scale_ = 0;
 };
 
 // SSDR-style transform update of every bone with the weights fixed

@@ -25,7 +25,8 @@ namespace progskin::net {
 struct RecordFormat {
     glm::vec3 t_min{-1.0f}, t_max{1.0f};
     bool scaled = false;
-    int size() const { return scaled ? 14 : 12; }
+    static constexpr int kPlainSize = 12, kScaledSize = 14;  // record bytes
+    int size() const { return scaled ? kScaledSize : kPlainSize; }
 };
 
 // Decoded bone: rotation (unit quaternion), translation, uniform scale.

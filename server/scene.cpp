@@ -96,6 +96,7 @@ static void build_segments(ServerAsset& a, const FrameSet& frames) {
 
     const int I = c.influences;
     std::vector<Mat34> diff(J);
+    std::vector<BonePose> p0(J), pa(J), pb(J), p3(J);  // the frames around an interval, per joint
     std::vector<double> sum(S * M), samples(M), all(M);
     std::vector<size_t> sel_frames(M - 1, 0);
     for (int x : frames.selection_of_frame)
@@ -108,23 +109,29 @@ static void build_segments(ServerAsset& a, const FrameSet& frames) {
             const int sel = frames.selection_of_frame[f];
             if (sel < 0 || size_t(sel) + 1 >= M || sel != frames.selection_of_frame[f + size_t(g)]) continue;
             if (f % std::max<size_t>(1, sel_frames[size_t(sel)] / 24) != 0) continue;
+            // What the client does: cubic over the neighbours f - g and f + 2g
+            // when they exist (same clip), else slerp/lerp.
+            const bool cubic = f >= size_t(g) && f + 2 * size_t(g) < frames.frame_count() &&
+                               frames.selection_of_frame[f - size_t(g)] == sel &&
+                               frames.selection_of_frame[f + 2 * size_t(g)] == sel;
+            for (size_t j = 0; j < J; ++j) {
+                pa[j] = decompose(frames.frame(f)[j]);
+                pb[j] = decompose(frames.frame(f + size_t(g))[j]);
+                if (cubic) {
+                    p0[j] = decompose(frames.frame(f - size_t(g))[j]);
+                    p3[j] = decompose(frames.frame(f + 2 * size_t(g))[j]);
+                }
+            }
             int prev_h = 0;
             for (int q = 1; q <= 3; ++q) {
                 const int h = std::clamp(int(std::lround(g * q / 4.0)), 1, g - 1);
                 if (h == prev_h) continue;
                 prev_h = h;
                 const float alpha = float(h) / float(g);
-                // What the client does: cubic over the neighbours f - g and f + 2g
-                // when they exist (same clip), else slerp/lerp.
-                const bool cubic = f >= size_t(g) && f + 2 * size_t(g) < frames.frame_count() &&
-                                   frames.selection_of_frame[f - size_t(g)] == sel &&
-                                   frames.selection_of_frame[f + 2 * size_t(g)] == sel;
                 for (size_t j = 0; j < J; ++j) {
-                    const BonePose pa = decompose(frames.frame(f)[j]), pb = decompose(frames.frame(f + size_t(g))[j]);
-                    Mat34 mm = compose(cubic ? interpolate_cubic(decompose(frames.frame(f - size_t(g))[j]), pa, pb,
-                                                                 decompose(frames.frame(f + 2 * size_t(g))[j]), -double(g), 0.0,
-                                                                 double(g), 2.0 * g, double(h))
-                                             : interpolate(pa, pb, alpha));
+                    const Mat34 mm = compose(cubic ? interpolate_cubic(p0[j], pa[j], pb[j], p3[j], -double(g), 0.0, double(g),
+                                                                       2.0 * g, double(h))
+                                                   : interpolate(pa[j], pb[j], alpha));
                     for (int x = 0; x < 12; ++x) diff[j].m[x] = mm.m[x] - frames.frame(f + size_t(h))[j].m[x];
                 }
                 double* out = sum.data() + size_t(sel) * S;

@@ -165,7 +165,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     std::make_heap(heap_.begin(), heap_.end());
     size_t payload = 0;
     while (!heap_.empty()) {
-        if (WireCost::wire(payload + 12) > budget) break;  // not even one more record fits
+        if (WireCost::wire(payload + RecordFormat::kPlainSize) > budget) break;  // not even the smallest record fits
         std::pop_heap(heap_.begin(), heap_.end());
         const Step s = heap_.back();
         heap_.pop_back();
