@@ -319,9 +319,10 @@ TEST(Scratch, SkinnedAssetsAsVertices) {
         const char* file;
         const char* clip;
         int bones;
+        int original;  // the artist skin's bone count, where issue 4 asks for < 0.1 % (0: not checked here)
     };
-    for (const Case& c : {Case{"RiggedSimple.gltf", "auto", 4}, Case{"CesiumMan.glb", "all", 10},
-                          Case{"Fox.glb", "Survey", 10}}) {
+    for (const Case& c : {Case{"RiggedSimple.gltf", "auto", 4, 2}, Case{"CesiumMan.glb", "all", 10, 0},
+                          Case{"Fox.glb", "Survey", 10, 0}}) {
         VertexAnimationOptions vo;
         vo.fps = 10;
         vo.clip = c.clip;
@@ -332,6 +333,10 @@ TEST(Scratch, SkinnedAssetsAsVertices) {
         SCOPED_TRACE(c.file);
         expect_non_increasing(r.skin.error);
         EXPECT_LT(r.skin.error.back().rms_pct, r.skin.error.front().rms_pct);
+        if (c.original > 0) {
+            ASSERT_GE(r.skin.bone_count(), c.original);
+            EXPECT_LT(r.skin.error[size_t(c.original - 1)].rms_pct, 0.1);
+        }
         expect_round_trip(r, an, std::string(c.file) + ".glb");
     }
 }
