@@ -102,7 +102,7 @@ const wire::Control* expect(std::vector<uint8_t>& body) {
 
 // Downloads (or finds in the cache) one asset file; returns its path.
 std::string fetch_asset(ControlChannel& ctl, const wire::Asset* a, const std::string& cache_dir, ClientReport& rep,
-                        double timeout) {
+                        double timeout, const std::function<void(const std::string&, uint64_t, uint64_t)>& progress) {
     std::string name = a->name() ? a->name()->str() : "asset.glb";
     std::string ext = fs::path(name).extension().string();
     if (ext != ".glb" && ext != ".gltf") ext = ".glb";
@@ -143,6 +143,7 @@ std::string fetch_asset(ControlChannel& ctl, const wire::Asset* a, const std::st
         received += ch->data()->size();
         rep.asset_bytes_downloaded += ch->data()->size();
         --in_flight;
+        if (progress) progress(name, received, size);
     }
     if (content_hash(bytes) != a->asset_id()) throw Error("downloaded " + name + " does not match its content hash");
     // A temporary name unique to this process and thread: several clients may
@@ -284,7 +285,7 @@ ClientReport run_client(const ClientOptions& opt) {
     std::vector<std::shared_ptr<ClientAsset>> assets;
     if (w->assets())
         for (const wire::Asset* a : *w->assets()) {
-            std::string path = fetch_asset(ctl, a, cache, rep, opt.connect_timeout);
+            std::string path = fetch_asset(ctl, a, cache, rep, opt.connect_timeout, opt.on_download);
             assets.push_back(load_client_asset(a, path));
         }
     std::vector<std::unique_ptr<InstanceView>> views;

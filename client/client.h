@@ -61,6 +61,8 @@ struct ClientOptions {
     // with what is shown; 0 or no callback: never.
     double snapshot_every = 0;
     std::function<void(const DisplaySnapshot&)> on_snapshot;
+    // Called after every asset chunk received (asset name, bytes so far, size); may be empty.
+    std::function<void(const std::string&, uint64_t, uint64_t)> on_download;
 };
 
 struct InstanceReport {

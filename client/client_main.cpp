@@ -1,6 +1,7 @@
 // client_main.cpp — progskin-client: connects to a progskin-server, streams
 // for a while and reports what it received and displayed (client.h).
 #include <cmath>
+#include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <string>
@@ -167,6 +168,25 @@ int main(int argc, char** argv) {
         };
     }
 #endif
+    // Download progress on stderr, at most once a second per asset (and when
+    // it completes, if it took a line before): a slow link can take minutes.
+    std::chrono::steady_clock::time_point last_line{};
+    std::string last_name;
+    bool printed = false;
+    opt.on_download = [&](const std::string& name, uint64_t got, uint64_t size) {
+        const auto now = std::chrono::steady_clock::now();
+        if (name != last_name) {
+            last_name = name;
+            last_line = now;
+            printed = false;
+        }
+        if ((got < size && now - last_line >= std::chrono::seconds(1)) || (got == size && printed)) {
+            std::fprintf(stderr, "progskin-client: downloading %s: %llu of %llu KiB (%.0f %%)\n", name.c_str(),
+                         (unsigned long long)(got / 1024), (unsigned long long)(size / 1024), 100.0 * double(got) / double(size));
+            last_line = now;
+            printed = true;
+        }
+    };
     try {
         ClientReport r = run_client(opt);
         if (report == "json") std::printf("%s\n", report_json(r).c_str());

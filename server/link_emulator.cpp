@@ -5,6 +5,7 @@
 
 #include <asio.hpp>
 #include <chrono>
+#include <deque>
 #include <map>
 #include <mutex>
 #include <queue>
@@ -15,6 +16,7 @@
 
 namespace progskin::net {
 
+using asio::ip::tcp;
 using asio::ip::udp;
 using Clock = std::chrono::steady_clock;
 
@@ -45,7 +47,114 @@ struct LinkEmulator::Impl {
     mutable std::mutex stats_mutex;
     LinkStats st;
 
+    // TCP relay (relay_tcp): per accepted connection its upstream one and per
+    // direction ([0] client -> server, [1] server -> client) the chunks in
+    // flight, each released at `at` (non-decreasing: a stream keeps its order).
+    std::unique_ptr<tcp::acceptor> acceptor;
+    tcp::endpoint tcp_target;
+    struct Chunk {
+        Clock::time_point at;
+        std::vector<uint8_t> bytes;
+        size_t sent = 0;
+    };
+    struct Conn {
+        std::unique_ptr<tcp::socket> front, up;
+        std::deque<Chunk> q[2];
+        size_t queued[2] = {0, 0};
+        Clock::time_point last[2];
+        bool eof[2] = {false, false}, shut[2] = {false, false}, dead = false;
+    };
+    std::vector<Conn> conns;
+    static constexpr size_t kTcpChunk = 4096, kTcpMaxQueued = size_t(1) << 20, kTcpMaxConns = 1024;
+
     double uniform() { return std::uniform_real_distribution<double>(0.0, 1.0)(rng); }
+
+    // Whether direction `down` of the link has more queued than queue_ms (TCP stops reading).
+    bool backlogged(bool down, Clock::time_point now) const {
+        if (!(cfg.rate_kbps > 0) || !(down || cfg.both_ways)) return false;
+        return link_free[down ? 1 : 0] - now > std::chrono::duration<double, std::milli>(cfg.queue_ms);
+    }
+
+    void tcp_enqueue(Conn& c, int dir, const uint8_t* data, size_t n) {
+        const bool down = dir == 1, impaired = down || cfg.both_ways;
+        auto now = Clock::now();
+        auto at = now;
+        std::lock_guard lock(stats_mutex);
+        if (impaired && cfg.rate_kbps > 0) {
+            auto& free = link_free[dir];
+            if (free < now) free = now;
+            free += std::chrono::duration_cast<Clock::duration>(
+                std::chrono::duration<double>((n + 40) * 8.0 / (cfg.rate_kbps * 1000.0)));
+            at = free;
+        }
+        const double ms = cfg.delay_ms + (impaired ? cfg.jitter_ms * uniform() : 0.0);
+        at += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double, std::milli>(ms));
+        if (at < c.last[dir]) at = c.last[dir];
+        c.last[dir] = at;
+        c.q[dir].push_back({at, std::vector<uint8_t>(data, data + n), 0});
+        c.queued[dir] += n;
+        (down ? st.tcp_bytes_down : st.tcp_bytes_up) += n;
+    }
+
+    void tcp_accept() {
+        for (;;) {
+            asio::error_code ec;
+            auto s = std::make_unique<tcp::socket>(io);
+            acceptor->accept(*s, ec);
+            if (ec) return;  // would block (or a transient error)
+            if (conns.size() >= kTcpMaxConns) continue;
+            Conn c;
+            c.front = std::move(s);
+            c.up = std::make_unique<tcp::socket>(io);
+            c.up->connect(tcp_target, ec);  // the client sees the connection closed if the server is not there
+            if (ec) continue;
+            c.front->non_blocking(true);
+            c.up->non_blocking(true);
+            c.front->set_option(tcp::no_delay(true), ec);
+            c.up->set_option(tcp::no_delay(true), ec);
+            c.last[0] = c.last[1] = Clock::now();
+            conns.push_back(std::move(c));
+            std::lock_guard lock(stats_mutex);
+            ++st.tcp_connections;
+        }
+    }
+
+    // Reads what is available (unless the link or the connection is backlogged),
+    // writes what is due, half-closes a direction once its EOF is delivered.
+    void tcp_pump(Conn& c, std::vector<uint8_t>& buf) {
+        const auto now = Clock::now();
+        for (int dir = 0; dir < 2; ++dir) {
+            tcp::socket& from = dir == 0 ? *c.front : *c.up;
+            tcp::socket& to = dir == 0 ? *c.up : *c.front;
+            while (!c.eof[dir] && !c.dead && c.queued[dir] < kTcpMaxQueued && !backlogged(dir == 1, now)) {
+                asio::error_code ec;
+                const size_t n = from.read_some(asio::buffer(buf.data(), kTcpChunk), ec);
+                if (ec == asio::error::would_block || ec == asio::error::try_again) break;
+                if (ec == asio::error::eof) c.eof[dir] = true;
+                else if (ec) c.dead = true;
+                else tcp_enqueue(c, dir, buf.data(), n);
+            }
+            while (!c.dead && !c.q[dir].empty() && c.q[dir].front().at <= now) {
+                Chunk& ch = c.q[dir].front();
+                asio::error_code ec;
+                const size_t n = to.write_some(asio::buffer(ch.bytes.data() + ch.sent, ch.bytes.size() - ch.sent), ec);
+                if (ec == asio::error::would_block || ec == asio::error::try_again) break;
+                if (ec) {
+                    c.dead = true;
+                    break;
+                }
+                ch.sent += n;
+                c.queued[dir] -= n;
+                if (ch.sent == ch.bytes.size()) c.q[dir].pop_front();
+            }
+            if (c.eof[dir] && c.q[dir].empty() && !c.shut[dir]) {
+                asio::error_code ec;
+                to.shutdown(tcp::socket::shutdown_send, ec);
+                c.shut[dir] = true;
+            }
+        }
+        if (c.shut[0] && c.shut[1]) c.dead = true;
+    }
 
     void enqueue(int client, bool down, std::vector<uint8_t> bytes) {
         const bool impaired = down || cfg.both_ways;
@@ -90,11 +199,20 @@ struct LinkEmulator::Impl {
             std::vector<pollfd> fds;
             fds.push_back({front.native_handle(), POLLIN, 0});
             for (auto& c : clients) fds.push_back({c.up->native_handle(), POLLIN, 0});
-            int timeout = 5;
-            if (!queue.empty()) {
-                auto d = std::chrono::duration_cast<std::chrono::milliseconds>(queue.top().at - Clock::now()).count();
-                timeout = int(std::clamp<long long>(d, 0, 5));
+            auto next = Clock::now() + std::chrono::milliseconds(5);
+            if (!queue.empty()) next = std::min(next, queue.top().at);
+            if (acceptor) {
+                const auto now = Clock::now();
+                fds.push_back({acceptor->native_handle(), POLLIN, 0});
+                for (const Conn& c : conns)
+                    for (int dir = 0; dir < 2; ++dir) {
+                        const bool reading = !c.eof[dir] && c.queued[dir] < kTcpMaxQueued && !backlogged(dir == 1, now);
+                        fds.push_back({(dir == 0 ? c.front : c.up)->native_handle(), short(reading ? POLLIN : 0), 0});
+                        if (!c.q[dir].empty()) next = std::min(next, c.q[dir].front().at);
+                    }
             }
+            const int timeout = int(std::clamp<long long>(
+                std::chrono::ceil<std::chrono::milliseconds>(next - Clock::now()).count(), 0, 5));
             ::poll(fds.data(), fds.size(), timeout);
             asio::error_code ec;
             for (;;) {  // client -> server
@@ -122,6 +240,11 @@ struct LinkEmulator::Impl {
                     if (ec) break;
                     enqueue(int(i), true, std::vector<uint8_t>(buf.begin(), buf.begin() + long(n)));
                 }
+            }
+            if (acceptor) {
+                tcp_accept();
+                for (Conn& c : conns) tcp_pump(c, buf);
+                std::erase_if(conns, [](const Conn& c) { return c.dead; });
             }
             auto now = Clock::now();
             while (!queue.empty() && queue.top().at <= now) {
@@ -157,6 +280,24 @@ LinkEmulator::LinkEmulator(const LinkConfig& cfg, const std::string& host, uint1
 LinkEmulator::~LinkEmulator() { stop(); }
 
 uint16_t LinkEmulator::port() const { return impl_->front.local_endpoint().port(); }
+
+void LinkEmulator::relay_tcp(uint16_t tcp_port) {
+    if (impl_->running) throw Error("netem: relay_tcp() after start()");
+    impl_->tcp_target = tcp::endpoint(impl_->target.address(), tcp_port);
+    const udp::endpoint local = impl_->front.local_endpoint();
+    const tcp::endpoint here(local.address(), local.port());
+    auto a = std::make_unique<tcp::acceptor>(impl_->io);
+    asio::error_code ec;
+    a->open(tcp::v4(), ec);
+    if (!ec) a->set_option(tcp::acceptor::reuse_address(true), ec);
+    if (!ec) a->bind(here, ec);
+    if (!ec) a->listen(asio::socket_base::max_listen_connections, ec);
+    if (!ec) a->non_blocking(true, ec);
+    if (ec)
+        throw Error("netem: cannot listen on TCP " + here.address().to_string() + ":" + std::to_string(here.port()) + ": " +
+                    ec.message());
+    impl_->acceptor = std::move(a);
+}
 
 void LinkEmulator::start() {
     if (impl_->running.exchange(true)) return;

@@ -4,6 +4,14 @@
 // deterministic for a given seed. Each client address gets its own upstream
 // socket, so the server sees one address per client. Used by progskin-netem
 // and by the tests (clients send their UDP to the relay: --udp-via).
+//
+// With relay_tcp() the control channel goes through it too: a TCP listener on
+// the same port number, one upstream connection per accepted one. TCP bytes
+// share the link's rate cap with the datagrams (each read chunk costs its
+// bytes + 40 of headers) and get the delay and jitter, in order (a chunk never
+// overtakes the one before it); loss, reordering and duplication do not apply
+// to a reliable stream. When the rate-cap queue is longer than queue_ms the
+// relay stops reading TCP (back-pressure) instead of dropping.
 #pragma once
 #include <atomic>
 #include <cstdint>
@@ -27,6 +35,7 @@ struct LinkConfig {
 
 struct LinkStats {
     uint64_t forwarded = 0, dropped = 0, duplicated = 0, reordered = 0, queue_drops = 0;
+    uint64_t tcp_connections = 0, tcp_bytes_down = 0, tcp_bytes_up = 0;  // relay_tcp() only
 };
 
 class LinkEmulator {
@@ -36,6 +45,9 @@ public:
                  const std::string& listen_address = "127.0.0.1", uint16_t listen_port = 0);
     ~LinkEmulator();
     uint16_t port() const;
+    // Before start(): also relay TCP from listen_address:port() to the target
+    // host's tcp_port. Throws Error when that TCP port cannot be bound.
+    void relay_tcp(uint16_t tcp_port);
     void start();  // relays on a thread of its own
     void stop();
     LinkStats stats() const;

@@ -1,5 +1,6 @@
-// netem_main.cpp — progskin-netem: a UDP link emulator in front of a
-// progskin-server's frame stream (link_emulator.h).
+// netem_main.cpp — progskin-netem: a link emulator in front of a
+// progskin-server's frame stream (UDP) and, with --tcp, its control channel
+// (link_emulator.h).
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
@@ -16,9 +17,14 @@ static const char* kUsage =
     "usage: progskin-netem --to HOST:UDPPORT [options]\n"
     "Relays the UDP frame stream between clients and a progskin-server, emulating a link.\n"
     "Point clients at it with: progskin-client --server HOST:TCPPORT --udp-via HOST:LISTENPORT\n"
+    "With --tcp the control channel goes through it too (rate cap, delay and jitter; a TCP\n"
+    "stream is never dropped, reordered or duplicated):\n"
+    "  progskin-client --server HOST:LISTENPORT --udp-via HOST:LISTENPORT\n"
     "\n"
     "  --to HOST:PORT    the server's UDP port (by default the same number as its TCP port)\n"
-    "  --listen PORT     UDP port to listen on (default 7778; 0 = any)\n"
+    "  --listen PORT     UDP (and with --tcp TCP) port to listen on (default 7778; 0 = any)\n"
+    "  --tcp             also relay TCP to the server's control port\n"
+    "  --tcp-port N      the server's TCP port (default: the --to port)\n"
     "  --bind ADDR       listen address (default 127.0.0.1)\n"
     "  --rate-kbps N     link rate cap (0 = unlimited)\n"
     "  --delay-ms N      one-way delay\n"
@@ -38,7 +44,8 @@ static void on_signal(int) { g_stop = 1; }
 int main(int argc, char** argv) {
     LinkConfig cfg;
     std::string to, bind = "127.0.0.1";
-    uint16_t listen = 7778;
+    uint16_t listen = 7778, tcp_port = 0;
+    bool tcp = false;
     double duration = 0;
     try {
         for (int i = 1; i < argc; ++i) {
@@ -53,6 +60,8 @@ int main(int argc, char** argv) {
             } else if (a == "--to") to = val();
             else if (a == "--listen") listen = cli::to_port(a, val());
             else if (a == "--bind") bind = val();
+            else if (a == "--tcp") tcp = true;
+            else if (a == "--tcp-port") tcp_port = cli::to_port(a, val());
             else if (a == "--rate-kbps") cfg.rate_kbps = cli::to_number(a, val());
             else if (a == "--delay-ms") cfg.delay_ms = cli::to_number(a, val());
             else if (a == "--jitter-ms") cfg.jitter_ms = cli::to_number(a, val());
@@ -89,8 +98,12 @@ int main(int argc, char** argv) {
         LinkEmulator link(cfg, to.substr(0, colon), to_port, bind, listen);
         std::signal(SIGINT, on_signal);
         std::signal(SIGTERM, on_signal);
+        if (tcp) link.relay_tcp(tcp_port ? tcp_port : to_port);
         link.start();
         std::printf("progskin-netem: listening on UDP %s:%u -> %s\n", bind.c_str(), link.port(), to.c_str());
+        if (tcp)
+            std::printf("progskin-netem: listening on TCP %s:%u -> %s:%u\n", bind.c_str(), link.port(),
+                        to.substr(0, colon).c_str(), unsigned(tcp_port ? tcp_port : to_port));
         std::fflush(stdout);
         auto t0 = std::chrono::steady_clock::now();
         while (!g_stop) {
@@ -102,6 +115,10 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "progskin-netem: forwarded %llu, dropped %llu, queue drops %llu, duplicated %llu, reordered %llu\n",
                      (unsigned long long)s.forwarded, (unsigned long long)s.dropped, (unsigned long long)s.queue_drops,
                      (unsigned long long)s.duplicated, (unsigned long long)s.reordered);
+        if (tcp)
+            std::fprintf(stderr, "progskin-netem: TCP connections %llu, bytes to clients %llu, to the server %llu\n",
+                         (unsigned long long)s.tcp_connections, (unsigned long long)s.tcp_bytes_down,
+                         (unsigned long long)s.tcp_bytes_up);
         return 0;
     } catch (const std::exception& e) {
         std::fprintf(stderr, "progskin-netem: %s\n", e.what());

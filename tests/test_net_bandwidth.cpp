@@ -6,6 +6,8 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
+#include <filesystem>
 
 #include "link_emulator.h"
 #include "net_test_support.h"
@@ -122,4 +124,43 @@ TEST(NetBandwidth, EstimateBacksOffOnASlowLink) {
     EXPECT_EQ(r.characters, 4);
     EXPECT_LT(r.estimate_kbps, 400.0);
     EXPECT_GT(r.rate_kbps, 40.0);
+}
+
+// progskin-netem --tcp: the control channel (handshake, asset download) goes
+// through the relay too and shares its rate cap, so downloading the assets
+// over a capped link takes at least their bits / rate.
+TEST(NetBandwidth, ControlChannelThroughTheRelay) {
+    RunningServer s;
+    LinkConfig lc;
+    lc.rate_kbps = 4000;
+    lc.delay_ms = 20;
+    LinkEmulator link(lc, "127.0.0.1", s.server->udp_port());
+    link.relay_tcp(s.server->tcp_port());
+    link.start();
+    ClientOptions o = s.client(2.0);
+    o.port = link.port();  // TCP to the relay, not the server
+    o.udp_via_host = "127.0.0.1";
+    o.udp_via_port = link.port();
+    const auto cache = std::filesystem::temp_directory_path() / ("progskin-relay-cache-" + std::to_string(::getpid()));
+    std::filesystem::remove_all(cache);
+    o.cache_dir = cache.string();  // empty: every asset is downloaded through the relay
+    const auto t0 = std::chrono::steady_clock::now();
+    ClientReport r = run_client(o);
+    const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    link.stop();
+    std::filesystem::remove_all(cache);
+    const LinkStats ls = link.stats();
+    const double download_s = double(r.asset_bytes_downloaded) * 8.0 / (lc.rate_kbps * 1000.0);
+    std::printf("relay: %llu TCP connection(s), %llu bytes to the client (%llu of assets), wall %.2f s (stream %.1f s + "
+                "download at the cap >= %.2f s), rtt %.1f ms\n",
+                (unsigned long long)ls.tcp_connections, (unsigned long long)ls.tcp_bytes_down,
+                (unsigned long long)r.asset_bytes_downloaded, wall, o.duration, download_s, r.rtt_ms);
+    EXPECT_EQ(r.characters, 4);
+    EXPECT_EQ(r.malformed, 0u);
+    EXPECT_GT(r.asset_bytes_downloaded, 100000u);
+    EXPECT_GE(ls.tcp_connections, 1u);
+    EXPECT_GE(ls.tcp_bytes_down, r.asset_bytes_downloaded);  // the assets came through the relay
+    EXPECT_GT(ls.tcp_bytes_up, 0u);
+    EXPECT_GE(wall, o.duration + 0.95 * download_s);  // and at no more than the cap
+    EXPECT_GT(ls.forwarded, 0u);                       // the frame stream went through it as before
 }
