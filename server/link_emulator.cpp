@@ -63,6 +63,7 @@ struct LinkEmulator::Impl {
         size_t queued[2] = {0, 0};
         Clock::time_point last[2];
         bool eof[2] = {false, false}, shut[2] = {false, false}, dead = false;
+        bool blocked[2] = {false, false};  // a due chunk waits for its destination to take it (POLLOUT)
     };
     std::vector<Conn> conns;
     static constexpr size_t kTcpChunk = 4096, kTcpMaxQueued = size_t(1) << 20, kTcpMaxConns = 1024;
@@ -134,11 +135,15 @@ struct LinkEmulator::Impl {
                 else if (ec) c.dead = true;
                 else tcp_enqueue(c, dir, buf.data(), n);
             }
+            c.blocked[dir] = false;
             while (!c.dead && !c.q[dir].empty() && c.q[dir].front().at <= now) {
                 Chunk& ch = c.q[dir].front();
                 asio::error_code ec;
                 const size_t n = to.write_some(asio::buffer(ch.bytes.data() + ch.sent, ch.bytes.size() - ch.sent), ec);
-                if (ec == asio::error::would_block || ec == asio::error::try_again) break;
+                if (ec == asio::error::would_block || ec == asio::error::try_again) {
+                    c.blocked[dir] = true;
+                    break;
+                }
                 if (ec) {
                     c.dead = true;
                     break;
@@ -206,9 +211,11 @@ struct LinkEmulator::Impl {
                 fds.push_back({acceptor->native_handle(), POLLIN, 0});
                 for (const Conn& c : conns)
                     for (int dir = 0; dir < 2; ++dir) {
+                        // Socket `dir` (0 front, 1 up) reads direction dir and writes direction 1 - dir.
                         const bool reading = !c.eof[dir] && c.queued[dir] < kTcpMaxQueued && !backlogged(dir == 1, now);
-                        fds.push_back({(dir == 0 ? c.front : c.up)->native_handle(), short(reading ? POLLIN : 0), 0});
-                        if (!c.q[dir].empty()) next = std::min(next, c.q[dir].front().at);
+                        const short ev = short((reading ? POLLIN : 0) | (c.blocked[1 - dir] ? POLLOUT : 0));
+                        fds.push_back({(dir == 0 ? c.front : c.up)->native_handle(), ev, 0});
+                        if (!c.q[dir].empty() && !c.blocked[dir]) next = std::min(next, c.q[dir].front().at);
                     }
             }
             const int timeout = int(std::clamp<long long>(

@@ -11,7 +11,10 @@
 // bytes + 40 of headers) and get the delay and jitter, in order (a chunk never
 // overtakes the one before it); loss, reordering and duplication do not apply
 // to a reliable stream. When the rate-cap queue is longer than queue_ms the
-// relay stops reading TCP (back-pressure) instead of dropping.
+// relay stops reading TCP (back-pressure) instead of dropping. The upstream
+// connect is blocking (the relay pauses while it connects: meant for loopback
+// and LAN servers); at most 1024 connections and 1 MiB in flight each way per
+// connection.
 #pragma once
 #include <atomic>
 #include <cstdint>
