@@ -47,14 +47,6 @@ static const char* kUsage =
     "  --help\n"
     "Exit codes: 0 ok, 1 runtime error (refused, unreachable, bad data), 2 bad arguments.\n";
 
-static bool split_host_port(const std::string& s, std::string& host, uint16_t& port) {
-    auto c = s.rfind(':');
-    if (c == std::string::npos) return false;
-    host = s.substr(0, c);
-    port = cli::to_port(s, s.substr(c + 1));
-    return !host.empty();
-}
-
 static std::vector<float> floats(const std::string& s) {
     std::vector<float> v;
     size_t p = 0;
@@ -82,9 +74,13 @@ int main(int argc, char** argv) {
                 std::fputs(kUsage, stdout);
                 return 0;
             } else if (a == "--server") {
-                if (!split_host_port(val(), opt.host, opt.port)) throw std::invalid_argument("--server needs HOST:PORT");
+                const cli::HostPort hp = cli::host_port(a, val());
+                opt.host = hp.host;
+                opt.port = hp.port;
             } else if (a == "--udp-via") {
-                if (!split_host_port(val(), opt.udp_via_host, opt.udp_via_port)) throw std::invalid_argument("--udp-via needs HOST:PORT");
+                const cli::HostPort hp = cli::host_port(a, val());
+                opt.udp_via_host = hp.host;
+                opt.udp_via_port = hp.port;
             } else if (a == "--max-kbps") opt.max_kbps = cli::to_number(a, val());
             else if (a == "--view") {
                 std::string v = val();

@@ -2,7 +2,8 @@
 // positional arguments, flags and valued options (--key VALUE or --key=VALUE),
 // unknown options refused with a UsageError (exit code 2 in every command),
 // and strict numbers (to_number, to_int, to_u16, to_port: the whole value must parse,
-// the error names the option) for the streaming commands' own loops too.
+// the error names the option) and HOST:PORT values (host_port) for the
+// streaming commands' own loops too.
 #pragma once
 #include <algorithm>
 #include <cmath>
@@ -80,5 +81,16 @@ inline uint16_t to_u16(const std::string& key, const std::string& v, const char*
 }
 
 inline uint16_t to_port(const std::string& key, const std::string& v) { return to_u16(key, v, "a port"); }
+
+// HOST:PORT, split at the last colon; both parts required.
+struct HostPort {
+    std::string host;
+    uint16_t port = 0;
+};
+inline HostPort host_port(const std::string& key, const std::string& v) {
+    const auto c = v.rfind(':');
+    if (c == std::string::npos || c == 0) throw UsageError(key + " needs HOST:PORT, not '" + v + "'");
+    return {v.substr(0, c), to_port(key, v.substr(c + 1))};
+}
 
 }  // namespace progskin::cli

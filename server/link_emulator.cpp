@@ -70,26 +70,37 @@ struct LinkEmulator::Impl {
 
     double uniform() { return std::uniform_real_distribution<double>(0.0, 1.0)(rng); }
 
-    // Whether direction `down` of the link has more queued than queue_ms (TCP stops reading).
+    static Clock::duration millis(double ms) {
+        return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double, std::milli>(ms));
+    }
+
+    // Whether direction `down` of the rate cap has more queued than queue_ms
+    // (a datagram is dropped, TCP stops reading).
     bool backlogged(bool down, Clock::time_point now) const {
         if (!(cfg.rate_kbps > 0) || !(down || cfg.both_ways)) return false;
-        return link_free[down ? 1 : 0] - now > std::chrono::duration<double, std::milli>(cfg.queue_ms);
+        return link_free[down ? 1 : 0] - now > millis(cfg.queue_ms);
+    }
+
+    // The rate cap: when wire_bytes entering direction `down` now have left it
+    // (now when that direction is not capped); datagrams and TCP share it.
+    Clock::time_point serialise(bool down, size_t wire_bytes, Clock::time_point now) {
+        if (!(cfg.rate_kbps > 0) || !(down || cfg.both_ways)) return now;
+        auto& free = link_free[down ? 1 : 0];
+        if (free < now) free = now;
+        free += millis(wire_bytes * 8.0 / cfg.rate_kbps);  // kbit/s = bit/ms
+        return free;
+    }
+
+    // Whether the relay reads direction dir of c now.
+    bool reads(const Conn& c, int dir, Clock::time_point now) const {
+        return !c.eof[dir] && !c.dead && c.queued[dir] < kTcpMaxQueued && !backlogged(dir == 1, now);
     }
 
     void tcp_enqueue(Conn& c, int dir, const uint8_t* data, size_t n) {
         const bool down = dir == 1, impaired = down || cfg.both_ways;
-        auto now = Clock::now();
-        auto at = now;
         std::lock_guard lock(stats_mutex);
-        if (impaired && cfg.rate_kbps > 0) {
-            auto& free = link_free[dir];
-            if (free < now) free = now;
-            free += std::chrono::duration_cast<Clock::duration>(
-                std::chrono::duration<double>((n + 40) * 8.0 / (cfg.rate_kbps * 1000.0)));
-            at = free;
-        }
-        const double ms = cfg.delay_ms + (impaired ? cfg.jitter_ms * uniform() : 0.0);
-        at += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double, std::milli>(ms));
+        auto at = serialise(down, n + 40, Clock::now());
+        at += millis(cfg.delay_ms + (impaired ? cfg.jitter_ms * uniform() : 0.0));
         if (at < c.last[dir]) at = c.last[dir];
         c.last[dir] = at;
         c.q[dir].push_back({at, std::vector<uint8_t>(data, data + n), 0});
@@ -127,7 +138,7 @@ struct LinkEmulator::Impl {
         for (int dir = 0; dir < 2; ++dir) {
             tcp::socket& from = dir == 0 ? *c.front : *c.up;
             tcp::socket& to = dir == 0 ? *c.up : *c.front;
-            while (!c.eof[dir] && !c.dead && c.queued[dir] < kTcpMaxQueued && !backlogged(dir == 1, now)) {
+            while (reads(c, dir, now)) {
                 asio::error_code ec;
                 const size_t n = from.read_some(asio::buffer(buf.data(), kTcpChunk), ec);
                 if (ec == asio::error::would_block || ec == asio::error::try_again) break;
@@ -169,18 +180,11 @@ struct LinkEmulator::Impl {
             ++st.dropped;
             return;
         }
-        auto at = now;
-        if (impaired && cfg.rate_kbps > 0) {
-            auto& free = link_free[down ? 1 : 0];
-            if (free < now) free = now;
-            if (free - now > std::chrono::duration<double, std::milli>(cfg.queue_ms)) {
-                ++st.queue_drops;
-                return;
-            }
-            free += std::chrono::duration_cast<Clock::duration>(
-                std::chrono::duration<double>((bytes.size() + 28) * 8.0 / (cfg.rate_kbps * 1000.0)));
-            at = free;
+        if (backlogged(down, now)) {
+            ++st.queue_drops;
+            return;
         }
+        auto at = serialise(down, bytes.size() + 28, now);
         double ms = cfg.delay_ms;
         if (impaired) {
             ms += cfg.jitter_ms * uniform();
@@ -189,7 +193,7 @@ struct LinkEmulator::Impl {
                 ++st.reordered;
             }
         }
-        at += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double, std::milli>(ms));
+        at += millis(ms);
         bool dup = impaired && uniform() < cfg.duplicate;
         if (dup) {
             ++st.duplicated;
@@ -212,8 +216,7 @@ struct LinkEmulator::Impl {
                 for (const Conn& c : conns)
                     for (int dir = 0; dir < 2; ++dir) {
                         // Socket `dir` (0 front, 1 up) reads direction dir and writes direction 1 - dir.
-                        const bool reading = !c.eof[dir] && c.queued[dir] < kTcpMaxQueued && !backlogged(dir == 1, now);
-                        const short ev = short((reading ? POLLIN : 0) | (c.blocked[1 - dir] ? POLLOUT : 0));
+                        const short ev = short((reads(c, dir, now) ? POLLIN : 0) | (c.blocked[1 - dir] ? POLLOUT : 0));
                         fds.push_back({(dir == 0 ? c.front : c.up)->native_handle(), ev, 0});
                         if (!c.q[dir].empty() && !c.blocked[dir]) next = std::min(next, c.q[dir].front().at);
                     }

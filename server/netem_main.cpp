@@ -43,7 +43,8 @@ static void on_signal(int) { g_stop = 1; }
 
 int main(int argc, char** argv) {
     LinkConfig cfg;
-    std::string to, bind = "127.0.0.1";
+    cli::HostPort to;
+    std::string bind = "127.0.0.1";
     uint16_t listen = 7778, tcp_port = 0;
     bool tcp = false;
     double duration = 0;
@@ -57,7 +58,7 @@ int main(int argc, char** argv) {
             if (a == "--help" || a == "-h") {
                 std::fputs(kUsage, stdout);
                 return 0;
-            } else if (a == "--to") to = val();
+            } else if (a == "--to") to = cli::host_port(a, val());
             else if (a == "--listen") listen = cli::to_port(a, val());
             else if (a == "--bind") bind = val();
             else if (a == "--tcp") tcp = true;
@@ -78,14 +79,12 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "progskin-netem: %s\n%s", e.what(), kUsage);
         return 2;
     }
-    auto colon = to.rfind(':');
-    if (to.empty() || colon == std::string::npos) {
+    if (to.host.empty()) {
         std::fprintf(stderr, "progskin-netem: --to HOST:PORT is required\n%s", kUsage);
         return 2;
     }
-    uint16_t to_port = 0;
+    if (!tcp_port) tcp_port = to.port;  // the server's TCP port: by default the UDP port's number
     try {
-        to_port = cli::to_port("--to", to.substr(colon + 1));
         for (double p : {cfg.loss, cfg.reorder, cfg.duplicate})
             if (!(p >= 0 && p <= 1)) throw cli::UsageError("--loss, --reorder and --duplicate are probabilities (0..1)");
         if (cfg.rate_kbps < 0 || cfg.delay_ms < 0 || cfg.jitter_ms < 0 || cfg.queue_ms < 0 || duration < 0)
@@ -95,15 +94,16 @@ int main(int argc, char** argv) {
         return 2;
     }
     try {
-        LinkEmulator link(cfg, to.substr(0, colon), to_port, bind, listen);
+        LinkEmulator link(cfg, to.host, to.port, bind, listen);
         std::signal(SIGINT, on_signal);
         std::signal(SIGTERM, on_signal);
-        if (tcp) link.relay_tcp(tcp_port ? tcp_port : to_port);
+        if (tcp) link.relay_tcp(tcp_port);
         link.start();
-        std::printf("progskin-netem: listening on UDP %s:%u -> %s\n", bind.c_str(), link.port(), to.c_str());
+        std::printf("progskin-netem: listening on UDP %s:%u -> %s:%u\n", bind.c_str(), link.port(), to.host.c_str(),
+                    unsigned(to.port));
         if (tcp)
-            std::printf("progskin-netem: listening on TCP %s:%u -> %s:%u\n", bind.c_str(), link.port(),
-                        to.substr(0, colon).c_str(), unsigned(tcp_port ? tcp_port : to_port));
+            std::printf("progskin-netem: listening on TCP %s:%u -> %s:%u\n", bind.c_str(), link.port(), to.host.c_str(),
+                        unsigned(tcp_port));
         std::fflush(stdout);
         auto t0 = std::chrono::steady_clock::now();
         while (!g_stop) {
