@@ -414,6 +414,16 @@ int main(int argc, char** argv) {
         auto g = [&](int k) { return t[size_t(std::min<int>(k, int(t.size())) - 1)]; };
         bool mono = true;
         for (size_t i = 1; i < t.size(); ++i) mono = mono && t[i] <= t[i - 1] * (1 + 1e-9);
+        size_t switched = 0;  // vertices whose every joint follows a streamed fine motion at k=16
+        for (size_t v = 0; v < V; ++v) {
+            bool all = true;
+            for (auto [j, w] : vw[v]) {
+                const int m = joints[size_t(j)].motion;
+                all = all && m >= 0 && rank[size_t(m)] < 16 - Kc;
+            }
+            switched += all;
+        }
+        std::printf("vertices fully on fine motions at k=16: %.1f %%\n", 100.0 * double(switched) / double(V));
         std::printf("table:");
         for (double e : t) std::printf(" %.3g", e);
         std::printf("\nRESULT %s K0=%d NF=%d: %.3g %.3g %.3g %.3g %.3g e19=%.3g ratios %.2f %.2f %.2f %s joints=%zu (%.0fs)\n",
