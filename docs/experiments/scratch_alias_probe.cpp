@@ -22,9 +22,9 @@
 // the error most), then weights and order alternate PSK_ROUNDS (3) times.
 // Prints e(k) for every k and one RESULT line per stage.
 //
-// Build (from the repository root, after cmake --build build-scratch):
+// Build (from the repository root, after the README's test build in build/):
 //   g++ -std=c++20 -O2 -Icommon -I/usr/include/eigen3 docs/experiments/scratch_alias_probe.cpp
-//       build-scratch/common/libprogskin_core.a -ltinygltf -o /tmp/alias_probe
+//       build/common/libprogskin_core.a -ltinygltf -o /tmp/alias_probe
 //   /tmp/alias_probe [../shared/assets/CesiumMan.glb]   (about a minute)
 #include <Eigen/Dense>
 #include <algorithm>
