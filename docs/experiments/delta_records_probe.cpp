@@ -43,23 +43,23 @@ int main() {
     std::vector<EncodedFrame> frames;
     for (int t = 0; t < T; ++t) frames.push_back(enc.encode(uint32_t(t)));
     std::printf("%zu instances, %d ticks at 30 Hz\n", inst.size(), T);
+    const double kPlainBits = 8.0 * RecordFormat::kPlainSize;
     for (int d : {1, 2, 3, 6, 10}) {
-        double plain = 0, packed = 0, ideal = 0, n = 0, escapes = 0;
+        double packed = 0, ideal = 0, n = 0, escapes = 0;
         for (int t = d; t < T; ++t)
             for (size_t i = 0; i < inst.size(); ++i) {
                 const EncodedInstance& e = frames[size_t(t)].instances[i];
-                if (e.record_size != 12) continue;
+                if (e.record_size != RecordFormat::kPlainSize) continue;
                 for (int b = 0; b < e.bone_count; ++b) {
                     int bc, br;
                     long fc[6], fr[6];
-                    fields(frames[size_t(t)].records(int(i)) + 12 * b, bc, fc);
-                    fields(frames[size_t(t - d)].records(int(i)) + 12 * b, br, fr);
+                    fields(frames[size_t(t)].records(int(i)) + RecordFormat::kPlainSize * b, bc, fc);
+                    fields(frames[size_t(t - d)].records(int(i)) + RecordFormat::kPlainSize * b, br, fr);
                     n += 1;
-                    plain += 96;
                     if (bc != br) {
                         escapes += 1;
-                        packed += 1 + 96;
-                        ideal += 96;
+                        packed += 1 + kPlainBits;
+                        ideal += kPlainBits;
                         continue;
                     }
                     int w = 0;
@@ -73,6 +73,6 @@ int main() {
                 }
             }
         std::printf("lag %2d ticks: records %.0f, escapes %.1f %%, shared-width delta %.1f %% of plain, per-field ideal %.1f %%\n",
-                    d, n, 100 * escapes / n, 100 * packed / plain, 100 * ideal / plain);
+                    d, n, 100 * escapes / n, 100 * packed / (n * kPlainBits), 100 * ideal / (n * kPlainBits));
     }
 }

@@ -32,7 +32,6 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
-#include <numeric>
 #include <string>
 #include <vector>
 
@@ -405,7 +404,8 @@ int main(int argc, char** argv) {
             }
             if (best < 0) break;
             rank[size_t(best)] = step;
-            for (size_t v = 0; v < V; ++v) ev[v] = vertex_err(v, Kc + step + 1);
+            // Only the motion's users change: every other vertex is the same at all levels >= Kc.
+            for (size_t v : users[size_t(best)]) ev[v] = vertex_err(v, Kc + step + 1);
         }
     };
     auto report = [&](const char* what) {
