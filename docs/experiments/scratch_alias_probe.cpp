@@ -36,48 +36,12 @@
 #include <vector>
 
 #include "palette.h"
+#include "probe_util.h"
 #include "scratch_build.h"
 #include "vertex_animation.h"
 
 using namespace progskin;
-using M34 = Eigen::Matrix<double, 3, 4>;
-using V3 = Eigen::Vector3d;
-
-static int envi(const char* n, int d) {
-    const char* s = std::getenv(n);
-    return s ? std::atoi(s) : d;
-}
-static double envd(const char* n, double d) {
-    const char* s = std::getenv(n);
-    return s ? std::atof(s) : d;
-}
-static M34 to_e(const Mat34& m) {
-    M34 r;
-    for (int i = 0; i < 3; ++i)
-        for (int j = 0; j < 4; ++j) r(i, j) = m.m[i * 4 + j];
-    return r;
-}
-static V3 xf(const M34& m, const V3& p) { return m.leftCols<3>() * p + m.col(3); }
-
-// Weighted rigid Procrustes: argmin sum w |R x + t - y|^2.
-static M34 procrustes(const std::vector<V3>& x, const std::vector<V3>& y, const std::vector<double>& w) {
-    double W = 0;
-    V3 cx = V3::Zero(), cy = V3::Zero();
-    for (size_t i = 0; i < x.size(); ++i) W += w[i], cx += w[i] * x[i], cy += w[i] * y[i];
-    M34 r = M34::Zero();
-    r.leftCols<3>().setIdentity();
-    if (W <= 0) return r;
-    cx /= W, cy /= W;
-    Eigen::Matrix3d S = Eigen::Matrix3d::Zero();
-    for (size_t i = 0; i < x.size(); ++i) S += w[i] * (y[i] - cy) * (x[i] - cx).transpose();
-    Eigen::JacobiSVD<Eigen::Matrix3d> svd(S, Eigen::ComputeFullU | Eigen::ComputeFullV);
-    Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
-    if ((svd.matrixU() * svd.matrixV().transpose()).determinant() < 0) D(2, 2) = -1;
-    const Eigen::Matrix3d R = svd.matrixU() * D * svd.matrixV().transpose();
-    r.leftCols<3>() = R;
-    r.col(3) = cy - R * cx;
-    return r;
-}
+using namespace probe;
 
 // Lawson-Hanson NNLS on the normal equations G w = h (G symmetric PSD), over `allowed`.
 static Eigen::VectorXd nnls(const Eigen::MatrixXd& G, const Eigen::VectorXd& h, const std::vector<char>& allowed) {

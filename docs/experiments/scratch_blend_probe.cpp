@@ -45,54 +45,12 @@
 #include <vector>
 
 #include "palette.h"
+#include "probe_util.h"
 #include "scratch_build.h"
 #include "vertex_animation.h"
 
 using namespace progskin;
-using M34 = Eigen::Matrix<double, 3, 4>;
-using V3 = Eigen::Vector3d;
-
-static int envi(const char* n, int d) {
-    const char* s = std::getenv(n);
-    return s ? std::atoi(s) : d;
-}
-static double envd(const char* n, double d) {
-    const char* s = std::getenv(n);
-    return s ? std::atof(s) : d;
-}
-static M34 to_e(const Mat34& m) {
-    M34 r;
-    for (int i = 0; i < 3; ++i)
-        for (int j = 0; j < 4; ++j) r(i, j) = m.m[i * 4 + j];
-    return r;
-}
-static V3 xf(const M34& m, const V3& p) { return m.leftCols<3>() * p + m.col(3); }
-// a * b for affine 3x4 matrices.
-static M34 mul(const M34& a, const M34& b) {
-    M34 r;
-    r.leftCols<3>() = a.leftCols<3>() * b.leftCols<3>();
-    r.col(3) = a.leftCols<3>() * b.col(3) + a.col(3);
-    return r;
-}
-
-// Weighted rigid Procrustes: argmin sum w |R x + t - y|^2 (R a rotation).
-static M34 rigid_fit(const std::vector<V3>& x, const std::vector<V3>& y, const std::vector<double>& w) {
-    double W = 0;
-    V3 cx = V3::Zero(), cy = V3::Zero();
-    for (size_t i = 0; i < x.size(); ++i) W += w[i], cx += w[i] * x[i], cy += w[i] * y[i];
-    M34 r = M34::Zero();
-    r.leftCols<3>().setIdentity();
-    if (W <= 0) return r;
-    cx /= W, cy /= W;
-    Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
-    for (size_t i = 0; i < x.size(); ++i) C += w[i] * (y[i] - cy) * (x[i] - cx).transpose();
-    const Eigen::JacobiSVD<Eigen::Matrix3d> svd(C, Eigen::ComputeFullU | Eigen::ComputeFullV);
-    Eigen::Matrix3d s = Eigen::Matrix3d::Identity();
-    s(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0 ? -1 : 1;
-    r.leftCols<3>() = svd.matrixU() * s * svd.matrixV().transpose();
-    r.col(3) = cy - r.leftCols<3>() * cx;
-    return r;
-}
+using namespace probe;
 
 int main(int argc, char** argv) {
     const std::string path = argc > 1 ? argv[1] : "../shared/assets/CesiumMan.glb";
@@ -294,7 +252,7 @@ int main(int argc, char** argv) {
                             if (std::abs(Wa) < 1e-6) continue;
                             xs.push_back(za), ys.push_back(r / Wa), ws.push_back(Wa * Wa);
                         }
-                        if (xs.size() >= 3) M[f * size_t(k) + size_t(a)] = rigid_fit(xs, ys, ws);
+                        if (xs.size() >= 3) M[f * size_t(k) + size_t(a)] = procrustes(xs, ys, ws);
                     }
         };
         const double e_today = error(M0, c0);
