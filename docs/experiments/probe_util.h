@@ -4,9 +4,11 @@
 #pragma once
 #include <Eigen/Dense>
 #include <cstdlib>
+#include <string>
 #include <vector>
 
 #include "math.h"
+#include "vertex_animation.h"
 
 namespace probe {
 
@@ -55,6 +57,17 @@ inline M34 procrustes(const std::vector<V3>& x, const std::vector<V3>& y, const 
     r.leftCols<3>() = svd.matrixU() * D * svd.matrixV().transpose();
     r.col(3) = cy - r.leftCols<3>() * cx;
     return r;
+}
+
+// The issue-4 comparison's input: a skinned glTF's clips played together at
+// 30 fps as vertex animation, and the diagonal its errors are measured in.
+inline progskin::VertexAnimation load_all_clips(const std::string& path, double* diagonal) {
+    progskin::VertexAnimationOptions vo;
+    vo.fps = 30;
+    vo.clip = "all";
+    progskin::VertexAnimation an = progskin::load_vertex_animation(path, vo);
+    *diagonal = an.diagonal > 0 ? an.diagonal : progskin::frame_diagonal(an, 0);
+    return an;
 }
 
 }  // namespace probe

@@ -96,11 +96,8 @@ int main(int argc, char** argv) {
     const std::string path = argc > 1 ? argv[1] : "../shared/assets/CesiumMan.glb";
     const int K0 = envi("PSK_K0", 8), NF = envi("PSK_NF", 32);
     const bool bind = envi("PSK_BIND", 0) != 0;
-    VertexAnimationOptions vo;
-    vo.fps = 30;
-    vo.clip = "all";
-    const VertexAnimation an = load_vertex_animation(path, vo);
-    const double diag = an.diagonal > 0 ? an.diagonal : frame_diagonal(an, 0);
+    double diag = 0;
+    const VertexAnimation an = load_all_clips(path, &diag);
     const size_t V = an.vertex_count, F = an.frame_count;
     auto t0 = std::chrono::steady_clock::now();
 

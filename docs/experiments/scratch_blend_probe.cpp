@@ -56,11 +56,8 @@ int main(int argc, char** argv) {
     const std::string path = argc > 1 ? argv[1] : "../shared/assets/CesiumMan.glb";
     const int NC = std::max(1, envi("PSK_NC", 3));
     const bool sum1 = envi("PSK_SUM1", 1) != 0;
-    VertexAnimationOptions vo;
-    vo.fps = 30;
-    vo.clip = "all";
-    const VertexAnimation an = load_vertex_animation(path, vo);
-    const double diag = an.diagonal > 0 ? an.diagonal : frame_diagonal(an, 0);
+    double diag = 0;
+    const VertexAnimation an = load_all_clips(path, &diag);
     const size_t V = an.vertex_count, F = an.frame_count;
     const auto t0 = std::chrono::steady_clock::now();
 
