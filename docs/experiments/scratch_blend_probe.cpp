@@ -28,7 +28,10 @@
 //             "coefficients" is the range of the last round's c).
 //
 // Full detail is the shipped skin in every column. The figures are training
-// error on the input frames, like every table of the build and Dem Bones'.
+// error on the input frames, like every table of the build and Dem Bones';
+// PSK_HOLDOUT=1 fits the coefficients, corrections and free weights on the
+// even frames and measures on the odd ones (the skin itself and the per-frame
+// group matrices still use every frame).
 //
 // Build (from the repository root, after the README's test build in build/):
 //   g++ -std=c++20 -O2 -Icommon -I/usr/include/eigen3 docs/experiments/scratch_blend_probe.cpp
@@ -56,6 +59,11 @@ int main(int argc, char** argv) {
     const std::string path = argc > 1 ? argv[1] : "../shared/assets/CesiumMan.glb";
     const int NC = std::max(1, envi("PSK_NC", 3));
     const bool sum1 = envi("PSK_SUM1", 1) != 0;
+    // PSK_HOLDOUT=1: coefficients, corrections and free weights fitted on the
+    // even frames, every column measured on the odd ones.
+    const bool holdout = envi("PSK_HOLDOUT", 0) != 0;
+    auto fit_frame = [&](size_t f) { return !holdout || f % 2 == 0; };
+    auto eval_frame = [&](size_t f) { return !holdout || f % 2 == 1; };
     double diag = 0;
     const VertexAnimation an = load_all_clips(path, &diag);
     const size_t V = an.vertex_count, F = an.frame_count;
@@ -138,6 +146,7 @@ int main(int argc, char** argv) {
                     const double w = wof(size_t(v), j);
                     const Eigen::Vector4d xh(p[size_t(v)].x(), p[size_t(v)].y(), p[size_t(v)].z(), 1);
                     for (size_t f = 0; f < F; ++f) {
+                        if (!fit_frame(f)) continue;
                         const M34& Sb = S[f * size_t(B) + size_t(b)];
                         const V3 z = Sb.leftCols<3>().transpose() * (xf(S[f * size_t(B) + size_t(j)], p[size_t(v)]) - Sb.col(3));
                         A += w * xh * xh.transpose();
@@ -150,7 +159,8 @@ int main(int argc, char** argv) {
                 for (int v : users[size_t(j)]) {
                     const double w = wof(size_t(v), j);
                     for (size_t f = 0; f < F; ++f)
-                        c += w * (xf(mul(S[f * size_t(B) + size_t(b)], fits[size_t(b)]), p[size_t(v)]) -
+                        if (fit_frame(f))
+                            c += w * (xf(mul(S[f * size_t(B) + size_t(b)], fits[size_t(b)]), p[size_t(v)]) -
                                   xf(S[f * size_t(B) + size_t(j)], p[size_t(v)]))
                                      .squaredNorm();
                 }
@@ -168,15 +178,16 @@ int main(int argc, char** argv) {
             for (int a = 0; a < k; ++a) M0[f * size_t(k) + size_t(a)] = S[f * size_t(B) + size_t(a)];
         auto error = [&](const std::vector<M34>& M, const Eigen::VectorXd& c) {
             double e = 0;
+            size_t n_eval = 0;
             for (size_t f = 0; f < F; ++f)
-                for (size_t v = 0; v < V; ++v) {
+                for (size_t v = 0; v < V && eval_frame(f); ++v, ++n_eval) {
                     V3 y = V3::Zero();
                     for (auto [j, w] : wv[v])
                         for (const Term& t : terms[size_t(j)])
                             y += w * coef(c, t) * xf(mul(M[f * size_t(k) + size_t(t.a)], t.D), p[v]);
                     e += (y - X[f * V + v]).squaredNorm();
                 }
-            return 100 * std::sqrt(e / double(V * F)) / diag;
+            return 100 * std::sqrt(e / double(n_eval)) / diag;
         };
         // Coefficients given the streamed matrices: linear least squares,
         // each inactive bone's summing to 1 (KKT) with PSK_SUM1.
@@ -186,7 +197,7 @@ int main(int argc, char** argv) {
             std::vector<int> idx;
             std::vector<V3> u;
             for (size_t f = 0; f < F; ++f)
-                for (size_t v = 0; v < V; ++v) {
+                for (size_t v = 0; v < V && fit_frame(f); ++v) {
                     V3 r = X[f * V + v];
                     idx.clear(), u.clear();
                     for (auto [j, w] : wv[v])
@@ -272,16 +283,23 @@ int main(int argc, char** argv) {
         // least-squares weights over all k streamed matrices at its bind
         // position (no influence limit, no sign or sum constraint, no corrections).
         double e_free = 0;
+        size_t n_fit = 0, n_eval = 0;
+        for (size_t f = 0; f < F; ++f) n_fit += fit_frame(f), n_eval += eval_frame(f);
         for (size_t v = 0; v < V; ++v) {
-            Eigen::MatrixXd A(3 * F, k);
-            Eigen::VectorXd y(3 * F);
-            for (size_t f = 0; f < F; ++f) {
-                y.segment<3>(Eigen::Index(3 * f)) = X[f * V + v];
-                for (int a = 0; a < k; ++a) A.block<3, 1>(Eigen::Index(3 * f), a) = xf(S[f * size_t(B) + size_t(a)], p[v]);
+            Eigen::MatrixXd A(3 * n_fit, k), Ae(3 * n_eval, k);
+            Eigen::VectorXd y(3 * n_fit), ye(3 * n_eval);
+            for (size_t f = 0, i = 0, ie = 0; f < F; ++f) {
+                for (int a = 0; a < k; ++a) {
+                    const V3 q = xf(S[f * size_t(B) + size_t(a)], p[v]);
+                    if (fit_frame(f)) A.block<3, 1>(Eigen::Index(3 * i), a) = q;
+                    if (eval_frame(f)) Ae.block<3, 1>(Eigen::Index(3 * ie), a) = q;
+                }
+                if (fit_frame(f)) y.segment<3>(Eigen::Index(3 * i++)) = X[f * V + v];
+                if (eval_frame(f)) ye.segment<3>(Eigen::Index(3 * ie++)) = X[f * V + v];
             }
-            e_free += (A * A.colPivHouseholderQr().solve(y) - y).squaredNorm();
+            e_free += (Ae * A.colPivHouseholderQr().solve(y) - ye).squaredNorm();
         }
-        e_free = 100 * std::sqrt(e_free / double(V * F)) / diag;
+        e_free = 100 * std::sqrt(e_free / double(V * n_eval)) / diag;
         std::printf("%-3d %-8.3g %-8.3g %-8.3g %-8.3g %-17s (table %.3g; coefficients %.2f..%.2f)\n", k, e_today,
                     e_blend, e_free, e_group, both.c_str(), sk.error[size_t(k - 1)].rms_pct, c.minCoeff(), c.maxCoeff());
         std::fflush(stdout);
