@@ -44,6 +44,9 @@ using namespace progskin;
 using namespace probe;
 
 // Lawson-Hanson NNLS on the normal equations G w = h (G symmetric PSD), over `allowed`.
+// Kept apart from the library's file-local nnls (common/scratch_build.cpp):
+// swapping it in moves this probe's figures in the third digit (its step
+// tolerance and ridge differ), and scratch-aliases.log records these.
 static Eigen::VectorXd nnls(const Eigen::MatrixXd& G, const Eigen::VectorXd& h, const std::vector<char>& allowed) {
     const int n = int(h.size());
     Eigen::VectorXd w = Eigen::VectorXd::Zero(n);
