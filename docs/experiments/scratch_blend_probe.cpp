@@ -32,6 +32,11 @@
 // PSK_HOLDOUT=1 fits the coefficients, corrections and free weights on the
 // even frames and measures on the odd ones (the skin itself and the per-frame
 // group matrices still use every frame).
+// PSK_PAIR=1 replaces every inactive bone's chained correction by one fitted
+// for its (bone, nearest active ancestor) pair at each level (GUIDE.md's
+// C_b,a; affine least squares over the bone's users, weighted by their weight
+// in it), which "today" then measures: a copy-down runtime with a correction
+// table per pair instead of per bone.
 //
 // Build (from the repository root, after the README's test build in build/):
 //   g++ -std=c++20 -O2 -Icommon -I/usr/include/eigen3 docs/experiments/scratch_blend_probe.cpp
@@ -59,6 +64,7 @@ int main(int argc, char** argv) {
     const std::string path = argc > 1 ? argv[1] : "../shared/assets/CesiumMan.glb";
     const int NC = std::max(1, envi("PSK_NC", 3));
     const bool sum1 = envi("PSK_SUM1", 1) != 0;
+    const bool pair_corr = envi("PSK_PAIR", 0) != 0;
     // PSK_HOLDOUT=1: coefficients, corrections and free weights fitted on the
     // even frames, every column measured on the odd ones.
     const bool holdout = envi("PSK_HOLDOUT", 0) != 0;
@@ -139,7 +145,9 @@ int main(int argc, char** argv) {
             // each with its affine least-squares correction over j's users.
             std::vector<std::pair<double, int>> costs;
             std::vector<M34> fits(static_cast<size_t>(k));
-            for (int b = 0; b < k && NC > 1; ++b) {
+            // Affine least-squares correction of j's stand-in through bone b,
+            // over j's users weighted by their weight in j.
+            auto fit_corr = [&](int b) {
                 Eigen::Matrix4d A = Eigen::Matrix4d::Zero();
                 Eigen::Matrix<double, 4, 3> Bm = Eigen::Matrix<double, 4, 3>::Zero();
                 for (int v : users[size_t(j)]) {
@@ -154,7 +162,13 @@ int main(int argc, char** argv) {
                     }
                 }
                 A.diagonal().array() += 1e-9 * (1 + A.trace());
-                fits[size_t(b)] = Eigen::Matrix<double, 4, 3>(A.ldlt().solve(Bm)).transpose();
+                return M34(Eigen::Matrix<double, 4, 3>(A.ldlt().solve(Bm)).transpose());
+            };
+            // PSK_PAIR=1: the nearest active ancestor's correction fitted for
+            // this (bone, ancestor) pair (GUIDE's C_b,a) instead of chained.
+            if (pair_corr) terms[size_t(j)][0].D = fit_corr(a);
+            for (int b = 0; b < k && NC > 1; ++b) {
+                fits[size_t(b)] = fit_corr(b);
                 double c = 0;
                 for (int v : users[size_t(j)]) {
                     const double w = wof(size_t(v), j);
