@@ -9,6 +9,7 @@
 #include <fstream>
 #include <iterator>
 #include <limits>
+#include <unordered_map>
 
 #include <glm/gtc/matrix_inverse.hpp>
 #include <glm/gtc/matrix_transform.hpp>
@@ -52,6 +53,67 @@ double frame_diagonal(const VertexAnimation& a, size_t f) {
         hi = glm::max(hi, glm::dvec3(p[v]));
     }
     return glm::length(hi - lo);
+}
+
+VertexAnimation join_coincident(const VertexAnimation& a, std::vector<uint32_t>* representative) {
+    const size_t V = a.vertex_count, F = a.frame_count;
+    if (a.positions.size() != V * F) throw Error(a.source + ": positions do not match vertices x frames");
+    auto bits = [](float x) {
+        x += 0.0f;  // -0 -> +0
+        uint32_t u;
+        std::memcpy(&u, &x, sizeof u);
+        return u;
+    };
+    auto key = [&](const glm::vec3& p) {
+        uint64_t h = 1469598103934665603ull;  // FNV-1a over the three bit patterns
+        for (uint32_t u : {bits(p.x), bits(p.y), bits(p.z)}) h = (h ^ u) * 1099511628211ull;
+        return h;
+    };
+    auto same = [&](size_t u, size_t v) {
+        for (size_t f = 0; f < F; ++f) {
+            const glm::vec3 &p = a.frame(f)[u], &q = a.frame(f)[v];
+            if (bits(p.x) != bits(q.x) || bits(p.y) != bits(q.y) || bits(p.z) != bits(q.z)) return false;
+        }
+        return true;
+    };
+    // Buckets by frame-0 position, then a full comparison against the kept
+    // vertices of the bucket (seam copies are few per bucket).
+    std::unordered_map<uint64_t, std::vector<uint32_t>> buckets;
+    std::vector<uint32_t> rep(V), kept;
+    for (size_t v = 0; v < V; ++v) {
+        std::vector<uint32_t>& b = buckets[key(a.frame(0)[v])];
+        uint32_t r = uint32_t(-1);
+        for (uint32_t k : b)
+            if (same(kept[k], v)) {
+                r = k;
+                break;
+            }
+        if (r == uint32_t(-1)) {
+            r = uint32_t(kept.size());
+            kept.push_back(uint32_t(v));
+            b.push_back(r);
+        }
+        rep[v] = r;
+    }
+    VertexAnimation j;
+    j.source = a.source;
+    j.fps = a.fps;
+    j.diagonal = a.diagonal;
+    j.vertex_count = kept.size();
+    j.frame_count = F;
+    j.positions.reserve(kept.size() * F);
+    for (size_t f = 0; f < F; ++f)
+        for (uint32_t v : kept) j.positions.push_back(a.frame(f)[v]);
+    if (a.normals.size() == V)
+        for (uint32_t v : kept) j.normals.push_back(a.normals[v]);
+    for (size_t t = 0; t + 2 < a.triangles.size(); t += 3) {
+        const uint32_t i = a.triangles[t], k = a.triangles[t + 1], m = a.triangles[t + 2];
+        if (i >= V || k >= V || m >= V) throw Error(a.source + ": triangle index out of range");
+        const uint32_t x = rep[i], y = rep[k], z = rep[m];
+        if (x != y && y != z && x != z) j.triangles.insert(j.triangles.end(), {x, y, z});
+    }
+    if (representative) *representative = std::move(rep);
+    return j;
 }
 
 // ---------------------------------------------------------------------------

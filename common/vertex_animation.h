@@ -64,4 +64,14 @@ VertexAnimation load_gltf_skinned_as_vertices(const std::string& path, const Ver
 // Bounding-box diagonal of frame f.
 double frame_diagonal(const VertexAnimation& anim, size_t f = 0);
 
+// Joins vertices whose positions are identical (bit for bit, -0 = +0) in every
+// frame: the copies a mesh splits along UV or normal seams, which skinning-
+// decomposition tools join before fitting (Dem Bones joins vertices at
+// identical rest positions). Keeps the first vertex of each set, in input
+// order, with its normal; remaps the triangles and drops those that collapse;
+// keeps source, fps and diagonal. `representative`, if given, receives for
+// every input vertex its index in the result. O(V*F) time, O(V) memory
+// besides the result.
+VertexAnimation join_coincident(const VertexAnimation& anim, std::vector<uint32_t>* representative = nullptr);
+
 }  // namespace progskin

@@ -341,6 +341,46 @@ TEST(Scratch, SkinnedAssetsAsVertices) {
     }
 }
 
+// join_coincident joins only vertices equal in every frame, remaps the
+// triangles and drops the ones that collapse.
+TEST(Scratch, JoinCoincident) {
+    VertexAnimation a;
+    a.source = "join";
+    a.vertex_count = 6;
+    a.frame_count = 2;
+    a.diagonal = 5;
+    // v3 copies v1 in both frames; v4 meets v2 in frame 0 only; v5 is v0 with -0.
+    const glm::vec3 f0[6] = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {1, 0, 0}, {0, 1, 0}, {-0.0f, 0, -0.0f}};
+    const glm::vec3 f1[6] = {{0, 0, 1}, {1, 0, 1}, {0, 1, 1}, {1, 0, 1}, {0, 2, 1}, {0, 0, 1}};
+    a.positions.assign(f0, f0 + 6);
+    a.positions.insert(a.positions.end(), f1, f1 + 6);
+    for (int v = 0; v < 6; ++v) a.normals.push_back({0, 0, float(v)});
+    a.triangles = {0, 1, 2, 1, 3, 2, 3, 4, 5};
+    std::vector<uint32_t> rep;
+    const VertexAnimation j = join_coincident(a, &rep);
+    EXPECT_NO_THROW(j.validate());
+    EXPECT_EQ(j.vertex_count, 4u);
+    EXPECT_EQ(rep, (std::vector<uint32_t>{0, 1, 2, 1, 3, 0}));
+    for (size_t f = 0; f < 2; ++f)
+        for (size_t v = 0; v < 6; ++v) EXPECT_EQ(j.frame(f)[rep[v]], a.frame(f)[v]) << "frame " << f << " vertex " << v;
+    EXPECT_EQ(j.normals[3], a.normals[4]);
+    EXPECT_EQ(j.triangles, (std::vector<uint32_t>{0, 1, 2, 1, 3, 0}));  // (1,1,2) dropped
+    EXPECT_EQ(j.diagonal, 5);
+
+    // A real mesh: the Fox's flat-shaded seams, every vertex at its
+    // representative's position in every frame.
+    VertexAnimationOptions vo;
+    vo.fps = 10;
+    vo.clip = "Survey";
+    const VertexAnimation fox = load_vertex_animation(std::string(PROGSKIN_ASSETS) + "/Fox.glb", vo);
+    const VertexAnimation fj = join_coincident(fox, &rep);
+    EXPECT_LT(fj.vertex_count, fox.vertex_count / 2);
+    ASSERT_EQ(rep.size(), fox.vertex_count);
+    for (size_t f = 0; f < fox.frame_count; ++f)
+        for (size_t v = 0; v < fox.vertex_count; ++v) ASSERT_EQ(fj.frame(f)[rep[v]], fox.frame(f)[v]);
+    EXPECT_NEAR(frame_diagonal(fj, 0), frame_diagonal(fox, 0), 1e-9);
+}
+
 TEST(Scratch, MalformedGltf) {
     const std::string path = tmp_path("bad.gltf");
     {
