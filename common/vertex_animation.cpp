@@ -57,6 +57,7 @@ double frame_diagonal(const VertexAnimation& a, size_t f) {
 
 VertexAnimation join_coincident(const VertexAnimation& a, std::vector<uint32_t>* representative) {
     const size_t V = a.vertex_count, F = a.frame_count;
+    if (F == 0) throw Error(a.source + ": no frames");
     if (a.positions.size() != V * F) throw Error(a.source + ": positions do not match vertices x frames");
     auto bits = [](float x) {
         x += 0.0f;  // -0 -> +0
@@ -64,9 +65,12 @@ VertexAnimation join_coincident(const VertexAnimation& a, std::vector<uint32_t>*
         std::memcpy(&u, &x, sizeof u);
         return u;
     };
-    auto key = [&](const glm::vec3& p) {
-        uint64_t h = 1469598103934665603ull;  // FNV-1a over the three bit patterns
-        for (uint32_t u : {bits(p.x), bits(p.y), bits(p.z)}) h = (h ^ u) * 1099511628211ull;
+    auto key = [&](size_t v) {  // FNV-1a over the vertex's bit patterns in every frame
+        uint64_t h = 1469598103934665603ull;
+        for (size_t f = 0; f < F; ++f) {
+            const glm::vec3& p = a.frame(f)[v];
+            for (uint32_t u : {bits(p.x), bits(p.y), bits(p.z)}) h = (h ^ u) * 1099511628211ull;
+        }
         return h;
     };
     auto same = [&](size_t u, size_t v) {
@@ -76,12 +80,12 @@ VertexAnimation join_coincident(const VertexAnimation& a, std::vector<uint32_t>*
         }
         return true;
     };
-    // Buckets by frame-0 position, then a full comparison against the kept
-    // vertices of the bucket (seam copies are few per bucket).
+    // Buckets by a hash of the whole trajectory, then a full comparison with
+    // the bucket's kept vertices (more than one only on a hash collision).
     std::unordered_map<uint64_t, std::vector<uint32_t>> buckets;
     std::vector<uint32_t> rep(V), kept;
     for (size_t v = 0; v < V; ++v) {
-        std::vector<uint32_t>& b = buckets[key(a.frame(0)[v])];
+        std::vector<uint32_t>& b = buckets[key(v)];
         uint32_t r = uint32_t(-1);
         for (uint32_t k : b)
             if (same(kept[k], v)) {

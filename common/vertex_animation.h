@@ -71,7 +71,9 @@ double frame_diagonal(const VertexAnimation& anim, size_t f = 0);
 // order, with its normal; remaps the triangles and drops those that collapse;
 // keeps source, fps and diagonal. `representative`, if given, receives for
 // every input vertex its index in the result. O(V*F) time, O(V) memory
-// besides the result.
+// besides the result. Throws Error (naming the source) for no frames,
+// positions that do not match vertices x frames or a triangle index out of
+// range.
 VertexAnimation join_coincident(const VertexAnimation& anim, std::vector<uint32_t>* representative = nullptr);
 
 }  // namespace progskin

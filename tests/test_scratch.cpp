@@ -366,6 +366,14 @@ TEST(Scratch, JoinCoincident) {
     EXPECT_EQ(j.normals[3], a.normals[4]);
     EXPECT_EQ(j.triangles, (std::vector<uint32_t>{0, 1, 2, 1, 3, 0}));  // (1,1,2) dropped
     EXPECT_EQ(j.diagonal, 5);
+    VertexAnimation bad = a;
+    bad.triangles.push_back(6), bad.triangles.push_back(0), bad.triangles.push_back(1);
+    EXPECT_THROW(join_coincident(bad), Error);
+    bad = a;
+    bad.positions.pop_back();
+    EXPECT_THROW(join_coincident(bad), Error);
+    bad.frame_count = 0, bad.positions.clear();
+    EXPECT_THROW(join_coincident(bad), Error);
 
     // A real mesh: the Fox's flat-shaded seams, every vertex at its
     // representative's position in every frame.
