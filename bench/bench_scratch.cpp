@@ -17,6 +17,8 @@
 #include <cstring>
 #include <random>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "gltf_import.h"
 #include "scratch_build.h"
@@ -83,24 +85,29 @@ int original_bones(const char* file) {
 // Dem Bones' own protocol (issue 4's figures): vertices at identical
 // positions joined before fitting, error over the joined vertices in % of
 // frame 0's diagonal (its rest shape) instead of the skinned input's rest pose.
-struct Protocol {
-    bool dem_bones = false;
-    size_t vertices_in = 0, vertices_used = 0;
+// What build() records when asked to measure that way.
+struct Joined {
+    size_t vertices = 0, kept = 0;
+    size_t kept_by_frame0 = 0;  // joined on frame 0 alone, as Dem Bones does
+    double rest_diagonal = 0, frame0_diagonal = 0;
 };
 
 ScratchResult build(const char* file, const char* clip, int rest_frame, ScratchMethod method, size_t* frames,
-                    double* secs, Protocol* protocol = nullptr) {
+                    double* secs, Joined* joined = nullptr) {
     VertexAnimationOptions vo;
     vo.fps = 30;
     vo.clip = clip;
     VertexAnimation a = load_vertex_animation(std::string(PROGSKIN_ASSETS) + "/" + file, vo);
-    if (protocol) {
-        protocol->vertices_in = a.vertex_count;
-        if (protocol->dem_bones) {
-            a = join_coincident(a);
-            a.diagonal = frame_diagonal(a, 0);
-        }
-        protocol->vertices_used = a.vertex_count;
+    if (joined) {
+        VertexAnimation first = a;
+        first.frame_count = 1;
+        first.positions.resize(a.vertex_count);
+        joined->vertices = a.vertex_count;
+        joined->kept_by_frame0 = join_coincident(first).vertex_count;
+        joined->rest_diagonal = a.diagonal;
+        a = join_coincident(a);
+        a.diagonal = joined->frame0_diagonal = frame_diagonal(a, 0);
+        joined->kept = a.vertex_count;
     }
     ScratchOptions o;
     o.max_bones = 32;
@@ -171,16 +178,22 @@ int report(int rest_frame, ScratchMethod method, const char* only) {
     std::printf("\nDem Bones' protocol: vertices at identical positions joined before the build, RMS over the "
                 "joined vertices in %% of frame 0's diagonal\n\n"
                 "| input | vertices | build s | k=2 | k=4 | k=8 | k=16 | k=32 |\n|---|---|---|---|---|---|---|---|\n");
+    std::vector<std::pair<const char*, Joined>> notes;
     for (const Row& r : rows) {
         if (only && !std::strstr(r.name, only)) continue;
         size_t frames = 0;
         double secs = 0;
-        Protocol pr;
-        pr.dem_bones = true;
-        const ScratchResult s = build(r.file, r.clip, rest_frame, method, &frames, &secs, &pr);
-        std::printf("| %s | %zu of %zu | %.1f |", r.name, pr.vertices_used, pr.vertices_in, secs);
+        Joined j;
+        const ScratchResult s = build(r.file, r.clip, rest_frame, method, &frames, &secs, &j);
+        std::printf("| %s | %zu of %zu | %.1f |", r.name, j.kept, j.vertices, secs);
         print_cells(s, r.dem);
+        notes.push_back({r.name, j});
     }
+    std::printf("\n");
+    for (const auto& [name, j] : notes)
+        std::printf("%s: %zu distinct in every frame, %zu at frame 0; diagonal frame 0 %.5g, rest pose %.5g (x%.4f)\n",
+                    name, j.kept, j.kept_by_frame0, j.frame0_diagonal, j.rest_diagonal,
+                    j.rest_diagonal / j.frame0_diagonal);
     return 0;
 }
 

@@ -4,6 +4,7 @@
 #include <tiny_gltf.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -20,6 +21,7 @@
 #include "error_metric.h"
 #include "gltf_accessor.h"
 #include "gltf_import.h"
+#include "hash.h"
 
 namespace progskin {
 
@@ -59,25 +61,21 @@ VertexAnimation join_coincident(const VertexAnimation& a, std::vector<uint32_t>*
     const size_t V = a.vertex_count, F = a.frame_count;
     if (F == 0) throw Error(a.source + ": no frames");
     if (a.positions.size() != V * F) throw Error(a.source + ": positions do not match vertices x frames");
-    auto bits = [](float x) {
-        x += 0.0f;  // -0 -> +0
-        uint32_t u;
-        std::memcpy(&u, &x, sizeof u);
-        return u;
+    // A position's bit patterns with -0 made +0, so equal floats compare equal.
+    auto bits = [](const glm::vec3& p) {
+        const glm::vec3 q = p + glm::vec3(0.0f);
+        std::array<uint8_t, sizeof q> b;
+        std::memcpy(b.data(), &q, sizeof q);
+        return b;
     };
-    auto key = [&](size_t v) {  // FNV-1a over the vertex's bit patterns in every frame
-        uint64_t h = 1469598103934665603ull;
-        for (size_t f = 0; f < F; ++f) {
-            const glm::vec3& p = a.frame(f)[v];
-            for (uint32_t u : {bits(p.x), bits(p.y), bits(p.z)}) h = (h ^ u) * 1099511628211ull;
-        }
+    auto key = [&](size_t v) {  // hash of the whole trajectory
+        uint64_t h = FNV1A64_BASIS;
+        for (size_t f = 0; f < F; ++f) h = fnv1a64(bits(a.frame(f)[v]), h);
         return h;
     };
     auto same = [&](size_t u, size_t v) {
-        for (size_t f = 0; f < F; ++f) {
-            const glm::vec3 &p = a.frame(f)[u], &q = a.frame(f)[v];
-            if (bits(p.x) != bits(q.x) || bits(p.y) != bits(q.y) || bits(p.z) != bits(q.z)) return false;
-        }
+        for (size_t f = 0; f < F; ++f)
+            if (bits(a.frame(f)[u]) != bits(a.frame(f)[v])) return false;
         return true;
     };
     // Buckets by a hash of the whole trajectory, then a full comparison with

@@ -4,16 +4,11 @@
 #include <chrono>
 #include <cstdio>
 
+#include "hash.h"
+
 namespace progskin::net {
 
-uint64_t content_hash(std::span<const uint8_t> bytes) {
-    uint64_t h = 14695981039346656037ull;
-    for (uint8_t b : bytes) {
-        h ^= b;
-        h *= 1099511628211ull;
-    }
-    return h;
-}
+uint64_t content_hash(std::span<const uint8_t> bytes) { return fnv1a64(bytes); }
 
 std::string hex64(uint64_t v) {
     char buf[17];
