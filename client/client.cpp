@@ -1,31 +1,29 @@
 // client.cpp — see client.h. Session: TCP connect -> Hello -> Welcome (or
-// Refuse) -> AssetRequest/AssetChunk for uncached assets -> View -> UDP Bind
-// until BindAck or a Frame -> frames + Acks (+ Stats each second) -> Goodbye.
+// Refuse) -> InstanceAdded/Removed at any time -> AssetRequest/AssetChunk for
+// uncached assets -> View -> UDP Bind until BindAck or a Frame -> frames +
+// Acks (+ Stats each second), Spawn/Spawned/Despawn and Pose datagrams for
+// the player's own characters -> Goodbye. Everything is driven by update():
+// one io_context polled, non-blocking sockets, no thread.
 #include "client.h"
 
 #include <netinet/in.h>
-#include <poll.h>
 #include <sys/socket.h>
 #include <time.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <asio.hpp>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 #include <cstring>
+#include <deque>
 #include <filesystem>
 #include <fstream>
-#include <thread>
-#include <unistd.h>
 #include <map>
-#include <memory>
-#include <sstream>
+#include <thread>
 
-#include "client_palette.h"
 #include "error.h"
-#include "error_metric.h"
 #include "frame_reader.h"
+#include "error_metric.h"
 #include "gltf_import.h"
 #include "wire.h"
 
@@ -35,52 +33,18 @@ using asio::ip::tcp;
 using asio::ip::udp;
 namespace fs = std::filesystem;
 
+RootPose walk_root(const glm::dvec3& center, double radius, double speed, double t) {
+    RootPose r;
+    r.position = center;
+    if (!(radius > 0) || !(speed > 0)) return r;
+    const double a = speed * t / radius;  // radians around the circle
+    r.position += glm::dvec3(radius * std::cos(a), 0.0, radius * std::sin(a));
+    // Facing along the circle: +Z turned to the tangent (-sin a, 0, cos a).
+    r.rotation = glm::angleAxis(float(-a), glm::vec3(0.0f, 1.0f, 0.0f));
+    return r;
+}
+
 namespace {
-
-class ControlChannel {
-public:
-    explicit ControlChannel(asio::io_context& io) : sock(io) {}
-    tcp::socket sock;
-
-    void send(const flatbuffers::FlatBufferBuilder& fbb) {
-        std::vector<uint8_t> msg;
-        frame_control(fbb, msg);
-        asio::error_code ec;
-        sock.non_blocking(false, ec);
-        asio::write(sock, asio::buffer(msg), ec);
-        if (ec) throw Error("control channel: " + ec.message());
-    }
-
-    // Next complete message body, or false after `timeout` seconds (0: poll once).
-    bool next(std::vector<uint8_t>& body, double timeout) {
-        const double deadline = now_seconds() + timeout;
-        for (;;) {
-            uint32_t n = 0;
-            if (read_length(rx_, n)) {
-                if (n < 8 || n > MAX_CONTROL_MESSAGE) throw Error("server sent a control message of " + std::to_string(n) + " bytes");
-                if (rx_.size() >= 4 + size_t(n)) {
-                    body.assign(rx_.begin() + 4, rx_.begin() + 4 + n);
-                    rx_.erase(rx_.begin(), rx_.begin() + 4 + n);
-                    return true;
-                }
-            }
-            double left = deadline - now_seconds();
-            pollfd p{sock.native_handle(), POLLIN, 0};
-            int r = ::poll(&p, 1, left > 0 ? int(left * 1000) + 1 : 0);
-            if (r <= 0) return false;
-            uint8_t buf[65536];
-            asio::error_code ec;
-            sock.non_blocking(true, ec);
-            size_t got = sock.read_some(asio::buffer(buf), ec);
-            if (ec == asio::error::would_block || ec == asio::error::try_again) continue;
-            if (ec) throw Error(ec == asio::error::eof ? "server closed the control connection" : "control channel: " + ec.message());
-            rx_.insert(rx_.end(), buf, buf + got);
-        }
-    }
-
-private:
-    std::vector<uint8_t> rx_;
-};
 
 std::string default_cache_dir() {
     if (const char* x = std::getenv("XDG_CACHE_HOME"); x && *x) return std::string(x) + "/progskin";
@@ -92,72 +56,6 @@ std::vector<uint8_t> read_file(const fs::path& p) {
     std::ifstream f(p, std::ios::binary);
     if (!f) return {};
     return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
-}
-
-const wire::Control* expect(std::vector<uint8_t>& body) {
-    const wire::Control* c = verify_control(body);
-    if (!c) throw Error("server sent a malformed control message");
-    return c;
-}
-
-// Downloads (or finds in the cache) one asset file; returns its path.
-std::string fetch_asset(ControlChannel& ctl, const wire::Asset* a, const std::string& cache_dir, ClientReport& rep,
-                        double timeout, const std::function<void(const std::string&, uint64_t, uint64_t)>& progress) {
-    std::string name = a->name() ? a->name()->str() : "asset.glb";
-    std::string ext = fs::path(name).extension().string();
-    if (ext != ".glb" && ext != ".gltf") ext = ".glb";
-    fs::create_directories(cache_dir);
-    fs::path path = fs::path(cache_dir) / (hex64(a->asset_id()) + ext);
-    if (fs::exists(path)) {
-        auto bytes = read_file(path);
-        if (content_hash(bytes) == a->asset_id()) {
-            ++rep.assets_cached;
-            return path.string();
-        }
-    }
-    const uint64_t size = a->size();
-    if (size == 0 || size > (1ull << 31)) throw Error("server announced asset " + name + " of " + std::to_string(size) + " bytes");
-    std::vector<uint8_t> bytes(size);
-    uint64_t requested = 0, received = 0;
-    int in_flight = 0;
-    std::vector<uint8_t> body;
-    while (received < size) {
-        while (in_flight < 4 && requested < size) {
-            flatbuffers::FlatBufferBuilder fbb;
-            uint32_t len = uint32_t(std::min<uint64_t>(MAX_ASSET_CHUNK, size - requested));
-            auto r = wire::CreateAssetRequest(fbb, a->asset_id(), requested, len);
-            fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::AssetRequest, r.Union()), wire::ControlIdentifier());
-            ctl.send(fbb);
-            requested += len;
-            ++in_flight;
-        }
-        if (!ctl.next(body, timeout)) throw Error("timed out downloading " + name);
-        const wire::Control* c = expect(body);
-        if (c->body_type() == wire::ControlBody::Goodbye)
-            throw Error("server said goodbye during download: " + (c->body_as_Goodbye()->reason() ? c->body_as_Goodbye()->reason()->str() : ""));
-        if (c->body_type() != wire::ControlBody::AssetChunk) continue;
-        const wire::AssetChunk* ch = c->body_as_AssetChunk();
-        if (ch->asset_id() != a->asset_id() || !ch->data() || ch->offset() >= size || ch->offset() + ch->data()->size() > size)
-            throw Error("server sent a bad asset chunk");
-        std::copy(ch->data()->begin(), ch->data()->end(), bytes.begin() + long(ch->offset()));
-        received += ch->data()->size();
-        rep.asset_bytes_downloaded += ch->data()->size();
-        --in_flight;
-        if (progress) progress(name, received, size);
-    }
-    if (content_hash(bytes) != a->asset_id()) throw Error("downloaded " + name + " does not match its content hash");
-    // A temporary name unique to this process and thread: several clients may
-    // fill the same cache at once, and the rename makes the file appear whole.
-    fs::path tmp = path;
-    tmp += ".part" + std::to_string(::getpid()) + "-" +
-           std::to_string(std::hash<std::thread::id>{}(std::this_thread::get_id()));
-    {
-        std::ofstream f(tmp, std::ios::binary);
-        f.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
-        if (!f) throw Error("cannot write " + tmp.string());
-    }
-    fs::rename(tmp, path);
-    return path.string();
 }
 
 std::shared_ptr<ClientAsset> load_client_asset(const wire::Asset* a, const std::string& path) {
@@ -198,16 +96,8 @@ std::shared_ptr<ClientAsset> load_client_asset(const wire::Asset* a, const std::
     return ca;
 }
 
-udp::endpoint resolve_udp(asio::io_context& io, const std::string& host, uint16_t port) {
-    udp::resolver r(io);
-    asio::error_code ec;
-    auto res = r.resolve(udp::v4(), host, std::to_string(port), ec);
-    if (ec || res.empty()) throw Error("cannot resolve " + host + ": " + ec.message());
-    return *res.begin();
-}
-
 // Receives one datagram with the kernel's arrival time (SO_TIMESTAMPNS), so
-// the per-second rate bins reflect the wire even when this thread is late.
+// the per-second rate bins reflect the wire even when the game loop is late.
 // Returns -1 when nothing is pending; t is on the now_seconds() clock.
 ssize_t receive_stamped(udp::socket& s, uint8_t* buf, size_t cap, udp::endpoint& from, double& t) {
     sockaddr_storage addr{};
@@ -243,179 +133,468 @@ ssize_t receive_stamped(udp::socket& s, uint8_t* buf, size_t cap, udp::endpoint&
 
 }  // namespace
 
-ClientReport run_client(const ClientOptions& opt) {
-    ClientReport rep;
+struct Client::Impl {
+    ClientConfig cfg;
     asio::io_context io;
-    ControlChannel ctl(io);
-    {
-        tcp::resolver r(io);
-        asio::error_code ec;
-        auto res = r.resolve(opt.host, std::to_string(opt.port), ec);
-        if (ec) throw Error("cannot resolve " + opt.host + ": " + ec.message());
-        asio::connect(ctl.sock, res, ec);
-        if (ec) throw Error("cannot connect to " + opt.host + ":" + std::to_string(opt.port) + ": " + ec.message());
-        ctl.sock.set_option(tcp::no_delay(true), ec);
-    }
-    // Hello
-    {
-        flatbuffers::FlatBufferBuilder fbb;
-        auto name = fbb.CreateString(opt.name.substr(0, MAX_NAME));
-        auto token = fbb.CreateString(opt.token.substr(0, MAX_TOKEN));
-        auto h = wire::CreateHello(fbb, opt.protocol_version ? opt.protocol_version : PROTOCOL_VERSION, name, token,
-                                   uint32_t(std::max(0.0, opt.max_kbps)));
-        fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Hello, h.Union()), wire::ControlIdentifier());
-        ctl.send(fbb);
-    }
-    std::vector<uint8_t> welcome_buf;
-    if (!ctl.next(welcome_buf, opt.connect_timeout)) throw Error("no answer from the server");
-    const wire::Control* wc = expect(welcome_buf);
-    if (wc->body_type() == wire::ControlBody::Refuse) {
-        const wire::Refuse* r = wc->body_as_Refuse();
-        throw Error("server refused the connection: " + (r->reason() ? r->reason()->str() : std::string("no reason")));
-    }
-    if (wc->body_type() != wire::ControlBody::Welcome) throw Error("server did not send Welcome");
-    const wire::Welcome* w = wc->body_as_Welcome();
-    if (w->version() != PROTOCOL_VERSION) throw Error("server speaks protocol version " + std::to_string(w->version()));
-    const double tick_rate = w->tick_rate();
-    if (!(tick_rate > 0 && tick_rate <= 1000)) throw Error("server sent a bad tick rate");
-    const uint64_t session = w->session_id(), token = w->udp_token();
+    tcp::socket tcp_sock{io};
+    udp::socket udp_sock{io};
+    udp::endpoint server_udp;
+    std::string host;
+    uint16_t port = 0;
+    ClientState state = ClientState::Idle;
+    std::string error;
+    std::vector<ClientEvent> events;
+    double started = 0;   // connect() time
+    bool tcp_connected = false, welcomed = false, bound = false;
 
-    // Assets
-    const std::string cache = opt.cache_dir.empty() ? default_cache_dir() : opt.cache_dir;
+    // control channel
+    std::vector<uint8_t> rx, rx_chunk = std::vector<uint8_t>(65536);
+    bool reading = false;
+    std::deque<std::vector<uint8_t>> tx;
+    bool writing = false;
+
+    // session
+    uint64_t session = 0, udp_token = 0;
+    double tick_rate = 30;
+    uint16_t udp_port = 0;
+    std::string cache;
+    struct CatalogueEntry {
+        std::string name;
+        uint64_t id = 0, size = 0;
+        std::vector<uint8_t> welcome;  // the Asset table's bytes (a copy of Welcome, kept to load the skin)
+        std::vector<uint8_t> bytes;    // downloaded so far (grows with what arrives)
+        uint64_t requested = 0;
+        int in_flight = 0;
+        bool ready = false;
+    };
+    std::vector<uint8_t> welcome_body;  // kept: catalogue entries point into it
+    const wire::Welcome* welcome = nullptr;
+    std::vector<CatalogueEntry> catalogue;
     std::vector<std::shared_ptr<ClientAsset>> assets;
-    if (w->assets())
-        for (const wire::Asset* a : *w->assets()) {
-            std::string path = fetch_asset(ctl, a, cache, rep, opt.connect_timeout, opt.on_download);
-            assets.push_back(load_client_asset(a, path));
-        }
-    std::vector<std::unique_ptr<InstanceView>> views;
-    std::map<int, int> view_of_instance;
-    std::vector<int> instance_ids;
-    std::vector<glm::vec3> instance_positions;
-    if (w->instances())
-        for (const wire::Instance* in : *w->instances()) {
-            if (in->asset() >= assets.size()) throw Error("server sent an instance of an unknown asset");
-            const auto& ca = assets[in->asset()];
-            ClipInfo ci;
-            if (in->clips())
-                for (int c : *in->clips()) {
-                    if (c < 0 || size_t(c) >= ca->character.clips.size()) throw Error("server sent an unknown clip index");
-                    ci.selection.clips.push_back(c);
-                }
-            ci.selection.start = in->clip_start();
-            ci.selection.end = in->clip_end();
-            ci.time_offset = in->time_offset();
-            ci.speed = in->speed();
-            view_of_instance[in->id()] = int(views.size());
-            instance_ids.push_back(in->id());
-            instance_positions.push_back(in->position() ? glm::vec3(in->position()->x(), in->position()->y(), in->position()->z())
-                                                        : glm::vec3(0.0f));
-            views.push_back(std::make_unique<InstanceView>(ca, ci, opt.blend_frames));
-        }
+    std::vector<std::string> asset_names;
+    size_t downloading = 0;  // index of the asset being downloaded
 
-    auto send_view = [&](double cap) {
-        flatbuffers::FlatBufferBuilder fbb;
-        std::vector<wire::InstanceWeight> ws;
-        for (const auto& [i, wt] : opt.view.weights) ws.emplace_back(uint16_t(i), wt);
-        auto vw = fbb.CreateVectorOfStructs(ws);
-        wire::Vec3 cam(opt.view.camera.x, opt.view.camera.y, opt.view.camera.z);
-        wire::ViewBuilder vb(fbb);
-        if (opt.view.has_camera) vb.add_camera(&cam);
-        vb.add_fov_y(opt.view.fov_y);
-        vb.add_viewport_height(opt.view.viewport_height);
-        vb.add_weights(vw);
-        vb.add_max_kbps(uint32_t(std::max(0.0, cap)));
-        auto v = vb.Finish();
-        fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::View, v.Union()), wire::ControlIdentifier());
-        ctl.send(fbb);
+    // remote characters, by instance id
+    struct Remote {
+        RemoteCharacter rc;
+        std::unique_ptr<InstanceView> view;
+        int asset = -1;
+        bool active = false, announced = false;  // announced: CharacterAdded raised (asset ready)
     };
-    if (opt.send_view) send_view(0);
+    std::vector<Remote> remotes;          // indexed by instance id
+    std::vector<RemoteCharacter> shown;   // characters(): refreshed every update
 
-    // UDP
-    udp::socket us(io);
-    us.open(udp::v4());
-    us.bind(udp::endpoint(udp::v4(), 0));
-    us.non_blocking(true);
-    asio::error_code ig;
-    us.set_option(asio::socket_base::receive_buffer_size(4 << 20), ig);
-    {
-        int on = 1;
-        ::setsockopt(us.native_handle(), SOL_SOCKET, SO_TIMESTAMPNS, &on, sizeof on);
-    }
-    udp::endpoint server_udp = opt.udp_via_host.empty()
-                                   ? resolve_udp(io, opt.host, w->udp_port())
-                                   : resolve_udp(io, opt.udp_via_host, opt.udp_via_port);
-    auto send_bind = [&] {
-        flatbuffers::FlatBufferBuilder fbb;
-        std::vector<uint8_t> pad(64, 0);  // a Bind is always larger than its BindAck
-        auto p = fbb.CreateVector(pad);
-        auto b = wire::CreateBind(fbb, session, token, p);
-        fbb.Finish(wire::CreateDatagram(fbb, 0, now_us32(), wire::DatagramBody::Bind, b.Union()), wire::DatagramIdentifier());
-        us.send_to(asio::buffer(fbb.GetBufferPointer(), fbb.GetSize()), server_udp, 0, ig);
-    };
-
-    // Receive state
-    alignas(16) static thread_local uint8_t buf[2048];
-    bool bound = false, any_frame = false;
-    uint32_t ack = 0, ack_bits = 0, min_seq = 0, max_seq = 0;
-    uint32_t ack_echo = 0;
-    double ack_arrival = 0;
+    // frame stream
+    alignas(16) uint8_t buf[2048];
+    bool any_frame = false;
+    uint32_t ack = 0, ack_bits = 0, min_seq = 0, max_seq = 0, ack_echo = 0;
+    double ack_arrival = 0, last_ack_sent = 0, next_bind = 0, next_stats = 0, last_datagram = 0;
     uint64_t unique = 0, since_ack = 0;
     double t_first = 0, tick_offset = -1e300;
-    std::vector<double> bins;
-    const double t_start = now_seconds();
-    double next_bind = 0, last_ack_sent = 0, next_stats = t_start + 1.0;
-    double next_display = 0;
-    size_t cap_index = 0;
-    // Display delay: at least --delay-ms, raised to cover the gaps between an
-    // instance's frames (plus their lateness) so the display interpolates
-    // rather than holds; it changes by at most 25% of the elapsed time (the
-    // display clock runs at 0.75x..1.25x while it adapts), up to max_delay.
-    const double base_delay = opt.delay_ms / 1000.0 * tick_rate;
-    const double max_delay = std::max(base_delay, opt.max_delay_ms / 1000.0 * tick_rate);
-    double delay_ticks = base_delay, needed_delay = 0, last_display_time = 0;
-    double end_time = t_start + opt.duration + 5.0;  // fixed once streaming starts
-    bool ended_by_server = false;
+    ClientStats st;
+    // display clock (see update)
+    double base_delay = 3, max_delay = 18, delay_ticks = 3, needed_delay = 0, last_display_time = 0;
+    double display_tick = 0;
 
-    // Display statistics
-    struct Acc {
-        double k_sum = 0, sq = 0, n = 0, max = 0, jump = 0;
-        int k_min = 1 << 30, k_max = 0;
-        uint64_t frames = 0;
-        std::vector<glm::vec3> prev_err;
-        bool has_prev = false;
+    // view and cap
+    ViewSpec view;
+    bool view_set = false, view_dirty = false;
+    double cap = 0;
+
+    // own characters
+    struct Own {
+        int handle = 0;
+        int instance = -1;
+        int asset = 0;
+        uint32_t request = 0, pose_seq = 0;
+        uint8_t epoch = 0;
+        bool refused = false, gone = false;
     };
-    std::vector<Acc> acc(views.size());
-    double all_sq = 0, all_n = 0, all_max = 0;
-    std::vector<glm::vec3> shown, ref;
-    uint64_t display_count = 0;
-    double next_snapshot = 0;
+    std::vector<Own> own;
+    uint32_t next_request = 1;
+    std::vector<uint8_t> pose_records;
+    flatbuffers::FlatBufferBuilder fbb{1400};
 
-    auto handle_frame = [&](const wire::Datagram* d, size_t n, double t) {
-        const wire::Frame* f = d->body_as_Frame();
-        const uint32_t seq = d->seq();
-        // duplicate?
-        bool dup = false;
-        if (any_frame) {
-            int32_t diff = int32_t(seq - ack);
-            if (diff == 0) dup = true;
-            else if (diff < 0 && diff >= -32 && (ack_bits & (1u << (-diff - 1)))) dup = true;
+    explicit Impl(ClientConfig c) : cfg(std::move(c)) {
+        base_delay = max_delay = delay_ticks = 0;
+        cap = cfg.max_kbps;
+    }
+
+    void raise(ClientEvent::Type t, int instance = -1, int asset = -1, int handle = -1, std::string text = {}) {
+        events.push_back({t, instance, asset, handle, std::move(text)});
+    }
+
+    void fail(const std::string& why) {
+        if (state == ClientState::Failed || state == ClientState::Closed) return;
+        state = ClientState::Failed;
+        error = why;
+        raise(ClientEvent::Type::Failed, -1, -1, -1, why);
+        asio::error_code ig;
+        tcp_sock.close(ig);
+        udp_sock.close(ig);
+    }
+
+    // ------------------------------------------------------------ control --
+    void send(const flatbuffers::FlatBufferBuilder& b) {
+        if (!tcp_connected || state == ClientState::Failed || state == ClientState::Closed) return;
+        std::vector<uint8_t> msg;
+        frame_control(b, msg);
+        tx.push_back(std::move(msg));
+        write_next();
+    }
+    void write_next() {
+        if (writing || tx.empty()) return;
+        writing = true;
+        asio::async_write(tcp_sock, asio::buffer(tx.front()), [this](asio::error_code ec, size_t) {
+            writing = false;
+            if (ec) return fail("control channel: " + ec.message());
+            tx.pop_front();
+            write_next();
+        });
+    }
+    void read_more() {
+        if (reading) return;
+        reading = true;
+        tcp_sock.async_read_some(asio::buffer(rx_chunk), [this](asio::error_code ec, size_t n) {
+            reading = false;
+            if (ec) {
+                if (state == ClientState::Closed || state == ClientState::Failed) return;
+                return fail(ec == asio::error::eof ? "the server closed the control connection" : "control channel: " + ec.message());
+            }
+            rx.insert(rx.end(), rx_chunk.begin(), rx_chunk.begin() + long(n));
+            drain_control();
+            if (state != ClientState::Failed && state != ClientState::Closed) read_more();
+        });
+    }
+    void drain_control() {
+        size_t at = 0;
+        std::vector<uint8_t> body;
+        while (state != ClientState::Failed && state != ClientState::Closed) {
+            uint32_t n = 0;
+            if (!read_length({rx.data() + at, rx.size() - at}, n)) break;
+            if (n < 8 || n > MAX_CONTROL_MESSAGE) return fail("server sent a control message of " + std::to_string(n) + " bytes");
+            if (rx.size() - at < 4 + size_t(n)) break;
+            body.assign(rx.begin() + long(at) + 4, rx.begin() + long(at) + 4 + n);
+            at += 4 + size_t(n);
+            handle_control(body);
         }
-        if (dup) {
-            ++rep.duplicates;
+        rx.erase(rx.begin(), rx.begin() + long(std::min(at, rx.size())));
+    }
+
+    void handle_control(std::vector<uint8_t>& body) {
+        const wire::Control* c = verify_control(body);
+        if (!c) return fail("server sent a malformed control message");
+        switch (c->body_type()) {
+            case wire::ControlBody::Refuse: {
+                const wire::Refuse* r = c->body_as_Refuse();
+                return fail("server refused the connection: " + (r->reason() ? r->reason()->str() : std::string("no reason")));
+            }
+            case wire::ControlBody::Welcome:
+                if (welcomed) return fail("server sent a second Welcome");
+                welcome_body = std::move(body);
+                return on_welcome(verify_control(welcome_body)->body_as_Welcome());
+            case wire::ControlBody::AssetChunk: return on_asset_chunk(*c->body_as_AssetChunk());
+            case wire::ControlBody::InstanceAdded:
+                if (!welcomed) return fail("server sent instances before Welcome");
+                if (c->body_as_InstanceAdded()->instances())
+                    for (const wire::Instance* in : *c->body_as_InstanceAdded()->instances())
+                        if (!on_instance_added(*in)) return;
+                return;
+            case wire::ControlBody::InstanceRemoved:
+                if (c->body_as_InstanceRemoved()->ids())
+                    for (uint16_t id : *c->body_as_InstanceRemoved()->ids()) remove_remote(id);
+                return;
+            case wire::ControlBody::Spawned: return on_spawned(*c->body_as_Spawned());
+            case wire::ControlBody::Stats:
+                st.rtt_ms = c->body_as_Stats()->rtt_ms();
+                st.estimate_kbps = c->body_as_Stats()->estimate_kbps();
+                return;
+            case wire::ControlBody::Goodbye: {
+                const auto* g = c->body_as_Goodbye();
+                const std::string why = g->reason() ? g->reason()->str() : std::string();
+                // The server ends a session it timed out or refused: the stream is lost.
+                return fail("the server ended the session" + (why.empty() ? std::string() : ": " + why));
+            }
+            default: return fail("server sent an unexpected control message");
+        }
+    }
+
+    void on_welcome(const wire::Welcome* w) {
+        if (w->version() != PROTOCOL_VERSION) return fail("server speaks protocol version " + std::to_string(w->version()));
+        tick_rate = w->tick_rate();
+        if (!(tick_rate > 0 && tick_rate <= 1000)) return fail("server sent a bad tick rate");
+        welcomed = true;
+        welcome = w;
+        session = w->session_id();
+        udp_token = w->udp_token();
+        udp_port = w->udp_port();
+        base_delay = cfg.delay_ms / 1000.0 * tick_rate;
+        max_delay = std::max(base_delay, cfg.max_delay_ms / 1000.0 * tick_rate);
+        delay_ticks = base_delay;
+        if (w->assets())
+            for (const wire::Asset* a : *w->assets()) {
+                CatalogueEntry e;
+                e.name = a->name() ? a->name()->str() : "asset.glb";
+                e.id = a->asset_id();
+                e.size = a->size();
+                catalogue.push_back(std::move(e));
+                asset_names.push_back(catalogue.back().name);
+            }
+        assets.assign(catalogue.size(), nullptr);
+        raise(ClientEvent::Type::Connected);
+        if (view_set) view_dirty = true;
+        start_downloads();
+    }
+
+    void asset_loaded(size_t i, const std::string& path) {
+        try {
+            assets[i] = load_client_asset(welcome->assets()->Get(flatbuffers::uoffset_t(i)), path);
+        } catch (const std::exception& e) {
+            return fail(std::string("asset ") + catalogue[i].name + ": " + e.what());
+        }
+        catalogue[i].ready = true;
+        catalogue[i].bytes = {};
+        raise(ClientEvent::Type::AssetReady, -1, int(i));
+        for (auto& r : remotes)
+            if (r.active && r.asset == int(i)) make_view(r);
+    }
+
+    // Finds cached assets, then downloads the others one after another.
+    void start_downloads() {
+        cache = cfg.cache_dir.empty() ? default_cache_dir() : cfg.cache_dir;
+        std::error_code ec;
+        fs::create_directories(cache, ec);
+        for (size_t i = 0; i < catalogue.size(); ++i) {
+            CatalogueEntry& e = catalogue[i];
+            std::string ext = fs::path(e.name).extension().string();
+            if (ext != ".glb" && ext != ".gltf") ext = ".glb";
+            const fs::path path = fs::path(cache) / (hex64(e.id) + ext);
+            if (fs::exists(path) && content_hash(read_file(path)) == e.id) {
+                ++st.assets_cached;
+                asset_loaded(i, path.string());
+                if (state == ClientState::Failed) return;
+            } else if (e.size == 0 || e.size > (1ull << 31)) {
+                return fail("server announced asset " + e.name + " of " + std::to_string(e.size) + " bytes");
+            }
+        }
+        downloading = 0;
+        request_chunks();
+    }
+
+    void request_chunks() {
+        while (downloading < catalogue.size() && catalogue[downloading].ready) ++downloading;
+        if (downloading >= catalogue.size()) return;
+        CatalogueEntry& e = catalogue[downloading];
+        while (e.in_flight < 4 && e.requested < e.size) {
+            flatbuffers::FlatBufferBuilder b;
+            const uint32_t len = uint32_t(std::min<uint64_t>(MAX_ASSET_CHUNK, e.size - e.requested));
+            auto r = wire::CreateAssetRequest(b, e.id, e.requested, len);
+            b.Finish(wire::CreateControl(b, wire::ControlBody::AssetRequest, r.Union()), wire::ControlIdentifier());
+            send(b);
+            e.requested += len;
+            ++e.in_flight;
+        }
+    }
+
+    void on_asset_chunk(const wire::AssetChunk& ch) {
+        if (downloading >= catalogue.size()) return fail("server sent an asset chunk nobody asked for");
+        CatalogueEntry& e = catalogue[downloading];
+        // Chunks come in request order: each must continue the bytes so far,
+        // so memory grows with what arrives, never with the declared size.
+        if (ch.asset_id() != e.id || !ch.data() || ch.offset() != e.bytes.size() || ch.data()->size() == 0 ||
+            ch.offset() + ch.data()->size() > e.size)
+            return fail("server sent a bad asset chunk for " + e.name);
+        e.bytes.insert(e.bytes.end(), ch.data()->begin(), ch.data()->end());
+        st.asset_bytes_downloaded += ch.data()->size();
+        --e.in_flight;
+        if (cfg.on_download) cfg.on_download(e.name, e.bytes.size(), e.size);
+        if (e.bytes.size() < e.size) return request_chunks();
+        if (content_hash(e.bytes) != e.id) return fail("downloaded " + e.name + " does not match its content hash");
+        std::string ext = fs::path(e.name).extension().string();
+        if (ext != ".glb" && ext != ".gltf") ext = ".glb";
+        const fs::path path = fs::path(cache) / (hex64(e.id) + ext);
+        // A temporary name unique to this process and client: several clients
+        // may fill the same cache at once, and the rename makes the file appear whole.
+        fs::path tmp = path;
+        tmp += ".part" + std::to_string(::getpid()) + "-" + std::to_string(reinterpret_cast<uintptr_t>(this));
+        {
+            std::ofstream f(tmp, std::ios::binary);
+            f.write(reinterpret_cast<const char*>(e.bytes.data()), std::streamsize(e.bytes.size()));
+            if (!f) return fail("cannot write " + tmp.string());
+        }
+        std::error_code ec;
+        fs::rename(tmp, path, ec);
+        if (ec) return fail("cannot write " + path.string() + ": " + ec.message());
+        asset_loaded(downloading, path.string());
+        request_chunks();
+    }
+
+    bool all_assets_ready() const {
+        for (const auto& e : catalogue)
+            if (!e.ready) return false;
+        return welcomed;
+    }
+
+    // ---------------------------------------------------------- instances --
+    bool on_instance_added(const wire::Instance& in) {
+        if (in.asset() >= catalogue.size()) {
+            fail("server sent an instance of an unknown asset");
+            return false;
+        }
+        if (remotes.size() <= in.id()) remotes.resize(size_t(in.id()) + 1);
+        Remote& r = remotes[in.id()];
+        if (r.active) remove_remote(in.id());  // announced again: a new character in that slot
+        r = Remote{};
+        r.active = true;
+        r.asset = in.asset();
+        RemoteCharacter& rc = r.rc;
+        rc.instance = in.id();
+        if (in.clips())
+            for (int c : *in.clips()) {
+                if (c < 0) {
+                    fail("server sent a negative clip index");
+                    return false;
+                }
+                rc.clip.selection.clips.push_back(c);
+            }
+        rc.clip.selection.start = in.clip_start();
+        rc.clip.selection.end = in.clip_end();
+        rc.clip.time_offset = in.time_offset();
+        rc.clip.speed = in.speed();
+        rc.clip.once = rc.once = in.once();
+        if (in.position()) rc.root.position = glm::dvec3(in.position()->x(), in.position()->y(), in.position()->z());
+        if (in.rotation()) rc.root.rotation = glm::normalize(glm::quat(in.rotation()->w(), in.rotation()->x(), in.rotation()->y(), in.rotation()->z()));
+        if (!std::isfinite(rc.root.rotation.w)) rc.root.rotation = glm::quat(1, 0, 0, 0);
+        rc.publisher.published = in.published();
+        rc.publisher.start_us = in.publisher_start_us();
+        if (in.walk_center()) rc.publisher.walk_center = {in.walk_center()->x(), in.walk_center()->y(), in.walk_center()->z()};
+        rc.publisher.walk_radius = in.walk_radius();
+        rc.publisher.walk_speed = in.walk_speed();
+        if (catalogue[size_t(r.asset)].ready) make_view(r);
+        return true;
+    }
+
+    void make_view(Remote& r) {
+        if (r.view) return;
+        const auto& a = assets[size_t(r.asset)];
+        for (int c : r.rc.clip.selection.clips)
+            if (size_t(c) >= a->character.clips.size()) return fail("server sent an unknown clip index");
+        r.view = std::make_unique<InstanceView>(a, r.rc.clip, cfg.blend_frames);
+        r.rc.asset = a.get();
+        r.announced = true;
+        raise(ClientEvent::Type::CharacterAdded, r.rc.instance, r.asset);
+    }
+
+    void remove_remote(int id) {
+        if (id < 0 || size_t(id) >= remotes.size() || !remotes[size_t(id)].active) return;
+        Remote& r = remotes[size_t(id)];
+        if (r.announced) raise(ClientEvent::Type::CharacterRemoved, id, r.asset);
+        r = Remote{};
+    }
+
+    void on_spawned(const wire::Spawned& m) {
+        auto it = std::find_if(own.begin(), own.end(), [&](const Own& o) { return o.request == m.request(); });
+        if (it == own.end()) return fail("server answered a spawn request that was never made");
+        if (m.ok() && it->gone) {  // despawned before the answer came
+            flatbuffers::FlatBufferBuilder b;
+            auto d = wire::CreateDespawn(b, m.instance());
+            b.Finish(wire::CreateControl(b, wire::ControlBody::Despawn, d.Union()), wire::ControlIdentifier());
+            send(b);
             return;
         }
+        if (m.ok()) {
+            it->instance = m.instance();
+            raise(ClientEvent::Type::Spawned, it->instance, it->asset, it->handle);
+        } else {
+            it->refused = true;
+            raise(ClientEvent::Type::SpawnRefused, -1, it->asset, it->handle, m.reason() ? m.reason()->str() : "");
+        }
+    }
+
+    // ---------------------------------------------------------------- UDP --
+    void send_datagram(const flatbuffers::FlatBufferBuilder& b) {
+        asio::error_code ig;
+        udp_sock.send_to(asio::buffer(b.GetBufferPointer(), b.GetSize()), server_udp, 0, ig);
+    }
+
+    void open_udp() {
+        udp_sock.open(udp::v4());
+        udp_sock.bind(udp::endpoint(udp::v4(), 0));
+        udp_sock.non_blocking(true);
+        asio::error_code ig;
+        udp_sock.set_option(asio::socket_base::receive_buffer_size(4 << 20), ig);
+        int on = 1;
+        ::setsockopt(udp_sock.native_handle(), SOL_SOCKET, SO_TIMESTAMPNS, &on, sizeof on);
+        udp::resolver r(io);
+        asio::error_code ec;
+        const std::string h = cfg.udp_via_host.empty() ? host : cfg.udp_via_host;
+        const uint16_t p = cfg.udp_via_host.empty() ? udp_port : cfg.udp_via_port;
+        auto res = r.resolve(udp::v4(), h, std::to_string(p), ec);
+        if (ec || res.empty()) return fail("cannot resolve " + h + ": " + ec.message());
+        server_udp = *res.begin();
+    }
+
+    void send_bind() {
+        fbb.Clear();
+        std::vector<uint8_t> pad(64, 0);  // a Bind is always larger than its BindAck
+        auto p = fbb.CreateVector(pad);
+        auto b = wire::CreateBind(fbb, session, udp_token, p);
+        fbb.Finish(wire::CreateDatagram(fbb, 0, now_us32(), wire::DatagramBody::Bind, b.Union()), wire::DatagramIdentifier());
+        send_datagram(fbb);
+    }
+
+    void receive_udp() {
+        for (;;) {
+            udp::endpoint from;
+            double t = 0;
+            const ssize_t got = receive_stamped(udp_sock, buf, sizeof buf, from, t);
+            if (got < 0) break;
+            const size_t n = size_t(got);
+            const wire::Datagram* d = verify_datagram({buf, n});
+            if (!d || from != server_udp) {
+                ++st.malformed;
+                continue;
+            }
+            last_datagram = t;
+            if (d->body_type() == wire::DatagramBody::BindAck) {
+                bound = true;
+                continue;
+            }
+            if (d->body_type() != wire::DatagramBody::Frame) {
+                ++st.malformed;
+                continue;
+            }
+            handle_frame(d, n, t);
+        }
+    }
+
+    void handle_frame(const wire::Datagram* d, size_t n, double t) {
+        const wire::Frame* f = d->body_as_Frame();
+        const uint32_t seq = d->seq();
+        if (any_frame) {
+            const int32_t diff = int32_t(seq - ack);
+            if (diff == 0 || (diff < 0 && diff >= -32 && (ack_bits & (1u << (-diff - 1))))) {
+                ++st.duplicates;
+                return;
+            }
+        }
         // Every chunk is checked before any is applied (proto/frame_reader.h).
-        auto record_size = [&](uint16_t instance) {
-            auto it = view_of_instance.find(instance);
-            return it == view_of_instance.end() ? 0 : views[it->second]->asset().format.size();
+        auto record_size = [&](uint16_t instance) -> int {
+            if (instance >= remotes.size() || !remotes[instance].view) return 0;
+            return remotes[instance].view->asset().format.size();
+        };
+        uint8_t epoch = 0;
+        const uint8_t* root = nullptr;
+        auto on_chunk = [&](const wire::Chunk& c, const uint8_t* r) {
+            epoch = c.epoch();
+            root = r;
         };
         auto apply = [&](uint16_t instance, int first, int count, int show, const uint8_t* rec) {
-            InstanceView& v = *views[view_of_instance[instance]];
+            InstanceView& v = *remotes[instance].view;
             const bool had = !v.buffer().empty();
             const uint32_t prev = v.buffer().newest_tick();
-            if (!v.buffer().add_chunk(f->tick(), first, count, show, rec, show)) {
-                ++rep.malformed;
+            if (!v.buffer().add_chunk(f->tick(), first, count, show, rec, show, epoch, root)) {
+                ++st.malformed;
             } else if (had && tick_offset > -1e299) {
                 // Cover the gap since the instance's newest frame and the gap
                 // since these bones' previous frames (deep bones are refreshed
@@ -425,24 +604,26 @@ ClientReport run_client(const ClientOptions& opt) {
                 if (since < double(f->tick())) needed_delay = std::max(needed_delay, t * tick_rate + tick_offset - since);
             }
         };
-        if (!read_frame(*f, record_size, apply)) {
-            ++rep.malformed;
+        if (!read_frame(*f, record_size, apply, on_chunk)) {
+            ++st.malformed;
             return;
         }
-        // Ack state
+        if (f->chunks())
+            for (const wire::Chunk* c : *f->chunks())
+                if (record_size(c->instance()) == 0) ++st.unknown_chunks;
         if (!any_frame) {
             ack = seq;
             ack_bits = 0;
             min_seq = max_seq = seq;
             t_first = t;
         } else if (int32_t(seq - ack) > 0) {
-            uint32_t shift = seq - ack;
+            const uint32_t shift = seq - ack;
             uint32_t nb = shift >= 32 ? 0 : (ack_bits << shift);
             if (shift <= 32) nb |= 1u << (shift - 1);
             ack_bits = nb;
             ack = seq;
         } else {
-            uint32_t back = ack - seq - 1;
+            const uint32_t back = ack - seq - 1;
             if (back < 32) ack_bits |= 1u << back;
         }
         if (int32_t(seq - max_seq) > 0) max_seq = seq;
@@ -451,259 +632,322 @@ ClientReport run_client(const ClientOptions& opt) {
             ack_echo = d->send_time_us();
             ack_arrival = t;
         }
-        any_frame = true;
+        any_frame = bound = true;
         ++unique;
         ++since_ack;
-        ++rep.datagrams;
-        size_t bin = size_t((t - t_first));
-        if (bins.size() <= bin) bins.resize(bin + 1, 0.0);
-        bins[bin] += double(n + UDP_IP_OVERHEAD);
+        ++st.datagrams;
+        st.wire_bytes += n + UDP_IP_OVERHEAD;
+        const size_t bin = size_t(t - t_first);
+        if (st.per_second_bytes.size() <= bin) st.per_second_bytes.resize(bin + 1, 0.0);
+        st.per_second_bytes[bin] += double(n + UDP_IP_OVERHEAD);
         tick_offset = std::max(tick_offset, double(f->tick()) - t * tick_rate);
-    };
+    }
 
-    std::vector<uint8_t> body;
-    for (;;) {
-        double now = now_seconds();
-        if (any_frame && now >= end_time) break;
-        if (!any_frame && now - t_start > opt.connect_timeout) throw Error("no frames received from the server's UDP port");
-        if (!bound && !any_frame && now >= next_bind) {
+    void send_view_now() {
+        flatbuffers::FlatBufferBuilder b;
+        std::vector<wire::InstanceWeight> ws;
+        for (const auto& [i, wt] : view.weights) ws.emplace_back(uint16_t(i), wt);
+        auto vw = b.CreateVectorOfStructs(ws);
+        wire::Vec3 cam(view.camera.x, view.camera.y, view.camera.z);
+        wire::ViewBuilder vb(b);
+        if (view.has_camera) vb.add_camera(&cam);
+        vb.add_fov_y(view.fov_y);
+        vb.add_viewport_height(view.viewport_height);
+        vb.add_weights(vw);
+        vb.add_max_kbps(uint32_t(std::max(0.0, cap)));
+        auto v = vb.Finish();
+        b.Finish(wire::CreateControl(b, wire::ControlBody::View, v.Union()), wire::ControlIdentifier());
+        send(b);
+        view_dirty = false;
+    }
+
+    // ------------------------------------------------------------- update --
+    void update(double now) {
+        events.clear();
+        if (state == ClientState::Idle || state == ClientState::Closed || state == ClientState::Failed) {
+            shown.clear();
+            return;
+        }
+        io.poll();
+        io.restart();
+        if (state == ClientState::Failed || state == ClientState::Closed) {
+            shown.clear();
+            return;
+        }
+        if (!tcp_connected) {
+            if (now - started > cfg.connect_timeout) fail("cannot connect to " + host + ":" + std::to_string(port) + ": timed out");
+            return;
+        }
+        if (!welcomed) {
+            if (now - started > cfg.connect_timeout) fail("no answer from the server");
+            return;
+        }
+        if (view_dirty) send_view_now();
+        // UDP once every catalogue asset is ready (the budget is not spent on
+        // frames the client could not use yet).
+        if (!udp_sock.is_open() && all_assets_ready()) {
+            open_udp();
+            next_stats = now + 1.0;
+        }
+        if (!udp_sock.is_open()) {
+            if (now - started > cfg.connect_timeout + 600.0) fail("asset download did not finish");
+            return;
+        }
+        if (!any_frame && !bound && now >= next_bind) {
             send_bind();
             next_bind = now + 0.2;
         }
-        // Wait for UDP or TCP or the next display frame.
-        double wake = std::min(now + 0.01, next_display > 0 ? next_display : now + 0.01);
-        pollfd p[2] = {{us.native_handle(), POLLIN, 0}, {ctl.sock.native_handle(), POLLIN, 0}};
-        ::poll(p, 2, std::max(0, int((wake - now) * 1000)));
-        // UDP
-        for (;;) {
-            udp::endpoint from;
-            double t = 0;
-            const ssize_t got = receive_stamped(us, buf, sizeof buf, from, t);
-            if (got < 0) break;
-            const size_t n = size_t(got);
-            const wire::Datagram* d = verify_datagram({buf, n});
-            if (!d || from != server_udp) {
-                ++rep.malformed;
-                continue;
-            }
-            if (d->body_type() == wire::DatagramBody::BindAck) {
-                bound = true;
-                continue;
-            }
-            if (d->body_type() != wire::DatagramBody::Frame) {
-                ++rep.malformed;
-                continue;
-            }
-            bool first = !any_frame;
-            handle_frame(d, n, t);
-            if (first && any_frame) {
-                end_time = t + opt.duration;
-                next_display = t;
-            }
-        }
-        // TCP
-        if (p[1].revents) {
-            while (ctl.next(body, 0)) {
-                const wire::Control* c = expect(body);
-                if (c->body_type() == wire::ControlBody::Stats) {
-                    rep.rtt_ms = c->body_as_Stats()->rtt_ms();
-                    rep.estimate_kbps = c->body_as_Stats()->estimate_kbps();
-                } else if (c->body_type() == wire::ControlBody::Goodbye) {
-                    ended_by_server = true;
-                    break;
-                }
-            }
-            if (ended_by_server) break;
-        }
-        now = now_seconds();
+        receive_udp();
+        if ((any_frame || bound) && state == ClientState::Connecting) state = ClientState::Streaming;
+        if (!any_frame && !bound && now - started > cfg.connect_timeout + 600.0) return fail("no answer from the server's UDP port");
+        if (any_frame && now - last_datagram > cfg.stream_timeout && has_characters())
+            return fail("lost the stream: no datagram for " + std::to_string(int(now - last_datagram)) + " s");
         // Acks
         if (any_frame && since_ack > 0 && (since_ack >= 8 || now - last_ack_sent > 0.033)) {
-            flatbuffers::FlatBufferBuilder fbb;
-            uint32_t hold = uint32_t(std::max(0.0, (now - ack_arrival) * 1e6));
-            auto a = wire::CreateAck(fbb, session, token, ack, ack_bits, ack_echo, hold);
+            fbb.Clear();
+            const uint32_t hold = uint32_t(std::max(0.0, (now - ack_arrival) * 1e6));
+            auto a = wire::CreateAck(fbb, session, udp_token, ack, ack_bits, ack_echo, hold);
             fbb.Finish(wire::CreateDatagram(fbb, 0, now_us32(), wire::DatagramBody::Ack, a.Union()), wire::DatagramIdentifier());
-            us.send_to(asio::buffer(fbb.GetBufferPointer(), fbb.GetSize()), server_udp, 0, ig);
+            send_datagram(fbb);
             since_ack = 0;
             last_ack_sent = now;
         }
-        // Stats every second, cap schedule
         if (now >= next_stats) {
-            flatbuffers::FlatBufferBuilder fbb;
-            wire::StatsBuilder sb(fbb);
+            flatbuffers::FlatBufferBuilder b;
+            wire::StatsBuilder sb(b);
+            const auto& bins = st.per_second_bytes;
             sb.add_rate_kbps(float(bins.size() >= 2 ? bins[bins.size() - 2] * 8 / 1000 : 0));
             auto s = sb.Finish();
-            fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Stats, s.Union()), wire::ControlIdentifier());
-            ctl.send(fbb);
+            b.Finish(wire::CreateControl(b, wire::ControlBody::Stats, s.Union()), wire::ControlIdentifier());
+            send(b);
             next_stats = now + 1.0;
         }
-        if (any_frame && cap_index < opt.cap_schedule.size() && now - t_first >= opt.cap_schedule[cap_index].first) {
-            send_view(opt.cap_schedule[cap_index].second);
-            ++cap_index;
-        }
-        // Display
-        if (any_frame && next_display > 0 && now >= next_display) {
-            next_display += 1.0 / opt.display_rate;
-            if (next_display < now) next_display = now + 1.0 / opt.display_rate;
-            {
-                const double elapsed = last_display_time > 0 ? (now - last_display_time) * tick_rate : 0;
-                last_display_time = now;
-                const double target = std::clamp(needed_delay + 0.5, base_delay, max_delay);
-                const double step = 0.25 * elapsed;
-                delay_ticks += std::clamp(target - delay_ticks, -step, step);
-                needed_delay *= std::pow(0.7, elapsed / tick_rate);  // forget over a few seconds
-                rep.delay_ms = std::max(rep.delay_ms, delay_ticks / tick_rate * 1000.0);
+        display(now);
+    }
+
+    bool has_characters() const {
+        for (const auto& r : remotes)
+            if (r.active) return true;
+        return false;
+    }
+
+    // The display clock: at least delay_ms behind the newest frame, raised
+    // to cover the gaps between an instance's frames (plus their lateness)
+    // so the display interpolates rather than holds; it changes by at most
+    // 25% of the elapsed time (the clock runs at 0.75x..1.25x while it
+    // adapts), up to max_delay_ms.
+    void display(double now) {
+        shown.clear();
+        if (!any_frame) return;
+        const double elapsed = last_display_time > 0 ? (now - last_display_time) * tick_rate : 0;
+        last_display_time = now;
+        const double target = std::clamp(needed_delay + 0.5, base_delay, max_delay);
+        const double step = 0.25 * elapsed;
+        delay_ticks += std::clamp(target - delay_ticks, -step, step);
+        needed_delay *= std::pow(0.7, elapsed / tick_rate);  // forget over a few seconds
+        st.delay_ms = std::max(st.delay_ms, delay_ticks / tick_rate * 1000.0);
+        double d = now * tick_rate + tick_offset - delay_ticks;
+        if (cfg.snap_to_ticks) d = std::floor(d);
+        display_tick = d;
+        for (auto& r : remotes) {
+            if (!r.active || !r.view) continue;
+            InstanceView& v = *r.view;
+            RemoteCharacter& rc = r.rc;
+            rc.shown = v.buffer().covers(d) && v.display(d);
+            rc.display_tick = d;
+            if (rc.shown) {
+                rc.palette = v.palette();
+                rc.bones = v.target_bones();
+                RootPose root;
+                if (v.buffer().root(d, root)) rc.root = root;
+            } else {
+                rc.palette = {};
+                rc.bones = 0;
             }
-            double d = now * tick_rate + tick_offset - delay_ticks;
-            if (opt.snap_to_ticks) d = std::floor(d);
-            const bool verify_now = opt.verify && (display_count % size_t(std::max(1, opt.verify_every)) == 0);
-            ++display_count;
-            const bool warm = now - t_first >= opt.warmup;
-            for (size_t i = 0; i < views.size(); ++i) {
-                InstanceView& v = *views[i];
-                if (!v.buffer().covers(d) || !v.display(d)) continue;  // nothing that old received yet
-                if (!warm) continue;  // the display delay is still adapting
-                Acc& a = acc[i];
-                int k = v.target_bones();
-                a.k_sum += k;
-                a.k_min = std::min(a.k_min, k);
-                a.k_max = std::max(a.k_max, k);
-                ++a.frames;
-                if (!verify_now || v.clip().selection.clips.empty()) continue;
-                v.skin(shown);
-                v.reference(v.clip().clip_time(d, tick_rate), ref);
-                const double scale = 100.0 / v.asset().diagonal;
-                double jump = 0;
-                if (a.prev_err.size() != shown.size()) a.prev_err.assign(shown.size(), glm::vec3(0.0f));
-                for (size_t j = 0; j < shown.size(); ++j) {
-                    glm::vec3 e = shown[j] - ref[j];
-                    double pct = glm::length(e) * scale;
-                    a.sq += pct * pct;
-                    a.max = std::max(a.max, pct);
-                    if (a.has_prev) jump = std::max(jump, double(glm::length(e - a.prev_err[j])) * scale);
-                    a.prev_err[j] = e;
-                }
-                a.n += double(shown.size());
-                a.has_prev = opt.verify_every <= 1;
-                a.jump = std::max(a.jump, jump);
-            }
-            if (opt.on_snapshot && opt.snapshot_every > 0 && warm && now >= next_snapshot) {
-                next_snapshot = now + opt.snapshot_every;
-                DisplaySnapshot snap;
-                snap.seconds = now - t_first;
-                snap.rate_kbps = bins.size() >= 2 ? bins[bins.size() - 2] * 8.0 / 1000.0 : 0.0;
-                for (size_t i = 0; i < views.size(); ++i) {
-                    const InstanceView& v = *views[i];
-                    if (acc[i].frames == 0) continue;  // nothing displayed yet
-                    snap.characters.push_back({instance_ids[i], &v.asset().character, &v.asset().skin, v.palette(),
-                                               instance_positions[i], v.target_bones()});
-                }
-                if (!snap.characters.empty()) opt.on_snapshot(snap);
-            }
-            if (opt.verbose && bins.size() >= 2 && display_count % size_t(opt.display_rate) == 0)
-                std::fprintf(stderr, "progskin-client: %.1f s, %.1f kbit/s last second, %llu datagrams\n", now - t_first,
-                             bins[bins.size() - 2] * 8 / 1000, (unsigned long long)rep.datagrams);
+            shown.push_back(rc);
         }
     }
-    // Goodbye
-    if (!ended_by_server) {
-        flatbuffers::FlatBufferBuilder fbb;
-        build_goodbye(fbb, "done");
-        try {
-            ctl.send(fbb);
-        } catch (const Error&) {
-        }
+
+    // -------------------------------------------------------------- own ---
+    Own* find_own(int handle) {
+        for (auto& o : own)
+            if (o.handle == handle && !o.gone) return &o;
+        return nullptr;
     }
-    const double t_end = now_seconds();
-    rep.seconds = any_frame ? t_end - t_first : 0;
-    double total = 0;
-    for (size_t i = 0; i < bins.size(); ++i) {
-        total += bins[i];
-        if (i + 1 < bins.size() && double(i + 1) <= rep.seconds) {  // full one-second bins
-            rep.per_second_kbps.push_back(bins[i] * 8 / 1000);
-            rep.rate_max_kbps = std::max(rep.rate_max_kbps, bins[i] * 8 / 1000);
+
+    bool publish(int handle, const RootPose& root, std::span<const Mat34> skinning, bool teleport) {
+        Own* o = find_own(handle);
+        if (!o || o->instance < 0 || !bound || state != ClientState::Streaming) return false;
+        const auto& a = assets[size_t(o->asset)];
+        if (!a || skinning.size() != a->character.joint_count()) return false;
+        std::array<uint8_t, ROOT_BYTES> rb;
+        const RecordFormat& fmt = a->format;
+        const int B = a->skin.bone_count();
+        const size_t rs = size_t(fmt.size());
+        pose_records.resize(size_t(B) * rs);
+        bool ok = encode_root(root, rb.data());
+        for (int b = 0; ok && b < B; ++b) {
+            const BonePose p = decompose(skinning[size_t(a->skin.order[size_t(b)])]);
+            if (!bone_in_range(p, fmt)) ok = false;
+            else encode_bone(p, fmt, pose_records.data() + size_t(b) * rs);
         }
-    }
-    rep.rate_kbps = rep.seconds > 0 ? total * 8 / 1000 / rep.seconds : 0;
-    uint64_t span = any_frame ? uint64_t(max_seq - min_seq) + 1 : 0;
-    rep.loss = span ? std::max(0.0, 1.0 - double(unique) / double(span)) : 0;
-    double kmin = 1e9, kmax = 0, ksum = 0;
-    int counted = 0;
-    for (size_t i = 0; i < views.size(); ++i) {
-        const Acc& a = acc[i];
-        InstanceReport ir;
-        ir.instance = int(i);
-        ir.asset = views[i]->asset().name;
-        ir.frames = a.frames;
-        if (a.frames) {
-            ir.bones_mean = a.k_sum / double(a.frames);
-            ir.bones_min = a.k_min;
-            ir.bones_max = a.k_max;
-            ++counted;
-            ksum += ir.bones_mean;
-            kmin = std::min(kmin, ir.bones_mean);
-            kmax = std::max(kmax, ir.bones_mean);
+        if (!ok) {
+            ++st.poses_refused;
+            return false;
         }
-        if (a.n > 0) {
-            ir.rms_pct = std::sqrt(a.sq / a.n);
-            ir.max_pct = a.max;
-            ir.max_jump_pct = a.jump;
-            all_sq += a.sq;
-            all_n += a.n;
-            all_max = std::max(all_max, a.max);
-            rep.max_jump_pct = std::max(rep.max_jump_pct, a.jump);
+        if (teleport) ++o->epoch;
+        ++o->pose_seq;
+        // As many bones per datagram as fit (a 67-bone character takes one).
+        const size_t per = std::max<size_t>(1, (MAX_DATAGRAM - 120 - ROOT_BYTES) / rs);
+        for (int first = 0; first < B; first += int(per)) {
+            const int count = std::min(B - first, int(per));
+            fbb.Clear();
+            auto rv = fbb.CreateVector(rb.data(), rb.size());
+            auto rec = fbb.CreateVector(pose_records.data() + size_t(first) * rs, size_t(count) * rs);
+            auto p = wire::CreatePose(fbb, session, udp_token, uint16_t(o->instance), o->pose_seq, o->epoch, uint8_t(first), rv, rec);
+            fbb.Finish(wire::CreateDatagram(fbb, 0, now_us32(), wire::DatagramBody::Pose, p.Union()), wire::DatagramIdentifier());
+            send_datagram(fbb);
         }
-        rep.instances.push_back(ir);
+        ++st.poses_sent;
+        return true;
     }
-    rep.characters = 0;  // instances with at least one frame received
-    for (const auto& v : views) rep.characters += v->buffer().empty() ? 0 : 1;
-    rep.bones_mean = counted ? ksum / counted : 0;
-    rep.bones_min = counted ? kmin : 0;
-    rep.bones_max = counted ? kmax : 0;
-    if (all_n > 0) {
-        rep.rms_pct = std::sqrt(all_sq / all_n);
-        rep.max_pct = all_max;
-    }
-    return rep;
+};
+
+Client::Client(ClientConfig config) : impl_(std::make_unique<Impl>(std::move(config))) {}
+Client::~Client() {
+    if (impl_ && (impl_->state == ClientState::Connecting || impl_->state == ClientState::Streaming)) close();
 }
 
-std::string report_json(const ClientReport& r) {
-    std::ostringstream o;
-    o.precision(6);
-    o << "{\"seconds\": " << r.seconds << ", \"rate_kbps\": " << r.rate_kbps << ", \"datagrams\": " << r.datagrams
-      << ", \"loss\": " << r.loss << ", \"characters\": " << r.characters << ", \"bones_mean\": " << r.bones_mean
-      << ", \"bones_min\": " << r.bones_min << ", \"bones_max\": " << r.bones_max << ", \"rms_pct\": ";
-    if (r.rms_pct >= 0) o << r.rms_pct; else o << "null";
-    o << ", \"max_pct\": ";
-    if (r.max_pct >= 0) o << r.max_pct; else o << "null";
-    o << ", \"rate_max_kbps\": " << r.rate_max_kbps << ", \"max_jump_pct\": " << r.max_jump_pct
-      << ", \"delay_ms_max\": " << r.delay_ms << ", \"rtt_ms\": " << r.rtt_ms << ", \"estimate_kbps\": " << r.estimate_kbps << ", \"malformed\": " << r.malformed
-      << ", \"duplicates\": " << r.duplicates << ", \"asset_bytes_downloaded\": " << r.asset_bytes_downloaded
-      << ", \"assets_cached\": " << r.assets_cached << ", \"per_second_kbps\": [";
-    for (size_t i = 0; i < r.per_second_kbps.size(); ++i) o << (i ? ", " : "") << r.per_second_kbps[i];
-    o << "], \"instances\": [";
-    for (size_t i = 0; i < r.instances.size(); ++i) {
-        const auto& x = r.instances[i];
-        o << (i ? ", " : "") << "{\"instance\": " << x.instance << ", \"asset\": \"" << x.asset << "\", \"bones_mean\": " << x.bones_mean
-          << ", \"bones_min\": " << x.bones_min << ", \"bones_max\": " << x.bones_max << ", \"rms_pct\": " << x.rms_pct
-          << ", \"max_pct\": " << x.max_pct << ", \"max_jump_pct\": " << x.max_jump_pct << ", \"frames\": " << x.frames << "}";
-    }
-    o << "]}";
-    return o.str();
+void Client::connect(const std::string& host, uint16_t port) {
+    Impl& m = *impl_;
+    if (m.state != ClientState::Idle) throw Error("connect: the client is already connected");
+    m.host = host;
+    m.port = port;
+    m.started = now_seconds();
+    tcp::resolver r(m.io);
+    asio::error_code ec;
+    auto res = r.resolve(host, std::to_string(port), ec);
+    if (ec) throw Error("cannot resolve " + host + ": " + ec.message());
+    m.state = ClientState::Connecting;
+    asio::async_connect(m.tcp_sock, res, [&m](asio::error_code e, const tcp::endpoint&) {
+        if (e) return m.fail("cannot connect to " + m.host + ":" + std::to_string(m.port) + ": " + e.message());
+        asio::error_code ig;
+        m.tcp_sock.set_option(tcp::no_delay(true), ig);
+        m.tcp_connected = true;
+        flatbuffers::FlatBufferBuilder b;
+        auto name = b.CreateString(m.cfg.name.substr(0, MAX_NAME));
+        auto token = b.CreateString(m.cfg.token.substr(0, MAX_TOKEN));
+        auto h = wire::CreateHello(b, m.cfg.protocol_version ? m.cfg.protocol_version : PROTOCOL_VERSION, name, token,
+                                   uint32_t(std::max(0.0, m.cfg.max_kbps)));
+        b.Finish(wire::CreateControl(b, wire::ControlBody::Hello, h.Union()), wire::ControlIdentifier());
+        m.send(b);
+        m.read_more();
+    });
 }
 
-std::string report_text(const ClientReport& r) {
-    char b[512];
-    std::snprintf(b, sizeof b,
-                  "%.1f s: %.1f kbit/s (max %.1f over 1 s), %llu datagrams, loss %.1f%%, %d characters, bones mean %.1f "
-                  "(min %.1f, max %.1f)",
-                  r.seconds, r.rate_kbps, r.rate_max_kbps, (unsigned long long)r.datagrams, 100 * r.loss, r.characters,
-                  r.bones_mean, r.bones_min, r.bones_max);
-    std::string s = b;
-    if (r.rms_pct >= 0) {
-        std::snprintf(b, sizeof b, ", error RMS %.4f%% max %.4f%% of diagonal", r.rms_pct, r.max_pct);
-        s += b;
+void Client::update(double now) { impl_->update(now); }
+
+void Client::close(const std::string& reason) {
+    Impl& m = *impl_;
+    if (m.state == ClientState::Closed || m.state == ClientState::Failed || m.state == ClientState::Idle) return;
+    if (m.tcp_connected) {
+        // Best effort, without waiting: Goodbye is small and the socket's
+        // buffer takes it unless the server stopped reading.
+        flatbuffers::FlatBufferBuilder b;
+        build_goodbye(b, reason);
+        std::vector<uint8_t> msg;
+        frame_control(b, msg);
+        asio::error_code ec;
+        m.tcp_sock.non_blocking(true, ec);
+        if (m.tx.empty()) m.tcp_sock.write_some(asio::buffer(msg), ec);
     }
-    return s + "\n";
+    m.state = ClientState::Closed;
+    m.raise(ClientEvent::Type::Closed, -1, -1, -1, reason);
+    asio::error_code ig;
+    m.tcp_sock.close(ig);
+    m.udp_sock.close(ig);
+    m.shown.clear();
+}
+
+ClientState Client::state() const { return impl_->state; }
+const std::string& Client::error() const { return impl_->error; }
+std::span<const ClientEvent> Client::events() const { return impl_->events; }
+std::span<const RemoteCharacter> Client::characters() const { return impl_->shown; }
+const RemoteCharacter* Client::character(int instance) const {
+    for (const auto& c : impl_->shown)
+        if (c.instance == instance) return &c;
+    return nullptr;
+}
+const std::vector<std::shared_ptr<ClientAsset>>& Client::assets() const { return impl_->assets; }
+const std::vector<std::string>& Client::asset_names() const { return impl_->asset_names; }
+double Client::tick_rate() const { return impl_->tick_rate; }
+
+ClientStats Client::stats() const {
+    const Impl& m = *impl_;
+    ClientStats s = m.st;
+    s.seconds = m.any_frame ? now_seconds() - m.t_first : 0;
+    const uint64_t span = m.any_frame ? uint64_t(m.max_seq - m.min_seq) + 1 : 0;
+    s.loss = span ? std::max(0.0, 1.0 - double(m.unique) / double(span)) : 0;
+    return s;
+}
+
+void Client::set_view(const ViewSpec& view) {
+    impl_->view = view;
+    impl_->view_set = true;
+    impl_->view_dirty = impl_->welcomed;
+}
+
+void Client::set_max_kbps(double kbps) {
+    impl_->cap = std::max(0.0, kbps);
+    impl_->view_set = true;
+    impl_->view_dirty = impl_->welcomed;
+}
+
+int Client::spawn(const SpawnSpec& spec) {
+    Impl& m = *impl_;
+    Impl::Own o;
+    o.handle = int(m.own.size()) + 1;
+    o.asset = spec.asset;
+    o.request = m.next_request++;
+    m.own.push_back(o);
+    if (!m.welcomed || spec.asset < 0 || size_t(spec.asset) >= m.catalogue.size()) {
+        m.own.back().refused = true;
+        m.raise(ClientEvent::Type::SpawnRefused, -1, spec.asset, o.handle,
+                m.welcomed ? "no asset " + std::to_string(spec.asset) + " in the catalogue" : "not connected yet");
+        return o.handle;
+    }
+    flatbuffers::FlatBufferBuilder b;
+    std::vector<int32_t> clips(spec.clips.begin(), spec.clips.end());
+    auto vc = b.CreateVector(clips);
+    wire::DVec3 wc(spec.walk_center.x, spec.walk_center.y, spec.walk_center.z);
+    wire::Vec3 pos(spec.position.x, spec.position.y, spec.position.z);
+    auto s = wire::CreateSpawn(b, o.request, uint16_t(spec.asset), vc, spec.once, spec.speed, spec.start_us, &wc, spec.walk_radius,
+                               spec.walk_speed, &pos);
+    b.Finish(wire::CreateControl(b, wire::ControlBody::Spawn, s.Union()), wire::ControlIdentifier());
+    m.send(b);
+    return o.handle;
+}
+
+bool Client::publish(int handle, const RootPose& root, std::span<const Mat34> skinning, bool teleport) {
+    return impl_->publish(handle, root, skinning, teleport);
+}
+
+void Client::despawn(int handle) {
+    Impl& m = *impl_;
+    Impl::Own* o = m.find_own(handle);
+    if (!o) return;
+    o->gone = true;
+    if (o->instance < 0) return;
+    flatbuffers::FlatBufferBuilder b;
+    auto d = wire::CreateDespawn(b, uint16_t(o->instance));
+    b.Finish(wire::CreateControl(b, wire::ControlBody::Despawn, d.Union()), wire::ControlIdentifier());
+    m.send(b);
+}
+
+int Client::instance_of(int handle) const {
+    for (const auto& o : impl_->own)
+        if (o.handle == handle && !o.gone && !o.refused) return o.instance;
+    return -1;
 }
 
 }  // namespace progskin::net

@@ -1,20 +1,192 @@
-// client.h — the streaming client (docs/protocol.md): connects, fetches the
-// assets it lacks (disk cache by content hash), binds its UDP address,
-// receives frames, acknowledges them, displays every instance at a fixed
-// delay behind the newest frame (client_palette.h) and, in verification
-// mode, measures the displayed vertices against the reference.
+// client.h — the embeddable streaming client (docs/protocol.md).
+//
+// A game creates one progskin::net::Client, calls connect() once and then
+// update(now) once per frame from its own loop. The client starts no threads
+// and needs none: update() does the socket I/O (non-blocking), the asset
+// downloads (disk cache by content hash), the acks and the display clock,
+// then rebuilds the palette of every remote character for the display time.
+// No allocation per update once the scene is steady (characters and assets
+// allocate when they arrive).
+//
+//   Client c(cfg);
+//   c.connect("127.0.0.1", 7777);
+//   int me = c.spawn({.asset = 0});              // a character of the catalogue
+//   for (;;) {
+//       c.update(now_seconds());
+//       for (const ClientEvent& e : c.events()) ...   // added, removed, spawned, lost
+//       c.publish(me, root, skinning_matrices);  // my pose, joint order, relative to root
+//       for (const RemoteCharacter& rc : c.characters()) draw(rc.asset->character, rc.world, rc.palette);
+//   }
+//   c.close();
+//
+// Ownership: every pointer and span a Client returns is owned by it.
+// characters() and each RemoteCharacter::palette are valid until the next
+// update() or close(); RemoteCharacter::asset (a ClientAsset: character,
+// progressive skin) stays valid as long as the Client lives. events() is
+// valid until the next update().
 #pragma once
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <span>
 #include <string>
 #include <vector>
 
+#include "bone_codec.h"
 #include "character.h"
+#include "client_palette.h"
 #include "progressive_skin.h"
-#include "scheduler.h"  // ViewSpec
+#include "view.h"
 
 namespace progskin::net {
+
+struct ClientConfig {
+    std::string name = "progskin-client";
+    std::string token;             // access token (Hello)
+    double max_kbps = 0;           // 0: the server's maximum
+    std::string udp_via_host;      // non-empty: send UDP here (progskin-netem) instead of the server
+    uint16_t udp_via_port = 0;
+    double delay_ms = 100;         // display delay behind the newest frame (minimum)
+    double max_delay_ms = 600;     // the delay adapts up to this to cover gaps between frames
+    int blend_frames = 8;          // LodBlender frames for bones switching on/off
+    bool snap_to_ticks = false;    // display exactly on server ticks (no interpolation error)
+    std::string cache_dir;         // asset cache (default $XDG_CACHE_HOME/progskin or ~/.cache/progskin)
+    uint16_t protocol_version = 0; // 0: PROTOCOL_VERSION (tests send others)
+    double connect_timeout = 10;   // seconds from connect() until the first frame (or every asset ready)
+    double stream_timeout = 5;     // seconds without any datagram while characters exist: the stream is lost
+    // Called after every asset chunk received (asset name, bytes so far, size); may be empty.
+    std::function<void(const std::string&, uint64_t, uint64_t)> on_download;
+};
+
+enum class ClientState {
+    Idle,        // before connect()
+    Connecting,  // TCP, Hello, Welcome, asset downloads, UDP bind
+    Streaming,   // bound: frames arrive, characters are displayed
+    Closed,      // close() or the server's Goodbye
+    Failed,      // refused, unreachable, timed out, bad data, stream lost: see error()
+};
+
+// What a publisher announced about a character (control.fbs Instance): the
+// clips it plays from publisher_start_us (its clock), its walk.
+struct PublisherInfo {
+    bool published = false;
+    uint64_t start_us = 0;
+    glm::dvec3 walk_center{0.0};
+    double walk_radius = 0, walk_speed = 0;
+};
+
+struct RemoteCharacter {
+    int instance = 0;                    // the server's instance id
+    const ClientAsset* asset = nullptr;  // character + progressive skin (lives as long as the Client)
+    ClipInfo clip;                       // the clip it plays (server-driven), or announced by its publisher
+    bool once = false;                   // the clip plays once and holds
+    PublisherInfo publisher;
+    RootPose root;                       // world placement at the display time (source_us: the pose's producer time)
+    bool shown = false;                  // a pose exists at the display time (palette valid)
+    std::span<const Mat34> palette;      // B matrices in progressive order (copy-down and blending applied)
+    int bones = 0;                       // bones shown (the LOD target)
+    double display_tick = 0;             // the server tick displayed
+};
+
+struct ClientEvent {
+    enum class Type {
+        Connected,         // Welcome received
+        AssetReady,        // an asset is downloaded (or found in the cache) and loaded: asset = index
+        CharacterAdded,    // instance
+        CharacterRemoved,  // instance
+        Spawned,           // handle (spawn()) now owns instance
+        SpawnRefused,      // handle; text: the server's reason
+        Closed,            // text: why (the server's Goodbye reason, or close())
+        Failed,            // text: why (also in error())
+    };
+    Type type;
+    int instance = -1;
+    int asset = -1;
+    int handle = -1;
+    std::string text;
+};
+
+struct SpawnSpec {
+    int asset = 0;                  // index into the server's catalogue (assets())
+    std::vector<int> clips;         // announced to observers (their --verify reference); may be empty
+    bool once = false;
+    float speed = 1;
+    uint64_t start_us = 0;          // publisher clock at clip start (source_us of publish)
+    glm::dvec3 walk_center{0.0};
+    double walk_radius = 0, walk_speed = 0;
+    glm::vec3 position{0.0f};
+};
+
+struct ClientStats {
+    double seconds = 0;            // since the first frame
+    uint64_t datagrams = 0, malformed = 0, duplicates = 0, unknown_chunks = 0;
+    uint64_t wire_bytes = 0;       // GUIDE.md rate bytes received (payload + 28 per datagram)
+    double loss = 0;
+    double rtt_ms = 0, estimate_kbps = 0;
+    double delay_ms = 0;           // largest display delay used
+    uint64_t asset_bytes_downloaded = 0;
+    int assets_cached = 0;
+    uint64_t poses_sent = 0, poses_refused = 0;  // publish(): sent, and refused (out of the codec's range)
+    std::vector<double> per_second_bytes;  // wire bytes per second since the first frame
+};
+
+class Client {
+public:
+    explicit Client(ClientConfig config = {});
+    ~Client();
+    Client(const Client&) = delete;
+    Client& operator=(const Client&) = delete;
+
+    // Starts connecting (resolves host synchronously: pass a numeric address
+    // to never block); update() carries on. Throws Error for an unresolvable
+    // host or when called twice.
+    void connect(const std::string& host, uint16_t port);
+    // Once per game frame; never blocks. `now`: seconds on now_seconds()'s clock.
+    void update(double now);
+    void close(const std::string& reason = "done");
+
+    ClientState state() const;
+    const std::string& error() const;  // why the state is Failed
+    std::span<const ClientEvent> events() const;  // raised by the last update()
+    std::span<const RemoteCharacter> characters() const;  // every remote character, by instance id
+    const RemoteCharacter* character(int instance) const;  // nullptr when unknown
+    // The server's catalogue; entries are null until their asset is ready.
+    const std::vector<std::shared_ptr<ClientAsset>>& assets() const;
+    const std::vector<std::string>& asset_names() const;  // catalogue names (Welcome), ready or not
+    double tick_rate() const;
+    ClientStats stats() const;
+
+    void set_view(const ViewSpec& view);   // at any time (sent when connected)
+    void set_max_kbps(double kbps);        // 0: the server's maximum
+
+    // Asks the server for a character of its catalogue; returns a handle.
+    // The answer comes as a Spawned or SpawnRefused event.
+    int spawn(const SpawnSpec& spec);
+    // Publishes the newest pose of a spawned character: skinning matrices in
+    // the Character's joint order, relative to the root, and the root in the
+    // world (root.source_us: the publisher's clock). teleport marks a
+    // discontinuity. Returns false when the handle is not spawned yet, the
+    // stream is not bound, or a value is outside the codec's range (counted
+    // in stats().poses_refused; nothing is clamped).
+    bool publish(int handle, const RootPose& root, std::span<const Mat34> skinning, bool teleport = false);
+    void despawn(int handle);
+    int instance_of(int handle) const;  // -1 until Spawned
+
+private:
+    struct Impl;
+    std::unique_ptr<Impl> impl_;
+};
+
+// The world placement of a character walking a circle of `radius` around
+// `center` at `speed` units/s, t seconds after it started (facing along the
+// circle). radius 0: standing at center. Both publishers and observers
+// (--verify reference) use it.
+RootPose walk_root(const glm::dvec3& center, double radius, double speed, double t);
+
+// ---------------------------------------------------------------------------
+// progskin-client's session: runs a Client for options.duration seconds and
+// reports what it received and displayed; in verification mode measures
+// the displayed vertices against the reference (GUIDE.md §2).
 
 // What the client displays at one moment, handed to ClientOptions::on_snapshot
 // (a renderer draws it: render/snapshot.h). Spans are valid during the call.
@@ -23,7 +195,7 @@ struct DisplayedCharacter {
     const Character* character = nullptr;
     const ProgressiveSkin* skin = nullptr;
     std::span<const Mat34> palette;  // B matrices in progressive order (copy-down and blending applied)
-    glm::vec3 position{0.0f};        // world placement announced by the server
+    glm::vec3 position{0.0f};        // world placement
     int bones = 0;                   // bones displayed (the LOD target)
 };
 struct DisplaySnapshot {
@@ -32,37 +204,41 @@ struct DisplaySnapshot {
     std::vector<DisplayedCharacter> characters;
 };
 
+struct PublishOptions {
+    std::string asset;             // the catalogue's file name, or its index
+    std::string clip;              // a clip name/index/list/"all" (select_clips); empty: every clip together
+    double walk = 0;               // radius in bounding-box diagonals (0: standing)
+};
+
 struct ClientOptions {
     std::string host = "127.0.0.1";
     uint16_t port = 7777;
-    std::string udp_via_host;      // non-empty: send UDP here (progskin-netem) instead of the server
+    std::string udp_via_host;
     uint16_t udp_via_port = 0;
     std::string name = "progskin-client";
     std::string token;
-    double max_kbps = 0;           // 0: the server's maximum
+    double max_kbps = 0;
     ViewSpec view;
     bool send_view = false;
     double duration = 10;          // seconds of streaming
-    double delay_ms = 100;         // display delay behind the newest frame (minimum)
-    double max_delay_ms = 600;     // the delay adapts up to this to cover gaps between frames
+    double delay_ms = 100;
+    double max_delay_ms = 600;
     double display_rate = 30;      // displayed frames per second
     bool verify = false;           // measure displayed vertices against the reference
     double warmup = 1.0;           // seconds of display not counted in bones/error statistics
-    int verify_every = 1;          // verify every n-th displayed frame
-    bool snap_to_ticks = false;    // display exactly on server ticks (no interpolation error)
-    int blend_frames = 8;          // LodBlender frames for bones switching on/off
-    std::string cache_dir;         // asset cache (default $XDG_CACHE_HOME/progskin or ~/.cache/progskin)
-    uint16_t protocol_version = 0; // 0: PROTOCOL_VERSION (tests send others)
+    int verify_every = 1;
+    bool snap_to_ticks = false;
+    int blend_frames = 8;
+    std::string cache_dir;
+    uint16_t protocol_version = 0;
     double connect_timeout = 10;
-    bool verbose = false;          // per-second lines on stderr
-    // Mid-run cap changes (seconds since streaming began, kbit/s): tests.
-    std::vector<std::pair<double, double>> cap_schedule;
-    // Called about every snapshot_every seconds of display (after the warm-up)
-    // with what is shown; 0 or no callback: never.
+    bool verbose = false;
+    std::vector<std::pair<double, double>> cap_schedule;  // (seconds since streaming began, kbit/s): tests
     double snapshot_every = 0;
     std::function<void(const DisplaySnapshot&)> on_snapshot;
-    // Called after every asset chunk received (asset name, bytes so far, size); may be empty.
     std::function<void(const std::string&, uint64_t, uint64_t)> on_download;
+    std::vector<PublishOptions> publish;  // characters to spawn and publish (--publish)
+    double publish_rate = 30;      // poses per second per published character
 };
 
 struct InstanceReport {
@@ -73,28 +249,37 @@ struct InstanceReport {
     double rms_pct = 0, max_pct = 0;
     double max_jump_pct = 0;  // largest change of a vertex's error between displayed frames
     uint64_t frames = 0;      // displayed frames with a pose
+    bool published = false;   // a player's character
 };
 
 struct ClientReport {
-    double seconds = 0;        // streaming time measured
-    double rate_kbps = 0;      // GUIDE.md rate, mean over the run
-    double rate_max_kbps = 0;  // highest full one-second window
+    double seconds = 0;
+    double rate_kbps = 0;
+    double rate_max_kbps = 0;
     std::vector<double> per_second_kbps;
     uint64_t datagrams = 0, malformed = 0, duplicates = 0;
     double loss = 0;
     int characters = 0;        // instances with at least one frame received
-    double bones_mean = 0, bones_min = 0, bones_max = 0;  // over instances' mean k
+    double bones_mean = 0, bones_min = 0, bones_max = 0;
     double rms_pct = -1, max_pct = -1;  // -1: not verified
     double max_jump_pct = 0;
     double rtt_ms = 0, estimate_kbps = 0;
-    double delay_ms = 0;       // largest display delay used
+    double delay_ms = 0;
     uint64_t asset_bytes_downloaded = 0;
     int assets_cached = 0;
     std::vector<InstanceReport> instances;
+    // Remote published characters (--verify): error against what their
+    // publisher displays at the same world time, and latency from the
+    // publisher's send to this display (same clock: loopback).
+    int remote_characters = 0;
+    double remote_rms_pct = -1, remote_max_pct = -1;
+    double latency_ms_p50 = -1, latency_ms_p99 = -1;
+    int published = 0;         // characters this client published
+    uint64_t poses_sent = 0;
 };
 
 // Runs a session for options.duration seconds. Throws Error (refusal,
-// timeout, bad server data) with a message for the user.
+// timeout, bad server data, lost stream) with a message for the user.
 ClientReport run_client(const ClientOptions& options);
 std::string report_json(const ClientReport& r);
 std::string report_text(const ClientReport& r);

@@ -1,6 +1,7 @@
 // client_palette.cpp — see client_palette.h.
 #include "client_palette.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include "error.h"
@@ -25,9 +26,12 @@ void remap_skin_vertices(const Character& c, ProgressiveSkin& skin) {
     skin.weights = c.weights;
 }
 
-double ClipInfo::clip_time(double tick, double tick_rate) const {
-    return selection.looped(time_offset + tick / tick_rate * speed);
+double ClipInfo::at(double u) const {
+    if (once) return selection.start + std::clamp(u, 0.0, std::max(0.0, double(selection.duration())));
+    return selection.looped(u);
 }
+
+double ClipInfo::clip_time(double tick, double tick_rate) const { return at(time_offset + tick / tick_rate * speed); }
 
 InstanceView::InstanceView(std::shared_ptr<const ClientAsset> asset, ClipInfo clip, int blend_frames)
     : asset_(std::move(asset)), clip_(std::move(clip)), buffer_(asset_->skin.bone_count(), asset_->format) {

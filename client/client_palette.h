@@ -37,6 +37,9 @@ void remap_skin_vertices(const Character& c, ProgressiveSkin& skin);
 struct ClipInfo {
     ClipSelection selection;  // empty clips: live poses (no reference)
     float time_offset = 0, speed = 1;
+    bool once = false;        // plays once and holds the last frame (else loops)
+    // Clip time of the selection u seconds after its start (looped, or held).
+    double at(double u) const;
     double clip_time(double tick, double tick_rate) const;
 };
 

@@ -18,7 +18,8 @@ PoseBuffer::PoseBuffer(int bone_count, RecordFormat fmt) : bones_(bone_count), f
     last_have_.assign(bone_count, 0);
 }
 
-bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const uint8_t* records, int show) {
+bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const uint8_t* records, int show, uint8_t epoch,
+                           const uint8_t* root) {
     if (show == 0) show = total;
     if (total < 1 || total > bones_ || first < 0 || count < 1 || first + count > total || show < total || show > bones_)
         return false;
@@ -39,9 +40,15 @@ bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const
         f->total = total;
         f->show = show;
         f->count = 0;
+        f->epoch = epoch;
+        f->has_root = false;
         std::fill(f->have.begin(), f->have.end(), 0);
     }
-    if (f->total != total || f->show != show) return false;
+    if (f->total != total || f->show != show || f->epoch != epoch) return false;
+    if (root) {
+        f->root = decode_root(root);
+        f->has_root = true;
+    }
     last_gap_ = 0;
     for (int i = 0; i < count; ++i) {
         int b = first + i;
@@ -82,27 +89,43 @@ int PoseBuffer::bones_at(double d) const {
     return have;
 }
 
-bool PoseBuffer::pose(int b, double d, BonePose& out, double* held_at) const {
-    if (held_at) *held_at = d + 1.0;
-    // The two nearest frames carrying bone b at or before d (a, a0) and after it (c, c1).
-    const Frame *a = nullptr, *a0 = nullptr, *c = nullptr, *c1 = nullptr;
-    for (const auto& f : frames_) {
-        if (!f.used || !f.have[size_t(b)]) continue;
-        double t = double(int32_t(f.tick - newest_)) + double(newest_);
-        if (t <= d) {
-            if (!a || newer(f.tick, a->tick)) {
-                a0 = a;
-                a = &f;
-            } else if (!a0 || newer(f.tick, a0->tick)) {
-                a0 = &f;
-            }
-        } else if (!c || newer(c->tick, f.tick)) {
-            c1 = c;
-            c = &f;
-        } else if (!c1 || newer(c1->tick, f.tick)) {
-            c1 = &f;
+// The frames around display tick d that `use` accepts, within one epoch: a
+// (newest at or before d), a0 (the one before a), c (first after d, same
+// epoch as a) and c1 (the one after c). Without a, c and c1 share c's epoch.
+template <class Frames, class Use>
+static void neighbours(const Frames& frames, uint32_t newest, double d, Use&& use, const void*& a_, const void*& a0_,
+                       const void*& c_, const void*& c1_) {
+    using F = typename Frames::value_type;
+    auto time = [&](const F* f) { return double(int32_t(f->tick - newest)) + double(newest); };
+    const F *a = nullptr, *c = nullptr;
+    for (const auto& f : frames) {
+        if (!f.used || !use(f)) continue;
+        if (time(&f) <= d) {
+            if (!a || newer(f.tick, a->tick)) a = &f;
         }
     }
+    const F *a0 = nullptr, *c1 = nullptr;
+    for (const auto& f : frames) {
+        if (!f.used || !use(f) || (a && f.epoch != a->epoch)) continue;
+        if (time(&f) <= d) {
+            if (&f != a && (!a0 || newer(f.tick, a0->tick))) a0 = &f;
+        } else if (!c || newer(c->tick, f.tick)) {
+            c = &f;
+        }
+    }
+    for (const auto& f : frames) {
+        if (!f.used || !use(f) || !c || f.epoch != c->epoch || &f == c || time(&f) <= time(c)) continue;
+        if (!c1 || newer(c1->tick, f.tick)) c1 = &f;
+    }
+    a_ = a, a0_ = a0, c_ = c, c1_ = c1;
+}
+
+bool PoseBuffer::pose(int b, double d, BonePose& out, double* held_at) const {
+    if (held_at) *held_at = d + 1.0;
+    const void *pa, *pa0, *pc, *pc1;
+    neighbours(frames_, newest_, d, [&](const Frame& f) { return f.have[size_t(b)] != 0; }, pa, pa0, pc, pc1);
+    const Frame *a = static_cast<const Frame*>(pa), *a0 = static_cast<const Frame*>(pa0), *c = static_cast<const Frame*>(pc),
+                *c1 = static_cast<const Frame*>(pc1);
     auto time = [&](const Frame* f) { return double(int32_t(f->tick - newest_)) + double(newest_); };
     if (a && c) {
         if (a0 && c1)
@@ -111,13 +134,29 @@ bool PoseBuffer::pose(int b, double d, BonePose& out, double* held_at) const {
             out = interpolate(a->bones[b], c->bones[b], float((d - time(a)) / (time(c) - time(a))));
         return true;
     }
-    if (a) {  // hold the newest
+    if (a) {  // hold the newest (of its epoch)
         out = a->bones[b];
         if (held_at) *held_at = time(a);
         return true;
     }
     if (c) { out = c->bones[b]; return true; }
     if (last_have_[b]) { out = last_[b]; return true; }
+    return false;
+}
+
+bool PoseBuffer::root(double d, RootPose& out) const {
+    const void *pa, *pa0, *pc, *pc1;
+    neighbours(frames_, newest_, d, [](const Frame& f) { return f.has_root; }, pa, pa0, pc, pc1);
+    const Frame *a = static_cast<const Frame*>(pa), *c = static_cast<const Frame*>(pc);
+    auto time = [&](const Frame* f) { return double(int32_t(f->tick - newest_)) + double(newest_); };
+    if (a && c) {
+        out = interpolate(a->root, c->root, (d - time(a)) / (time(c) - time(a)));
+        return true;
+    }
+    if (a || c) {
+        out = (a ? a : c)->root;
+        return true;
+    }
     return false;
 }
 

@@ -5,6 +5,11 @@
 // side carries it too, else slerp/lerp), holding the newest value when
 // nothing newer arrived. The server refreshes deep bones less often than shallow ones
 // (scheduler.h): a bone stays shown for HOLD_TICKS after its newest frame.
+// Frames carry the instance's epoch (datagram.fbs Chunk): nothing is
+// interpolated between frames of different epochs (a clip wrap, a teleport,
+// a spawn), the older side is held until the newer one's frame time. Frames
+// may carry the instance's root block (world placement), interpolated the
+// same way.
 #pragma once
 #include <cstdint>
 #include <vector>
@@ -25,7 +30,9 @@ public:
     // frame at `tick` whose prefix has `total` bones, of which the server
     // wants `show` shown from this tick on (total <= show <= B; 0: total).
     // Returns false (and changes nothing) when the chunk is inconsistent.
-    bool add_chunk(uint32_t tick, int first, int count, int total, const uint8_t* records, int show = 0);
+    // epoch: Chunk.epoch; root: the chunk's root block or nullptr.
+    bool add_chunk(uint32_t tick, int first, int count, int total, const uint8_t* records, int show = 0,
+                   uint8_t epoch = 0, const uint8_t* root = nullptr);
 
     bool empty() const { return !any_; }
     uint32_t newest_tick() const { return newest_; }
@@ -46,6 +53,9 @@ public:
     // frame after d carries bone b yet, else a value > d.
     bool pose(int b, double d, BonePose& out, double* held_at = nullptr) const;
     int bone_count() const { return bones_; }
+    // World placement at display tick d from the frames that carried a root
+    // block (same epoch rules as pose); false when none did.
+    bool root(double d, RootPose& out) const;
 
 private:
     struct Frame {
@@ -54,6 +64,9 @@ private:
         int show = 0;      // bones to show from this tick on
         int count = 0;     // bones received (not necessarily a prefix)
         bool used = false;
+        uint8_t epoch = 0;
+        bool has_root = false;
+        RootPose root;
         std::vector<BonePose> bones;
         std::vector<uint8_t> have;
     };

@@ -23,15 +23,25 @@ int frame_stream(const uint8_t* data, size_t size) {
                                              PoseBuffer(19, plain), PoseBuffer(19, scaled)};
         auto record_size = [&](uint16_t i) { return i < buffers.size() ? (i == 4 ? scaled : plain).size() : 0; };
         int accepted = 0;
-        const bool ok = read_frame(*f, record_size, [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
-            accepted += buffers[i].add_chunk(f->tick(), first, count, show, rec, show);
-        });
+        uint8_t epoch = 0;
+        const uint8_t* root = nullptr;
+        const bool ok = read_frame(
+            *f, record_size,
+            [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
+                accepted += buffers[i].add_chunk(f->tick(), first, count, show, rec, show, epoch, root);
+            },
+            [&](const wire::Chunk& c, const uint8_t* r) {
+                epoch = c.epoch();
+                root = r;
+            });
         if (!ok) return 0;
         for (const PoseBuffer& b : buffers) {
             BonePose p;
+            RootPose rp;
             const double t = double(f->tick());
             for (int bone = 0; bone < b.bone_count(); ++bone) b.pose(bone, t - 0.5, p);
             (void)b.bones_at(t);
+            (void)b.root(t - 0.5, rp);
         }
         return accepted > 0;
     }
@@ -47,6 +57,15 @@ int frame_stream(const uint8_t* data, size_t size) {
     }
     if (const wire::BindAck* b = d->body_as_BindAck()) {
         sink = b->session_id();
+        return 1;
+    }
+    // Pose: what the server checks before using a player's pose (server.cpp).
+    if (const wire::Pose* p = d->body_as_Pose()) {
+        sink = p->session_id() ^ p->token() ^ p->instance() ^ p->pose_seq() ^ p->epoch() ^ p->first();
+        if (!p->root() || p->root()->size() != ROOT_BYTES || !p->records() || p->records()->size() % 12 != 0) return 0;
+        const RootPose r = decode_root(p->root()->data());
+        sink = uint64_t(r.position.x) ^ r.source_us;
+        for (size_t k = 0; k < p->records()->size() / 12; ++k) sink = record_valid(p->records()->data() + k * 12, RecordFormat{});
         return 1;
     }
     return 0;

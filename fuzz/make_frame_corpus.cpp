@@ -36,8 +36,14 @@ int main(int argc, char** argv) {
     std::filesystem::create_directories(dir);
     std::vector<std::shared_ptr<ServerAsset>> assets = {load_server_asset(std::string(PROGSKIN_ASSETS) + "/Fox.glb"),
                                                         load_server_asset(std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb")};
-    const auto specs = default_instances(assets);
+    auto specs = default_instances(assets);
     FrameEncoder enc(assets, specs, 30.0f);
+    // Instance 1 placed in the world: its chunks carry a root block.
+    RootPose placed;
+    placed.position = {1234.5, 0.25, -9876.125};
+    placed.rotation = glm::angleAxis(0.7f, glm::vec3(0, 1, 0));
+    placed.source_us = 123456789;
+    enc.set_root(1, placed, false);
     std::vector<float> imp = compute_importance(ViewSpec{}, specs, assets);
     const size_t budgets[] = {200, 500, 1100, 20000};
     for (size_t budget : budgets) {
@@ -64,6 +70,15 @@ int main(int argc, char** argv) {
     write(dir, "bind-ack", finish(fbb, wire::DatagramBody::BindAck, wire::CreateBindAck(fbb, 0x1234).Union()));
     fbb.Clear();
     write(dir, "ack", finish(fbb, wire::DatagramBody::Ack, wire::CreateAck(fbb, 0x1234, 0x5678, 40, 0xfffffffbu, 99, 250).Union()));
+    fbb.Clear();
+    {
+        std::vector<uint8_t> root(ROOT_BYTES), rec(24 * 12);
+        encode_root(placed, root.data());
+        for (int b = 0; b < 24; ++b) encode_bone(BonePose{}, RecordFormat{}, rec.data() + b * 12);
+        auto r = fbb.CreateVector(root);
+        auto v = fbb.CreateVector(rec);
+        write(dir, "pose", finish(fbb, wire::DatagramBody::Pose, wire::CreatePose(fbb, 0x1234, 0x5678, 2, 17, 1, 0, r, v).Union()));
+    }
     std::printf("make_frame_corpus: wrote %s\n", dir.string().c_str());
     return 0;
 }

@@ -54,6 +54,37 @@ BonePose interpolate(const BonePose& a, const BonePose& b, float t);
 void encode_bone(const BonePose& p, const RecordFormat& fmt, uint8_t* out);
 BonePose decode_bone(const uint8_t* in, const RecordFormat& fmt);
 
+// True when encode_bone represents p within its stated precision: every
+// value finite, the translation inside [t_min, t_max] (to half a step), the
+// scale inside the int16 log2 range (scaled formats) or 1 to 1e-3 (plain
+// formats, which carry no scale). Out-of-range poses are refused by their
+// producers, never clamped into a wrong pose (docs/protocol.md).
+bool bone_in_range(const BonePose& p, const RecordFormat& fmt);
+
+// True when a received record is one encode_bone can write: its three
+// rotation components (and the one they imply) form a unit quaternion whose
+// dropped component is the largest, and the unused bit is clear. Every
+// translation and scale code decodes to a finite value. O(1).
+bool record_valid(const uint8_t* record, const RecordFormat& fmt);
+
+// The root block of a chunk or Pose (ROOT_BYTES = 26): an instance's world
+// placement, apart from its bone records (which are relative to it).
+//   bytes 0..11  position, 3 x int32 little-endian millimetres (+-2147 km)
+//   bytes 12..17 rotation, the bone record's 48-bit "smallest three"
+//   bytes 18..25 source time, uint64 little-endian microseconds of the
+//                pose's producer clock (publisher, or the server for clips)
+struct RootPose {
+    glm::dvec3 position{0.0};
+    glm::quat rotation{1, 0, 0, 0};
+    uint64_t source_us = 0;
+};
+// Returns false (writing nothing) when a value is not finite or the
+// position is outside +-2^31 mm.
+bool encode_root(const RootPose& r, uint8_t* out);
+RootPose decode_root(const uint8_t* in);
+// Interpolates two roots (lerp position, slerp rotation, lerp source time).
+RootPose interpolate(const RootPose& a, const RootPose& b, double t);
+
 // Worst-case vertex error (model units) of one record for vertices whose
 // bind-space distance from the origin is at most bind_radius and scale at most max_scale.
 double quantisation_bound(const RecordFormat& fmt, double bind_radius, double max_scale = 1.0);

@@ -1,38 +1,43 @@
 // frame_reader.h — the chunk layout of a Frame (datagram.fbs, protocol
-// version 3), written by server/datagram_packer.cpp and read here by every
+// version 4), written by server/datagram_packer.cpp and read here by every
 // receiver (client, tests, benchmarks, fuzz target).
 //
-// Frame.payload holds, per chunk in chunk order, a bone mask of
-// mask_bytes(first, show) bytes (bit j of byte j / 8, least significant bit
-// first: bone first + j is carried), then one record per set bit, in
-// increasing bone order.
+// Frame.payload holds, per chunk in chunk order, the root block (ROOT_BYTES,
+// when chunk.flags & CHUNK_ROOT), a bone mask of mask_bytes(first, show)
+// bytes (bit j of byte j / 8, least significant bit first: bone first + j is
+// carried), then one record per set bit, in increasing bone order; records
+// are 14 bytes when flags & CHUNK_SCALED, else 12.
 //
-// read_frame(frame, record_size, run) checks every length and index of a
-// verified Frame before anything is applied:
+// read_frame(frame, record_size, run[, on_chunk]) checks every length and
+// index of a verified Frame before anything is applied:
 //   record_size(instance) -> int: the record bytes of that instance's asset,
-//       0 when the instance is unknown;
+//       0 when the instance is unknown (its chunks are skipped: an instance
+//       may be announced on the control channel after its first frames);
+//   on_chunk(chunk, root): once per chunk of a known instance, before its
+//       runs (root: the ROOT_BYTES block, or nullptr);
 //   run(instance, first, count, show, records): called for every run of
 //       consecutive bones carried, in payload order (records: count records).
-// Returns false, having called run for nothing, when a chunk names an unknown
-// instance, has show == 0 or first >= show, a mask runs past the payload or
-// has bits set at or past show, carries no bone, its records run past the
-// payload, or when bytes are left over after the last chunk. Whether show
-// fits the asset's bone count is the receiver's check (PoseBuffer::add_chunk).
-// O(payload bytes), no allocation.
+// Returns false, having called nothing, when a chunk's record size differs
+// from its known instance's, has show == 0 or first >= show, unknown flag
+// bits, a root or mask runs past the payload or has bits set at or past
+// show, carries no bone, its records run past the payload, or when bytes are
+// left over after the last chunk. Whether show fits the asset's bone count is
+// the receiver's check (PoseBuffer::add_chunk). O(payload bytes), no allocation.
 #pragma once
 #include <bit>
 #include <cstddef>
 #include <cstdint>
 
 #include "datagram_generated.h"
+#include "wire.h"
 
 namespace progskin::net {
 
 // Bytes of the bone mask of a chunk covering bones first..show-1.
 constexpr size_t mask_bytes(int first, int show) { return show > first ? size_t(show - first + 7) / 8 : 0; }
 
-template <class RecordSize, class Run>
-bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run) {
+template <class RecordSize, class Run, class OnChunk>
+bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, OnChunk&& on_chunk) {
     const auto* chunks = frame.chunks();
     const auto* payload = frame.payload();
     const uint8_t* data = payload ? payload->data() : nullptr;
@@ -42,9 +47,16 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run) {
         size_t at = 0;
         if (chunks) {
             for (const wire::Chunk* c : *chunks) {
-                const int rs = record_size(c->instance());
+                const int known = record_size(c->instance());
+                const int rs = (c->flags() & CHUNK_SCALED) ? 14 : 12;
                 const int first = c->first(), show = c->show();
-                if (rs <= 0 || first >= show) return false;
+                if ((known > 0 && known != rs) || first >= show || (c->flags() & ~(CHUNK_ROOT | CHUNK_SCALED))) return false;
+                const uint8_t* root = nullptr;
+                if (c->flags() & CHUNK_ROOT) {
+                    if (size - at < ROOT_BYTES) return false;
+                    root = data + at;
+                    at += ROOT_BYTES;
+                }
                 const size_t mb = mask_bytes(first, show);
                 if (size - at < mb) return false;
                 const uint8_t* mask = data + at;
@@ -54,7 +66,8 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run) {
                 size_t carried = 0;
                 for (size_t i = 0; i < mb; ++i) carried += size_t(std::popcount(mask[i]));
                 if (carried == 0 || (size - at) / size_t(rs) < carried) return false;
-                if (pass == 1) {
+                if (pass == 1 && known > 0) {
+                    on_chunk(*c, root);
                     const uint8_t* rec = data + at;
                     int j = 0;
                     while (j < bits) {
@@ -75,6 +88,11 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run) {
         if (at != size) return false;
     }
     return true;
+}
+
+template <class RecordSize, class Run>
+bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run) {
+    return read_frame(frame, record_size, run, [](const wire::Chunk&, const uint8_t*) {});
 }
 
 }  // namespace progskin::net

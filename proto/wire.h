@@ -18,7 +18,7 @@
 
 namespace progskin::net {
 
-inline constexpr uint16_t PROTOCOL_VERSION = 3;
+inline constexpr uint16_t PROTOCOL_VERSION = 4;
 inline constexpr size_t MAX_DATAGRAM = 1200;          // UDP payload limit, bytes
 inline constexpr size_t UDP_IP_OVERHEAD = 28;         // IPv4 + UDP headers (GUIDE.md rate)
 inline constexpr size_t MAX_CONTROL_MESSAGE = 65536;  // control message body limit
@@ -26,7 +26,11 @@ inline constexpr size_t MAX_ASSET_CHUNK = 32768;      // AssetRequest.length lim
 inline constexpr size_t MAX_NAME = 64;                // Hello.client_name
 inline constexpr size_t MAX_TOKEN = 256;              // Hello.token
 inline constexpr int MAX_BONES = 255;                 // bones per character on the wire
-inline constexpr int HOLD_TICKS = 16;                 // a bone stays shown this many ticks after its newest frame
+inline constexpr int HOLD_TICKS = 16;
+inline constexpr uint8_t CHUNK_ROOT = 1, CHUNK_SCALED = 2;   // Chunk.flags
+inline constexpr size_t ROOT_BYTES = 26;              // root block (datagram.fbs Chunk)
+inline constexpr int MAX_SPAWNED = 16;                // characters one session may own
+inline constexpr size_t MAX_INSTANCES = 65535;        // instance ids are uint16 (0xFFFF unused)                 // a bone stays shown this many ticks after its newest frame
 
 // FNV-1a 64 of bytes: the asset id (content hash; not cryptographic).
 uint64_t content_hash(std::span<const uint8_t> bytes);

@@ -59,14 +59,17 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
             return -1;
         };
         bone = next_bone();
+        const bool root = (e.flags & CHUNK_ROOT) != 0;
+        const size_t root_bytes = root ? ROOT_BYTES : 0;
         while (bone >= 0) {
             const size_t mb = mask_bytes(bone, show);
-            const size_t used = payload_.size() + (chunks_.size() + 1) * WireCost::kChunk + mb;
+            const size_t used = payload_.size() + (chunks_.size() + 1) * WireCost::kChunk + root_bytes + mb;
             if (used + rs > room) {
                 flush(frame.tick, seq, out, wire);
                 continue;
             }
             const int first = bone;
+            if (root) payload_.insert(payload_.end(), e.root.begin(), e.root.end());
             const size_t mask_at = payload_.size();
             payload_.resize(mask_at + mb, 0);
             size_t fit = (room - used) / rs;
@@ -76,7 +79,7 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
                 --fit;
                 bone = next_bone();
             }
-            chunks_.emplace_back(uint16_t(instance), uint8_t(first), uint8_t(show));
+            chunks_.emplace_back(uint16_t(instance), uint8_t(first), uint8_t(show), e.epoch, e.flags);
         }
         g = g_end;
     }

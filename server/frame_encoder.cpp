@@ -1,6 +1,7 @@
 // frame_encoder.cpp — see frame_encoder.h.
 #include "frame_encoder.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include "error.h"
@@ -9,73 +10,228 @@ namespace progskin::net {
 
 FrameEncoder::FrameEncoder(std::vector<std::shared_ptr<ServerAsset>> assets, std::vector<InstanceSpec> instances,
                            float tick_rate)
-    : assets_(std::move(assets)), specs_(std::move(instances)), tick_rate_(tick_rate) {
-    size_t offset = 0, max_joints = 0;
-    frame_.instances.resize(specs_.size());
-    for (size_t i = 0; i < specs_.size(); ++i) {
-        const auto& s = specs_[i];
-        if (s.asset < 0 || s.asset >= int(assets_.size())) throw Error("instance " + std::to_string(i) + ": no asset " + std::to_string(s.asset));
-        const ServerAsset& a = *assets_[s.asset];
-        if (s.selection >= int(a.selections.size())) throw Error("instance " + std::to_string(i) + ": no clip selection " + std::to_string(s.selection));
-        auto& e = frame_.instances[i];
-        e.asset = s.asset;
-        e.bone_count = a.bone_count();
-        e.record_size = a.format.size();
-        e.offset = offset;
-        offset += size_t(e.bone_count) * e.record_size;
-        max_joints = std::max(max_joints, a.character.joint_count());
+    : assets_(std::move(assets)), tick_rate_(tick_rate) {
+    size_t max_joints = 0;
+    for (const auto& a : assets_) {
+        stride_ = std::max(stride_, size_t(a->bone_count()) * size_t(a->format.size()));
+        max_joints = std::max(max_joints, a->character.joint_count());
     }
-    frame_.bytes.assign(offset, 0);
     scratch_.resize(max_joints);
-    live_.resize(specs_.size());
+    slots_.reserve(instances.size());
+    for (size_t i = 0; i < instances.size(); ++i) {
+        try {
+            add_instance(instances[i]);
+        } catch (const Error& e) {
+            throw Error("instance " + std::to_string(i) + ": " + e.what());
+        }
+    }
 }
 
-double FrameEncoder::clip_time(int instance, double tick) const {
-    const auto& s = specs_[instance];
+int FrameEncoder::add_instance(const InstanceSpec& s) {
+    if (s.asset < 0 || s.asset >= int(assets_.size())) throw Error("no asset " + std::to_string(s.asset));
+    const ServerAsset& a = *assets_[s.asset];
+    if (s.selection >= int(a.selections.size())) throw Error("no clip selection " + std::to_string(s.selection));
+    if (!std::isfinite(s.speed) || !std::isfinite(s.time_offset)) throw Error("clip speed and offset must be finite");
+    std::lock_guard lock(mutex_);
+    int id;
+    // Reuse the id freed longest ago only once a few have been freed, so a
+    // client rarely sees an id come back soon after it went.
+    if (free_.size() > 64 || (!free_.empty() && slots_.size() >= MAX_INSTANCES)) {
+        id = free_.front();
+        free_.pop_front();
+    } else if (slots_.size() < MAX_INSTANCES) {
+        id = int(slots_.size());
+        slots_.emplace_back();
+    } else {
+        throw Error("every instance id is taken (" + std::to_string(MAX_INSTANCES) + ")");
+    }
+    Slot& slot = slots_[size_t(id)];
+    slot.spec = s;
+    slot.active = true;
+    ++slot.generation;
+    slot.live = s.selection < 0;
+    slot.has_pose = false;
+    slot.records.assign(size_t(a.bone_count()) * size_t(a.format.size()), 0);
+    slot.pose_seq = 0;
+    slot.live_epoch = 0;
+    ++slot.teleports;  // a new occupant of the slot is a discontinuity
+    slot.has_root = false;
+    return id;
+}
+
+void FrameEncoder::remove_instance(int id) {
+    std::lock_guard lock(mutex_);
+    if (id < 0 || size_t(id) >= slots_.size() || !slots_[size_t(id)].active) return;
+    slots_[size_t(id)].active = false;
+    slots_[size_t(id)].records.clear();
+    free_.push_back(id);
+}
+
+bool FrameEncoder::active(int id) const {
+    std::lock_guard lock(mutex_);
+    return id >= 0 && size_t(id) < slots_.size() && slots_[size_t(id)].active;
+}
+
+InstanceSpec FrameEncoder::spec(int id) const {
+    std::lock_guard lock(mutex_);
+    if (id < 0 || size_t(id) >= slots_.size() || !slots_[size_t(id)].active) throw Error("no instance " + std::to_string(id));
+    return slots_[size_t(id)].spec;
+}
+
+bool FrameEncoder::spec_if_active(int id, InstanceSpec& out) const {
+    std::lock_guard lock(mutex_);
+    if (id < 0 || size_t(id) >= slots_.size() || !slots_[size_t(id)].active) return false;
+    out = slots_[size_t(id)].spec;
+    return true;
+}
+
+void FrameEncoder::generations(std::vector<uint32_t>& out) const {
+    std::lock_guard lock(mutex_);
+    out.resize(slots_.size());
+    for (size_t i = 0; i < slots_.size(); ++i) out[i] = slots_[i].active ? slots_[i].generation : 0;
+}
+
+std::vector<int> FrameEncoder::active_ids() const {
+    std::lock_guard lock(mutex_);
+    std::vector<int> out;
+    for (size_t i = 0; i < slots_.size(); ++i)
+        if (slots_[i].active) out.push_back(int(i));
+    return out;
+}
+
+size_t FrameEncoder::capacity() const {
+    std::lock_guard lock(mutex_);
+    return slots_.size();
+}
+
+EncoderStats FrameEncoder::stats() const {
+    std::lock_guard lock(mutex_);
+    return stats_;
+}
+
+double FrameEncoder::clip_time(int instance, double tick, int64_t* loops) const {
+    std::lock_guard lock(mutex_);
+    const auto& s = slots_.at(size_t(instance)).spec;
+    if (loops) *loops = 0;
     if (s.selection < 0) return 0.0;
-    return assets_[s.asset]->selections[s.selection].looped(s.time_offset + tick / tick_rate_ * s.speed);
+    const ClipSelection& sel = assets_[s.asset]->selections[s.selection];
+    const double u = s.time_offset + tick / tick_rate_ * s.speed;
+    const double dur = sel.duration();
+    if (s.once) return sel.start + std::clamp(u, 0.0, std::max(0.0, dur));
+    if (loops && dur > 0) *loops = int64_t(std::floor(u / dur));
+    return sel.looped(u);
 }
 
-void FrameEncoder::push_pose(int instance, std::span<const Mat34> skinning) {
-    if (instance < 0 || instance >= int(specs_.size())) throw Error("push_pose: no instance " + std::to_string(instance));
-    const ServerAsset& a = *assets_[specs_[instance].asset];
+bool FrameEncoder::push_pose(int instance, std::span<const Mat34> skinning) {
+    std::lock_guard lock(mutex_);
+    if (instance < 0 || size_t(instance) >= slots_.size() || !slots_[size_t(instance)].active)
+        throw Error("push_pose: no instance " + std::to_string(instance));
+    Slot& slot = slots_[size_t(instance)];
+    const ServerAsset& a = *assets_[slot.spec.asset];
     if (skinning.size() != a.character.joint_count())
-        throw Error("push_pose: instance " + std::to_string(instance) + " takes " + std::to_string(a.character.joint_count()) + " matrices");
-    std::lock_guard lock(live_mutex_);
-    live_[instance].assign(skinning.begin(), skinning.end());
+        throw Error("push_pose: instance " + std::to_string(instance) + " takes " + std::to_string(a.character.joint_count()) +
+                    " matrices");
+    const size_t rs = size_t(a.format.size());
+    for (int b = 0; b < a.bone_count(); ++b)
+        if (!bone_in_range(decompose(skinning[size_t(a.skin.order[b])]), a.format)) {
+            ++stats_.poses_out_of_range;
+            return false;
+        }
+    for (int b = 0; b < a.bone_count(); ++b)
+        encode_bone(decompose(skinning[size_t(a.skin.order[b])]), a.format, slot.records.data() + size_t(b) * rs);
+    slot.live = slot.has_pose = true;
+    return true;
+}
+
+bool FrameEncoder::push_records(int instance, uint32_t pose_seq, uint8_t epoch, int first, std::span<const uint8_t> records,
+                                std::span<const uint8_t, ROOT_BYTES> root) {
+    std::lock_guard lock(mutex_);
+    if (instance < 0 || size_t(instance) >= slots_.size() || !slots_[size_t(instance)].active) return false;
+    Slot& slot = slots_[size_t(instance)];
+    if (slot.has_pose && int32_t(pose_seq - slot.pose_seq) < 0) {
+        ++stats_.stale_poses;
+        return false;
+    }
+    const size_t rs = size_t(assets_[slot.spec.asset]->format.size());
+    if (first < 0 || records.size() % rs != 0 || size_t(first) * rs + records.size() > slot.records.size()) return false;
+    std::copy(records.begin(), records.end(), slot.records.begin() + long(size_t(first) * rs));
+    std::copy(root.begin(), root.end(), slot.root.begin());
+    slot.pose_seq = pose_seq;
+    slot.live_epoch = epoch;
+    slot.live = slot.has_pose = slot.has_root = true;
+    return true;
+}
+
+bool FrameEncoder::set_root(int instance, const RootPose& root, bool teleport) {
+    std::array<uint8_t, ROOT_BYTES> block;
+    if (!encode_root(root, block.data())) return false;
+    std::lock_guard lock(mutex_);
+    if (instance < 0 || size_t(instance) >= slots_.size() || !slots_[size_t(instance)].active) return false;
+    Slot& slot = slots_[size_t(instance)];
+    slot.root = block;
+    slot.has_root = true;
+    if (teleport) ++slot.teleports;
+    return true;
 }
 
 const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
+    std::lock_guard lock(mutex_);
     frame_.tick = tick;
-    for (size_t i = 0; i < specs_.size(); ++i) {
-        const auto& s = specs_[i];
-        const ServerAsset& a = *assets_[s.asset];
+    if (frame_.instances.size() < slots_.size()) {
+        frame_.instances.resize(slots_.size());
+        frame_.bytes.resize(slots_.size() * stride_);
+    }
+    for (size_t i = 0; i < slots_.size(); ++i) {
+        const Slot& slot = slots_[i];
         auto& e = frame_.instances[i];
-        const int J = int(a.character.joint_count());
-        bool live = false;
-        {
-            std::lock_guard lock(live_mutex_);
-            if (!live_[i].empty()) {
-                live_copy_.assign(live_[i].begin(), live_[i].end());
-                live = true;
-            }
-        }
+        e.active = slot.active;
+        e.valid = false;
+        if (!slot.active) continue;
+        const auto& s = slot.spec;
+        const ServerAsset& a = *assets_[s.asset];
+        e.asset = s.asset;
+        e.bone_count = a.bone_count();
+        e.record_size = a.format.size();
+        e.offset = i * stride_;
+        e.generation = slot.generation;
+        e.owner = s.owner;
         uint8_t* out = frame_.bytes.data() + e.offset;
-        e.model = live || s.selection < 0 ? int(a.selections.size()) : s.selection;
-        if (live) {
-            for (int b = 0; b < e.bone_count; ++b)
-                encode_bone(decompose(live_copy_[a.skin.order[b]]), a.format, out + size_t(b) * e.record_size);
+        e.model = slot.live || s.selection < 0 ? int(a.selections.size()) : s.selection;
+        e.flags = uint8_t((a.format.scaled ? CHUNK_SCALED : 0) | (slot.has_root ? CHUNK_ROOT : 0));
+        if (slot.has_root) {
+            e.root = slot.root;
+            e.world = decode_root(slot.root.data()).position;
+        } else {
+            e.world = glm::dvec3(s.position);
+        }
+        if (slot.live) {
+            if (!slot.has_pose) continue;
+            std::copy(slot.records.begin(), slot.records.end(), out);
+            e.epoch = uint8_t(slot.teleports + slot.live_epoch);
             e.valid = true;
             continue;
         }
-        if (s.selection < 0) {
-            e.valid = false;
-            continue;
-        }
+        const int J = int(a.character.joint_count());
         std::span<glm::dmat4> mats(scratch_.data(), size_t(J));
-        sample_skinning_matrices(a.character, a.selections[s.selection], clip_time(int(i), tick), mats);
-        for (int b = 0; b < e.bone_count; ++b)
-            encode_bone(decompose(Mat34::from_glm(mats[a.skin.order[b]])), a.format, out + size_t(b) * e.record_size);
+        const ClipSelection& sel = a.selections[size_t(s.selection)];
+        const double u = s.time_offset + double(tick) / tick_rate_ * s.speed;
+        const double dur = sel.duration();
+        int64_t loops = 0;
+        double t;
+        if (s.once) {
+            t = sel.start + std::clamp(u, 0.0, std::max(0.0, dur));
+        } else {
+            if (dur > 0) loops = int64_t(std::floor(u / dur));
+            t = sel.looped(u);
+        }
+        sample_skinning_matrices(a.character, sel, t, mats);
+        const size_t rs = size_t(e.record_size);
+        for (int b = 0; b < e.bone_count; ++b) {
+            const BonePose p = decompose(Mat34::from_glm(mats[size_t(a.skin.order[b])]));
+            if (!bone_in_range(p, a.format)) ++stats_.poses_out_of_range;  // the box covers the clips: never expected
+            encode_bone(p, a.format, out + size_t(b) * rs);
+        }
+        e.epoch = uint8_t(int64_t(slot.teleports) + loops);
         e.valid = true;
     }
     return frame_;

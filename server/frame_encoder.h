@@ -1,14 +1,30 @@
 // frame_encoder.h — once per tick, samples every instance once and encodes all
-// its bones once (bone_codec.h records, progressive order). Clients then only
-// select prefixes and copy these bytes (scheduler.h, datagram_packer.h).
+// its bones once (bone_codec.h records, progressive order, relative to the
+// instance's root). Clients then only select prefixes and copy these bytes
+// (scheduler.h, datagram_packer.h).
+//
+// Instances live in slots (their wire ids, uint16) that are added and removed
+// at run time; a freed id is reused last (first in, first out), and every
+// reuse bumps the slot's generation so per-client state keyed by id resets.
+// An instance plays a clip selection (looped, or once and held) or shows the
+// newest live pose pushed for it (a game server's push_pose, or a player's
+// published records, push_records). Every discontinuity of its motion (a
+// loop wrap, a teleport, a new publisher epoch) changes its epoch, which the
+// chunks carry so that no client interpolates across it.
+//
+// Thread-safety: add_instance, remove_instance, push_pose, push_records and
+// set_root may be called from any thread; encode from one thread.
 #pragma once
+#include <array>
 #include <cstdint>
+#include <deque>
 #include <memory>
 #include <mutex>
 #include <span>
 #include <vector>
 
 #include "scene.h"
+#include "wire.h"
 
 namespace progskin::net {
 
@@ -17,43 +33,98 @@ struct EncodedInstance {
     int bone_count = 0;
     int record_size = 12;
     size_t offset = 0;      // into EncodedFrame::bytes
-    bool valid = false;     // false: live instance with no pose pushed yet
+    bool active = false;    // the slot holds an instance
+    bool valid = false;     // active and has a pose (false: live instance with no pose pushed yet)
     int model = 0;          // cost model of the scheduler: ServerAsset::Segment index (selection, or live)
+    uint32_t generation = 0;  // bumped at every add into this slot
+    uint8_t epoch = 0;      // discontinuity counter (Chunk.epoch)
+    uint8_t flags = 0;      // Chunk.flags: CHUNK_ROOT when the root block travels, CHUNK_SCALED
+    uint64_t owner = 0;     // session that owns it (0: server)
+    glm::dvec3 world{0.0};  // current world position (importance)
+    std::array<uint8_t, ROOT_BYTES> root{};  // root block (when flags & CHUNK_ROOT)
 };
 
 struct EncodedFrame {
     uint32_t tick = 0;
-    std::vector<EncodedInstance> instances;
-    std::vector<uint8_t> bytes;  // records of every instance, B * record_size each
+    std::vector<EncodedInstance> instances;  // one per slot
+    std::vector<uint8_t> bytes;  // records of every slot, stride bytes each
     const uint8_t* records(int i) const { return bytes.data() + instances[i].offset; }
+};
+
+struct EncoderStats {
+    uint64_t poses_out_of_range = 0;  // live poses refused by the codec's range (never clamped)
+    uint64_t stale_poses = 0;         // published records older than the newest (dropped)
 };
 
 class FrameEncoder {
 public:
     FrameEncoder(std::vector<std::shared_ptr<ServerAsset>> assets, std::vector<InstanceSpec> instances,
                  float tick_rate);
-    // Samples and encodes every instance at `tick`. No allocation after the first call.
+    // Samples and encodes every active instance at `tick`. No allocation
+    // after the first call unless instances were added past the capacity.
     const EncodedFrame& encode(uint32_t tick);
     const EncodedFrame& frame() const { return frame_; }
 
-    // Clip time of an instance at a tick (start + wrap(offset + tick/rate*speed)).
-    double clip_time(int instance, double tick) const;
-    // Live pose: skinning matrices in the Character's joint order; used from
-    // the next encode() on instead of the clip. Thread-safe.
-    void push_pose(int instance, std::span<const Mat34> skinning);
+    // Adds an instance; returns its id. Throws Error for a bad asset or clip
+    // selection, or when every id (MAX_INSTANCES) is taken.
+    int add_instance(const InstanceSpec& spec);
+    // Removes an instance (no-op for an id that is not active).
+    void remove_instance(int id);
+    bool active(int id) const;
+    // A copy of an active instance's spec (throws Error for an inactive id).
+    InstanceSpec spec(int id) const;
+    // Copies an active instance's spec; false when the id is not active.
+    bool spec_if_active(int id, InstanceSpec& out) const;
+    // Per slot: its generation when active, else 0 (out resized to capacity()).
+    void generations(std::vector<uint32_t>& out) const;
+    // Ids of the active instances, in increasing order.
+    std::vector<int> active_ids() const;
+    size_t capacity() const;  // slots (largest id + 1)
 
-    const std::vector<InstanceSpec>& instances() const { return specs_; }
+    // Clip time of an instance at a tick: start + offset + tick/rate*speed,
+    // wrapped (looped) or held at the end (once). loops (optional): how many
+    // times the loop wrapped.
+    double clip_time(int instance, double tick, int64_t* loops = nullptr) const;
+    // Live pose: skinning matrices in the Character's joint order, relative
+    // to the root; used from the next encode() on instead of the clip.
+    // Returns false (the previous pose stays) when a matrix is outside the
+    // codec's range (counted in stats). Throws Error for a bad id or size.
+    bool push_pose(int instance, std::span<const Mat34> skinning);
+    // A player's pose, already as records (progressive order, bones
+    // first..first+n-1) and a root block; kept when pose_seq is newer than
+    // the newest kept (else counted stale and dropped). The caller checked
+    // ownership, sizes and ranges (server.cpp). Returns false when stale.
+    bool push_records(int instance, uint32_t pose_seq, uint8_t epoch, int first, std::span<const uint8_t> records,
+                      std::span<const uint8_t, ROOT_BYTES> root);
+    // Places an instance in the world; teleport: a discontinuity (new epoch).
+    // Returns false when the root is outside the root block's range.
+    bool set_root(int instance, const RootPose& root, bool teleport);
+
     const std::vector<std::shared_ptr<ServerAsset>>& assets() const { return assets_; }
+    EncoderStats stats() const;
 
 private:
+    struct Slot {
+        InstanceSpec spec;
+        bool active = false;
+        uint32_t generation = 0;
+        // live pose
+        bool live = false, has_pose = false;
+        std::vector<uint8_t> records;  // B records (progressive order)
+        uint32_t pose_seq = 0;
+        uint8_t live_epoch = 0, teleports = 0;
+        bool has_root = false;
+        std::array<uint8_t, ROOT_BYTES> root{};
+    };
     std::vector<std::shared_ptr<ServerAsset>> assets_;
-    std::vector<InstanceSpec> specs_;
     float tick_rate_;
+    size_t stride_ = 0;             // bytes per slot (the largest asset's records)
     EncodedFrame frame_;
     std::vector<glm::dmat4> scratch_;
-    std::mutex live_mutex_;
-    std::vector<std::vector<Mat34>> live_;  // per instance, empty if none pushed
-    std::vector<Mat34> live_copy_;
+    mutable std::mutex mutex_;      // slots_, free_, stats_
+    std::vector<Slot> slots_;
+    std::deque<int> free_;
+    EncoderStats stats_;
 };
 
 }  // namespace progskin::net

@@ -81,7 +81,17 @@ struct InstanceSpec {
     int selection = 0;          // index into ServerAsset::selections (-1: live poses only)
     float time_offset = 0;      // seconds
     float speed = 1;
-    glm::vec3 position{0.0f};
+    bool once = false;          // the clip plays once and holds its last frame (else it loops)
+    glm::vec3 position{0.0f};   // world placement (clip instances; live poses carry their own root)
+    glm::quat rotation{1, 0, 0, 0};
+    // A player's character (control Spawn): owned by one session, which
+    // alone publishes its poses and never receives it back.
+    uint64_t owner = 0;         // session id, 0: the server's own
+    // What the publisher announced for observers' references (control.fbs Instance).
+    std::vector<int> announced_clips;
+    uint64_t publisher_start_us = 0;
+    glm::dvec3 walk_center{0.0};
+    double walk_radius = 0, walk_speed = 0;
 };
 
 // Lays out n instances cycling over assets and their clip selections, on a

@@ -19,24 +19,39 @@ size_t WireCost::wire(size_t payload) {
     return payload + n * (kFrameOverhead + UDP_IP_OVERHEAD) + (n - 1) * kSplitChunk;
 }
 
-std::vector<float> compute_importance(const ViewSpec& view, const std::vector<InstanceSpec>& instances,
-                                      const std::vector<std::shared_ptr<ServerAsset>>& assets) {
-    std::vector<float> imp(instances.size(), 0.0f);
-    for (size_t i = 0; i < instances.size(); ++i) {
-        const ServerAsset& a = *assets[instances[i].asset];
+void compute_importance(const ViewSpec& view, const EncodedFrame& frame,
+                        const std::vector<std::shared_ptr<ServerAsset>>& assets, uint64_t viewer, std::vector<float>& imp) {
+    imp.assign(frame.instances.size(), 0.0f);
+    for (size_t i = 0; i < frame.instances.size(); ++i) {
+        const EncodedInstance& e = frame.instances[i];
+        if (!e.active || (viewer != 0 && e.owner == viewer)) continue;
+        const ServerAsset& a = *assets[size_t(e.asset)];
         if (!view.weights.empty()) {
             float w = 0.0f;
             for (const auto& [inst, weight] : view.weights)
                 if (inst == int(i)) w = weight;
             imp[i] = std::max(0.0f, w) * float(1000.0 / a.diagonal);
         } else if (view.has_camera) {
-            float d = std::max(glm::length(instances[i].position - view.camera), float(0.05 * a.diagonal));
+            float d = std::max(float(glm::length(e.world - glm::dvec3(view.camera))), float(0.05 * a.diagonal));
             float t = std::tan(std::clamp(view.fov_y, 0.01f, 3.0f) * 0.5f);
             imp[i] = view.viewport_height / (2.0f * d * t);
         } else {
             imp[i] = float(1000.0 / a.diagonal);
         }
     }
+}
+
+std::vector<float> compute_importance(const ViewSpec& view, const std::vector<InstanceSpec>& instances,
+                                      const std::vector<std::shared_ptr<ServerAsset>>& assets) {
+    EncodedFrame f;
+    f.instances.resize(instances.size());
+    for (size_t i = 0; i < instances.size(); ++i) {
+        f.instances[i].active = true;
+        f.instances[i].asset = instances[i].asset;
+        f.instances[i].world = glm::dvec3(instances[i].position);
+    }
+    std::vector<float> imp;
+    compute_importance(view, f, assets, 0, imp);
     return imp;
 }
 
@@ -44,6 +59,7 @@ static_assert(HOLD_TICKS < ServerAsset::kGapTable, "the gap and refresh tables c
 
 void Scheduler::reset(size_t n) {
     state_.assign(n, State{});
+    generation_.assign(n, 0);
     items_.assign(n, {});
     chain_.assign(n, {});
     paid_.assign(n, 0);
@@ -59,7 +75,22 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
                          std::span<const float> importance, size_t budget, float tick_rate, std::vector<Pick>& out) {
     out.clear();
     const size_t n = frame.instances.size();
-    if (state_.size() != n) reset(n);
+    if (state_.size() != n) {  // slots added: grow, keeping every other instance's state
+        state_.resize(n);
+        generation_.resize(n, 0);
+        items_.resize(n);
+        chain_.resize(n);
+        paid_.resize(n, 0);
+        chain_next_.resize(n, 0);
+        header_.resize(n, 0);
+        order_.resize(n);
+        order_at_.resize(n, 0);
+    }
+    for (size_t i = 0; i < n; ++i)
+        if (generation_[i] != frame.instances[i].generation) {  // a new instance in this slot
+            generation_[i] = frame.instances[i].generation;
+            state_[i] = State{};
+        }
     auto by_importance = [&](const Pick& a, const Pick& b) {
         return importance[a.instance] > importance[b.instance] ||
                (importance[a.instance] == importance[b.instance] && a.instance < b.instance);
@@ -70,7 +101,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     for (size_t i = 0; i < n; ++i) {
         const auto& e = frame.instances[i];
         if (!e.valid || importance[i] <= 0.0f) continue;
-        full += WireCost::header(e.bone_count) + size_t(e.bone_count) * e.record_size;
+        full += WireCost::header(e) + size_t(e.bone_count) * e.record_size;
     }
     if (full == 0) return 0;
     if (WireCost::wire(full) <= budget) {
@@ -96,7 +127,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         const ServerAsset& a = *assets[size_t(e.asset)];
         paid_[i] = 0;
         chain_next_[i] = 0;
-        header_[i] = WireCost::header(e.bone_count);
+        header_[i] = WireCost::header(e);
         State& st = state_[i];
         if (st.bone_tick.size() != size_t(a.bone_count())) st.bone_tick.assign(size_t(a.bone_count()), 0);
         // Squared error in screen units, summed over the instance's vertices
@@ -247,7 +278,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     size_t est = 0;
     for (size_t x = 0; x < out.size(); ++x) {
         const auto& e = frame.instances[size_t(out[x].instance)];
-        if (x == 0 || out[x - 1].instance != out[x].instance) est += WireCost::header(e.bone_count);
+        if (x == 0 || out[x - 1].instance != out[x].instance) est += WireCost::header(e);
         est += size_t(out[x].k - out[x].first) * size_t(e.record_size);
     }
     return est ? WireCost::wire(est) : 0;

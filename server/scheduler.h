@@ -35,6 +35,7 @@
 #include <vector>
 
 #include "frame_encoder.h"
+#include "view.h"
 #include "wire.h"
 
 namespace progskin::net {
@@ -42,29 +43,33 @@ namespace progskin::net {
 // Wire bytes (GUIDE.md rate: UDP payload + 28 per datagram) of a frame stream
 // carrying `payload` bytes of chunk headers and records in one tick.
 struct WireCost {
-    static constexpr size_t kFrameOverhead = 80;  // Datagram + Frame FlatBuffer tables (datagram_packer.cpp checks)
-    static constexpr size_t kChunk = 4;           // one Chunk struct
-    static constexpr size_t kSplitChunk = kChunk + (MAX_BONES + 7) / 8;  // a chunk continued in another datagram
+    static constexpr size_t kFrameOverhead = 88;  // Datagram + Frame FlatBuffer tables (datagram_packer.cpp checks)
+    static constexpr size_t kChunk = 6;           // one Chunk struct
+    // a chunk continued in another datagram (it repeats the root block)
+    static constexpr size_t kSplitChunk = kChunk + ROOT_BYTES + (MAX_BONES + 7) / 8;
     // Chunk struct + bone mask for an instance of `bones` bones (at most; a
     // chunk starting at bone first > 0 has a shorter mask).
     static constexpr size_t header(int bones) { return kChunk + (size_t(bones) + 7) / 8; }
+    // The same plus the root block when the instance's chunks carry one.
+    static size_t header(const EncodedInstance& e) {
+        return header(e.bone_count) + ((e.flags & CHUNK_ROOT) ? ROOT_BYTES : 0);
+    }
     static size_t datagrams(size_t payload);
     static size_t wire(size_t payload);
 };
 
-// The client's view (control.fbs View), decoded.
-struct ViewSpec {
-    glm::vec3 camera{0.0f, 0.0f, 0.0f};
-    float fov_y = 0.8f;              // radians
-    float viewport_height = 1080.0f; // pixels
-    std::vector<std::pair<int, float>> weights;  // explicit per-instance weights (instance, weight)
-    bool has_camera = false;
-};
 
 // importance(c): pixels of screen error per model unit of vertex error
 // (camera view), or weight * 1000 / diagonal (explicit weights; no view: weight 1).
+// Over static instance specs (their positions), one per instance in order
+// (tests, benchmarks: scenes whose instances never move).
 std::vector<float> compute_importance(const ViewSpec& view, const std::vector<InstanceSpec>& instances,
                                       const std::vector<std::shared_ptr<ServerAsset>>& assets);
+// Over the frame's slots, at each instance's current world position; 0 for
+// inactive slots and for instances owned by `viewer` (a session never
+// receives its own characters). `out` is resized to the slot count.
+void compute_importance(const ViewSpec& view, const EncodedFrame& frame,
+                        const std::vector<std::shared_ptr<ServerAsset>>& assets, uint64_t viewer, std::vector<float>& out);
 
 struct Pick {
     int instance = 0;
@@ -117,6 +122,7 @@ private:
     void pay(int instance, uint32_t age);
     void offer_paid(int instance, uint32_t age);
     std::vector<State> state_;
+    std::vector<uint32_t> generation_;              // per instance: the slot generation state_ belongs to
     struct ChainPoint {
         int end;       // items [previous end, end) of the instance
         size_t bytes;  // cumulative

@@ -10,6 +10,7 @@
 #include <deque>
 #include <map>
 #include <mutex>
+#include <algorithm>
 #include <random>
 
 #include "datagram_packer.h"
@@ -26,6 +27,21 @@ using asio::ip::udp;
 
 namespace {
 enum class State { AwaitHello, Welcomed, Streaming, Closed };
+
+// The time range of clips played together (what an observer's reference plays).
+ClipSelection selection_of(const Character& c, const std::vector<int>& clips) {
+    ClipSelection sel;
+    sel.clips = clips;
+    bool first = true;
+    for (int i : clips) {
+        const Clip& clip = c.clips[size_t(i)];
+        if (clip.channels.empty()) continue;
+        sel.start = first ? clip.start : std::min(sel.start, clip.start);
+        sel.end = first ? clip.end : std::max(sel.end, clip.end);
+        first = false;
+    }
+    return sel;
+}
 }
 
 struct Server::Impl {
@@ -44,7 +60,15 @@ struct Server::Impl {
         double opened = 0, last_heard = 0;
         RateController rate;
         Scheduler scheduler;
+        ViewSpec view;
         std::vector<float> importance;
+        std::vector<uint32_t> known;   // per instance slot: generation announced to this client (0: none)
+        uint64_t instances_seen = ~0ull;  // Impl::instances_version last synced
+        struct Owned {
+            int instance = 0;
+            double tokens = 0, refilled = 0;  // pose rate limit (token bucket)
+        };
+        std::vector<Owned> owned;      // characters this session spawned
         uint32_t seq = 0;
         double asset_bytes = 0;
         explicit Session(Impl* s, tcp::socket so) : server(s), sock(std::move(so)) {}
@@ -67,6 +91,8 @@ struct Server::Impl {
     udp::endpoint udp_from;
     uint32_t tick = 0;
     double last_tick_time = 0;
+    std::atomic<uint64_t> instances_version{1};  // bumped by every add / remove
+    std::vector<uint32_t> generations;           // scratch: per slot, 0 when inactive
     double total_asset_bytes = 0;
     mutable std::mutex stats_mutex;
     ServerStats st;
@@ -138,6 +164,7 @@ struct Server::Impl {
     void close(const std::shared_ptr<Session>& s, const std::string& why) {
         if (s->state == State::Closed) return;
         s->state = State::Closed;
+        despawn_all(*s);
         log("session " + hex64(s->id) + " (" + s->name + ") closed: " + why);
         asio::error_code ig;
         s->sock.shutdown(tcp::socket::shutdown_both, ig);
@@ -251,11 +278,10 @@ struct Server::Impl {
                 s->name = h->client_name() ? h->client_name()->str() : "";
                 double cap = h->max_kbps() ? std::min(double(h->max_kbps()), cfg.max_kbps) : cfg.max_kbps;
                 s->rate = RateController(cap, std::min(cap, cfg.initial_kbps));
-                s->importance = compute_importance(ViewSpec{}, encoder.instances(), assets);
-                s->scheduler.reset(encoder.instances().size());
+                s->scheduler.reset(0);
                 s->state = State::Welcomed;
                 s->last_heard = now_seconds();
-                send_welcome(s, cap);
+                if (!send_welcome(s, cap)) return false;
                 log("session " + hex64(s->id) + " (" + s->name + ") welcomed, cap " + std::to_string(int(cap)) + " kbit/s");
                 return true;
             }
@@ -296,9 +322,8 @@ struct Server::Impl {
                 if (v->viewport_height() > 0) vs.viewport_height = v->viewport_height();
                 if (v->weights())
                     for (const auto* w : *v->weights())
-                        if (w->instance() < encoder.instances().size() && std::isfinite(w->weight()))
-                            vs.weights.emplace_back(w->instance(), w->weight());
-                s->importance = compute_importance(vs, encoder.instances(), assets);
+                        if (std::isfinite(w->weight())) vs.weights.emplace_back(w->instance(), w->weight());
+                s->view = std::move(vs);
                 if (v->max_kbps()) s->rate.set_cap(std::min(double(v->max_kbps()), cfg.max_kbps));
                 return true;
             }
@@ -315,6 +340,25 @@ struct Server::Impl {
                 send(s, fbb);
                 return true;
             }
+            case wire::ControlBody::Spawn: {
+                if (s->state == State::AwaitHello) break;
+                handle_spawn(s, *c->body_as_Spawn());
+                return true;
+            }
+            case wire::ControlBody::Despawn: {
+                if (s->state == State::AwaitHello) break;
+                const int id = c->body_as_Despawn()->instance();
+                auto it = std::find_if(s->owned.begin(), s->owned.end(), [&](const Session::Owned& o) { return o.instance == id; });
+                if (it == s->owned.end()) {
+                    with_stats([](ServerStats& st) { ++st.malformed_control; });
+                    close(s, "despawn of an instance this session does not own");
+                    return false;
+                }
+                remove_instance(id);
+                s->owned.erase(it);
+                log("session " + hex64(s->id) + " despawned instance " + std::to_string(id));
+                return true;
+            }
             case wire::ControlBody::Goodbye:
                 close(s, "goodbye");
                 return false;
@@ -326,7 +370,53 @@ struct Server::Impl {
         return false;
     }
 
-    void send_welcome(const std::shared_ptr<Session>& s, double cap) {
+    void spawned(const std::shared_ptr<Session>& s, uint32_t request, bool ok, int instance, const std::string& reason) {
+        flatbuffers::FlatBufferBuilder fbb;
+        auto r = fbb.CreateString(reason);
+        auto m = wire::CreateSpawned(fbb, request, ok, uint16_t(ok ? instance : 0), r);
+        fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Spawned, m.Union()), wire::ControlIdentifier());
+        send(s, fbb);
+        if (!ok) log("session " + hex64(s->id) + " spawn refused: " + reason);
+    }
+
+    void handle_spawn(const std::shared_ptr<Session>& s, const wire::Spawn& m) {
+        if (s->owned.size() >= size_t(MAX_SPAWNED))
+            return spawned(s, m.request(), false, 0, "this session owns " + std::to_string(MAX_SPAWNED) + " characters already");
+        if (m.asset() >= assets.size()) return spawned(s, m.request(), false, 0, "no asset " + std::to_string(m.asset()));
+        const ServerAsset& a = *assets[m.asset()];
+        InstanceSpec sp;
+        sp.asset = m.asset();
+        sp.selection = -1;
+        sp.owner = s->id;
+        sp.once = m.once();
+        sp.speed = m.speed();
+        if (m.clips())
+            for (int c : *m.clips()) {
+                if (c < 0 || size_t(c) >= a.character.clips.size())
+                    return spawned(s, m.request(), false, 0, "no clip " + std::to_string(c) + " in " + a.name);
+                sp.announced_clips.push_back(c);
+            }
+        sp.publisher_start_us = m.publisher_start_us();
+        if (m.walk_center()) sp.walk_center = {m.walk_center()->x(), m.walk_center()->y(), m.walk_center()->z()};
+        sp.walk_radius = m.walk_radius();
+        sp.walk_speed = m.walk_speed();
+        if (m.position()) sp.position = {m.position()->x(), m.position()->y(), m.position()->z()};
+        if (!std::isfinite(sp.speed) || !std::isfinite(sp.walk_radius) || !std::isfinite(sp.walk_speed) ||
+            !std::isfinite(sp.walk_center.x) || !std::isfinite(sp.walk_center.y) || !std::isfinite(sp.walk_center.z) ||
+            !std::isfinite(sp.position.x) || !std::isfinite(sp.position.y) || !std::isfinite(sp.position.z))
+            return spawned(s, m.request(), false, 0, "spawn values must be finite");
+        int id;
+        try {
+            id = add_instance(sp);
+        } catch (const Error& e) {
+            return spawned(s, m.request(), false, 0, e.what());
+        }
+        s->owned.push_back({id, 0.0, now_seconds()});
+        log("session " + hex64(s->id) + " spawned " + a.name + " as instance " + std::to_string(id));
+        spawned(s, m.request(), true, id, "");
+    }
+
+    bool send_welcome(const std::shared_ptr<Session>& s, double cap) {
         flatbuffers::FlatBufferBuilder fbb(16384);
         std::vector<flatbuffers::Offset<wire::Asset>> as;
         for (const auto& a : assets) {
@@ -347,31 +437,105 @@ struct Server::Impl {
             as.push_back(wire::CreateAsset(fbb, a->id, name, a->bytes.size(), uint16_t(a->bone_count()), a->format.scaled, vo, vp,
                                            vc, ve, float(a->diagonal), &lo, &hi, float(a->motion)));
         }
-        std::vector<flatbuffers::Offset<wire::Instance>> is;
-        const auto& specs = encoder.instances();
-        for (size_t i = 0; i < specs.size(); ++i) {
-            const auto& sp = specs[i];
-            const ServerAsset& a = *assets[sp.asset];
-            std::vector<int32_t> clips;
-            float start = 0, end = 0;
-            if (sp.selection >= 0) {
-                const ClipSelection& sel = a.selections[sp.selection];
-                for (int c : sel.clips) clips.push_back(c);
+        auto va = fbb.CreateVector(as);
+        auto sn = fbb.CreateString("progskin-server");
+        auto w = wire::CreateWelcome(fbb, PROTOCOL_VERSION, s->id, s->token, udp_sock.local_endpoint().port(), cfg.tick_rate,
+                                     uint32_t(cap), va, sn);
+        fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Welcome, w.Union()), wire::ControlIdentifier());
+        if (fbb.GetSize() > MAX_CONTROL_MESSAGE) {
+            refuse(s, "the asset catalogue exceeds the control message limit");
+            return false;
+        }
+        send(s, fbb);
+        sync_instances(s);
+        return true;
+    }
+
+    // One Instance table (control.fbs) for an active instance.
+    flatbuffers::Offset<wire::Instance> instance_table(flatbuffers::FlatBufferBuilder& fbb, int id, const InstanceSpec& sp) {
+        const ServerAsset& a = *assets[size_t(sp.asset)];
+        std::vector<int32_t> clips;
+        float start = 0, end = 0;
+        if (sp.selection >= 0) {
+            const ClipSelection& sel = a.selections[size_t(sp.selection)];
+            clips.assign(sel.clips.begin(), sel.clips.end());
+            start = sel.start;
+            end = sel.end;
+        } else {
+            clips.assign(sp.announced_clips.begin(), sp.announced_clips.end());
+            if (!clips.empty()) {
+                const ClipSelection sel = selection_of(a.character, sp.announced_clips);
                 start = sel.start;
                 end = sel.end;
             }
-            wire::Vec3 pos(sp.position.x, sp.position.y, sp.position.z);
-            auto vcl = fbb.CreateVector(clips);
-            is.push_back(wire::CreateInstance(fbb, uint16_t(i), uint16_t(sp.asset), &pos, vcl, start, end, sp.time_offset, sp.speed));
         }
-        auto va = fbb.CreateVector(as);
-        auto vi = fbb.CreateVector(is);
-        auto sn = fbb.CreateString("progskin-server");
-        auto w = wire::CreateWelcome(fbb, PROTOCOL_VERSION, s->id, s->token, udp_sock.local_endpoint().port(), cfg.tick_rate,
-                                     uint32_t(cap), va, vi, sn);
-        fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Welcome, w.Union()), wire::ControlIdentifier());
-        if (fbb.GetSize() > MAX_CONTROL_MESSAGE) throw Error("welcome exceeds the control message limit (too many instances)");
-        send(s, fbb);
+        wire::Vec3 pos(sp.position.x, sp.position.y, sp.position.z);
+        wire::Quat rot(sp.rotation.x, sp.rotation.y, sp.rotation.z, sp.rotation.w);
+        wire::DVec3 wc(sp.walk_center.x, sp.walk_center.y, sp.walk_center.z);
+        auto vcl = fbb.CreateVector(clips);
+        return wire::CreateInstance(fbb, uint16_t(id), uint16_t(sp.asset), &pos, vcl, start, end, sp.time_offset, sp.speed, sp.once,
+                                    &rot, sp.owner != 0, sp.publisher_start_us, &wc, sp.walk_radius, sp.walk_speed);
+    }
+
+    // Tells a client about instances added and removed since it last heard
+    // (never its own), in messages that fit the control limit.
+    void sync_instances(const std::shared_ptr<Session>& s) {
+        const uint64_t version = instances_version.load();
+        if (s->instances_seen == version || s->state == State::Closed) return;
+        s->instances_seen = version;
+        encoder.generations(generations);
+        if (s->known.size() < generations.size()) s->known.resize(generations.size(), 0);
+        std::vector<uint16_t> removed;
+        std::vector<int> added;
+        for (size_t i = 0; i < s->known.size(); ++i) {
+            const uint32_t g = i < generations.size() ? generations[i] : 0;
+            if (s->known[i] == g) continue;
+            if (s->known[i] != 0) removed.push_back(uint16_t(i));
+            s->known[i] = 0;
+            if (g == 0) continue;
+            InstanceSpec sp;
+            if (!encoder.spec_if_active(int(i), sp) || sp.owner == s->id) continue;
+            s->known[i] = g;
+            added.push_back(int(i));
+        }
+        if (!removed.empty()) {
+            for (size_t at = 0; at < removed.size(); at += 16000) {
+                flatbuffers::FlatBufferBuilder fbb;
+                auto ids = fbb.CreateVector(removed.data() + at, std::min<size_t>(16000, removed.size() - at));
+                auto r = wire::CreateInstanceRemoved(fbb, ids);
+                fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::InstanceRemoved, r.Union()), wire::ControlIdentifier());
+                send(s, fbb);
+            }
+        }
+        constexpr size_t kBatch = 128;  // an Instance table is under 200 bytes
+        for (size_t at = 0; at < added.size(); at += kBatch) {
+            flatbuffers::FlatBufferBuilder fbb(32768);
+            std::vector<flatbuffers::Offset<wire::Instance>> is;
+            for (size_t k = at; k < std::min(added.size(), at + kBatch); ++k) {
+                InstanceSpec sp;
+                if (encoder.spec_if_active(added[k], sp)) is.push_back(instance_table(fbb, added[k], sp));
+            }
+            auto v = fbb.CreateVector(is);
+            auto m = wire::CreateInstanceAdded(fbb, v);
+            fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::InstanceAdded, m.Union()), wire::ControlIdentifier());
+            send(s, fbb);
+        }
+    }
+
+    // ------------------------------------------------------ run-time scene --
+    int add_instance(const InstanceSpec& spec) {
+        const int id = encoder.add_instance(spec);
+        ++instances_version;
+        return id;
+    }
+    void remove_instance(int id) {
+        encoder.remove_instance(id);
+        ++instances_version;
+    }
+
+    void despawn_all(Session& s) {
+        for (const auto& o : s.owned) remove_instance(o.instance);
+        s.owned.clear();
     }
 
     // ---------------------------------------------------------------- UDP --
@@ -428,6 +592,41 @@ struct Server::Impl {
             s->rate.on_ack(a->ack(), a->ack_bits(), a->echo_time_us(), a->hold_us(), now_us32());
             return;
         }
+        if (d->body_type() == wire::DatagramBody::Pose) {
+            const wire::Pose* p = d->body_as_Pose();
+            auto it = sessions.find(p->session_id());
+            if (it == sessions.end() || it->second->token != p->token() || !it->second->bound || it->second->peer != udp_from)
+                return reject(false);
+            auto& s = it->second;
+            auto o = std::find_if(s->owned.begin(), s->owned.end(), [&](const Session::Owned& x) { return x.instance == p->instance(); });
+            if (o == s->owned.end()) return reject(false);  // not this session's character (or despawned)
+            const ServerAsset& a = *assets[size_t(encoder.spec(o->instance).asset)];
+            const size_t rs = size_t(a.format.size());
+            if (!p->root() || p->root()->size() != ROOT_BYTES || !p->records() || p->records()->size() == 0 ||
+                p->records()->size() % rs != 0 || p->first() + p->records()->size() / rs > size_t(a.bone_count()))
+                return reject(true);
+            // Every record must decode to a finite unit rotation (smallest-three
+            // components whose squares sum to at most 1) and a finite scale.
+            for (size_t r = 0; r < p->records()->size() / rs; ++r)
+                if (!record_valid(p->records()->data() + r * rs, a.format)) return reject(true);
+            // Rate limit: a bucket of 2 s at twice the tick rate (poses beyond
+            // it are dropped and counted, the newest wins anyway).
+            const double now = now_seconds(), rate = 2.0 * cfg.tick_rate;
+            o->tokens = std::min(2.0 * rate, o->tokens + (now - o->refilled) * rate);
+            o->refilled = now;
+            if (o->tokens < 1.0) {
+                with_stats([](ServerStats& st) { ++st.poses_rate_limited; });
+                return;
+            }
+            o->tokens -= 1.0;
+            std::span<const uint8_t, ROOT_BYTES> root(p->root()->data(), ROOT_BYTES);
+            if (encoder.push_records(o->instance, p->pose_seq(), p->epoch(), p->first(),
+                                     {p->records()->data(), p->records()->size()}, root))
+                with_stats([](ServerStats& st) { ++st.poses_received; });
+            else
+                with_stats([](ServerStats& st) { ++st.poses_stale; });
+            return;
+        }
         reject(false);  // Frame / BindAck are server -> client only
     }
 
@@ -450,8 +649,10 @@ struct Server::Impl {
         last_tick_time = t0;
         ++tick;
         bool any = false;
-        for (auto& [id, s] : sessions)
+        for (auto& [id, s] : sessions) {
             if (s->state == State::Streaming) any = true;
+            if (s->state == State::Welcomed || s->state == State::Streaming) sync_instances(s);
+        }
         const EncodedFrame* frame = any ? &encoder.encode(tick) : nullptr;
         uint64_t dg = 0, bytes = 0, timeouts = 0;
         std::vector<std::shared_ptr<Session>> drop;
@@ -469,6 +670,11 @@ struct Server::Impl {
             s->rate.update(t0);
             size_t budget = s->rate.budget();
             if (!budget) continue;
+            // Importance at every instance's current world position; none for
+            // instances this client was not told about (yet) or owns.
+            compute_importance(s->view, *frame, assets, s->id, s->importance);
+            for (size_t i = 0; i < s->importance.size(); ++i)
+                if (i >= s->known.size() || s->known[i] != frame->instances[i].generation) s->importance[i] = 0.0f;
             s->scheduler.select(*frame, assets, s->importance, budget, cfg.tick_rate, picks);
             if (s->scheduler.limited()) s->rate.mark_limited();
             if (picks.empty()) continue;
@@ -540,11 +746,17 @@ void Server::stop() {
     });
 }
 
-void Server::push_pose(int instance, std::span<const Mat34> m) { impl_->encoder.push_pose(instance, m); }
+bool Server::push_pose(int instance, std::span<const Mat34> m) { return impl_->encoder.push_pose(instance, m); }
+bool Server::set_root(int instance, const RootPose& root, bool teleport) { return impl_->encoder.set_root(instance, root, teleport); }
+int Server::add_instance(const InstanceSpec& spec) { return impl_->add_instance(spec); }
+void Server::remove_instance(int instance) { impl_->remove_instance(instance); }
 
 ServerStats Server::stats() const {
+    const EncoderStats es = impl_->encoder.stats();
     std::lock_guard lock(impl_->stats_mutex);
-    return impl_->st;
+    ServerStats s = impl_->st;
+    s.poses_out_of_range = es.poses_out_of_range;
+    return s;
 }
 
 }  // namespace progskin::net

@@ -4,11 +4,16 @@
 // the client's rate (rate_controller.h). Single-threaded (one asio
 // io_context); push_pose, stop and stats may be called from other threads.
 //
-// Library use (game servers pushing their own characters' poses):
+// Library use (game servers pushing their own characters' poses, NPCs):
 //   Server s(cfg, assets, instances);   // InstanceSpec::selection = -1: live only
 //   std::thread t([&] { s.run(); });
-//   s.push_pose(instance, skinning_matrices);  // each game tick, joint order
+//   int npc = s.add_instance(spec);      // at any time; every client is told
+//   s.set_root(npc, {world_position, rotation}, false);
+//   s.push_pose(npc, skinning_matrices);  // each game tick, joint order, relative to the root
+//   s.remove_instance(npc);
 //   s.stop(); t.join();
+// Players' characters arrive from their clients (control Spawn, datagram
+// Pose) and go away with their session.
 #pragma once
 #include <atomic>
 #include <cstdint>
@@ -42,6 +47,8 @@ struct ServerStats {
     uint64_t datagrams_received = 0, malformed_datagrams = 0, rejected_datagrams = 0;
     uint64_t unverified_bytes_in = 0, unverified_bytes_out = 0;  // to/from addresses not bound
     uint64_t malformed_control = 0, asset_bytes_sent = 0;
+    uint64_t poses_received = 0, poses_stale = 0, poses_rate_limited = 0;  // players' Pose datagrams
+    uint64_t poses_out_of_range = 0;  // live poses refused by the codec's range (FrameEncoder)
     double tick_seconds = 0;      // total time spent in ticks
 };
 
@@ -56,7 +63,18 @@ public:
     uint16_t udp_port() const;
     void run();   // serves until stop()
     void stop();  // thread-safe
-    void push_pose(int instance, std::span<const Mat34> skinning_matrices);  // thread-safe
+    // Thread-safe. Returns false (the previous pose stays) when a matrix is
+    // outside the codec's range (counted in stats().poses_out_of_range);
+    // throws Error for an unknown instance or a wrong matrix count.
+    bool push_pose(int instance, std::span<const Mat34> skinning_matrices);
+    // Thread-safe. World placement of an instance (its root block travels in
+    // every frame from then on); teleport marks a discontinuity. False when
+    // the instance is unknown or the root is out of range (+-2147 km, finite).
+    bool set_root(int instance, const RootPose& root, bool teleport = false);
+    // Thread-safe. Adds an instance (an NPC; selection -1: live poses) and
+    // returns its id; every client is told at the next tick. Throws Error.
+    int add_instance(const InstanceSpec& spec);
+    void remove_instance(int instance);  // thread-safe; no-op for an unknown id
     ServerStats stats() const;  // thread-safe snapshot
 
 private:

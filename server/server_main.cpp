@@ -29,6 +29,9 @@ static const char* kUsage =
     "  --asset FILE ...  glTF/glb characters (progressive or plain; repeatable)\n"
     "  --crowd N         lay out N instances over the assets and their clips (default:\n"
     "                    one instance per asset and clip group)\n"
+    "  --no-scene        host a catalogue only: no server-driven instances (players spawn\n"
+    "                    and publish their own characters: progskin-client --publish)\n"
+    "  --play loop|once  clips loop (default) or play once and hold their last frame\n"
     "  --tick-rate HZ    ticks per second (default 30)\n"
     "  --max-clients N   (default 256)\n"
     "  --max-kbps N      per-client rate ceiling in kbit/s (default 50000)\n"
@@ -49,6 +52,7 @@ int main(int argc, char** argv) {
     std::vector<std::string> asset_paths;
     int crowd = 0;
     double duration = 0;
+    bool no_scene = false, once = false;
     auto need = [&](int& i) -> const char* {
         if (i + 1 >= argc) {
             std::fprintf(stderr, "progskin-server: %s needs a value\n%s", argv[i], kUsage);
@@ -70,6 +74,15 @@ int main(int argc, char** argv) {
                 while (i + 1 < argc && argv[i + 1][0] != '-') asset_paths.push_back(argv[++i]);  // --asset A B C
             }
             else if (a == "--crowd") crowd = cli::to_int(a, need(i));
+            else if (a == "--no-scene") no_scene = true;
+            else if (a == "--play") {
+                const std::string v = need(i);
+                if (v != "loop" && v != "once") {
+                    std::fprintf(stderr, "progskin-server: --play takes loop or once, not %s\n%s", v.c_str(), kUsage);
+                    return 2;
+                }
+                once = v == "once";
+            }
             else if (a == "--tick-rate") cfg.tick_rate = float(cli::to_number(a, need(i)));
             else if (a == "--max-clients") cfg.max_clients = cli::to_int(a, need(i));
             else if (a == "--max-kbps") cfg.max_kbps = cli::to_number(a, need(i));
@@ -105,11 +118,14 @@ int main(int argc, char** argv) {
                          hex64(a.id).c_str(), a.bytes.size());
         }
         std::vector<InstanceSpec> instances;
-        if (crowd > 0) {
+        if (no_scene) {
+            // players bring the characters
+        } else if (crowd > 0) {
             instances = crowd_layout(assets, crowd);
         } else {
             instances = default_instances(assets);
         }
+        for (auto& s : instances) s.once = once;
         Server server(cfg, assets, instances);
         g_server = &server;
         std::signal(SIGINT, on_signal);
@@ -134,9 +150,11 @@ int main(int argc, char** argv) {
         ServerStats st = server.stats();
         std::fprintf(stderr,
                      "progskin-server: %llu sessions, %llu datagrams sent, %llu malformed + %llu rejected datagrams, "
-                     "mean tick %.3f ms\n",
+                     "%llu poses received (%llu stale, %llu over the rate limit, %llu out of range), mean tick %.3f ms\n",
                      (unsigned long long)st.sessions_total, (unsigned long long)st.datagrams_sent,
                      (unsigned long long)st.malformed_datagrams, (unsigned long long)st.rejected_datagrams,
+                     (unsigned long long)st.poses_received, (unsigned long long)st.poses_stale,
+                     (unsigned long long)st.poses_rate_limited, (unsigned long long)st.poses_out_of_range,
                      st.ticks ? 1000.0 * st.tick_seconds / double(st.ticks) : 0.0);
         return 0;
     } catch (const std::exception& e) {

@@ -1,4 +1,4 @@
-// The Frame layout of protocol version 3 (proto/frame_reader.h): what the
+// The Frame layout of protocol version 4 (proto/frame_reader.h): what the
 // packer writes reads back bone for bone, and every malformed chunk is
 // refused before anything is applied.
 #include <gtest/gtest.h>
@@ -28,6 +28,11 @@ std::vector<uint8_t> frame_datagram(const std::vector<wire::Chunk>& chunks, cons
     auto fr = wire::CreateFrame(fbb, 7, ch, pl);
     fbb.Finish(wire::CreateDatagram(fbb, 1, 0, wire::DatagramBody::Frame, fr.Union()), wire::DatagramIdentifier());
     return {fbb.GetBufferPointer(), fbb.GetBufferPointer() + fbb.GetSize()};
+}
+
+// A chunk without root block, 12-byte records.
+wire::Chunk ch(int instance, int first, int show, uint8_t flags = 0, uint8_t epoch = 0) {
+    return wire::Chunk(uint16_t(instance), uint8_t(first), uint8_t(show), epoch, flags);
 }
 
 struct ChunkRun {
@@ -64,7 +69,7 @@ TEST(NetFrame, ReadsMaskRunsAndRecords) {
     pl.push_back(0b1);
     pl.resize(pl.size() + 12, 0xCD);
     std::vector<ChunkRun> runs;
-    ASSERT_TRUE(read_datagram(frame_datagram({{1, 3, 13}, {0, 0, 1}}, pl), runs));
+    ASSERT_TRUE(read_datagram(frame_datagram({ch(1, 3, 13), ch(0, 0, 1)}, pl), runs));
     ASSERT_EQ(runs.size(), 4u);
     EXPECT_EQ(runs[0].first, 3);
     EXPECT_EQ(runs[0].count, 3);
@@ -84,7 +89,7 @@ TEST(NetFrame, RefusesEveryMalformedChunkBeforeApplyingAny) {
     std::vector<uint8_t> good = {0b00000101};  // bones 0 and 2 of show 3
     good.resize(1 + 24, 1);
     std::vector<ChunkRun> runs;
-    ASSERT_TRUE(read_datagram(frame_datagram({{0, 0, 3}}, good), runs));
+    ASSERT_TRUE(read_datagram(frame_datagram({ch(0, 0, 3)}, good), runs));
     EXPECT_EQ(runs.size(), 2u);
 
     struct Case {
@@ -102,21 +107,41 @@ TEST(NetFrame, RefusesEveryMalformedChunkBeforeApplyingAny) {
     std::vector<uint8_t> two = good;  // a good chunk, then a bad one: nothing applied
     two.insert(two.end(), good.begin(), good.end());
     const std::vector<Case> cases = {
-        {"unknown instance", {{9, 0, 3}}, good},
-        {"show 0", {{0, 0, 0}}, good},
-        {"first >= show", {{0, 3, 3}}, good},
-        {"mask bits at or past show", {{0, 0, 3}}, bits_past_show},
-        {"no bone carried", {{0, 0, 3}}, empty_mask},
-        {"records past the payload", {{0, 0, 3}}, short_records},
-        {"bytes left over", {{0, 0, 3}}, trailing},
-        {"mask past the payload", {{0, 0, 200}}, {}},
-        {"second chunk bad", {{0, 0, 3}, {3, 0, 3}}, two},
-        {"chunks without payload", {{0, 0, 3}}, {}},
+        {"record size differs from the instance's", {ch(0, 0, 3, CHUNK_SCALED)}, good},
+        {"unknown flag bits", {ch(0, 0, 3, 0x80)}, good},
+        {"root block past the payload", {ch(0, 0, 3, CHUNK_ROOT)}, good},
+        {"show 0", {ch(0, 0, 0)}, good},
+        {"first >= show", {ch(0, 3, 3)}, good},
+        {"mask bits at or past show", {ch(0, 0, 3)}, bits_past_show},
+        {"no bone carried", {ch(0, 0, 3)}, empty_mask},
+        {"records past the payload", {ch(0, 0, 3)}, short_records},
+        {"bytes left over", {ch(0, 0, 3)}, trailing},
+        {"mask past the payload", {ch(0, 0, 200)}, {}},
+        {"second chunk bad", {ch(0, 0, 3), ch(0, 0, 3, CHUNK_SCALED)}, two},
+        {"unknown instance's chunk malformed", {ch(9, 0, 3), ch(0, 0, 3)}, trailing},
+        {"chunks without payload", {ch(0, 0, 3)}, {}},
     };
     for (const Case& c : cases) {
         EXPECT_FALSE(read_datagram(frame_datagram(c.chunks, c.payload), runs)) << c.what;
         EXPECT_TRUE(runs.empty()) << c.what;
     }
+}
+
+// A chunk of an instance the receiver does not know yet (announced on the
+// control channel after its first frames) is skipped by its declared record
+// size; the known instance's chunk after it still applies.
+TEST(NetFrame, SkipsChunksOfUnknownInstances) {
+    std::vector<uint8_t> pl = {0b00000011};  // unknown instance 9: bones 0, 1 of 14-byte records
+    pl.resize(1 + 28, 7);
+    const std::vector<uint8_t> root(ROOT_BYTES, 0);
+    pl.insert(pl.end(), root.begin(), root.end());  // instance 0: root block, bone 0 of show 1
+    pl.push_back(0b1);
+    pl.resize(pl.size() + 12, 9);
+    std::vector<ChunkRun> runs;
+    ASSERT_TRUE(read_datagram(frame_datagram({ch(9, 0, 2, CHUNK_SCALED), ch(0, 0, 1, CHUNK_ROOT)}, pl), runs));
+    ASSERT_EQ(runs.size(), 1u);
+    EXPECT_EQ(runs[0].instance, 0);
+    EXPECT_EQ(runs[0].offset, 1u + 28 + ROOT_BYTES + 1);
 }
 
 TEST(NetFrame, RandomFramesAreRefusedOrReadInBounds) {
@@ -125,7 +150,7 @@ TEST(NetFrame, RandomFramesAreRefusedOrReadInBounds) {
     std::vector<ChunkRun> runs;
     for (int i = 0; i < 20000; ++i) {
         std::vector<wire::Chunk> chunks(rng() % 4);
-        for (auto& c : chunks) c = wire::Chunk(uint16_t(rng() % 4), uint8_t(rng() % 8), uint8_t(rng() % 24));
+        for (auto& c : chunks) c = ch(int(rng() % 4), int(rng() % 8), int(rng() % 24), uint8_t(rng() % 4));
         std::vector<uint8_t> pl(rng() % 80);
         for (auto& b : pl) b = uint8_t(rng() % 3 ? rng() % 4 : rng());
         accepted += read_datagram(frame_datagram(chunks, pl), runs);  // bounds checked in read_datagram()
@@ -147,7 +172,7 @@ TEST(NetFrame, PackerRoundTripsPicksOverSeveralDatagrams) {
     for (int i = 0; i < int(specs.size()); ++i) {
         const int B = f.instances[size_t(i)].bone_count;
         const size_t rs = size_t(f.instances[size_t(i)].record_size);
-        est += WireCost::header(B);
+        est += WireCost::header(f.instances[size_t(i)]);
         // Three disjoint ranges for even instances, everything for odd ones.
         std::vector<std::pair<int, int>> ranges = i % 2 ? std::vector<std::pair<int, int>>{{0, B}}
                                                         : std::vector<std::pair<int, int>>{{0, 2}, {5, 9}, {B - 3, B}};
