@@ -30,7 +30,14 @@ static const char* kUsage =
     "  --max-delay-ms N    the delay adapts up to N to interpolate across gaps (default 600)\n"
     "  --display-rate HZ   displayed frames per second (default 30)\n"
     "  --blend-frames N    frames to blend a bone on/off (default 8)\n"
-    "  --verify            measure displayed vertices against the reference (error metric)\n"
+    "  --publish ASSET     spawn a character of the server's catalogue (its file name as the\n"
+    "                      server lists it, or its index) and publish its pose, driven here\n"
+    "                      by a clip; repeatable. --clip and --walk apply to the last one:\n"
+    "  --clip NAME         the clip it plays (name, index, list or all; default all)\n"
+    "  --walk RADIUS       its root walks a circle of RADIUS bounding-box diagonals\n"
+    "  --publish-rate HZ   poses per second per published character (default 30)\n"
+    "  --verify            measure displayed vertices against the reference (error metric);\n"
+    "                      remote published characters against what their publisher shows\n"
     "  --verify-every N    verify every N-th displayed frame (default 1)\n"
     "  --warmup S          seconds of display left out of bones/error statistics while the\n"
     "                      display delay adapts (default 1; the rate counts from the start)\n"
@@ -45,7 +52,7 @@ static const char* kUsage =
     "                      OpenGL, GPU-skinned from the client's palettes; needs render/)\n"
     "  --snapshot-dir DIR  where the PNGs go (default snapshots/): snapshot_0000.png, ...\n"
     "  --help\n"
-    "Exit codes: 0 ok, 1 runtime error (refused, unreachable, bad data), 2 bad arguments.\n";
+    "Exit codes: 0 ok, 1 runtime error (refused, unreachable, bad data, stream lost), 2 bad arguments.\n";
 
 static std::vector<float> floats(const std::string& s) {
     std::vector<float> v;
@@ -98,7 +105,17 @@ int main(int argc, char** argv) {
                     throw std::invalid_argument("--view camera:... or weights:...");
                 }
                 opt.send_view = true;
-            } else if (a == "--duration") opt.duration = cli::to_number(a, val());
+            } else if (a == "--publish") {
+                PublishOptions p;
+                p.asset = val();
+                opt.publish.push_back(p);
+            } else if (a == "--clip" || a == "--walk") {
+                if (opt.publish.empty()) throw std::invalid_argument(a + " applies to a --publish before it");
+                if (a == "--clip") opt.publish.back().clip = val();
+                else opt.publish.back().walk = cli::to_number(a, val());
+                if (!(opt.publish.back().walk >= 0)) throw std::invalid_argument("--walk must be >= 0");
+            } else if (a == "--publish-rate") opt.publish_rate = cli::to_number(a, val());
+            else if (a == "--duration") opt.duration = cli::to_number(a, val());
             else if (a == "--delay-ms") opt.delay_ms = cli::to_number(a, val());
             else if (a == "--max-delay-ms") opt.max_delay_ms = cli::to_number(a, val());
             else if (a == "--display-rate") opt.display_rate = cli::to_number(a, val());
@@ -123,7 +140,8 @@ int main(int argc, char** argv) {
 #ifndef PROGSKIN_HAVE_RENDER
         if (opt.snapshot_every > 0) throw std::invalid_argument("--snapshot-every: this build has no renderer (render/)");
 #endif
-        if (!(opt.duration > 0) || !(opt.display_rate > 0) || opt.max_kbps < 0 || opt.blend_frames < 1 || opt.verify_every < 1)
+        if (!(opt.duration > 0) || !(opt.display_rate > 0) || opt.max_kbps < 0 || opt.blend_frames < 1 || opt.verify_every < 1 ||
+            !(opt.publish_rate > 0 && opt.publish_rate <= 240))
             throw std::invalid_argument("argument out of range");
     } catch (const std::exception& e) {
         std::fprintf(stderr, "progskin-client: %s\n%s", e.what(), kUsage);

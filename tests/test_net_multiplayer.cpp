@@ -1,0 +1,195 @@
+// Live multiplayer sync on loopback (issue: "Live multiplayer character
+// sync"): eight players on a catalogue-only server, seven embedded
+// progskin::net::Client objects driven from this thread's game loop and one
+// separate progskin-client process, each publishing a character driven by
+// a clip and walking a circle of 100 diagonals. Every player sees the other
+// seven within 1 s of their spawn and never itself; one leaves and one joins
+// mid-run and everybody notices; the separate process measures what it
+// displays of the others against what their publishers display (--verify).
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <future>
+#include <map>
+#include <set>
+
+#include "animation.h"
+#include "net_test_support.h"
+#include "wire.h"
+
+using namespace progskin;
+using namespace progskin::net;
+using progskin::net::testing::default_assets;
+using progskin::net::testing::RunningServer;
+
+namespace {
+
+struct Player {
+    std::unique_ptr<Client> client;
+    int handle = -1, instance = -1, asset = 0;
+    double spawned_at = -1;  // when the server confirmed the spawn
+    ClipSelection selection;
+    glm::dvec3 center{0.0};
+    double radius = 0, speed = 0;
+    uint64_t start_us = 0;
+    std::vector<glm::dmat4> mats;
+    std::vector<Mat34> skin;
+    std::map<int, double> first_seen;  // instance -> time first displayed
+    std::set<int> removed;             // instances it was told are gone
+    bool saw_itself = false, left = false;
+};
+
+uint64_t now_us() { return uint64_t(now_seconds() * 1e6); }
+
+void start(Player& p, uint16_t port, int index) {
+    ClientConfig cfg;
+    cfg.cache_dir = RunningServer::cache_dir();
+    cfg.name = "player" + std::to_string(index);
+    p.client = std::make_unique<Client>(cfg);
+    p.client->connect("127.0.0.1", port);
+    p.asset = index % 2;
+}
+
+void step(Player& p, double now, int index) {
+    Client& c = *p.client;
+    c.update(now);
+    ASSERT_NE(c.state(), ClientState::Failed) << "player " << index << ": " << c.error();
+    for (const ClientEvent& e : c.events()) {
+        if (e.type == ClientEvent::Type::Spawned) {
+            p.instance = e.instance;
+            p.spawned_at = now;
+        }
+        ASSERT_NE(e.type, ClientEvent::Type::SpawnRefused) << e.text;
+        if (e.type == ClientEvent::Type::CharacterRemoved) p.removed.insert(e.instance);
+    }
+    if (p.handle < 0 && !c.assets().empty() && c.assets()[size_t(p.asset)]) {
+        const ClientAsset& a = *c.assets()[size_t(p.asset)];
+        p.selection = select_clips(a.character, "all");
+        p.radius = 100.0 * a.diagonal;
+        p.speed = 0.75 * a.diagonal;
+        p.center = glm::dvec3(double(index) * 500.0 * a.diagonal, 0.0, 0.0);
+        p.start_us = now_us();
+        p.mats.resize(a.character.joint_count());
+        p.skin.resize(a.character.joint_count());
+        SpawnSpec s;
+        s.asset = p.asset;
+        s.clips = p.selection.clips;
+        s.start_us = p.start_us;
+        s.walk_center = p.center;
+        s.walk_radius = p.radius;
+        s.walk_speed = p.speed;
+        p.handle = c.spawn(s);
+    }
+    if (p.instance >= 0) {
+        const ClientAsset& a = *c.assets()[size_t(p.asset)];
+        const uint64_t t_us = now_us();
+        const double t = double(t_us - p.start_us) * 1e-6;
+        sample_skinning_matrices(a.character, p.selection, p.selection.looped(t), p.mats);
+        for (size_t j = 0; j < p.mats.size(); ++j) p.skin[j] = Mat34::from_glm(p.mats[j]);
+        RootPose root = walk_root(p.center, p.radius, p.speed, t);
+        root.source_us = t_us;
+        c.publish(p.handle, root, p.skin);
+    }
+    for (const RemoteCharacter& rc : c.characters()) {
+        if (rc.instance == p.instance) p.saw_itself = true;
+        if (rc.shown && !p.first_seen.count(rc.instance)) p.first_seen[rc.instance] = now;
+    }
+}
+
+}  // namespace
+
+TEST(NetMultiplayer, EightPlayersSeeEachOtherJoinAndLeave) {
+    ServerConfig cfg;
+    cfg.bind_address = "127.0.0.1";
+    Server server(cfg, default_assets(), {});  // catalogue only (--no-scene)
+    std::thread st([&] { server.run(); });
+    const uint16_t port = server.tcp_port();
+
+    // The separate process: publishes a CesiumMan walking 100 diagonals out
+    // and verifies what it displays of everybody else.
+    const std::string cmd = std::string(PROGSKIN_BIN_DIR) + "/client/progskin-client --server 127.0.0.1:" + std::to_string(port) +
+                            " --publish CesiumMan.glb --walk 100 --duration 7 --warmup 1.5 --verify --verify-every 3 --report json --cache " +
+                            RunningServer::cache_dir() + " 2>&1";
+    auto external = std::async(std::launch::async, [cmd] {
+        std::string out;
+        FILE* f = ::popen(cmd.c_str(), "r");
+        if (!f) return std::make_pair(-1, out);
+        char buf[4096];
+        size_t n;
+        while ((n = std::fread(buf, 1, sizeof buf, f)) > 0) out.append(buf, n);
+        const int rc = ::pclose(f);
+        return std::make_pair(WIFEXITED(rc) ? WEXITSTATUS(rc) : -1, out);
+    });
+
+    std::vector<Player> players(8);  // players[7] joins when players[6] leaves
+    for (int i = 0; i < 7; ++i) start(players[size_t(i)], port, i);
+    const double t0 = now_seconds();
+    double left_at = -1;
+    while (now_seconds() - t0 < 9.0) {
+        const double now = now_seconds();
+        for (int i = 0; i < 8; ++i) {
+            Player& p = players[size_t(i)];
+            if (!p.client || p.left) continue;
+            step(p, now, i);
+            if (HasFatalFailure()) break;
+        }
+        if (HasFatalFailure()) break;
+        if (left_at < 0 && now - t0 > 4.5) {  // player 6 leaves, player 7 joins
+            players[6].client->close();
+            players[6].left = true;
+            left_at = now;
+            start(players[7], port, 7);
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(16));
+    }
+    const auto [rc, out] = external.get();
+    server.stop();
+    st.join();
+    ASSERT_FALSE(HasFatalFailure());
+
+    // Everybody saw everybody else within 1 s of their spawn, never itself.
+    std::set<int> external_instances;
+    for (int i = 0; i < 8; ++i) {
+        const Player& p = players[size_t(i)];
+        ASSERT_GE(p.instance, 0) << "player " << i << " never spawned";
+        EXPECT_FALSE(p.saw_itself) << "player " << i;
+        for (const auto& [inst, t] : p.first_seen) {
+            bool in_process = false;
+            for (const Player& q : players) in_process = in_process || q.instance == inst;
+            if (!in_process) external_instances.insert(inst);
+        }
+    }
+    ASSERT_EQ(external_instances.size(), 1u) << "the separate process's character";
+    for (int i = 0; i < 8; ++i) {
+        const Player& p = players[size_t(i)];
+        for (int j = 0; j < 8; ++j) {
+            const Player& q = players[size_t(j)];
+            if (i == j || (i == 6 && j == 7) || (i == 7 && j == 6)) continue;  // 6 left before 7 came
+            auto it = p.first_seen.find(q.instance);
+            ASSERT_NE(it, p.first_seen.end()) << "player " << i << " never saw player " << j;
+            const double since = std::max(q.spawned_at, p.spawned_at);  // the later of the two arrivals
+            EXPECT_LE(it->second - since, 1.0) << "player " << i << " saw player " << j << " late";
+        }
+        EXPECT_EQ(p.first_seen.count(*external_instances.begin()), 1u) << "player " << i << " never saw the process";
+    }
+    // The one who left was removed everywhere.
+    for (int i = 0; i < 6; ++i) {
+        EXPECT_EQ(players[size_t(i)].removed.count(players[6].instance), 1u) << "player " << i;
+    }
+
+    // The separate process: exit 0, saw the others, displayed them within
+    // 0.05 % of the diagonal of what their publishers displayed.
+    ASSERT_EQ(rc, 0) << out;
+    const size_t at = out.find("\"remote\": {");
+    ASSERT_NE(at, std::string::npos) << out;
+    auto field = [&](const std::string& key) {
+        const size_t k = out.find("\"" + key + "\": ", at);
+        return k == std::string::npos ? -1.0 : std::atof(out.c_str() + k + key.size() + 4);
+    };
+    EXPECT_GE(field("characters"), 7) << out;
+    const double rms = field("rms_pct");
+    EXPECT_GE(rms, 0.0) << out;
+    EXPECT_LE(rms, 0.05) << out;
+    EXPECT_GT(field("latency_ms_p50"), 0.0) << out;
+    std::printf("separate process: %s\n", out.c_str());
+}
