@@ -182,7 +182,12 @@ struct Client::Impl {
         bool active = false, announced = false;  // announced: CharacterAdded raised (asset ready)
     };
     std::vector<Remote> remotes;          // indexed by instance id
-    std::vector<RemoteCharacter> shown;   // characters(): refreshed every update
+    // characters(): one entry per character with a view, in instance order;
+    // rebuilt when characters come or go, updated in place every update
+    // (no allocation per frame).
+    std::vector<RemoteCharacter> shown;
+    std::vector<int> shown_ids;
+    bool shown_dirty = true;
 
     // frame stream
     alignas(16) uint8_t buf[2048];
@@ -479,9 +484,10 @@ struct Client::Impl {
         const auto& a = assets[size_t(r.asset)];
         for (int c : r.rc.clip.selection.clips)
             if (size_t(c) >= a->character.clips.size()) return fail("server sent an unknown clip index");
-        r.view = std::make_unique<InstanceView>(a, r.rc.clip, cfg.blend_frames);
+        r.view = std::make_unique<InstanceView>(a, r.rc.clip, cfg.blend_frames, tick_rate);
         r.rc.asset = a.get();
         r.announced = true;
+        shown_dirty = true;
         raise(ClientEvent::Type::CharacterAdded, r.rc.instance, r.asset);
     }
 
@@ -490,6 +496,7 @@ struct Client::Impl {
         Remote& r = remotes[size_t(id)];
         if (r.announced) raise(ClientEvent::Type::CharacterRemoved, id, r.asset);
         r = Remote{};
+        shown_dirty = true;
     }
 
     void on_spawned(const wire::Spawned& m) {
@@ -666,12 +673,14 @@ struct Client::Impl {
         events.clear();
         if (state == ClientState::Idle || state == ClientState::Closed || state == ClientState::Failed) {
             shown.clear();
+            shown_ids.clear();
             return;
         }
         io.poll();
         io.restart();
         if (state == ClientState::Failed || state == ClientState::Closed) {
             shown.clear();
+            shown_ids.clear();
             return;
         }
         if (!tcp_connected) {
@@ -737,7 +746,16 @@ struct Client::Impl {
     // 25% of the elapsed time (the clock runs at 0.75x..1.25x while it
     // adapts), up to max_delay_ms.
     void display(double now) {
-        shown.clear();
+        if (shown_dirty) {
+            shown.clear();
+            shown_ids.clear();
+            for (const auto& r : remotes)
+                if (r.active && r.view) {
+                    shown.push_back(r.rc);
+                    shown_ids.push_back(r.rc.instance);
+                }
+            shown_dirty = false;
+        }
         if (!any_frame) return;
         const double elapsed = last_display_time > 0 ? (now - last_display_time) * tick_rate : 0;
         last_display_time = now;
@@ -749,10 +767,10 @@ struct Client::Impl {
         double d = now * tick_rate + tick_offset - delay_ticks;
         if (cfg.snap_to_ticks) d = std::floor(d);
         display_tick = d;
-        for (auto& r : remotes) {
-            if (!r.active || !r.view) continue;
+        for (size_t k = 0; k < shown.size(); ++k) {
+            Remote& r = remotes[size_t(shown_ids[k])];
             InstanceView& v = *r.view;
-            RemoteCharacter& rc = r.rc;
+            RemoteCharacter& rc = shown[k];
             rc.shown = v.buffer().covers(d) && v.display(d);
             rc.display_tick = d;
             if (rc.shown) {
@@ -764,7 +782,6 @@ struct Client::Impl {
                 rc.palette = {};
                 rc.bones = 0;
             }
-            shown.push_back(rc);
         }
     }
 

@@ -33,8 +33,21 @@ double ClipInfo::at(double u) const {
 
 double ClipInfo::clip_time(double tick, double tick_rate) const { return at(time_offset + tick / tick_rate * speed); }
 
-InstanceView::InstanceView(std::shared_ptr<const ClientAsset> asset, ClipInfo clip, int blend_frames)
-    : asset_(std::move(asset)), clip_(std::move(clip)), buffer_(asset_->skin.bone_count(), asset_->format) {
+InstanceView::InstanceView(std::shared_ptr<const ClientAsset> asset, ClipInfo clip, int blend_frames, double tick_rate)
+    : asset_(std::move(asset)), clip_(std::move(clip)), buffer_(asset_->skin.bone_count(), asset_->format), tick_rate_(tick_rate) {
+    // A looping clip wraps where offset + tick / rate * speed crosses a
+    // multiple of its duration: the one between two frames' ticks.
+    if (!clip_.once && !clip_.selection.clips.empty() && clip_.selection.duration() > 0 && clip_.speed > 0)
+        buffer_.set_boundary(
+            [](const void* ctx, double ta, double tc) {
+                const auto* v = static_cast<const InstanceView*>(ctx);
+                const double dur = v->clip_.selection.duration(), rate = v->tick_rate_, speed = v->clip_.speed;
+                const double ua = v->clip_.time_offset + ta / rate * speed, uc = v->clip_.time_offset + tc / rate * speed;
+                const double n = std::floor(uc / dur);
+                if (n * dur <= ua) return std::nan("");  // no wrap between them
+                return (n * dur - v->clip_.time_offset) / speed * rate;
+            },
+            this);
     const int B = asset_->skin.bone_count();
     blend_frames_ = std::max(1, blend_frames);
     blender_ = LodBlender(B, blend_frames_, 1);
@@ -53,11 +66,17 @@ bool InstanceView::display(double d) {
     blender_.step();
     const int n = blender_.needed();
     BonePose p, pp;
+    const bool local = !clip_.selection.clips.empty();  // a clip the client holds too
     for (int b = 0; b < n; ++b) {
-        double held = 0;
+        double held = 0, anchor = 0;
         const int parent = asset_->skin.parents[b];
-        if (buffer_.pose(b, d, p, &held)) {
+        if (buffer_.pose(b, d, p, &held, local ? &anchor : nullptr)) {
             own_[b] = compose(p);
+            if (local && !std::isnan(anchor)) {  // across a wrap: carried along the clip from the anchor frame
+                Mat34 scratch;
+                own_[b] = mul(own_[b], carried(asset_->skin.order[b], anchor, d, scratch));
+                continue;
+            }
             // Nothing newer carries this bone yet: hold it relative to its
             // progressive parent (which may be fresher), not frozen in model space.
             if (held < d && parent >= 0 && buffer_.pose(parent, held, pp))
@@ -75,6 +94,22 @@ bool InstanceView::display(double d) {
     job.out = palette_;
     job.run();
     return true;
+}
+
+// L(anchor)^-1 L(d) for one joint, L the clip's skinning matrix at the
+// clip time of a display tick (both evaluated once per display time).
+const Mat34& InstanceView::carried(int joint, double anchor, double d, Mat34& out) {
+    const Character& c = asset_->character;
+    auto eval = [&](double tick, std::vector<glm::dmat4>& mats, double& at) {
+        if (at == tick) return;
+        mats.resize(c.joint_count());
+        sample_skinning_matrices(c, clip_.selection, clip_.clip_time(tick, tick_rate_), mats);
+        at = tick;
+    };
+    eval(anchor, local_anchor_, local_anchor_at_);
+    eval(d, local_d_, local_d_at_);
+    out = Mat34::from_glm(glm::inverse(local_anchor_[size_t(joint)]) * local_d_[size_t(joint)]);
+    return out;
 }
 
 void InstanceView::skin(std::vector<glm::vec3>& out) const {

@@ -45,7 +45,11 @@ struct ClipInfo {
 
 class InstanceView {
 public:
-    InstanceView(std::shared_ptr<const ClientAsset> asset, ClipInfo clip, int blend_frames);
+    // tick_rate: the server's, to place a looping clip's wraps on the display
+    // clock (PoseBuffer::set_boundary).
+    InstanceView(std::shared_ptr<const ClientAsset> asset, ClipInfo clip, int blend_frames, double tick_rate = 30);
+    InstanceView(const InstanceView&) = delete;
+    InstanceView& operator=(const InstanceView&) = delete;
 
     PoseBuffer& buffer() { return buffer_; }
     const ClientAsset& asset() const { return *asset_; }
@@ -69,8 +73,14 @@ private:
     LodBlender blender_;
     bool started_ = false;
     int blend_frames_ = 8;
+    double tick_rate_ = 30;
     std::vector<Mat34> own_, palette_;
     mutable std::vector<glm::dmat4> ref_mats_;
+    // Boundary gaps of a looping clip: the clip's own motion from an anchor
+    // frame to the display time, per joint (M(d) = M(anchor) L(anchor)^-1 L(d)).
+    std::vector<glm::dmat4> local_d_, local_anchor_;
+    double local_d_at_ = -1e300, local_anchor_at_ = -1e300;
+    const Mat34& carried(int joint, double anchor, double d, Mat34& scratch);
     mutable std::vector<Mat34> ref_palette_;
 };
 

@@ -51,7 +51,23 @@ public:
     // Pose of bone b at display tick d; false if bone b was never received.
     // held_at (optional): the tick of the frame whose value is held when no
     // frame after d carries bone b yet, else a value > d.
-    bool pose(int b, double d, BonePose& out, double* held_at = nullptr) const;
+    // anchor_at (optional): when d falls in a known boundary gap (below),
+    // out is the pose of the nearest frame on d's side of the boundary and
+    // *anchor_at its tick, so that the caller can carry it to d along the
+    // clip (InstanceView); else *anchor_at is NaN.
+    bool pose(int b, double d, BonePose& out, double* held_at = nullptr, double* anchor_at = nullptr) const;
+    // When the display falls between the last frame of one epoch (a) and
+    // the first of the next (c), the boundary function tells the display
+    // tick of the discontinuity between them (a clip's wrap: the client
+    // knows the clip), or NaN when unknown (a teleport). Before it, the
+    // older epoch's motion is extrapolated from its last two frames; from
+    // it on, the newer epoch's backwards from its first two (or the caller
+    // carries the nearest one along the clip: anchor_at); unknown: the
+    // older frame is held until the newer one's tick.
+    void set_boundary(double (*boundary)(const void* ctx, double ta, double tc), const void* ctx) {
+        boundary_ = boundary;
+        boundary_ctx_ = ctx;
+    }
     int bone_count() const { return bones_; }
     // World placement at display tick d from the frames that carried a root
     // block (same epoch rules as pose); false when none did.
@@ -79,6 +95,8 @@ private:
     uint32_t newest_ = 0, first_ = 0;
     int last_gap_ = 0;
     bool any_ = false;
+    double (*boundary_)(const void*, double, double) = nullptr;
+    const void* boundary_ctx_ = nullptr;
 };
 
 }  // namespace progskin::net

@@ -186,7 +186,7 @@ ClientReport run_client(const ClientOptions& opt) {
             ++display_count;
             for (const RemoteCharacter& c : chars) {
                 Acc& a = acc[c.instance];
-                a.received = true;
+                a.received = a.received || c.shown;
                 a.asset = c.asset ? c.asset->name : "";
                 a.published = c.publisher.published;
                 if (!c.shown || !warm) continue;

@@ -17,6 +17,26 @@ FrameEncoder::FrameEncoder(std::vector<std::shared_ptr<ServerAsset>> assets, std
         max_joints = std::max(max_joints, a->character.joint_count());
     }
     scratch_.resize(max_joints);
+    std::vector<glm::dmat4> first(max_joints), last(max_joints);
+    for (const auto& a : assets_) {
+        auto& flags = seamless_.emplace_back();
+        const size_t J = a->character.joint_count();
+        for (const ClipSelection& sel : a->selections) {
+            sample_skinning_matrices(a->character, sel, sel.start, std::span<glm::dmat4>(first.data(), J));
+            sample_skinning_matrices(a->character, sel, sel.end, std::span<glm::dmat4>(last.data(), J));
+            // A point at the bind radius moves at most |dR| r + |dt| between them.
+            double worst = 0;
+            for (size_t j = 0; j < J; ++j) {
+                double rot = 0, tr = 0;
+                for (int c = 0; c < 3; ++c) {
+                    for (int r = 0; r < 3; ++r) rot = std::max(rot, std::fabs(first[j][c][r] - last[j][c][r]));
+                    tr = std::max(tr, std::fabs(first[j][3][c] - last[j][3][c]));
+                }
+                worst = std::max(worst, 3.0 * rot * a->bind_radius + 1.75 * tr);
+            }
+            flags.push_back(worst <= 1e-4 * a->diagonal ? 1 : 0);
+        }
+    }
     slots_.reserve(instances.size());
     for (size_t i = 0; i < instances.size(); ++i) {
         try {
@@ -231,6 +251,7 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
             if (!bone_in_range(p, a.format)) ++stats_.poses_out_of_range;  // the box covers the clips: never expected
             encode_bone(p, a.format, out + size_t(b) * rs);
         }
+        if (seamless_[size_t(s.asset)][size_t(s.selection)]) loops = 0;  // the wrap is no discontinuity
         e.epoch = uint8_t(int64_t(slot.teleports) + loops);
         e.valid = true;
     }

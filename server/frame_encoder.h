@@ -10,7 +10,8 @@
 // newest live pose pushed for it (a game server's push_pose, or a player's
 // published records, push_records). Every discontinuity of its motion (a
 // loop wrap, a teleport, a new publisher epoch) changes its epoch, which the
-// chunks carry so that no client interpolates across it.
+// chunks carry so that no client interpolates across it. The wrap of a
+// seamless loop (last pose = first pose) is no discontinuity and keeps it.
 //
 // Thread-safety: add_instance, remove_instance, push_pose, push_records and
 // set_root may be called from any thread; encode from one thread.
@@ -119,6 +120,9 @@ private:
     std::vector<std::shared_ptr<ServerAsset>> assets_;
     float tick_rate_;
     size_t stride_ = 0;             // bytes per slot (the largest asset's records)
+    // Per asset and clip selection: the loop is seamless (its last pose is
+    // its first, to 1e-4 of the diagonal), so a wrap is no discontinuity.
+    std::vector<std::vector<uint8_t>> seamless_;
     EncodedFrame frame_;
     std::vector<glm::dmat4> scratch_;
     mutable std::mutex mutex_;      // slots_, free_, stats_
