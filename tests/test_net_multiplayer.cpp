@@ -193,3 +193,47 @@ TEST(NetMultiplayer, EightPlayersSeeEachOtherJoinAndLeave) {
     EXPECT_GT(field("latency_ms_p50"), 0.0) << out;
     std::printf("separate process: %s\n", out.c_str());
 }
+
+// examples/game_loop.cpp, the embedding example, joins a scene, is given its
+// character and prints the server's characters it displays.
+TEST(NetMultiplayer, GameLoopExampleJoinsAndSeesTheScene) {
+    RunningServer server;
+    const std::string cmd = std::string(PROGSKIN_BIN_DIR) + "/examples/game_loop 127.0.0.1 " +
+                            std::to_string(server.server->tcp_port()) + " 3 2>&1";
+    FILE* f = ::popen(cmd.c_str(), "r");
+    ASSERT_NE(f, nullptr);
+    std::string out;
+    char buf[4096];
+    size_t n;
+    while ((n = std::fread(buf, 1, sizeof buf, f)) > 0) out.append(buf, n);
+    const int rc = ::pclose(f);
+    ASSERT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 0) << out;
+    EXPECT_NE(out.find("I am character"), std::string::npos) << out;
+    EXPECT_NE(out.find("(Fox.glb): 24 bones"), std::string::npos) << out;
+    EXPECT_NE(out.find("(CesiumMan.glb): 19 bones"), std::string::npos) << out;
+}
+
+// A crowd of 5,000 instances reaches a client whole (InstanceAdded batches;
+// Welcome no longer lists instances) and streams.
+TEST(NetMultiplayer, CrowdOf5000InstancesArrives) {
+    RunningServer server(crowd_layout(default_assets(), 5000));
+    ClientConfig cfg;
+    cfg.cache_dir = RunningServer::cache_dir();
+    cfg.max_kbps = 2000;
+    Client client(cfg);
+    client.connect("127.0.0.1", server.server->tcp_port());
+    size_t most = 0;
+    int shown = 0;
+    const double t0 = now_seconds();
+    while (now_seconds() - t0 < 20 && (most < 5000 || shown == 0)) {
+        client.update(now_seconds());
+        ASSERT_NE(client.state(), ClientState::Failed) << client.error();
+        most = std::max(most, client.characters().size());
+        shown = 0;
+        for (const RemoteCharacter& c : client.characters()) shown += c.shown;
+        std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    EXPECT_EQ(most, 5000u);
+    EXPECT_GT(shown, 0);
+    client.close();
+}
