@@ -9,6 +9,7 @@
 // time and the datagrams and rate each client received.
 #include <benchmark/benchmark.h>
 #include <poll.h>
+#include <time.h>
 
 #include <asio.hpp>
 #include <thread>
@@ -104,6 +105,105 @@ static void BM_ServerTick200x100(benchmark::State& st) {
     st.SetLabel("encode 100 + 200 clients select/pack (no sockets); core_load = tick time x 30 Hz");
 }
 BENCHMARK(BM_ServerTick200x100)->Arg(256)->Arg(1000)->Unit(benchmark::kMillisecond);
+
+// CPU seconds of this thread (a shared machine's other load does not count).
+static double thread_seconds() {
+    timespec ts;
+    ::clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
+}
+
+// Players' characters (live poses published by their owners): one tick of
+// a server with P players, each owning one character and watching the
+// others. Per tick: every player's newest pose arrives (the server's checks
+// on a Pose datagram: every record decodes to a valid rotation, then
+// push_records), the frame is encoded once, then per player its importance
+// (its view, its own character excluded), selection and packing.
+// mode 0: everyone sees everyone alike (no view) at 1 Mbit/s each; mode 1:
+// players spread over a 2 km world, each viewing from its own character
+// (far characters cheap), 256 kbit/s each. core_load_at_30Hz: this
+// thread's CPU time per tick x 30; players_per_core = P / load (at this P).
+static void BM_PublishingPlayers(benchmark::State& st) {
+    const int players = int(st.range(0));
+    const bool views = st.range(1) != 0;
+    const double kbps = views ? 256 : 1000;
+    std::vector<InstanceSpec> specs;
+    for (int p = 0; p < players; ++p) {
+        InstanceSpec s;
+        s.asset = p % 2;
+        s.selection = -1;
+        s.owner = uint64_t(p + 1);
+        specs.push_back(s);
+    }
+    FrameEncoder enc(assets(), specs, 30.0f);
+    // Each player's pose source: its asset's clip, sampled as a publisher does.
+    std::vector<std::vector<std::vector<uint8_t>>> poses(2);  // per asset, 30 frames of records
+    for (int a = 0; a < 2; ++a) {
+        const ServerAsset& as = *assets()[size_t(a)];
+        std::vector<glm::dmat4> m(as.character.joint_count());
+        for (int f = 0; f < 30; ++f) {
+            sample_skinning_matrices(as.character, as.selections[0], as.selections[0].start + f / 30.0 * as.selections[0].duration(), m);
+            std::vector<uint8_t> rec(size_t(as.bone_count()) * size_t(as.format.size()));
+            for (int b = 0; b < as.bone_count(); ++b)
+                encode_bone(decompose(Mat34::from_glm(m[size_t(as.skin.order[size_t(b)])])), as.format,
+                            rec.data() + size_t(b) * size_t(as.format.size()));
+            poses[size_t(a)].push_back(std::move(rec));
+        }
+    }
+    std::vector<glm::dvec3> where(static_cast<size_t>(players));
+    for (int p = 0; p < players; ++p) {
+        const double ang = 2.399963 * p, r = views ? 1000.0 * std::sqrt((p + 0.5) / players) : 0.0;
+        where[size_t(p)] = glm::dvec3(r * std::cos(ang), 0.0, r * std::sin(ang));
+    }
+    std::vector<Scheduler> sched(static_cast<size_t>(players));
+    std::vector<RateController> rate(size_t(players), RateController(kbps, kbps));
+    std::vector<float> imp;
+    DatagramPacker packer;
+    std::vector<Pick> picks;
+    std::vector<std::vector<uint8_t>> out;
+    std::array<uint8_t, ROOT_BYTES> root{};
+    uint32_t tick = 0, seq = 0;
+    double busy = 0, sent = 0;
+    for (auto _ : st) {
+        const double t0 = thread_seconds();
+        ++tick;
+        for (int p = 0; p < players; ++p) {
+            const auto& rec = poses[size_t(p % 2)][(tick + uint32_t(p)) % 30];
+            const RecordFormat& fmt = assets()[size_t(p % 2)]->format;
+            bool ok = true;
+            for (size_t r = 0; r < rec.size(); r += size_t(fmt.size())) ok = ok && record_valid(rec.data() + r, fmt);
+            RootPose rp;
+            rp.position = where[size_t(p)];
+            encode_root(rp, root.data());
+            if (ok) enc.push_records(p, tick, 0, 0, rec, root);
+        }
+        const EncodedFrame& f = enc.encode(tick);
+        for (int p = 0; p < players; ++p) {
+            ViewSpec v;
+            if (views) {
+                v.has_camera = true;
+                v.camera = glm::vec3(where[size_t(p)]);
+            }
+            compute_importance(v, f, assets(), uint64_t(p + 1), imp);
+            rate[size_t(p)].refill(1.0 / 30.0);
+            const size_t budget = rate[size_t(p)].budget();
+            if (!budget) continue;
+            out.clear();
+            sched[size_t(p)].select(f, assets(), imp, budget, 30.0f, picks);
+            const size_t w = packer.pack(f, picks, seq, out);
+            rate[size_t(p)].spend(w);
+            sched[size_t(p)].sent(picks, tick);
+            sent += double(w);
+        }
+        busy += thread_seconds() - t0;
+    }
+    const double load = busy / double(st.iterations()) * 30.0;
+    st.counters["core_load_at_30Hz"] = load;
+    st.counters["players_per_core"] = double(players) / load;
+    st.counters["kbps_per_player"] = sent * 8 / 1000 / (double(st.iterations()) / 30.0) / players;
+    st.SetLabel(views ? "players over 2 km, each viewing from its character, 256 kbit/s" : "everyone sees everyone, 1 Mbit/s");
+}
+BENCHMARK(BM_PublishingPlayers)->Args({16, 0})->Args({200, 0})->Args({200, 1})->Unit(benchmark::kMillisecond);
 
 // ---------------------------------------------------------------- loopback --
 
