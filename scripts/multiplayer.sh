@@ -1,0 +1,85 @@
+#!/usr/bin/env bash
+# multiplayer.sh — players publishing their own characters on loopback: a
+# catalogue-only progskin-server (--no-scene) and N progskin-client players,
+# each spawning a character (Fox and CesiumMan in turn) driven by its clip and
+# walking a circle of --walk diagonals; one observer (also a player) verifies
+# what it displays of the others against what their publishers display at
+# the same world time (--verify) and measures the latency from a publisher's
+# send to its display (loopback: one clock). Prints, per observer cap: its
+# measured rate, remote characters, RMS / max error in % of the diagonal and
+# latency p50 / p99 (the observer's display delay pinned at 100 ms).
+#
+#   scripts/multiplayer.sh [--players N] [--caps "64 0"] [--duration S] [--walk R] [--build DIR]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+BUILD=${PROGSKIN_BUILD:-build}
+PLAYERS=8
+CAPS="64 0"
+DURATION=8
+WALK=100
+while (($#)); do
+  case "$1" in
+    --players) PLAYERS=$2; shift 2;;
+    --caps) CAPS=$2; shift 2;;
+    --duration) DURATION=$2; shift 2;;
+    --walk) WALK=$2; shift 2;;
+    --build) BUILD=$2; shift 2;;
+    -h|--help) sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
+    *) echo "multiplayer.sh: unknown argument $1" >&2; exit 2;;
+  esac
+done
+SERVER=$BUILD/server/progskin-server
+CLIENT=$BUILD/client/progskin-client
+[[ -x $SERVER && -x $CLIENT ]] || { echo "multiplayer.sh: build first (bash scripts/build.sh)" >&2; exit 1; }
+
+TMP=$(mktemp -d)
+PIDS=()
+cleanup() {
+  for p in "${PIDS[@]:-}"; do [[ -n $p ]] && kill "$p" 2>/dev/null || true; done
+  wait 2>/dev/null || true
+  rm -rf "$TMP"
+}
+trap cleanup EXIT INT TERM
+
+printf "%10s %12s %8s %10s %10s %10s %10s\n" "cap kbit/s" "rate kbit/s" "remote" "RMS %diag" "max %diag" "p50 ms" "p99 ms"
+for cap in $CAPS; do
+  "$SERVER" --port 0 --no-scene --duration $((DURATION + 30)) >"$TMP/server.out" 2>"$TMP/server.err" &
+  SPID=$!
+  PIDS+=($SPID)
+  PORT=""
+  for _ in $(seq 1 200); do
+    PORT=$(grep -o 'TCP [0-9]*' "$TMP/server.out" 2>/dev/null | cut -d' ' -f2 || true)
+    [[ -n $PORT ]] && break
+    kill -0 $SPID 2>/dev/null || { cat "$TMP/server.err" >&2; exit 1; }
+    sleep 0.1
+  done
+  "$CLIENT" --server 127.0.0.1:$PORT --duration 0.2 --publish 0 --cache "$TMP/cache" >/dev/null 2>&1 || true
+  OTHERS=()
+  for i in $(seq 1 $((PLAYERS - 1))); do
+    asset=$((i % 2))
+    "$CLIENT" --server 127.0.0.1:$PORT --publish $asset --walk "$WALK" --duration $((DURATION + 4)) \
+      --cache "$TMP/cache" --name "player$i" >/dev/null 2>"$TMP/p$i.err" &
+    OTHERS+=($!)
+    PIDS+=($!)
+  done
+  sleep 1
+  capopt=()
+  [[ $cap != 0 ]] && capopt=(--max-kbps "$cap")
+  if ! "$CLIENT" --server 127.0.0.1:$PORT --publish 0 --walk "$WALK" --duration "$DURATION" --warmup 2 --verify \
+       --verify-every 2 --delay-ms 100 --max-delay-ms 100 --report json --cache "$TMP/cache" --name observer "${capopt[@]}" >"$TMP/obs.json" 2>"$TMP/obs.err"; then
+    cat "$TMP/obs.err" >&2; exit 1
+  fi
+  for p in "${OTHERS[@]}"; do wait "$p" || { echo "multiplayer.sh: a player failed" >&2; cat "$TMP"/p*.err >&2; exit 1; }; done
+  kill $SPID 2>/dev/null || true
+  wait $SPID 2>/dev/null || true
+  python3 - "$TMP/obs.json" "$cap" <<'PY'
+import json, sys
+r = json.load(open(sys.argv[1]))
+m = r["remote"]
+cap = "unlimited" if sys.argv[2] == "0" else sys.argv[2]
+f = lambda v: "%10.4f" % v if v is not None else "%10s" % "-"
+g = lambda v: "%10.1f" % v if v is not None else "%10s" % "-"
+print("%10s %12.1f %8d %s %s %s %s" % (cap, r["rate_kbps"], m["characters"], f(m["rms_pct"]), f(m["max_pct"]),
+      g(m["latency_ms_p50"]), g(m["latency_ms_p99"])))
+PY
+done
