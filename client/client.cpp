@@ -33,6 +33,45 @@ using asio::ip::tcp;
 using asio::ip::udp;
 namespace fs = std::filesystem;
 
+std::string read_instance(const wire::Instance& in, size_t catalogue_size, RemoteCharacter& rc) {
+    if (in.asset() >= catalogue_size) return "asset " + std::to_string(in.asset()) + " is not in the catalogue";
+    rc = RemoteCharacter{};
+    rc.instance = in.id();
+    if (in.clips())
+        for (int c : *in.clips()) {
+            if (c < 0) return "negative clip index";
+            rc.clip.selection.clips.push_back(c);
+        }
+    rc.clip.selection.start = in.clip_start();
+    rc.clip.selection.end = in.clip_end();
+    rc.clip.time_offset = in.time_offset();
+    rc.clip.speed = in.speed();
+    rc.clip.once = rc.once = in.once();
+    auto finite = [](double v) { return std::isfinite(v); };
+    if (!finite(in.clip_start()) || !finite(in.clip_end()) || in.clip_end() < in.clip_start() || !finite(in.time_offset()) ||
+        !finite(in.speed()))
+        return "clip times not finite or reversed";
+    if (in.position()) {
+        rc.root.position = glm::dvec3(in.position()->x(), in.position()->y(), in.position()->z());
+        if (!finite(rc.root.position.x) || !finite(rc.root.position.y) || !finite(rc.root.position.z)) return "position not finite";
+    }
+    if (in.rotation()) {
+        const glm::quat q(in.rotation()->w(), in.rotation()->x(), in.rotation()->y(), in.rotation()->z());
+        const float len = glm::length(q);
+        if (!std::isfinite(len) || std::fabs(len - 1.0f) > 1e-3f) return "rotation is not a unit quaternion";
+        rc.root.rotation = q / len;
+    }
+    rc.publisher.published = in.published();
+    rc.publisher.start_us = in.publisher_start_us();
+    if (in.walk_center()) rc.publisher.walk_center = {in.walk_center()->x(), in.walk_center()->y(), in.walk_center()->z()};
+    rc.publisher.walk_radius = in.walk_radius();
+    rc.publisher.walk_speed = in.walk_speed();
+    if (!finite(rc.publisher.walk_center.x) || !finite(rc.publisher.walk_center.y) || !finite(rc.publisher.walk_center.z) ||
+        !finite(rc.publisher.walk_radius) || !finite(rc.publisher.walk_speed))
+        return "walk not finite";
+    return {};
+}
+
 RootPose walk_root(const glm::dvec3& center, double radius, double speed, double t) {
     RootPose r;
     r.position = center;
@@ -442,8 +481,10 @@ struct Client::Impl {
 
     // ---------------------------------------------------------- instances --
     bool on_instance_added(const wire::Instance& in) {
-        if (in.asset() >= catalogue.size()) {
-            fail("server sent an instance of an unknown asset");
+        RemoteCharacter rc;
+        const std::string why = read_instance(in, catalogue.size(), rc);
+        if (!why.empty()) {
+            fail("server sent a bad instance: " + why);
             return false;
         }
         if (remotes.size() <= in.id()) remotes.resize(size_t(in.id()) + 1);
@@ -452,29 +493,7 @@ struct Client::Impl {
         r = Remote{};
         r.active = true;
         r.asset = in.asset();
-        RemoteCharacter& rc = r.rc;
-        rc.instance = in.id();
-        if (in.clips())
-            for (int c : *in.clips()) {
-                if (c < 0) {
-                    fail("server sent a negative clip index");
-                    return false;
-                }
-                rc.clip.selection.clips.push_back(c);
-            }
-        rc.clip.selection.start = in.clip_start();
-        rc.clip.selection.end = in.clip_end();
-        rc.clip.time_offset = in.time_offset();
-        rc.clip.speed = in.speed();
-        rc.clip.once = rc.once = in.once();
-        if (in.position()) rc.root.position = glm::dvec3(in.position()->x(), in.position()->y(), in.position()->z());
-        if (in.rotation()) rc.root.rotation = glm::normalize(glm::quat(in.rotation()->w(), in.rotation()->x(), in.rotation()->y(), in.rotation()->z()));
-        if (!std::isfinite(rc.root.rotation.w)) rc.root.rotation = glm::quat(1, 0, 0, 0);
-        rc.publisher.published = in.published();
-        rc.publisher.start_us = in.publisher_start_us();
-        if (in.walk_center()) rc.publisher.walk_center = {in.walk_center()->x(), in.walk_center()->y(), in.walk_center()->z()};
-        rc.publisher.walk_radius = in.walk_radius();
-        rc.publisher.walk_speed = in.walk_speed();
+        r.rc = std::move(rc);
         if (catalogue[size_t(r.asset)].ready) make_view(r);
         return true;
     }

@@ -37,6 +37,7 @@
 #include "client_palette.h"
 #include "progressive_skin.h"
 #include "view.h"
+#include "wire.h"
 
 namespace progskin::net {
 
@@ -176,6 +177,14 @@ private:
     struct Impl;
     std::unique_ptr<Impl> impl_;
 };
+
+// Reads an announced instance (control.fbs Instance) of a catalogue of
+// `catalogue_size` assets into `out` (instance, clip, placement, publisher;
+// asset and palette unset). Returns an empty string, or what is wrong (an
+// unknown asset, a negative clip index, a value not finite, a rotation that
+// is not a unit quaternion). Clip indices are checked against the asset
+// once it is loaded. O(clips), allocates the clip list.
+std::string read_instance(const wire::Instance& in, size_t catalogue_size, RemoteCharacter& out);
 
 // The world placement of a character walking a circle of `radius` around
 // `center` at `speed` units/s, t seconds after it started (facing along the

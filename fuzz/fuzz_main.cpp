@@ -1,11 +1,14 @@
 // libFuzzer driver: the glTF importer, or with PROGSKIN_FUZZ_FRAME_STREAM the
-// frame stream (scripts/fuzz.sh builds them with clang
+// frame stream, or with PROGSKIN_FUZZ_CONTROL the control messages
+// (scripts/fuzz.sh builds them with clang
 // -fsanitize=fuzzer,address,undefined).
 #include "fuzz_targets.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
-#ifdef PROGSKIN_FUZZ_FRAME_STREAM
+#if defined(PROGSKIN_FUZZ_FRAME_STREAM)
     progskin::fuzz::frame_stream(data, size);
+#elif defined(PROGSKIN_FUZZ_CONTROL)
+    progskin::fuzz::control_message(data, size);
 #else
     progskin::fuzz::gltf_import(data, size);
 #endif

@@ -25,4 +25,12 @@ int gltf_import(const uint8_t* data, size_t size);
 // datagram was accepted, 0 when it was dropped.
 int frame_stream(const uint8_t* data, size_t size);
 
+// (fuzz_net_targets.cpp.) Treats the bytes as one control message body (TCP,
+// after its length) the way each side reads it: verify_control, then the
+// client's read_instance for every InstanceAdded entry (a catalogue of 2
+// assets), the server's read_spawn for a Spawn (2 assets without clips), and
+// every field of InstanceRemoved, Spawned, Despawn. Returns 1 when the
+// message was accepted, 0 when it was refused.
+int control_message(const uint8_t* data, size_t size);
+
 }  // namespace progskin::fuzz

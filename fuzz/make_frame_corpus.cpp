@@ -79,6 +79,38 @@ int main(int argc, char** argv) {
         auto v = fbb.CreateVector(rec);
         write(dir, "pose", finish(fbb, wire::DatagramBody::Pose, wire::CreatePose(fbb, 0x1234, 0x5678, 2, 17, 1, 0, r, v).Union()));
     }
-    std::printf("make_frame_corpus: wrote %s\n", dir.string().c_str());
+    // Control messages of players' characters: fuzz/corpus/control (beside DIR).
+    const std::filesystem::path cdir = dir.parent_path() / "control";
+    std::filesystem::create_directories(cdir);
+    auto control = [&](const std::string& name, wire::ControlBody type, flatbuffers::Offset<void> body) {
+        fbb.Finish(wire::CreateControl(fbb, type, body), wire::ControlIdentifier());
+        write(cdir, name, {fbb.GetBufferPointer(), fbb.GetBufferPointer() + fbb.GetSize()});
+        fbb.Clear();
+    };
+    fbb.Clear();
+    {
+        wire::Vec3 pos(1.5f, 0.0f, -2.0f);
+        wire::Quat rot(0.0f, 0.38268343f, 0.0f, 0.92387953f);
+        wire::DVec3 centre(100.0, 0.0, 50.0);
+        std::vector<int32_t> clips = {0, 2};
+        std::vector<flatbuffers::Offset<wire::Instance>> is;
+        for (int i = 0; i < 3; ++i) {
+            auto vc = fbb.CreateVector(clips);
+            is.push_back(wire::CreateInstance(fbb, uint16_t(i), uint16_t(i % 2), &pos, vc, 0.0f, 3.4f, 0.5f * float(i), 1.0f, i == 2,
+                                              &rot, i == 1, 123456789, &centre, 200.0, 1.4));
+        }
+        auto v = fbb.CreateVector(is);
+        control("instance-added", wire::ControlBody::InstanceAdded, wire::CreateInstanceAdded(fbb, v).Union());
+        std::vector<uint16_t> ids = {0, 2, 7};
+        auto vi = fbb.CreateVector(ids);
+        control("instance-removed", wire::ControlBody::InstanceRemoved, wire::CreateInstanceRemoved(fbb, vi).Union());
+        auto vc = fbb.CreateVector(std::vector<int32_t>{});
+        control("spawn", wire::ControlBody::Spawn,
+                wire::CreateSpawn(fbb, 7, 1, vc, false, 1.0f, 987654321, &centre, 150.0, 1.4, &pos).Union());
+        auto reason = fbb.CreateString("");
+        control("spawned", wire::ControlBody::Spawned, wire::CreateSpawned(fbb, 7, true, 12, reason).Union());
+        control("despawn", wire::ControlBody::Despawn, wire::CreateDespawn(fbb, 12).Union());
+    }
+    std::printf("make_frame_corpus: wrote %s and %s\n", dir.string().c_str(), cdir.string().c_str());
     return 0;
 }

@@ -24,7 +24,10 @@ const wire::Control* verify_control(std::span<const uint8_t> body) {
     flatbuffers::Verifier v(body.data(), body.size(), opt);
     if (!wire::VerifyControlBuffer(v)) return nullptr;
     const wire::Control* c = wire::GetControl(body.data());
-    if (c->body_type() == wire::ControlBody::NONE) return nullptr;
+    // The verifier accepts a union whose type is set but whose table is
+    // absent, and types it does not know (forward compatibility): neither
+    // is a message this version can read.
+    if (c->body_type() == wire::ControlBody::NONE || c->body_type() > wire::ControlBody::MAX || !c->body()) return nullptr;
     return c;
 }
 
@@ -36,7 +39,7 @@ const wire::Datagram* verify_datagram(std::span<const uint8_t> d) {
     flatbuffers::Verifier v(d.data(), d.size(), opt);
     if (!wire::VerifyDatagramBuffer(v)) return nullptr;
     const wire::Datagram* g = wire::GetDatagram(d.data());
-    if (g->body_type() == wire::DatagramBody::NONE) return nullptr;
+    if (g->body_type() == wire::DatagramBody::NONE || g->body_type() > wire::DatagramBody::MAX || !g->body()) return nullptr;
     return g;
 }
 

@@ -36,7 +36,9 @@ inline constexpr size_t MAX_INSTANCES = 65535;        // instance ids are uint16
 uint64_t content_hash(std::span<const uint8_t> bytes);
 std::string hex64(uint64_t v);
 
-// Checks a received control body / datagram. Returns the root or nullptr.
+// Checks a received control body / datagram: the FlatBuffers verifier, then
+// a body of a type this version knows and present (the verifier passes a
+// union type without its table). Returns the root or nullptr.
 const wire::Control* verify_control(std::span<const uint8_t> body);
 const wire::Datagram* verify_datagram(std::span<const uint8_t> datagram);
 

@@ -382,29 +382,9 @@ struct Server::Impl {
     void handle_spawn(const std::shared_ptr<Session>& s, const wire::Spawn& m) {
         if (s->owned.size() >= size_t(MAX_SPAWNED))
             return spawned(s, m.request(), false, 0, "this session owns " + std::to_string(MAX_SPAWNED) + " characters already");
-        if (m.asset() >= assets.size()) return spawned(s, m.request(), false, 0, "no asset " + std::to_string(m.asset()));
-        const ServerAsset& a = *assets[m.asset()];
         InstanceSpec sp;
-        sp.asset = m.asset();
-        sp.selection = -1;
-        sp.owner = s->id;
-        sp.once = m.once();
-        sp.speed = m.speed();
-        if (m.clips())
-            for (int c : *m.clips()) {
-                if (c < 0 || size_t(c) >= a.character.clips.size())
-                    return spawned(s, m.request(), false, 0, "no clip " + std::to_string(c) + " in " + a.name);
-                sp.announced_clips.push_back(c);
-            }
-        sp.publisher_start_us = m.publisher_start_us();
-        if (m.walk_center()) sp.walk_center = {m.walk_center()->x(), m.walk_center()->y(), m.walk_center()->z()};
-        sp.walk_radius = m.walk_radius();
-        sp.walk_speed = m.walk_speed();
-        if (m.position()) sp.position = {m.position()->x(), m.position()->y(), m.position()->z()};
-        if (!std::isfinite(sp.speed) || !std::isfinite(sp.walk_radius) || !std::isfinite(sp.walk_speed) ||
-            !std::isfinite(sp.walk_center.x) || !std::isfinite(sp.walk_center.y) || !std::isfinite(sp.walk_center.z) ||
-            !std::isfinite(sp.position.x) || !std::isfinite(sp.position.y) || !std::isfinite(sp.position.z))
-            return spawned(s, m.request(), false, 0, "spawn values must be finite");
+        const std::string why = read_spawn(m, assets, s->id, sp);
+        if (!why.empty()) return spawned(s, m.request(), false, 0, why);
         int id;
         try {
             id = add_instance(sp);
@@ -412,7 +392,7 @@ struct Server::Impl {
             return spawned(s, m.request(), false, 0, e.what());
         }
         s->owned.push_back({id, 0.0, now_seconds()});
-        log("session " + hex64(s->id) + " spawned " + a.name + " as instance " + std::to_string(id));
+        log("session " + hex64(s->id) + " spawned " + assets[size_t(sp.asset)]->name + " as instance " + std::to_string(id));
         spawned(s, m.request(), true, id, "");
     }
 
@@ -715,6 +695,35 @@ struct Server::Impl {
         });
     }
 };
+
+std::string read_spawn(const wire::Spawn& m, const std::vector<std::shared_ptr<ServerAsset>>& assets, uint64_t owner,
+                       InstanceSpec& sp) {
+    if (m.asset() >= assets.size()) return "no asset " + std::to_string(m.asset());
+    const ServerAsset& a = *assets[m.asset()];
+    sp = InstanceSpec{};
+    sp.asset = m.asset();
+    sp.selection = -1;
+    sp.owner = owner;
+    sp.once = m.once();
+    sp.speed = m.speed();
+    if (m.clips())
+        for (int c : *m.clips()) {
+            if (c < 0 || size_t(c) >= a.character.clips.size()) return "no clip " + std::to_string(c) + " in " + a.name;
+            sp.announced_clips.push_back(c);
+        }
+    sp.publisher_start_us = m.publisher_start_us();
+    if (m.walk_center()) sp.walk_center = {m.walk_center()->x(), m.walk_center()->y(), m.walk_center()->z()};
+    sp.walk_radius = m.walk_radius();
+    sp.walk_speed = m.walk_speed();
+    if (m.position()) sp.position = {m.position()->x(), m.position()->y(), m.position()->z()};
+    if (!std::isfinite(sp.speed) || !std::isfinite(sp.walk_radius) || !std::isfinite(sp.walk_speed) ||
+        !std::isfinite(sp.walk_center.x) || !std::isfinite(sp.walk_center.y) || !std::isfinite(sp.walk_center.z) ||
+        !std::isfinite(sp.position.x) || !std::isfinite(sp.position.y) || !std::isfinite(sp.position.z))
+        return "spawn values must be finite";
+    if (!(std::fabs(sp.position.x) < 2e6f && std::fabs(sp.position.y) < 2e6f && std::fabs(sp.position.z) < 2e6f))
+        return "spawn position outside the world (+-2,000 km)";
+    return {};
+}
 
 Server::Server(ServerConfig config, std::vector<std::shared_ptr<ServerAsset>> assets, std::vector<InstanceSpec> instances)
     : impl_(std::make_unique<Impl>(std::move(config), std::move(assets), std::move(instances))) {}

@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "scene.h"
+#include "wire.h"
 
 namespace progskin::net {
 
@@ -51,6 +52,13 @@ struct ServerStats {
     uint64_t poses_out_of_range = 0;  // live poses refused by the codec's range (FrameEncoder)
     double tick_seconds = 0;      // total time spent in ticks
 };
+
+// Reads a player's Spawn (control.fbs) against the catalogue into an
+// instance owned by `owner` (live poses, the announced clips and walk).
+// Returns an empty string, or why it is refused (an unknown asset or clip, a
+// value not finite, a position outside the world). O(clips).
+std::string read_spawn(const wire::Spawn& m, const std::vector<std::shared_ptr<ServerAsset>>& assets, uint64_t owner,
+                       InstanceSpec& out);
 
 class Server {
 public:

@@ -42,3 +42,24 @@ TEST(NetFuzzCorpus, FrameStreamSurvivesMutations) {
     EXPECT_GT(dropped, tried / 4);
     std::printf("frame stream: %d of %d mutated datagrams dropped\n", dropped, tried);
 }
+
+// The control messages of players' characters (fuzz/corpus/control, written
+// by make_frame_corpus) through the control-message entry point, and
+// mutations of them: each accepted or refused, none crashes.
+TEST(NetFuzzCorpus, ControlMessagesAcceptEverySeedAndSurviveMutations) {
+    const auto seeds = read_corpus("control");
+    ASSERT_GE(seeds.size(), 5u);
+    for (const auto& in : seeds) EXPECT_EQ(progskin::fuzz::control_message(in.data(), in.size()), 1);
+    std::mt19937 rng(23);
+    int refused = 0;
+    for (int i = 0; i < 50000; ++i) {
+        std::vector<uint8_t> d = seeds[size_t(rng()) % seeds.size()];
+        for (int k = 0, edits = 1 + int(rng() % 4); k < edits && !d.empty(); ++k) {
+            const size_t at = size_t(rng()) % d.size();
+            if (rng() % 3) d[at] = uint8_t(rng());
+            else d.resize(at);
+        }
+        refused += 1 - progskin::fuzz::control_message(d.data(), d.size());
+    }
+    EXPECT_GT(refused, 0);
+}
