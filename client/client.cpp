@@ -22,6 +22,7 @@
 #include <memory>
 #include <sstream>
 
+#include "asset_cache.h"
 #include "client_palette.h"
 #include "error.h"
 #include "error_metric.h"
@@ -82,120 +83,10 @@ private:
     std::vector<uint8_t> rx_;
 };
 
-std::string default_cache_dir() {
-    if (const char* x = std::getenv("XDG_CACHE_HOME"); x && *x) return std::string(x) + "/progskin";
-    if (const char* h = std::getenv("HOME"); h && *h) return std::string(h) + "/.cache/progskin";
-    return "/tmp/progskin-cache";
-}
-
-std::vector<uint8_t> read_file(const fs::path& p) {
-    std::ifstream f(p, std::ios::binary);
-    if (!f) return {};
-    return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
-}
-
 const wire::Control* expect(std::vector<uint8_t>& body) {
     const wire::Control* c = verify_control(body);
     if (!c) throw Error("server sent a malformed control message");
     return c;
-}
-
-// Downloads (or finds in the cache) one asset file; returns its path.
-std::string fetch_asset(ControlChannel& ctl, const wire::Asset* a, const std::string& cache_dir, ClientReport& rep,
-                        double timeout, const std::function<void(const std::string&, uint64_t, uint64_t)>& progress) {
-    std::string name = a->name() ? a->name()->str() : "asset.glb";
-    std::string ext = fs::path(name).extension().string();
-    if (ext != ".glb" && ext != ".gltf") ext = ".glb";
-    fs::create_directories(cache_dir);
-    fs::path path = fs::path(cache_dir) / (hex64(a->asset_id()) + ext);
-    if (fs::exists(path)) {
-        auto bytes = read_file(path);
-        if (content_hash(bytes) == a->asset_id()) {
-            ++rep.assets_cached;
-            return path.string();
-        }
-    }
-    const uint64_t size = a->size();
-    if (size == 0 || size > (1ull << 31)) throw Error("server announced asset " + name + " of " + std::to_string(size) + " bytes");
-    std::vector<uint8_t> bytes(size);
-    uint64_t requested = 0, received = 0;
-    int in_flight = 0;
-    std::vector<uint8_t> body;
-    while (received < size) {
-        while (in_flight < 4 && requested < size) {
-            flatbuffers::FlatBufferBuilder fbb;
-            uint32_t len = uint32_t(std::min<uint64_t>(MAX_ASSET_CHUNK, size - requested));
-            auto r = wire::CreateAssetRequest(fbb, a->asset_id(), requested, len);
-            fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::AssetRequest, r.Union()), wire::ControlIdentifier());
-            ctl.send(fbb);
-            requested += len;
-            ++in_flight;
-        }
-        if (!ctl.next(body, timeout)) throw Error("timed out downloading " + name);
-        const wire::Control* c = expect(body);
-        if (c->body_type() == wire::ControlBody::Goodbye)
-            throw Error("server said goodbye during download: " + (c->body_as_Goodbye()->reason() ? c->body_as_Goodbye()->reason()->str() : ""));
-        if (c->body_type() != wire::ControlBody::AssetChunk) continue;
-        const wire::AssetChunk* ch = c->body_as_AssetChunk();
-        if (ch->asset_id() != a->asset_id() || !ch->data() || ch->offset() >= size || ch->offset() + ch->data()->size() > size)
-            throw Error("server sent a bad asset chunk");
-        std::copy(ch->data()->begin(), ch->data()->end(), bytes.begin() + long(ch->offset()));
-        received += ch->data()->size();
-        rep.asset_bytes_downloaded += ch->data()->size();
-        --in_flight;
-        if (progress) progress(name, received, size);
-    }
-    if (content_hash(bytes) != a->asset_id()) throw Error("downloaded " + name + " does not match its content hash");
-    // A temporary name unique to this process and thread: several clients may
-    // fill the same cache at once, and the rename makes the file appear whole.
-    fs::path tmp = path;
-    tmp += ".part" + std::to_string(::getpid()) + "-" +
-           std::to_string(std::hash<std::thread::id>{}(std::this_thread::get_id()));
-    {
-        std::ofstream f(tmp, std::ios::binary);
-        f.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
-        if (!f) throw Error("cannot write " + tmp.string());
-    }
-    fs::rename(tmp, path);
-    return path.string();
-}
-
-std::shared_ptr<ClientAsset> load_client_asset(const wire::Asset* a, const std::string& path) {
-    auto ca = std::make_shared<ClientAsset>();
-    ca->id = a->asset_id();
-    ca->name = a->name() ? a->name()->str() : "";
-    ca->path = path;
-    ca->character = import_character(path);
-    const int B = a->bone_count();
-    if (!a->order() || !a->parents() || int(a->order()->size()) != B || int(a->parents()->size()) != B || B < 1 ||
-        B > MAX_BONES || (a->corrections() && a->corrections()->size() != size_t(B) * 12))
-        throw Error("server sent an inconsistent skin for " + ca->name);
-    ProgressiveSkin& s = ca->skin;
-    s.order.assign(a->order()->begin(), a->order()->end());
-    s.parents.assign(a->parents()->begin(), a->parents()->end());
-    if (s.parents[0] != -1) throw Error("bad progressive parents for " + ca->name);
-    for (int b = 1; b < B; ++b)
-        if (s.parents[b] < 0 || s.parents[b] >= b) throw Error("bad progressive parents for " + ca->name);
-    s.corrections.assign(B, Mat34::identity());
-    if (a->corrections())
-        for (int b = 0; b < B; ++b)
-            for (int i = 0; i < 12; ++i) s.corrections[b].m[i] = a->corrections()->Get(size_t(b) * 12 + i);
-    if (a->error())
-        for (size_t k = 0; k < a->error()->size(); ++k) {
-            LodError e;
-            e.bones = int(k) + 1;
-            e.rms = a->error()->Get(k)->rms();
-            e.max = a->error()->Get(k)->max();
-            s.error.push_back(e);
-        }
-    remap_skin_vertices(ca->character, s);
-    s.diagonal = a->diagonal();
-    ca->diagonal = rest_diagonal(ca->character);
-    if (!(ca->diagonal > 0)) ca->diagonal = a->diagonal() > 0 ? a->diagonal() : 1.0;
-    if (a->t_min()) ca->format.t_min = {a->t_min()->x(), a->t_min()->y(), a->t_min()->z()};
-    if (a->t_max()) ca->format.t_max = {a->t_max()->x(), a->t_max()->y(), a->t_max()->z()};
-    ca->format.scaled = a->scaled();
-    return ca;
 }
 
 udp::endpoint resolve_udp(asio::io_context& io, const std::string& host, uint16_t port) {
@@ -285,7 +176,9 @@ ClientReport run_client(const ClientOptions& opt) {
     std::vector<std::shared_ptr<ClientAsset>> assets;
     if (w->assets())
         for (const wire::Asset* a : *w->assets()) {
-            std::string path = fetch_asset(ctl, a, cache, rep, opt.connect_timeout, opt.on_download);
+            std::string path = fetch_asset(AssetTransport{[&](const flatbuffers::FlatBufferBuilder& f) { ctl.send(f); },
+                                                         [&](std::vector<uint8_t>& b, double t) { return ctl.next(b, t); }},
+                                          a, cache, rep, opt.connect_timeout, opt.on_download);
             assets.push_back(load_client_asset(a, path));
         }
     std::vector<std::unique_ptr<InstanceView>> views;
