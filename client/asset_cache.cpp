@@ -4,9 +4,12 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <thread>
 
 #include "error.h"
@@ -56,8 +59,13 @@ std::string fetch_asset(const AssetTransport& ctl, const wire::Asset* a, const s
         }
     }
     const uint64_t size = a->size();
-    if (size == 0 || size > (1ull << 31)) throw Error("server announced asset " + name + " of " + std::to_string(size) + " bytes");
-    std::vector<uint8_t> bytes(size);
+    if (size == 0) throw Error("server announced asset " + name + " of 0 bytes");
+    if (size > MAX_ASSET_BYTES)
+        throw Error("server announced asset " + name + " of " + std::to_string(size) + " bytes, over the client's limit of " +
+                    std::to_string(MAX_ASSET_BYTES) + " bytes");
+    // Memory grows with the bytes received, never with the size announced:
+    // chunks are requested in order and a TCP stream answers in order.
+    std::vector<uint8_t> bytes;
     uint64_t requested = 0, received = 0;
     int in_flight = 0;
     std::vector<uint8_t> body;
@@ -77,9 +85,11 @@ std::string fetch_asset(const AssetTransport& ctl, const wire::Asset* a, const s
             throw Error("server said goodbye during download: " + (c->body_as_Goodbye()->reason() ? c->body_as_Goodbye()->reason()->str() : ""));
         if (c->body_type() != wire::ControlBody::AssetChunk) continue;
         const wire::AssetChunk* ch = c->body_as_AssetChunk();
-        if (ch->asset_id() != a->asset_id() || !ch->data() || ch->offset() >= size || ch->offset() + ch->data()->size() > size)
-            throw Error("server sent a bad asset chunk");
-        std::copy(ch->data()->begin(), ch->data()->end(), bytes.begin() + long(ch->offset()));
+        if (ch->asset_id() != a->asset_id() || !ch->data() || ch->data()->size() == 0 || ch->offset() != bytes.size() ||
+            ch->offset() + ch->data()->size() > size)
+            throw Error("server sent a bad asset chunk for " + name + " (offset " + std::to_string(ch->offset()) + ", expected " +
+                        std::to_string(bytes.size()) + ")");
+        bytes.insert(bytes.end(), ch->data()->begin(), ch->data()->end());
         received += ch->data()->size();
         rep.asset_bytes_downloaded += ch->data()->size();
         --in_flight;
@@ -100,7 +110,49 @@ std::string fetch_asset(const AssetTransport& ctl, const wire::Asset* a, const s
     return path.string();
 }
 
+void check_external_uris(const std::string& path) {
+    const std::vector<uint8_t> bytes = read_file(path);
+    std::string_view json(reinterpret_cast<const char*>(bytes.data()), bytes.size());
+    if (bytes.size() >= 20 && std::memcmp(bytes.data(), "glTF", 4) == 0) {  // GLB: the JSON chunk
+        const uint32_t n = uint32_t(bytes[12]) | uint32_t(bytes[13]) << 8 | uint32_t(bytes[14]) << 16 | uint32_t(bytes[15]) << 24;
+        if (n > bytes.size() - 20) return;  // the importer reports the truncation
+        json = json.substr(20, n);
+    }
+    const nlohmann::json j = nlohmann::json::parse(json, nullptr, false);
+    if (j.is_discarded() || !j.is_object()) return;  // the importer reports it
+    const fs::path dir = fs::weakly_canonical(fs::absolute(fs::path(path)).parent_path());
+    for (const char* key : {"buffers", "images"}) {
+        auto it = j.find(key);
+        if (it == j.end() || !it->is_array()) continue;
+        for (const auto& e : *it) {
+            if (!e.is_object() || !e.contains("uri") || !e["uri"].is_string()) continue;
+            const std::string uri = e["uri"].get<std::string>();
+            if (uri.rfind("data:", 0) == 0) continue;  // embedded
+            auto refuse = [&](const std::string& why) {
+                throw Error(path + ": " + key + " uri \"" + uri.substr(0, 80) + "\" refused: " + why);
+            };
+            // Plain relative names only: nothing to decode (%, +), no scheme
+            // or drive (:), no backslash, no absolute path, no "..".
+            if (uri.empty()) refuse("empty");
+            for (char c : uri)
+                if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '_' || c == '-' || c == '/'))
+                    refuse("only letters, digits, '.', '_', '-' and '/' are allowed");
+            if (uri[0] == '/') refuse("absolute path, outside the cache folder");
+            for (const auto& part : fs::path(uri))
+                if (part == "..") refuse("\"..\" leads outside the cache folder");
+            // It must exist inside the cache folder (symbolic links resolved),
+            // so the loader finds it there and never searches the working directory.
+            std::error_code ec;
+            const fs::path real = fs::canonical(dir / uri, ec);
+            if (ec || !fs::is_regular_file(real, ec)) refuse("no such file in the cache folder " + dir.string());
+            const std::string d = dir.string() + "/";
+            if (real.string().compare(0, d.size(), d) != 0) refuse("resolves outside the cache folder " + dir.string());
+        }
+    }
+}
+
 std::shared_ptr<ClientAsset> load_client_asset(const wire::Asset* a, const std::string& path) {
+    check_external_uris(path);
     auto ca = std::make_shared<ClientAsset>();
     ca->id = a->asset_id();
     ca->name = a->name() ? a->name()->str() : "";

@@ -240,10 +240,7 @@ ClientReport run_client(const ClientOptions& opt) {
                                    : resolve_udp(io, opt.udp_via_host, opt.udp_via_port);
     auto send_bind = [&] {
         flatbuffers::FlatBufferBuilder fbb;
-        std::vector<uint8_t> pad(64, 0);  // a Bind is always larger than its BindAck
-        auto p = fbb.CreateVector(pad);
-        auto b = wire::CreateBind(fbb, session, token, p);
-        fbb.Finish(wire::CreateDatagram(fbb, 0, now_us32(), wire::DatagramBody::Bind, b.Union()), wire::DatagramIdentifier());
+        build_bind(fbb, session, token);
         us.send_to(asio::buffer(fbb.GetBufferPointer(), fbb.GetSize()), server_udp, 0, ig);
     };
 
@@ -254,7 +251,7 @@ ClientReport run_client(const ClientOptions& opt) {
     uint32_t ack_echo = 0;
     double ack_arrival = 0;
     uint64_t unique = 0, since_ack = 0;
-    double t_first = 0, tick_offset = -1e300;
+    double t_first = 0, tick_offset = -1e300, last_frame = 0;
     std::vector<double> bins;
     const double t_start = now_seconds();
     double next_bind = 0, last_ack_sent = 0, next_stats = t_start + 1.0;
@@ -359,7 +356,11 @@ ClientReport run_client(const ClientOptions& opt) {
         double now = now_seconds();
         if (any_frame && now >= end_time) break;
         if (!any_frame && now - t_start > opt.connect_timeout) throw Error("no frames received from the server's UDP port");
-        if (!bound && !any_frame && now >= next_bind) {
+        // Bind until bound; bind again when frames stop for 1 s (the address
+        // may have changed: NAT rebinding); give up after connect_timeout.
+        if (any_frame && now - last_frame > opt.connect_timeout)
+            throw Error("stream lost: no frames for " + std::to_string(int(now - last_frame)) + " s");
+        if (((!bound && !any_frame) || (any_frame && now - last_frame > 1.0)) && now >= next_bind) {
             send_bind();
             next_bind = now + 0.2;
         }
@@ -383,12 +384,22 @@ ClientReport run_client(const ClientOptions& opt) {
                 bound = true;
                 continue;
             }
+            if (d->body_type() == wire::DatagramBody::Challenge) {  // return routability: echo the nonce
+                const wire::Challenge* ch = d->body_as_Challenge();
+                if (ch->session_id() == session && ch->nonce() && ch->nonce()->size() == CHALLENGE_NONCE) {
+                    flatbuffers::FlatBufferBuilder fbb;
+                    build_challenge_response(fbb, session, token, {ch->nonce()->data(), ch->nonce()->size()});
+                    us.send_to(asio::buffer(fbb.GetBufferPointer(), fbb.GetSize()), server_udp, 0, ig);
+                }
+                continue;
+            }
             if (d->body_type() != wire::DatagramBody::Frame) {
                 ++rep.malformed;
                 continue;
             }
             bool first = !any_frame;
             handle_frame(d, n, t);
+            last_frame = now_seconds();
             if (first && any_frame) {
                 end_time = t + opt.duration;
                 next_display = t;
@@ -402,8 +413,8 @@ ClientReport run_client(const ClientOptions& opt) {
                     rep.rtt_ms = c->body_as_Stats()->rtt_ms();
                     rep.estimate_kbps = c->body_as_Stats()->estimate_kbps();
                 } else if (c->body_type() == wire::ControlBody::Goodbye) {
-                    ended_by_server = true;
-                    break;
+                    const wire::Goodbye* g = c->body_as_Goodbye();
+                    throw Error("server ended the session: " + (g->reason() ? g->reason()->str() : std::string("no reason")));
                 }
             }
             if (ended_by_server) break;

@@ -35,7 +35,7 @@ int frame_stream(const uint8_t* data, size_t size) {
         }
         return accepted > 0;
     }
-    // Ack, Bind, BindAck: verified tables, every field read.
+    // Ack, Bind, BindAck, Challenge, ChallengeResponse: verified tables, every field read.
     [[maybe_unused]] static volatile uint64_t sink;
     if (const wire::Ack* a = d->body_as_Ack()) {
         sink = a->session_id() ^ a->token() ^ a->ack() ^ a->ack_bits() ^ a->echo_time_us() ^ a->hold_us();
@@ -47,6 +47,14 @@ int frame_stream(const uint8_t* data, size_t size) {
     }
     if (const wire::BindAck* b = d->body_as_BindAck()) {
         sink = b->session_id();
+        return 1;
+    }
+    if (const wire::Challenge* c = d->body_as_Challenge()) {
+        sink = c->session_id() ^ (c->nonce() && c->nonce()->size() == CHALLENGE_NONCE ? c->nonce()->Get(15) : 0);
+        return 1;
+    }
+    if (const wire::ChallengeResponse* r = d->body_as_ChallengeResponse()) {
+        sink = r->session_id() ^ r->token() ^ (r->nonce() ? r->nonce()->size() : 0) ^ (r->pad() ? r->pad()->size() : 0);
         return 1;
     }
     return 0;

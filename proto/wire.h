@@ -18,7 +18,7 @@
 
 namespace progskin::net {
 
-inline constexpr uint16_t PROTOCOL_VERSION = 3;
+inline constexpr uint16_t PROTOCOL_VERSION = 4;
 inline constexpr size_t MAX_DATAGRAM = 1200;          // UDP payload limit, bytes
 inline constexpr size_t UDP_IP_OVERHEAD = 28;         // IPv4 + UDP headers (GUIDE.md rate)
 inline constexpr size_t MAX_CONTROL_MESSAGE = 65536;  // control message body limit
@@ -26,6 +26,7 @@ inline constexpr size_t MAX_ASSET_CHUNK = 32768;      // AssetRequest.length lim
 inline constexpr size_t MAX_NAME = 64;                // Hello.client_name
 inline constexpr size_t MAX_TOKEN = 256;              // Hello.token
 inline constexpr int MAX_BONES = 255;                 // bones per character on the wire
+inline constexpr size_t CHALLENGE_NONCE = 16;          // Challenge.nonce bytes
 inline constexpr int HOLD_TICKS = 16;                 // a bone stays shown this many ticks after its newest frame
 
 // FNV-1a 64 of bytes: the asset id (content hash; not cryptographic).
@@ -48,5 +49,11 @@ double now_seconds();  // monotonic seconds
 // Helpers building the small messages both sides send.
 void build_goodbye(flatbuffers::FlatBufferBuilder& fbb, const std::string& reason);
 void build_refuse(flatbuffers::FlatBufferBuilder& fbb, const std::string& reason);
+// Datagrams a client sends to bind its UDP address (docs/protocol.md "Bind"):
+// the Bind (padded so that it is larger than any answer) and the answer to a
+// Challenge, echoing its nonce (padded so that it is larger than BindAck).
+void build_bind(flatbuffers::FlatBufferBuilder& fbb, uint64_t session_id, uint64_t token);
+void build_challenge_response(flatbuffers::FlatBufferBuilder& fbb, uint64_t session_id, uint64_t token,
+                              std::span<const uint8_t> nonce);
 
 }  // namespace progskin::net

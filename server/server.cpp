@@ -1,7 +1,16 @@
 // server.cpp — see server.h. Session state machine (docs/protocol.md):
-//   AwaitHello --Hello ok--> Welcomed --valid UDP Bind--> Streaming
-//   any --Goodbye / TCP close / timeout / limit--> Closed
-//   AwaitHello --bad version or token, server full--> Refuse, Closed
+//   AwaitHello --Hello ok--> Welcomed --Bind, Challenge, ChallengeResponse
+//       from the same address--> Streaming
+//   Streaming --Bind from a new address, Challenge, ChallengeResponse--> Streaming (moved)
+//   any --Goodbye / TCP close / error / output backlog--> Closed
+//   AwaitHello --no Hello in hello_timeout--> Closed
+//   Welcomed --not bound client_timeout after Welcome (TCP traffic or not)--> Goodbye, Closing
+//   Streaming --no Ack from the bound address in client_timeout--> Goodbye, Closing
+//   AwaitHello --bad version or token, server full, Welcome too large--> Refuse, Closing
+//   Closing --queued output written, or 1 s--> Closed
+// Nothing blocks: every TCP write is asynchronous, each session's queued
+// output is capped (max_queued_bytes), a failed accept backs off 100 ms, and
+// an exception in one session's handler closes that session only.
 #include "server.h"
 
 #include <asio.hpp>
@@ -11,6 +20,8 @@
 #include <map>
 #include <mutex>
 #include <random>
+
+#include <sodium.h>
 
 #include "datagram_packer.h"
 #include "error.h"
@@ -25,7 +36,28 @@ using asio::ip::tcp;
 using asio::ip::udp;
 
 namespace {
-enum class State { AwaitHello, Welcomed, Streaming, Closed };
+enum class State { AwaitHello, Welcomed, Streaming, Closing, Closed };
+
+// 64 bits from the operating system's cryptographic generator (libsodium).
+uint64_t random_u64() {
+    uint64_t v = 0;
+    while (v == 0) randombytes_buf(&v, sizeof v);
+    return v;
+}
+
+bool equal_u64(uint64_t a, uint64_t b) { return sodium_memcmp(&a, &b, sizeof a) == 0; }
+
+// Constant-time comparison of two strings of any lengths: compares their
+// BLAKE2b digests, so neither the content nor the length leaks through timing.
+bool equal_secret(const std::string& a, const std::string& b) {
+    unsigned char ha[32], hb[32];
+    crypto_generichash(ha, sizeof ha, reinterpret_cast<const unsigned char*>(a.data()), a.size(), nullptr, 0);
+    crypto_generichash(hb, sizeof hb, reinterpret_cast<const unsigned char*>(b.data()), b.size(), nullptr, 0);
+    return sodium_memcmp(ha, hb, sizeof ha) == 0;
+}
+
+constexpr double LINGER_SECONDS = 1.0;     // Closing: time to write the last message
+constexpr double CHALLENGE_SECONDS = 5.0;  // a Challenge's nonce is valid this long
 }
 
 struct Server::Impl {
@@ -41,7 +73,14 @@ struct Server::Impl {
         size_t queued = 0;
         udp::endpoint peer;
         bool bound = false;
-        double opened = 0, last_heard = 0;
+        double opened = 0, welcomed = 0, last_heard = 0;  // last_heard: newest Ack from the bound address
+        asio::ip::address remote;                          // TCP peer (per-address limit)
+        // Return routability: the address a Bind came from and the nonce sent there.
+        udp::endpoint challenge_peer;
+        std::array<uint8_t, CHALLENGE_NONCE> challenge_nonce{};
+        double challenge_sent = -1e300;
+        std::string close_reason;
+        double close_deadline = 0;
         RateController rate;
         Scheduler scheduler;
         std::vector<float> importance;
@@ -57,9 +96,9 @@ struct Server::Impl {
     tcp::acceptor acceptor{io};
     udp::socket udp_sock{io};
     asio::steady_timer timer{io};
+    asio::steady_timer accept_timer{io};
     std::chrono::steady_clock::time_point next_tick;
     std::map<uint64_t, std::shared_ptr<Session>> sessions;
-    std::mt19937_64 rng{std::random_device{}()};
     DatagramPacker packer;
     std::vector<Pick> picks;
     std::vector<std::vector<uint8_t>> out_dgrams;
@@ -75,6 +114,7 @@ struct Server::Impl {
         : cfg(std::move(c)), assets(a), encoder(a, std::move(inst), cfg.tick_rate) {
         if (!(cfg.tick_rate > 0 && cfg.tick_rate <= 240)) throw Error("tick rate must be in (0, 240]");
         if (assets.empty()) throw Error("server: no assets");
+        if (sodium_init() < 0) throw Error("server: libsodium could not be initialised");
         for (const auto& x : assets) total_asset_bytes += double(x->bytes.size());
         auto addr = asio::ip::make_address(cfg.bind_address);
         // Bind TCP, then UDP on the same number when possible.
@@ -117,22 +157,55 @@ struct Server::Impl {
     // ---------------------------------------------------------------- TCP --
     void accept() {
         acceptor.async_accept([this](asio::error_code ec, tcp::socket s) {
+            if (ec == asio::error::operation_aborted) return;
             if (ec) {
-                if (ec != asio::error::operation_aborted) accept();
+                // Out of descriptors (EMFILE, ENFILE) or memory: the pending
+                // connection stays queued and accept() would fail again at
+                // once; wait before trying again instead of spinning.
+                with_stats([](ServerStats& st) { ++st.accept_errors; });
+                if (ec == asio::error::connection_aborted) {
+                    accept();
+                    return;
+                }
+                log("accept: " + ec.message() + "; retrying in 100 ms");
+                accept_timer.expires_after(std::chrono::milliseconds(100));
+                accept_timer.async_wait([this](asio::error_code e) {
+                    if (!e) accept();
+                });
                 return;
             }
-            asio::error_code ig;
-            s.set_option(tcp::no_delay(true), ig);
-            auto sess = std::make_shared<Session>(this, std::move(s));
-            sess->id = rng();
-            sess->token = rng();
-            sess->opened = sess->last_heard = now_seconds();
-            sess->rate = RateController(cfg.max_kbps, std::min(cfg.initial_kbps, cfg.max_kbps));
-            sessions[sess->id] = sess;
-            with_stats([](ServerStats& s) { ++s.sessions_total; });
-            read_header(sess);
+            try {
+                admit(std::move(s));
+            } catch (const std::exception& e) {
+                with_stats([](ServerStats& st) { ++st.handler_errors; });
+                log(std::string("accept: ") + e.what());
+            }
             accept();
         });
+    }
+
+    void admit(tcp::socket s) {
+        asio::error_code ig;
+        s.set_option(tcp::no_delay(true), ig);
+        auto sess = std::make_shared<Session>(this, std::move(s));
+        sess->remote = sess->sock.remote_endpoint(ig).address();
+        if (ig) return;  // already gone
+        do sess->id = random_u64();
+        while (sessions.count(sess->id));
+        sess->token = random_u64();
+        sess->opened = sess->last_heard = now_seconds();
+        sess->rate = RateController(cfg.max_kbps, std::min(cfg.initial_kbps, cfg.max_kbps));
+        int same = 0;
+        for (auto& [id, x] : sessions)
+            if (x->state != State::Closed && x->state != State::Closing && x->remote == sess->remote) ++same;
+        sessions[sess->id] = sess;
+        with_stats([](ServerStats& st) { ++st.sessions_total; });
+        if (cfg.max_per_address > 0 && same >= cfg.max_per_address) {
+            refuse(sess, "too many connections from " + sess->remote.to_string() + " (" + std::to_string(cfg.max_per_address) +
+                             ")");
+            return;
+        }
+        read_header(sess);
     }
 
     void close(const std::shared_ptr<Session>& s, const std::string& why) {
@@ -145,46 +218,52 @@ struct Server::Impl {
         asio::post(io, [this, id = s->id] { sessions.erase(id); });
     }
 
-    void send(const std::shared_ptr<Session>& s, const flatbuffers::FlatBufferBuilder& fbb, bool close_after = false) {
-        if (s->state == State::Closed) return;
+    // Queues one control message; never blocks. A peer that does not read
+    // what it asked for is closed once max_queued_bytes are waiting.
+    void send(const std::shared_ptr<Session>& s, const flatbuffers::FlatBufferBuilder& fbb) {
+        if (s->state == State::Closed || s->state == State::Closing) return;
         std::vector<uint8_t> msg;
         frame_control(fbb, msg);
-        s->queued += msg.size();
-        if (s->queued > (8u << 20)) {  // slow reader
-            close(s, "control backlog");
+        if (s->queued + msg.size() > cfg.max_queued_bytes) {  // slow reader
+            with_stats([](ServerStats& st) { ++st.backlog_closes; });
+            close(s, "control backlog over " + std::to_string(cfg.max_queued_bytes) + " bytes");
             return;
         }
+        s->queued += msg.size();
         s->writes.push_back(std::move(msg));
-        if (s->writes.size() == 1) write_next(s, close_after);
-        else if (close_after) {
-            // closes once the queue drains
-            s->writes.push_back({});
-        }
+        if (s->writes.size() == 1) write_next(s);
     }
 
-    void write_next(const std::shared_ptr<Session>& s, bool close_after) {
+    // Sends a last message (Refuse or Goodbye) and closes once it is written,
+    // or after LINGER_SECONDS if the peer does not read it.
+    void finish(const std::shared_ptr<Session>& s, const flatbuffers::FlatBufferBuilder& last, const std::string& why) {
+        if (s->state == State::Closed || s->state == State::Closing) return;
+        send(s, last);
+        if (s->state == State::Closed) return;
+        s->state = State::Closing;
+        s->close_reason = why;
+        s->close_deadline = now_seconds() + LINGER_SECONDS;
+        if (s->writes.empty()) close(s, why);
+    }
+
+    void write_next(const std::shared_ptr<Session>& s) {
         if (s->writes.empty()) return;
-        if (s->writes.front().empty()) {  // close marker
-            close(s, "refused");
-            return;
-        }
-        asio::async_write(s->sock, asio::buffer(s->writes.front()), [this, s, close_after](asio::error_code ec, size_t) {
+        asio::async_write(s->sock, asio::buffer(s->writes.front()), [this, s](asio::error_code ec, size_t) {
+            if (s->state == State::Closed) return;
             if (ec) {
                 close(s, "write: " + ec.message());
                 return;
             }
             s->queued -= s->writes.front().size();
             s->writes.pop_front();
-            if (close_after && s->writes.empty()) {
-                close(s, "refused");
-                return;
-            }
-            write_next(s, close_after);
+            if (!s->writes.empty()) write_next(s);
+            else if (s->state == State::Closing) close(s, s->close_reason);
         });
     }
 
     void read_header(const std::shared_ptr<Session>& s) {
         asio::async_read(s->sock, asio::buffer(s->len_buf, 4), [this, s](asio::error_code ec, size_t) {
+            if (s->state == State::Closing) return;  // nothing more is read once the last message is queued
             if (ec || s->state == State::Closed) {
                 close(s, ec ? ec.message() : "closed");
                 return;
@@ -198,11 +277,20 @@ struct Server::Impl {
             }
             s->body.resize(n);
             asio::async_read(s->sock, asio::buffer(s->body), [this, s](asio::error_code ec2, size_t) {
+                if (s->state == State::Closing) return;
                 if (ec2 || s->state == State::Closed) {
                     close(s, ec2 ? ec2.message() : "closed");
                     return;
                 }
-                if (!handle_control(s)) return;
+                bool more = false;
+                try {
+                    more = handle_control(s);
+                } catch (const std::exception& e) {  // one session's failure never reaches io.run()
+                    with_stats([](ServerStats& st) { ++st.handler_errors; });
+                    close(s, std::string("error: ") + e.what());
+                    return;
+                }
+                if (!more || s->state == State::Closing || s->state == State::Closed) return;
                 read_header(s);
             });
         });
@@ -213,7 +301,7 @@ struct Server::Impl {
         flatbuffers::FlatBufferBuilder fbb;
         build_refuse(fbb, reason);
         log("refused: " + reason);
-        send(s, fbb, true);
+        finish(s, fbb, "refused: " + reason);
     }
 
     bool handle_control(const std::shared_ptr<Session>& s) {
@@ -223,7 +311,8 @@ struct Server::Impl {
             close(s, "malformed control message");
             return false;
         }
-        s->last_heard = std::max(s->last_heard, now_seconds() - cfg.client_timeout * 0.5);
+        // Control messages never extend a session's life: only Acks from the
+        // bound address do (handle_datagram), so a TCP-only peer cannot hold a slot.
         switch (c->body_type()) {
             case wire::ControlBody::Hello: {
                 if (s->state != State::AwaitHello) break;
@@ -237,7 +326,7 @@ struct Server::Impl {
                     refuse(s, "client name or token too long");
                     return false;
                 }
-                if (!cfg.token.empty() && (!h->token() || h->token()->str() != cfg.token)) {
+                if (!cfg.token.empty() && (!h->token() || !equal_secret(h->token()->str(), cfg.token))) {
                     refuse(s, "bad or missing access token");
                     return false;
                 }
@@ -253,9 +342,15 @@ struct Server::Impl {
                 s->rate = RateController(cap, std::min(cap, cfg.initial_kbps));
                 s->importance = compute_importance(ViewSpec{}, encoder.instances(), assets);
                 s->scheduler.reset(encoder.instances().size());
+                try {
+                    send_welcome(s, cap);
+                } catch (const Error& e) {  // e.g. too many instances for one control message
+                    refuse(s, e.what());
+                    return false;
+                }
+                if (s->state == State::Closed) return false;
                 s->state = State::Welcomed;
-                s->last_heard = now_seconds();
-                send_welcome(s, cap);
+                s->welcomed = s->last_heard = now_seconds();
                 log("session " + hex64(s->id) + " (" + s->name + ") welcomed, cap " + std::to_string(int(cap)) + " kbit/s");
                 return true;
             }
@@ -370,7 +465,9 @@ struct Server::Impl {
         auto w = wire::CreateWelcome(fbb, PROTOCOL_VERSION, s->id, s->token, udp_sock.local_endpoint().port(), cfg.tick_rate,
                                      uint32_t(cap), va, vi, sn);
         fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Welcome, w.Union()), wire::ControlIdentifier());
-        if (fbb.GetSize() > MAX_CONTROL_MESSAGE) throw Error("welcome exceeds the control message limit (too many instances)");
+        if (fbb.GetSize() > MAX_CONTROL_MESSAGE)
+            throw Error("Welcome would be " + std::to_string(fbb.GetSize()) + " bytes, over the " +
+                        std::to_string(MAX_CONTROL_MESSAGE) + "-byte control message limit (too many assets or instances)");
         send(s, fbb);
     }
 
@@ -378,7 +475,14 @@ struct Server::Impl {
     void receive() {
         udp_sock.async_receive_from(asio::buffer(udp_buf), udp_from, [this](asio::error_code ec, size_t n) {
             if (ec == asio::error::operation_aborted) return;
-            if (!ec) handle_datagram(n);
+            if (!ec) {
+                try {
+                    handle_datagram(n);
+                } catch (const std::exception& e) {
+                    with_stats([](ServerStats& st) { ++st.handler_errors; });
+                    log(std::string("datagram: ") + e.what());
+                }
+            }
             receive();
         });
     }
@@ -394,41 +498,74 @@ struct Server::Impl {
             });
         };
         if (!d) return reject(true);
+        // Sends `fbb` to the datagram's source only if it is smaller than what
+        // came from there (never amplifies toward an unproven address).
+        auto answer = [&](const flatbuffers::FlatBufferBuilder& fbb, bool unverified) {
+            if (fbb.GetSize() >= n) return;
+            asio::error_code ig;
+            udp_sock.send_to(asio::buffer(fbb.GetBufferPointer(), fbb.GetSize()), udp_from, 0, ig);
+            if (unverified) with_stats([&](ServerStats& st) { st.unverified_bytes_out += fbb.GetSize(); });
+        };
+        auto find = [&](uint64_t id, uint64_t token) -> Session* {
+            auto it = sessions.find(id);
+            if (it == sessions.end() || !equal_u64(it->second->token, token)) return nullptr;
+            Session* s = it->second.get();
+            return s->state == State::Welcomed || s->state == State::Streaming ? s : nullptr;
+        };
+        auto bind_ack = [&](Session& s) {
+            flatbuffers::FlatBufferBuilder fbb(64);
+            auto ba = wire::CreateBindAck(fbb, s.id);
+            fbb.Finish(wire::CreateDatagram(fbb, s.seq, now_us32(), wire::DatagramBody::BindAck, ba.Union()),
+                       wire::DatagramIdentifier());
+            answer(fbb, false);
+        };
+        const double now = now_seconds();
         if (d->body_type() == wire::DatagramBody::Bind) {
             const wire::Bind* b = d->body_as_Bind();
-            auto it = sessions.find(b->session_id());
-            if (it == sessions.end() || it->second->token != b->token() || it->second->state == State::AwaitHello ||
-                it->second->state == State::Closed)
+            Session* s = find(b->session_id(), b->token());
+            if (!s) return reject(false);
+            if (s->bound && s->peer == udp_from) return bind_ack(*s);  // already proven
+            // A new address: only a Challenge goes there until its nonce comes
+            // back from it. The same nonce is repeated for repeated Binds.
+            if (s->challenge_peer != udp_from || now - s->challenge_sent > CHALLENGE_SECONDS) {
+                randombytes_buf(s->challenge_nonce.data(), s->challenge_nonce.size());
+                s->challenge_peer = udp_from;
+                s->challenge_sent = now;
+            }
+            flatbuffers::FlatBufferBuilder fbb(96);
+            auto nv = fbb.CreateVector(s->challenge_nonce.data(), s->challenge_nonce.size());
+            auto ch = wire::CreateChallenge(fbb, s->id, nv);
+            fbb.Finish(wire::CreateDatagram(fbb, s->seq, now_us32(), wire::DatagramBody::Challenge, ch.Union()),
+                       wire::DatagramIdentifier());
+            with_stats([](ServerStats& st) { ++st.challenges_sent; });
+            return answer(fbb, true);
+        }
+        if (d->body_type() == wire::DatagramBody::ChallengeResponse) {
+            const wire::ChallengeResponse* r = d->body_as_ChallengeResponse();
+            Session* s = find(r->session_id(), r->token());
+            if (!s || !r->nonce() || r->nonce()->size() != CHALLENGE_NONCE || s->challenge_peer != udp_from ||
+                now - s->challenge_sent > CHALLENGE_SECONDS ||
+                sodium_memcmp(r->nonce()->data(), s->challenge_nonce.data(), CHALLENGE_NONCE) != 0)
                 return reject(false);
-            auto& s = it->second;
+            const bool moved = s->bound && s->peer != udp_from;
             s->peer = udp_from;
             s->bound = true;
-            s->last_heard = now_seconds();
-            if (s->state == State::Welcomed) {
-                s->state = State::Streaming;
-                log("session " + hex64(s->id) + " bound to " + udp_from.address().to_string() + ":" + std::to_string(udp_from.port()));
-            }
-            flatbuffers::FlatBufferBuilder fbb(64);
-            auto ba = wire::CreateBindAck(fbb, s->id);
-            fbb.Finish(wire::CreateDatagram(fbb, s->seq, now_us32(), wire::DatagramBody::BindAck, ba.Union()),
-                       wire::DatagramIdentifier());
-            if (fbb.GetSize() <= n) {  // never more bytes back than the request carried
-                asio::error_code ig;
-                udp_sock.send_to(asio::buffer(fbb.GetBufferPointer(), fbb.GetSize()), udp_from, 0, ig);
-            }
-            return;
+            s->last_heard = now;
+            s->challenge_sent = -1e300;  // one use
+            if (s->state == State::Welcomed) s->state = State::Streaming;
+            log("session " + hex64(s->id) + (moved ? " moved to " : " bound to ") + udp_from.address().to_string() + ":" +
+                std::to_string(udp_from.port()));
+            return bind_ack(*s);
         }
         if (d->body_type() == wire::DatagramBody::Ack) {
             const wire::Ack* a = d->body_as_Ack();
-            auto it = sessions.find(a->session_id());
-            if (it == sessions.end() || it->second->token != a->token() || !it->second->bound || it->second->peer != udp_from)
-                return reject(false);
-            auto& s = it->second;
-            s->last_heard = now_seconds();
+            Session* s = find(a->session_id(), a->token());
+            if (!s || !s->bound || s->peer != udp_from) return reject(false);  // counts only from the bound address
+            s->last_heard = now;
             s->rate.on_ack(a->ack(), a->ack_bits(), a->echo_time_us(), a->hold_us(), now_us32());
             return;
         }
-        reject(false);  // Frame / BindAck are server -> client only
+        reject(false);  // Frame / BindAck / Challenge are server -> client only
     }
 
     // --------------------------------------------------------------- tick --
@@ -456,11 +593,18 @@ struct Server::Impl {
         uint64_t dg = 0, bytes = 0, timeouts = 0;
         std::vector<std::shared_ptr<Session>> drop;
         for (auto& [id, s] : sessions) {
+            if (s->state == State::Closing) {
+                if (t0 > s->close_deadline) drop.push_back(s);
+                continue;
+            }
             if (s->state == State::AwaitHello && t0 - s->opened > cfg.hello_timeout) {
                 drop.push_back(s);
                 continue;
             }
-            if ((s->state == State::Welcomed || s->state == State::Streaming) && t0 - s->last_heard > cfg.client_timeout) {
+            // Unbound: client_timeout after Welcome, whatever arrives over TCP.
+            // Streaming: client_timeout after the newest Ack from the bound address.
+            if ((s->state == State::Welcomed && t0 - s->welcomed > cfg.client_timeout) ||
+                (s->state == State::Streaming && t0 - s->last_heard > cfg.client_timeout)) {
                 drop.push_back(s);
                 continue;
             }
@@ -486,14 +630,18 @@ struct Server::Impl {
             bytes += wire;
         }
         for (auto& s : drop) {
+            if (s->state == State::Closing) {  // the peer did not read its last message in time
+                close(s, s->close_reason + " (not read)");
+                continue;
+            }
             ++timeouts;
-            flatbuffers::FlatBufferBuilder fbb;
-            build_goodbye(fbb, "timeout");
-            std::vector<uint8_t> msg;
-            frame_control(fbb, msg);
-            asio::error_code ig;
-            if (s->state != State::AwaitHello) asio::write(s->sock, asio::buffer(msg), ig);  // best effort
-            close(s, "timeout");
+            if (s->state == State::AwaitHello) {
+                close(s, "timeout");
+                continue;
+            }
+            flatbuffers::FlatBufferBuilder fbb;  // queued like any message: a peer that does not read cannot stall the tick
+            build_goodbye(fbb, s->state == State::Welcomed ? "timeout: UDP address not bound" : "timeout: no acks");
+            finish(s, fbb, "timeout");
         }
         const double t1 = now_seconds();
         with_stats([&](ServerStats& st) {
@@ -504,7 +652,7 @@ struct Server::Impl {
             st.tick_seconds += t1 - t0;
             uint64_t active = 0;
             for (auto& [id, s] : sessions)
-                if (s->state != State::Closed) ++active;
+                if (s->state != State::Closed && s->state != State::Closing) ++active;
             st.sessions_active = active;
         });
     }
@@ -523,7 +671,14 @@ void Server::run() {
     impl_->receive();
     impl_->next_tick = std::chrono::steady_clock::now();
     impl_->schedule_tick();
-    impl_->io.run();
+    for (;;) {  // a handler's exception stops run() only: log it and go on serving
+        try {
+            impl_->io.run();
+            return;
+        } catch (const std::exception& e) {
+            std::fprintf(stderr, "progskin-server: error: %s\n", e.what());
+        }
+    }
 }
 
 void Server::stop() {
@@ -532,6 +687,7 @@ void Server::stop() {
         impl_->acceptor.close(ig);
         impl_->udp_sock.close(ig);
         impl_->timer.cancel();
+        impl_->accept_timer.cancel();
         for (auto& [id, s] : impl_->sessions) {
             s->state = State::Closed;
             s->sock.close(ig);

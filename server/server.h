@@ -30,9 +30,11 @@ struct ServerConfig {
     double max_kbps = 50000;      // per-client ceiling (a client's cap is min(its own, this))
     double initial_kbps = 1000;   // start of the adaptive estimate
     double hello_timeout = 5.0;   // seconds to receive Hello after connecting
-    double client_timeout = 10.0; // seconds without UDP acks (or without binding) before dropping
+    double client_timeout = 10.0; // seconds without UDP acks from the bound address (or unbound after Welcome) before dropping
     std::string token;            // non-empty: Hello.token must match
     double asset_bytes_factor = 4.0;  // per-session download limit, x total asset bytes
+    size_t max_queued_bytes = 1 << 20;  // per-session control output waiting to be written; more closes the session
+    int max_per_address = 64;     // open TCP connections from one IP address (0: no limit)
     bool verbose = false;
 };
 
@@ -40,8 +42,10 @@ struct ServerStats {
     uint64_t sessions_total = 0, sessions_active = 0, refused = 0, timeouts = 0;
     uint64_t ticks = 0, datagrams_sent = 0, wire_bytes_sent = 0;
     uint64_t datagrams_received = 0, malformed_datagrams = 0, rejected_datagrams = 0;
-    uint64_t unverified_bytes_in = 0, unverified_bytes_out = 0;  // to/from addresses not bound
+    uint64_t unverified_bytes_in = 0, unverified_bytes_out = 0;  // from addresses not bound / to them (Challenges only)
     uint64_t malformed_control = 0, asset_bytes_sent = 0;
+    uint64_t challenges_sent = 0;  // return-routability challenges (answers to Binds from new addresses)
+    uint64_t accept_errors = 0, backlog_closes = 0, handler_errors = 0;
     double tick_seconds = 0;      // total time spent in ticks
 };
 
