@@ -23,6 +23,7 @@
 
 #include <sodium.h>
 
+#include "crypto.h"
 #include "datagram_packer.h"
 #include "error.h"
 #include "frame_encoder.h"
@@ -109,12 +110,20 @@ struct Server::Impl {
     double total_asset_bytes = 0;
     mutable std::mutex stats_mutex;
     ServerStats st;
+    bool connect_tokens = false;
+    crypto::PublicKey token_key{};
+    crypto::TokenReplayCache token_replays;
 
     Impl(ServerConfig c, std::vector<std::shared_ptr<ServerAsset>> a, std::vector<InstanceSpec> inst)
         : cfg(std::move(c)), assets(a), encoder(a, std::move(inst), cfg.tick_rate) {
         if (!(cfg.tick_rate > 0 && cfg.tick_rate <= 240)) throw Error("tick rate must be in (0, 240]");
         if (assets.empty()) throw Error("server: no assets");
         if (sodium_init() < 0) throw Error("server: libsodium could not be initialised");
+        if (!cfg.token_public_key.empty()) {
+            if (!crypto::from_hex(cfg.token_public_key, token_key))
+                throw Error("server: the connect token public key must be 64 hex digits");
+            connect_tokens = true;
+        }
         for (const auto& x : assets) total_asset_bytes += double(x->bytes.size());
         auto addr = asio::ip::make_address(cfg.bind_address);
         // Bind TCP, then UDP on the same number when possible.
@@ -330,6 +339,20 @@ struct Server::Impl {
                     refuse(s, "bad or missing access token");
                     return false;
                 }
+                if (connect_tokens) {
+                    crypto::ConnectToken ct;
+                    const uint64_t now_unix = crypto::unix_now();
+                    std::string why = h->token() ? crypto::verify_connect_token(h->token()->str(), token_key, now_unix,
+                                                                                cfg.public_address, ct)
+                                                 : std::string("missing connect token");
+                    if (why.empty() && !token_replays.first_use(ct, now_unix)) why = "connect token already used";
+                    if (!why.empty()) {
+                        with_stats([](ServerStats& st) { ++st.tokens_refused; });
+                        refuse(s, why);
+                        return false;
+                    }
+                    s->name += "client " + std::to_string(ct.client_id) + " ";
+                }
                 int active = 0;
                 for (auto& [id, x] : sessions)
                     if (x->state == State::Welcomed || x->state == State::Streaming) ++active;
@@ -337,7 +360,7 @@ struct Server::Impl {
                     refuse(s, "server full (" + std::to_string(cfg.max_clients) + " clients)");
                     return false;
                 }
-                s->name = h->client_name() ? h->client_name()->str() : "";
+                s->name += h->client_name() ? h->client_name()->str() : "";
                 double cap = h->max_kbps() ? std::min(double(h->max_kbps()), cfg.max_kbps) : cfg.max_kbps;
                 s->rate = RateController(cap, std::min(cap, cfg.initial_kbps));
                 s->importance = compute_importance(ViewSpec{}, encoder.instances(), assets);

@@ -32,6 +32,11 @@ struct ServerConfig {
     double hello_timeout = 5.0;   // seconds to receive Hello after connecting
     double client_timeout = 10.0; // seconds without UDP acks from the bound address (or unbound after Welcome) before dropping
     std::string token;            // non-empty: Hello.token must match
+    // Non-empty (64 hex digits, an Ed25519 public key; off by default): Hello.token
+    // must be a connect token signed by the matching secret key (proto/crypto.h,
+    // `progskin token`), unexpired, for public_address if that is set, never used before.
+    std::string token_public_key;
+    std::string public_address;   // "host:port" as written in connect tokens; empty: any
     double asset_bytes_factor = 4.0;  // per-session download limit, x total asset bytes
     size_t max_queued_bytes = 1 << 20;  // per-session control output waiting to be written; more closes the session
     int max_per_address = 64;     // open TCP connections from one IP address (0: no limit)
@@ -46,6 +51,7 @@ struct ServerStats {
     uint64_t malformed_control = 0, asset_bytes_sent = 0;
     uint64_t challenges_sent = 0;  // return-routability challenges (answers to Binds from new addresses)
     uint64_t accept_errors = 0, backlog_closes = 0, handler_errors = 0;
+    uint64_t tokens_refused = 0;   // connect tokens invalid, expired, for another server or replayed
     double tick_seconds = 0;      // total time spent in ticks
 };
 

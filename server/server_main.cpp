@@ -33,6 +33,9 @@ static const char* kUsage =
     "  --max-clients N   (default 256)\n"
     "  --max-kbps N      per-client rate ceiling in kbit/s (default 50000)\n"
     "  --token T         require this access token in Hello\n"
+    "  --token-public-key HEX  require a connect token signed by the matching secret\n"
+    "                    key (progskin token keygen / issue) in Hello\n"
+    "  --public-address HOST:PORT  the address connect tokens must name (default: any)\n"
     "  --duration S      stop after S seconds (default: run until SIGINT/SIGTERM)\n"
     "  --verbose         log sessions on stderr\n"
     "  --help\n"
@@ -74,6 +77,8 @@ int main(int argc, char** argv) {
             else if (a == "--max-clients") cfg.max_clients = cli::to_int(a, need(i));
             else if (a == "--max-kbps") cfg.max_kbps = cli::to_number(a, need(i));
             else if (a == "--token") cfg.token = need(i);
+            else if (a == "--token-public-key") cfg.token_public_key = need(i);
+            else if (a == "--public-address") cfg.public_address = need(i);
             else if (a == "--duration") duration = cli::to_number(a, need(i));
             else if (a == "--verbose") cfg.verbose = true;
             else {

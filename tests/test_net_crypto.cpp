@@ -4,6 +4,9 @@
 // replayed).
 #include <gtest/gtest.h>
 
+#include <sys/wait.h>
+
+#include <cstdio>
 #include <random>
 #include <set>
 
@@ -142,4 +145,33 @@ TEST(NetCrypto, HexRoundTrip) {
     EXPECT_FALSE(from_hex(h.substr(2), back));
     EXPECT_FALSE(from_hex(h + "00", back));
     EXPECT_FALSE(from_hex(std::string(64, 'g'), back));
+}
+
+// `progskin token keygen` / `issue` print a key pair and a token the library verifies.
+TEST(NetCrypto, TokenCommand) {
+    auto run = [](const std::string& args) {
+        std::string out;
+        FILE* p = ::popen((std::string(PROGSKIN_BIN_DIR) + "/tools/progskin token " + args + " 2>&1").c_str(), "r");
+        if (!p) return std::make_pair(-1, out);
+        char buf[512];
+        while (std::fgets(buf, sizeof buf, p)) out += buf;
+        const int rc = ::pclose(p);
+        return std::make_pair(WEXITSTATUS(rc), out);
+    };
+    auto [rc, keys] = run("keygen");
+    ASSERT_EQ(rc, 0) << keys;
+    const auto pub_at = keys.find("public "), sec_at = keys.find("secret ");
+    ASSERT_NE(pub_at, std::string::npos);
+    ASSERT_NE(sec_at, std::string::npos);
+    PublicKey pk;
+    ASSERT_TRUE(from_hex(keys.substr(pub_at + 7, 64), pk));
+    const std::string sk_hex = keys.substr(sec_at + 7, 128);
+    auto [rc2, token] = run("issue --secret-key " + sk_hex + " --client-id 99 --server 127.0.0.1:7777 --seconds 60");
+    ASSERT_EQ(rc2, 0) << token;
+    while (!token.empty() && token.back() == '\n') token.pop_back();
+    ConnectToken t;
+    EXPECT_EQ(verify_connect_token(token, pk, unix_now(), "127.0.0.1:7777", t), "");
+    EXPECT_EQ(t.client_id, 99u);
+    EXPECT_EQ(run("issue --client-id 1 --server x:1").first, 2);  // no key: usage error
+    EXPECT_EQ(run("issue --secret-key 00 --client-id 1 --server x:1").first, 2);
 }

@@ -22,6 +22,7 @@
 #include <sstream>
 
 #include "asset_cache.h"
+#include "crypto.h"
 #include "error.h"
 #include "net_test_support.h"
 #include "wire.h"
@@ -645,4 +646,55 @@ TEST(NetSecurity, LostStreamIsAnError) {
     const double waited = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     EXPECT_NE(err.find("timeout"), std::string::npos) << "client ended with \"" << err << "\"";
     EXPECT_LT(waited, 6.0);
+}
+
+// Connect tokens (off by default): with a public key configured, Hello must
+// carry a token signed by the matching secret key; expired, forged, missing,
+// replayed or other-server tokens are refused with the reason.
+TEST(NetSecurity, ConnectTokensAreCheckedWhenConfigured) {
+    namespace c = progskin::net::crypto;
+    c::PublicKey pk;
+    c::SecretKey sk;
+    c::signing_keypair(pk, sk);
+    ServerConfig cfg;
+    cfg.token_public_key = c::to_hex(pk);
+    cfg.public_address = "game.example:7777";
+    RunningServer s({}, cfg);
+    asio::io_context io;
+    auto hello_with = [&](const std::string& token) {
+        tcp::socket t(io);
+        t.connect(tcp::endpoint(kLoopback, s.server->tcp_port()));
+        flatbuffers::FlatBufferBuilder fbb;
+        auto n = fbb.CreateString("token test");
+        auto tk = fbb.CreateString(token);
+        auto h = wire::CreateHello(fbb, PROTOCOL_VERSION, n, token.empty() ? 0 : tk, 0);
+        fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Hello, h.Union()), wire::ControlIdentifier());
+        asio::write(t, asio::buffer(framed(fbb)));
+        std::vector<uint8_t> body;
+        if (!read_message(t, body, 3000)) return std::string("no answer");
+        const wire::Control* ctl = verify_control(body);
+        if (!ctl) return std::string("malformed");
+        if (ctl->body_type() == wire::ControlBody::Welcome) return std::string("welcome");
+        if (ctl->body_type() == wire::ControlBody::Refuse) return ctl->body_as_Refuse()->reason()->str();
+        return std::string("other");
+    };
+    const uint64_t now = c::unix_now();
+    const std::string good = c::issue_connect_token(sk, 7, now, 60, cfg.public_address);
+    EXPECT_EQ(hello_with(good), "welcome");
+    EXPECT_EQ(hello_with(good), "connect token already used");
+    EXPECT_EQ(hello_with(c::issue_connect_token(sk, 7, now - 120, 60, cfg.public_address)), "connect token expired");
+    c::PublicKey other_pk;
+    c::SecretKey other_sk;
+    c::signing_keypair(other_pk, other_sk);
+    EXPECT_EQ(hello_with(c::issue_connect_token(other_sk, 7, now, 60, cfg.public_address)), "connect token signature invalid");
+    EXPECT_NE(hello_with(c::issue_connect_token(sk, 7, now, 60, "elsewhere:7777")).find("another server"), std::string::npos);
+    EXPECT_EQ(hello_with(""), "missing connect token");
+    EXPECT_EQ(hello_with("garbage"), "malformed connect token");
+    // The existing client carries it in --token unchanged.
+    ClientOptions o = s.client(0.5);
+    o.token = c::issue_connect_token(sk, 8, now, 60, cfg.public_address);
+    ClientReport r;
+    EXPECT_NO_THROW(r = run_client(o));
+    EXPECT_EQ(r.characters, 4);
+    EXPECT_GE(s.server->stats().tokens_refused, 6u);
 }
