@@ -8,12 +8,14 @@
 //   Streaming --no Ack from the bound address in client_timeout--> Goodbye, Closing
 //   AwaitHello --bad version or token, server full, Welcome too large--> Refuse, Closing
 //   Closing --queued output written, or 1 s--> Closed
-// Nothing blocks: every TCP write is asynchronous, each session's queued
+// With tls_cert_file set, the control channel is TLS (asio::ssl) from the
+// first byte (handshake within hello_timeout). Nothing blocks: every TCP write is asynchronous, each session's queued
 // output is capped (max_queued_bytes), a failed accept backs off 100 ms, and
 // an exception in one session's handler closes that session only.
 #include "server.h"
 
 #include <asio.hpp>
+#include <asio/ssl.hpp>
 #include <chrono>
 #include <cstdio>
 #include <deque>
@@ -66,6 +68,7 @@ struct Server::Impl {
         Impl* server;
         uint64_t id = 0, token = 0;
         tcp::socket sock;
+        std::unique_ptr<asio::ssl::stream<tcp::socket&>> tls;  // over `sock` when TLS is on
         State state = State::AwaitHello;
         std::string name;
         uint8_t len_buf[4];
@@ -98,6 +101,7 @@ struct Server::Impl {
     udp::socket udp_sock{io};
     asio::steady_timer timer{io};
     asio::steady_timer accept_timer{io};
+    std::unique_ptr<asio::ssl::context> tls_ctx;  // set when ServerConfig::tls_cert_file is
     std::chrono::steady_clock::time_point next_tick;
     std::map<uint64_t, std::shared_ptr<Session>> sessions;
     DatagramPacker packer;
@@ -119,6 +123,19 @@ struct Server::Impl {
         if (!(cfg.tick_rate > 0 && cfg.tick_rate <= 240)) throw Error("tick rate must be in (0, 240]");
         if (assets.empty()) throw Error("server: no assets");
         if (sodium_init() < 0) throw Error("server: libsodium could not be initialised");
+        if (!cfg.tls_cert_file.empty() || !cfg.tls_key_file.empty()) {
+            if (cfg.tls_cert_file.empty() || cfg.tls_key_file.empty())
+                throw Error("server: TLS needs both a certificate and a private key file");
+            tls_ctx = std::make_unique<asio::ssl::context>(asio::ssl::context::tls_server);
+            tls_ctx->set_options(asio::ssl::context::default_workarounds | asio::ssl::context::no_sslv2 |
+                                 asio::ssl::context::no_sslv3 | asio::ssl::context::no_tlsv1 | asio::ssl::context::no_tlsv1_1 |
+                                 asio::ssl::context::single_dh_use);
+            asio::error_code ec;
+            tls_ctx->use_certificate_chain_file(cfg.tls_cert_file, ec);
+            if (ec) throw Error("server: TLS certificate " + cfg.tls_cert_file + ": " + ec.message());
+            tls_ctx->use_private_key_file(cfg.tls_key_file, asio::ssl::context::pem, ec);
+            if (ec) throw Error("server: TLS private key " + cfg.tls_key_file + ": " + ec.message());
+        }
         if (!cfg.token_public_key.empty()) {
             if (!crypto::from_hex(cfg.token_public_key, token_key))
                 throw Error("server: the connect token public key must be 64 hex digits");
@@ -214,7 +231,32 @@ struct Server::Impl {
                              ")");
             return;
         }
+        if (tls_ctx) {  // the handshake runs under hello_timeout like the rest of AwaitHello
+            sess->tls = std::make_unique<asio::ssl::stream<tcp::socket&>>(sess->sock, *tls_ctx);
+            sess->tls->async_handshake(asio::ssl::stream_base::server, [this, sess](asio::error_code ec) {
+                if (sess->state == State::Closed) return;
+                if (ec) {
+                    with_stats([](ServerStats& st) { ++st.tls_failures; });
+                    close(sess, "TLS handshake: " + ec.message());
+                    return;
+                }
+                read_header(sess);
+            });
+            return;
+        }
         read_header(sess);
+    }
+
+    // The session's byte stream: TLS over the socket when configured, else the socket.
+    template <class Buffers, class Handler>
+    void read_exactly(const std::shared_ptr<Session>& s, const Buffers& b, Handler&& h) {
+        if (s->tls) asio::async_read(*s->tls, b, std::forward<Handler>(h));
+        else asio::async_read(s->sock, b, std::forward<Handler>(h));
+    }
+    template <class Buffers, class Handler>
+    void write_all(const std::shared_ptr<Session>& s, const Buffers& b, Handler&& h) {
+        if (s->tls) asio::async_write(*s->tls, b, std::forward<Handler>(h));
+        else asio::async_write(s->sock, b, std::forward<Handler>(h));
     }
 
     void close(const std::shared_ptr<Session>& s, const std::string& why) {
@@ -257,7 +299,7 @@ struct Server::Impl {
 
     void write_next(const std::shared_ptr<Session>& s) {
         if (s->writes.empty()) return;
-        asio::async_write(s->sock, asio::buffer(s->writes.front()), [this, s](asio::error_code ec, size_t) {
+        write_all(s, asio::buffer(s->writes.front()), [this, s](asio::error_code ec, size_t) {
             if (s->state == State::Closed) return;
             if (ec) {
                 close(s, "write: " + ec.message());
@@ -271,7 +313,7 @@ struct Server::Impl {
     }
 
     void read_header(const std::shared_ptr<Session>& s) {
-        asio::async_read(s->sock, asio::buffer(s->len_buf, 4), [this, s](asio::error_code ec, size_t) {
+        read_exactly(s, asio::buffer(s->len_buf, 4), [this, s](asio::error_code ec, size_t) {
             if (s->state == State::Closing) return;  // nothing more is read once the last message is queued
             if (ec || s->state == State::Closed) {
                 close(s, ec ? ec.message() : "closed");
@@ -285,7 +327,7 @@ struct Server::Impl {
                 return;
             }
             s->body.resize(n);
-            asio::async_read(s->sock, asio::buffer(s->body), [this, s](asio::error_code ec2, size_t) {
+            read_exactly(s, asio::buffer(s->body), [this, s](asio::error_code ec2, size_t) {
                 if (s->state == State::Closing) return;
                 if (ec2 || s->state == State::Closed) {
                     close(s, ec2 ? ec2.message() : "closed");

@@ -37,6 +37,10 @@ struct ServerConfig {
     // `progskin token`), unexpired, for public_address if that is set, never used before.
     std::string token_public_key;
     std::string public_address;   // "host:port" as written in connect tokens; empty: any
+    // Both non-empty (PEM files; off by default): the control channel is TLS
+    // 1.2+ (OpenSSL through asio::ssl) from the first byte; clients that speak
+    // plain TCP fail the handshake and are closed.
+    std::string tls_cert_file, tls_key_file;
     double asset_bytes_factor = 4.0;  // per-session download limit, x total asset bytes
     size_t max_queued_bytes = 1 << 20;  // per-session control output waiting to be written; more closes the session
     int max_per_address = 64;     // open TCP connections from one IP address (0: no limit)
@@ -51,6 +55,7 @@ struct ServerStats {
     uint64_t malformed_control = 0, asset_bytes_sent = 0;
     uint64_t challenges_sent = 0;  // return-routability challenges (answers to Binds from new addresses)
     uint64_t accept_errors = 0, backlog_closes = 0, handler_errors = 0;
+    uint64_t tls_failures = 0;     // TLS handshakes that failed
     uint64_t tokens_refused = 0;   // connect tokens invalid, expired, for another server or replayed
     double tick_seconds = 0;      // total time spent in ticks
 };

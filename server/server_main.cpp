@@ -36,6 +36,7 @@ static const char* kUsage =
     "  --token-public-key HEX  require a connect token signed by the matching secret\n"
     "                    key (progskin token keygen / issue) in Hello\n"
     "  --public-address HOST:PORT  the address connect tokens must name (default: any)\n"
+    "  --tls-cert FILE --tls-key FILE  TLS on the control channel (PEM; default: plain TCP)\n"
     "  --duration S      stop after S seconds (default: run until SIGINT/SIGTERM)\n"
     "  --verbose         log sessions on stderr\n"
     "  --help\n"
@@ -79,6 +80,8 @@ int main(int argc, char** argv) {
             else if (a == "--token") cfg.token = need(i);
             else if (a == "--token-public-key") cfg.token_public_key = need(i);
             else if (a == "--public-address") cfg.public_address = need(i);
+            else if (a == "--tls-cert") cfg.tls_cert_file = need(i);
+            else if (a == "--tls-key") cfg.tls_key_file = need(i);
             else if (a == "--duration") duration = cli::to_number(a, need(i));
             else if (a == "--verbose") cfg.verbose = true;
             else {

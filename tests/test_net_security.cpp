@@ -14,6 +14,7 @@
 #include <unistd.h>
 
 #include <asio.hpp>
+#include <asio/ssl.hpp>
 #include <atomic>
 #include <cstring>
 #include <fstream>
@@ -697,4 +698,42 @@ TEST(NetSecurity, ConnectTokensAreCheckedWhenConfigured) {
     EXPECT_NO_THROW(r = run_client(o));
     EXPECT_EQ(r.characters, 4);
     EXPECT_GE(s.server->stats().tokens_refused, 6u);
+}
+
+// TLS on the control channel (off by default): a TLS client that verifies the
+// server's certificate gets its Welcome; a plain-TCP Hello fails the
+// handshake and only that connection is closed.
+TEST(NetSecurity, ControlChannelOverTlsWhenConfigured) {
+    ServerConfig cfg;
+    cfg.tls_cert_file = std::string(PROGSKIN_TEST_DATA) + "/tls/test_cert.pem";
+    cfg.tls_key_file = std::string(PROGSKIN_TEST_DATA) + "/tls/test_key.pem";
+    RunningServer s({}, cfg);
+    asio::io_context io;
+    asio::ssl::context ctx(asio::ssl::context::tls_client);
+    ctx.load_verify_file(cfg.tls_cert_file);
+    ctx.set_verify_mode(asio::ssl::verify_peer);
+    asio::ssl::stream<tcp::socket> tls(io, ctx);
+    tls.set_verify_callback(asio::ssl::host_name_verification("localhost"));
+    tls.next_layer().connect(tcp::endpoint(kLoopback, s.server->tcp_port()));
+    tls.handshake(asio::ssl::stream_base::client);
+    asio::write(tls, asio::buffer(hello_message("tls")));
+    uint8_t len[4];
+    asio::read(tls, asio::buffer(len));
+    uint32_t n = 0;
+    read_length({len, 4}, n);
+    ASSERT_LE(n, MAX_CONTROL_MESSAGE);
+    std::vector<uint8_t> body(n);
+    asio::read(tls, asio::buffer(body));
+    const wire::Control* c = verify_control(body);
+    ASSERT_TRUE(c);
+    EXPECT_EQ(c->body_type(), wire::ControlBody::Welcome);
+    // Plain TCP: the handshake fails, that connection closes, the TLS session stays.
+    tcp::socket plain(io);
+    plain.connect(tcp::endpoint(kLoopback, s.server->tcp_port()));
+    asio::write(plain, asio::buffer(hello_message("plain")));
+    EXPECT_TRUE(closed_within(plain, 2000));
+    for (int i = 0; i < 50 && s.server->stats().tls_failures == 0; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    EXPECT_EQ(s.server->stats().tls_failures, 1u);
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));  // sessions_active is counted each tick
+    EXPECT_EQ(s.server->stats().sessions_active, 1u);
 }
