@@ -113,6 +113,38 @@ OpenResult Opener::open(std::span<const uint8_t> sealed, std::span<const uint8_t
     return OpenResult::ok;
 }
 
+namespace {
+std::array<uint8_t, 10> datagram_ad(uint64_t session_id, uint16_t version) {
+    std::array<uint8_t, 10> ad{};
+    for (int i = 0; i < 8; ++i) ad[size_t(i)] = uint8_t(session_id >> (8 * i));
+    ad[8] = uint8_t(version);
+    ad[9] = uint8_t(version >> 8);
+    return ad;
+}
+}  // namespace
+
+void seal_datagram(Sealer& sealer, uint64_t session_id, uint16_t version, std::span<const uint8_t> plain,
+                   std::vector<uint8_t>& out) {
+    const auto ad = datagram_ad(session_id, version);
+    std::vector<uint8_t> sealed;
+    sealer.seal(plain, ad, sealed);
+    out.clear();
+    put_u64(out, session_id);
+    out.insert(out.end(), sealed.begin(), sealed.end());
+}
+
+uint64_t sealed_session_id(std::span<const uint8_t> wire) {
+    return wire.size() < SEALED_DATAGRAM_OVERHEAD ? 0 : get_u64(wire.data());
+}
+
+OpenResult open_datagram(Opener& opener, uint64_t session_id, uint16_t version, std::span<const uint8_t> wire,
+                         std::vector<uint8_t>& plain, uint64_t& seq) {
+    if (wire.size() < SEALED_DATAGRAM_OVERHEAD) return OpenResult::too_short;
+    if (get_u64(wire.data()) != session_id) return OpenResult::forged;
+    const auto ad = datagram_ad(session_id, version);
+    return opener.open(wire.subspan(8), ad, plain, seq);
+}
+
 // ------------------------------------------------------------ tokens --
 
 void signing_keypair(PublicKey& pk, SecretKey& sk) {

@@ -83,6 +83,18 @@ private:
     ReplayWindow window_;
 };
 
+// A sealed datagram on the wire (docs/protocol.md "Sealed datagrams"):
+//     [session_id: uint64 LE][Sealer output: sequence, ciphertext, tag]
+// associated data = session_id (8 bytes LE) + protocol version (2 bytes LE).
+// SEALED_DATAGRAM_OVERHEAD = 32 bytes.
+inline constexpr size_t SEALED_DATAGRAM_OVERHEAD = 8 + SEAL_OVERHEAD;
+void seal_datagram(Sealer& sealer, uint64_t session_id, uint16_t version, std::span<const uint8_t> plain,
+                   std::vector<uint8_t>& out);
+// The session id a sealed datagram names (0 when it is too short to be one).
+uint64_t sealed_session_id(std::span<const uint8_t> wire);
+OpenResult open_datagram(Opener& opener, uint64_t session_id, uint16_t version, std::span<const uint8_t> wire,
+                         std::vector<uint8_t>& plain, uint64_t& seq);
+
 // ------------------------------------------------------------ tokens --
 
 inline constexpr size_t PUBLIC_KEY_BYTES = 32, SECRET_KEY_BYTES = 64, SIGNATURE_BYTES = 64;

@@ -9,7 +9,8 @@
 //   AwaitHello --bad version or token, server full, Welcome too large--> Refuse, Closing
 //   Closing --queued output written, or 1 s--> Closed
 // With tls_cert_file set, the control channel is TLS (asio::ssl) from the
-// first byte (handshake within hello_timeout). Nothing blocks: every TCP write is asynchronous, each session's queued
+// first byte (handshake within hello_timeout); with seal_datagrams too, every
+// datagram both ways is sealed with keys sent in the Welcome. Nothing blocks: every TCP write is asynchronous, each session's queued
 // output is capped (max_queued_bytes), a failed accept backs off 100 ms, and
 // an exception in one session's handler closes that session only.
 #include "server.h"
@@ -85,6 +86,10 @@ struct Server::Impl {
         double challenge_sent = -1e300;
         std::string close_reason;
         double close_deadline = 0;
+        // seal_datagrams: server -> client and client -> server keys (sent in the Welcome).
+        crypto::Key tx_key{}, rx_key{};
+        std::unique_ptr<crypto::Sealer> sealer;
+        std::unique_ptr<crypto::Opener> opener;
         RateController rate;
         Scheduler scheduler;
         std::vector<float> importance;
@@ -109,6 +114,7 @@ struct Server::Impl {
     std::vector<std::vector<uint8_t>> out_dgrams;
     alignas(16) std::array<uint8_t, 2048> udp_buf;
     udp::endpoint udp_from;
+    std::vector<uint8_t> sealed_buf, opened_buf;  // seal_datagrams scratch
     uint32_t tick = 0;
     double last_tick_time = 0;
     double total_asset_bytes = 0;
@@ -136,6 +142,8 @@ struct Server::Impl {
             tls_ctx->use_private_key_file(cfg.tls_key_file, asio::ssl::context::pem, ec);
             if (ec) throw Error("server: TLS private key " + cfg.tls_key_file + ": " + ec.message());
         }
+        if (cfg.seal_datagrams && !tls_ctx)
+            throw Error("server: sealed datagrams need TLS (their keys travel in the Welcome)");
         if (!cfg.token_public_key.empty()) {
             if (!crypto::from_hex(cfg.token_public_key, token_key))
                 throw Error("server: the connect token public key must be 64 hex digits");
@@ -407,6 +415,12 @@ struct Server::Impl {
                 s->rate = RateController(cap, std::min(cap, cfg.initial_kbps));
                 s->importance = compute_importance(ViewSpec{}, encoder.instances(), assets);
                 s->scheduler.reset(encoder.instances().size());
+                if (cfg.seal_datagrams) {
+                    s->tx_key = crypto::random_key();
+                    s->rx_key = crypto::random_key();
+                    s->sealer = std::make_unique<crypto::Sealer>(s->tx_key);
+                    s->opener = std::make_unique<crypto::Opener>(s->rx_key);
+                }
                 try {
                     send_welcome(s, cap);
                 } catch (const Error& e) {  // e.g. too many instances for one control message
@@ -527,8 +541,16 @@ struct Server::Impl {
         auto va = fbb.CreateVector(as);
         auto vi = fbb.CreateVector(is);
         auto sn = fbb.CreateString("progskin-server");
+        flatbuffers::Offset<flatbuffers::Vector<uint8_t>> keys;
+        if (s->sealer) {
+            std::array<uint8_t, 2 * crypto::KEY_BYTES> k;
+            std::copy(s->tx_key.begin(), s->tx_key.end(), k.begin());
+            std::copy(s->rx_key.begin(), s->rx_key.end(), k.begin() + crypto::KEY_BYTES);
+            keys = fbb.CreateVector(k.data(), k.size());
+            sodium_memzero(k.data(), k.size());
+        }
         auto w = wire::CreateWelcome(fbb, PROTOCOL_VERSION, s->id, s->token, udp_sock.local_endpoint().port(), cfg.tick_rate,
-                                     uint32_t(cap), va, vi, sn);
+                                     uint32_t(cap), va, vi, sn, keys);
         fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Welcome, w.Union()), wire::ControlIdentifier());
         if (fbb.GetSize() > MAX_CONTROL_MESSAGE)
             throw Error("Welcome would be " + std::to_string(fbb.GetSize()) + " bytes, over the " +
@@ -552,9 +574,20 @@ struct Server::Impl {
         });
     }
 
+    // Sends one datagram to `to`, sealed when the session seals; returns the bytes sent.
+    size_t send_datagram(Session& s, std::span<const uint8_t> plain, const udp::endpoint& to) {
+        asio::error_code ig;
+        if (!s.sealer) {
+            udp_sock.send_to(asio::buffer(plain.data(), plain.size()), to, 0, ig);
+            return plain.size();
+        }
+        crypto::seal_datagram(*s.sealer, s.id, PROTOCOL_VERSION, plain, sealed_buf);
+        udp_sock.send_to(asio::buffer(sealed_buf), to, 0, ig);
+        return sealed_buf.size();
+    }
+
     void handle_datagram(size_t n) {
         with_stats([](ServerStats& st) { ++st.datagrams_received; });
-        const wire::Datagram* d = verify_datagram({udp_buf.data(), n});
         auto reject = [&](bool malformed) {
             with_stats([&](ServerStats& st) {
                 if (malformed) ++st.malformed_datagrams;
@@ -562,19 +595,33 @@ struct Server::Impl {
                 st.unverified_bytes_in += n;
             });
         };
+        std::span<const uint8_t> bytes(udp_buf.data(), n);
+        Session* sealed_by = nullptr;  // seal_datagrams: the session whose key opened it
+        if (cfg.seal_datagrams) {
+            auto it = sessions.find(crypto::sealed_session_id(bytes));
+            if (it == sessions.end() || !it->second->opener) return reject(false);
+            uint64_t seq = 0;
+            if (crypto::open_datagram(*it->second->opener, it->first, PROTOCOL_VERSION, bytes, opened_buf, seq) !=
+                crypto::OpenResult::ok)
+                return reject(false);  // forged, replayed, or unsealed
+            sealed_by = it->second.get();
+            bytes = opened_buf;
+        }
+        const wire::Datagram* d = verify_datagram(bytes);
         if (!d) return reject(true);
         // Sends `fbb` to the datagram's source only if it is smaller than what
-        // came from there (never amplifies toward an unproven address).
-        auto answer = [&](const flatbuffers::FlatBufferBuilder& fbb, bool unverified) {
-            if (fbb.GetSize() >= n) return;
-            asio::error_code ig;
-            udp_sock.send_to(asio::buffer(fbb.GetBufferPointer(), fbb.GetSize()), udp_from, 0, ig);
-            if (unverified) with_stats([&](ServerStats& st) { st.unverified_bytes_out += fbb.GetSize(); });
+        // came from there (never amplifies toward an unproven address; sealing
+        // adds the same 32 bytes to both).
+        auto answer = [&](Session& s, const flatbuffers::FlatBufferBuilder& fbb, bool unverified) {
+            if (fbb.GetSize() >= bytes.size()) return;
+            const size_t sent = send_datagram(s, {fbb.GetBufferPointer(), fbb.GetSize()}, udp_from);
+            if (unverified) with_stats([&](ServerStats& st) { st.unverified_bytes_out += sent; });
         };
         auto find = [&](uint64_t id, uint64_t token) -> Session* {
             auto it = sessions.find(id);
             if (it == sessions.end() || !equal_u64(it->second->token, token)) return nullptr;
             Session* s = it->second.get();
+            if (sealed_by && s != sealed_by) return nullptr;  // sealed under another session's key
             return s->state == State::Welcomed || s->state == State::Streaming ? s : nullptr;
         };
         auto bind_ack = [&](Session& s) {
@@ -582,7 +629,7 @@ struct Server::Impl {
             auto ba = wire::CreateBindAck(fbb, s.id);
             fbb.Finish(wire::CreateDatagram(fbb, s.seq, now_us32(), wire::DatagramBody::BindAck, ba.Union()),
                        wire::DatagramIdentifier());
-            answer(fbb, false);
+            answer(s, fbb, false);
         };
         const double now = now_seconds();
         if (d->body_type() == wire::DatagramBody::Bind) {
@@ -603,7 +650,7 @@ struct Server::Impl {
             fbb.Finish(wire::CreateDatagram(fbb, s->seq, now_us32(), wire::DatagramBody::Challenge, ch.Union()),
                        wire::DatagramIdentifier());
             with_stats([](ServerStats& st) { ++st.challenges_sent; });
-            return answer(fbb, true);
+            return answer(*s, fbb, true);
         }
         if (d->body_type() == wire::DatagramBody::ChallengeResponse) {
             const wire::ChallengeResponse* r = d->body_as_ChallengeResponse();
@@ -685,9 +732,9 @@ struct Server::Impl {
             uint32_t first_seq = s->seq;
             size_t wire = packer.pack(*frame, picks, s->seq, out_dgrams);
             for (size_t i = 0; i < out_dgrams.size(); ++i) {
-                asio::error_code ec;
-                udp_sock.send_to(asio::buffer(out_dgrams[i]), s->peer, 0, ec);
-                s->rate.on_sent(first_seq + uint32_t(i), now_us32(), out_dgrams[i].size() + UDP_IP_OVERHEAD);
+                const size_t sent = send_datagram(*s, out_dgrams[i], s->peer);
+                s->rate.on_sent(first_seq + uint32_t(i), now_us32(), sent + UDP_IP_OVERHEAD);
+                wire += sent - out_dgrams[i].size();  // the seal's 32 bytes count against the rate
             }
             s->rate.spend(wire);
             s->scheduler.sent(picks, tick);

@@ -41,6 +41,10 @@ struct ServerConfig {
     // 1.2+ (OpenSSL through asio::ssl) from the first byte; clients that speak
     // plain TCP fail the handshake and are closed.
     std::string tls_cert_file, tls_key_file;
+    // With TLS (off by default): every datagram both ways is sealed
+    // (proto/crypto.h seal_datagram) with per-session keys sent in the Welcome;
+    // unsealed or forged datagrams are dropped and counted.
+    bool seal_datagrams = false;
     double asset_bytes_factor = 4.0;  // per-session download limit, x total asset bytes
     size_t max_queued_bytes = 1 << 20;  // per-session control output waiting to be written; more closes the session
     int max_per_address = 64;     // open TCP connections from one IP address (0: no limit)

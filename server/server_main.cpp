@@ -37,6 +37,7 @@ static const char* kUsage =
     "                    key (progskin token keygen / issue) in Hello\n"
     "  --public-address HOST:PORT  the address connect tokens must name (default: any)\n"
     "  --tls-cert FILE --tls-key FILE  TLS on the control channel (PEM; default: plain TCP)\n"
+    "  --seal-datagrams  (with TLS) seal every datagram with per-session keys\n"
     "  --duration S      stop after S seconds (default: run until SIGINT/SIGTERM)\n"
     "  --verbose         log sessions on stderr\n"
     "  --help\n"
@@ -82,6 +83,7 @@ int main(int argc, char** argv) {
             else if (a == "--public-address") cfg.public_address = need(i);
             else if (a == "--tls-cert") cfg.tls_cert_file = need(i);
             else if (a == "--tls-key") cfg.tls_key_file = need(i);
+            else if (a == "--seal-datagrams") cfg.seal_datagrams = true;
             else if (a == "--duration") duration = cli::to_number(a, need(i));
             else if (a == "--verbose") cfg.verbose = true;
             else {
