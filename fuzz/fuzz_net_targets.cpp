@@ -2,6 +2,7 @@
 #include <array>
 
 #include "bone_codec.h"
+#include "crypto.h"
 #include "frame_reader.h"
 #include "fuzz_targets.h"
 #include "pose_buffer.h"
@@ -11,6 +12,16 @@ namespace progskin::fuzz {
 
 int frame_stream(const uint8_t* data, size_t size) {
     using namespace progskin::net;
+    {  // The same bytes as a sealed datagram (--seal-datagrams) under a fixed key:
+       // refused (no input carries a valid tag) without reading out of bounds.
+        static crypto::Opener opener(crypto::Key{});
+        static std::vector<uint8_t> plain;
+        uint64_t seq = 0;
+        const uint64_t id = crypto::sealed_session_id({data, size});
+        if (crypto::open_datagram(opener, id, PROTOCOL_VERSION, {data, size}, plain, seq) == crypto::OpenResult::ok &&
+            !verify_datagram(plain))
+            return 0;
+    }
     const wire::Datagram* d = verify_datagram({data, size});
     if (!d) return 0;
     if (const wire::Frame* f = d->body_as_Frame()) {
