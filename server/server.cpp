@@ -10,9 +10,10 @@
 //   Closing --queued output written, or 1 s--> Closed
 // With tls_cert_file set, the control channel is TLS (asio::ssl) from the
 // first byte (handshake within hello_timeout); with seal_datagrams too, every
-// datagram both ways is sealed with keys sent in the Welcome. Nothing blocks: every TCP write is asynchronous, each session's queued
-// output is capped (max_queued_bytes), a failed accept backs off 100 ms, and
-// an exception in one session's handler closes that session only.
+// datagram both ways is sealed with keys sent in the Welcome. Nothing blocks:
+// every TCP write is asynchronous, each session's queued output is capped
+// (max_queued_bytes), a failed accept backs off 100 ms, and an exception in
+// one session's handler closes that session only.
 #include "server.h"
 
 #include <asio.hpp>
@@ -144,6 +145,8 @@ struct Server::Impl {
         }
         if (cfg.seal_datagrams && !tls_ctx)
             throw Error("server: sealed datagrams need TLS (their keys travel in the Welcome)");
+        if (!cfg.token_public_key.empty() && !cfg.token.empty())
+            throw Error("server: an access token and connect tokens both travel in Hello.token; configure one");
         if (!cfg.token_public_key.empty()) {
             if (!crypto::from_hex(cfg.token_public_key, token_key))
                 throw Error("server: the connect token public key must be 64 hex digits");
@@ -235,6 +238,11 @@ struct Server::Impl {
         sessions[sess->id] = sess;
         with_stats([](ServerStats& st) { ++st.sessions_total; });
         if (cfg.max_per_address > 0 && same >= cfg.max_per_address) {
+            if (tls_ctx) {  // no handshake spent on it: closed without a message
+                with_stats([](ServerStats& st) { ++st.refused; });
+                close(sess, "too many connections from " + sess->remote.to_string());
+                return;
+            }
             refuse(sess, "too many connections from " + sess->remote.to_string() + " (" + std::to_string(cfg.max_per_address) +
                              ")");
             return;
