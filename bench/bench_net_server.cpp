@@ -244,6 +244,7 @@ static void BM_Loopback200Clients(benchmark::State& st) {
         ServerConfig cfg;
         cfg.bind_address = "127.0.0.1";
         cfg.max_clients = clients + 8;
+        cfg.max_per_address = 0;  // every client comes from 127.0.0.1
         Server server(cfg, assets(), crowd_layout(assets(), n));
         std::thread th([&] { server.run(); });
         asio::io_context io;
@@ -295,6 +296,13 @@ static void BM_Loopback200Clients(benchmark::State& st) {
                     size_t got = c.udp.receive_from(asio::buffer(buf), from, 0, ec);
                     if (ec) break;
                     const wire::Datagram* d = verify_datagram({buf, got});
+                    if (d && d->body_type() == wire::DatagramBody::Challenge && d->body_as_Challenge()->nonce()) {
+                        const auto* nonce = d->body_as_Challenge()->nonce();  // return routability
+                        flatbuffers::FlatBufferBuilder r;
+                        build_challenge_response(r, c.session, c.token, {nonce->data(), nonce->size()});
+                        c.udp.send_to(asio::buffer(r.GetBufferPointer(), r.GetSize()), srv, 0, ec);
+                        continue;
+                    }
                     if (!d || d->body_type() != wire::DatagramBody::Frame) continue;
                     ++c.datagrams;
                     c.bytes += got + UDP_IP_OVERHEAD;

@@ -21,6 +21,7 @@
 #include <map>
 #include <thread>
 
+#include "asset_cache.h"
 #include "error.h"
 #include "frame_reader.h"
 #include "error_metric.h"
@@ -84,56 +85,6 @@ RootPose walk_root(const glm::dvec3& center, double radius, double speed, double
 }
 
 namespace {
-
-std::string default_cache_dir() {
-    if (const char* x = std::getenv("XDG_CACHE_HOME"); x && *x) return std::string(x) + "/progskin";
-    if (const char* h = std::getenv("HOME"); h && *h) return std::string(h) + "/.cache/progskin";
-    return "/tmp/progskin-cache";
-}
-
-std::vector<uint8_t> read_file(const fs::path& p) {
-    std::ifstream f(p, std::ios::binary);
-    if (!f) return {};
-    return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
-}
-
-std::shared_ptr<ClientAsset> load_client_asset(const wire::Asset* a, const std::string& path) {
-    auto ca = std::make_shared<ClientAsset>();
-    ca->id = a->asset_id();
-    ca->name = a->name() ? a->name()->str() : "";
-    ca->path = path;
-    ca->character = import_character(path);
-    const int B = a->bone_count();
-    if (!a->order() || !a->parents() || int(a->order()->size()) != B || int(a->parents()->size()) != B || B < 1 ||
-        B > MAX_BONES || (a->corrections() && a->corrections()->size() != size_t(B) * 12))
-        throw Error("server sent an inconsistent skin for " + ca->name);
-    ProgressiveSkin& s = ca->skin;
-    s.order.assign(a->order()->begin(), a->order()->end());
-    s.parents.assign(a->parents()->begin(), a->parents()->end());
-    if (s.parents[0] != -1) throw Error("bad progressive parents for " + ca->name);
-    for (int b = 1; b < B; ++b)
-        if (s.parents[b] < 0 || s.parents[b] >= b) throw Error("bad progressive parents for " + ca->name);
-    s.corrections.assign(B, Mat34::identity());
-    if (a->corrections())
-        for (int b = 0; b < B; ++b)
-            for (int i = 0; i < 12; ++i) s.corrections[b].m[i] = a->corrections()->Get(size_t(b) * 12 + i);
-    if (a->error())
-        for (size_t k = 0; k < a->error()->size(); ++k) {
-            LodError e;
-            e.bones = int(k) + 1;
-            e.rms = a->error()->Get(k)->rms();
-            e.max = a->error()->Get(k)->max();
-            s.error.push_back(e);
-        }
-    remap_skin_vertices(ca->character, s);
-    s.diagonal = a->diagonal();
-    ca->diagonal = rest_diagonal(ca->character);
-    if (!(ca->diagonal > 0)) ca->diagonal = a->diagonal() > 0 ? a->diagonal() : 1.0;
-    if (a->t_min()) ca->format.t_min = {a->t_min()->x(), a->t_min()->y(), a->t_min()->z()};
-    if (a->t_max()) ca->format.t_max = {a->t_max()->x(), a->t_max()->y(), a->t_max()->z()};
-    ca->format.scaled = a->scaled();
-    return ca;
-}
 
 // Receives one datagram with the kernel's arrival time (SO_TIMESTAMPNS), so
 // the per-second rate bins reflect the wire even when the game loop is late.
@@ -212,6 +163,7 @@ struct Client::Impl {
     std::vector<std::shared_ptr<ClientAsset>> assets;
     std::vector<std::string> asset_names;
     size_t downloading = 0;  // index of the asset being downloaded
+    double last_progress = 0;  // last asset chunk (or the start of the download)
 
     // remote characters, by instance id
     struct Remote {
@@ -398,6 +350,7 @@ struct Client::Impl {
         }
         catalogue[i].ready = true;
         catalogue[i].bytes = {};
+        if (all_assets_ready()) st.download_seconds = now_seconds() - started;
         raise(ClientEvent::Type::AssetReady, -1, int(i));
         for (auto& r : remotes)
             if (r.active && r.asset == int(i)) make_view(r);
@@ -413,15 +366,17 @@ struct Client::Impl {
             std::string ext = fs::path(e.name).extension().string();
             if (ext != ".glb" && ext != ".gltf") ext = ".glb";
             const fs::path path = fs::path(cache) / (hex64(e.id) + ext);
-            if (fs::exists(path) && content_hash(read_file(path)) == e.id) {
+            if (fs::exists(path) && content_hash(read_file(path.string())) == e.id) {
                 ++st.assets_cached;
                 asset_loaded(i, path.string());
                 if (state == ClientState::Failed) return;
-            } else if (e.size == 0 || e.size > (1ull << 31)) {
-                return fail("server announced asset " + e.name + " of " + std::to_string(e.size) + " bytes");
+            } else if (e.size == 0 || e.size > MAX_ASSET_BYTES) {
+                return fail("server announced asset " + e.name + " of " + std::to_string(e.size) + " bytes (the limit is " +
+                            std::to_string(MAX_ASSET_BYTES) + ")");
             }
         }
         downloading = 0;
+        last_progress = now_seconds();
         request_chunks();
     }
 
@@ -451,6 +406,7 @@ struct Client::Impl {
         e.bytes.insert(e.bytes.end(), ch.data()->begin(), ch.data()->end());
         st.asset_bytes_downloaded += ch.data()->size();
         --e.in_flight;
+        last_progress = now_seconds();
         if (cfg.on_download) cfg.on_download(e.name, e.bytes.size(), e.size);
         if (e.bytes.size() < e.size) return request_chunks();
         if (content_hash(e.bytes) != e.id) return fail("downloaded " + e.name + " does not match its content hash");
@@ -562,10 +518,7 @@ struct Client::Impl {
 
     void send_bind() {
         fbb.Clear();
-        std::vector<uint8_t> pad(64, 0);  // a Bind is always larger than its BindAck
-        auto p = fbb.CreateVector(pad);
-        auto b = wire::CreateBind(fbb, session, udp_token, p);
-        fbb.Finish(wire::CreateDatagram(fbb, 0, now_us32(), wire::DatagramBody::Bind, b.Union()), wire::DatagramIdentifier());
+        build_bind(fbb, session, udp_token);  // padded: always larger than its BindAck or Challenge
         send_datagram(fbb);
     }
 
@@ -584,6 +537,17 @@ struct Client::Impl {
             last_datagram = t;
             if (d->body_type() == wire::DatagramBody::BindAck) {
                 bound = true;
+                continue;
+            }
+            if (d->body_type() == wire::DatagramBody::Challenge) {  // return routability: echo the nonce
+                const wire::Challenge* ch = d->body_as_Challenge();
+                if (ch->session_id() == session && ch->nonce() && ch->nonce()->size() == CHALLENGE_NONCE) {
+                    fbb.Clear();
+                    build_challenge_response(fbb, session, udp_token, {ch->nonce()->data(), ch->nonce()->size()});
+                    send_datagram(fbb);
+                } else {
+                    ++st.malformed;
+                }
                 continue;
             }
             if (d->body_type() != wire::DatagramBody::Frame) {
@@ -711,23 +675,30 @@ struct Client::Impl {
             return;
         }
         if (view_dirty) send_view_now();
-        // UDP once every catalogue asset is ready (the budget is not spent on
-        // frames the client could not use yet).
-        if (!udp_sock.is_open() && all_assets_ready()) {
+        // UDP right after Welcome: the server drops a session that is not
+        // bound 10 s after its Welcome, and a download may take longer
+        // (frames of characters whose asset is not ready are skipped).
+        if (!udp_sock.is_open()) {
             open_udp();
+            if (state == ClientState::Failed) return;
             next_stats = now + 1.0;
         }
-        if (!udp_sock.is_open()) {
-            if (now - started > cfg.connect_timeout + 600.0) fail("asset download did not finish");
-            return;
-        }
-        if (!any_frame && !bound && now >= next_bind) {
+        // Bind until bound; bind again after 1 s without a datagram (the
+        // address may have changed: NAT rebinding), every 0.2 s.
+        if (((!any_frame && !bound) || (bound && has_characters() && now - last_datagram > 1.0)) && now >= next_bind) {
             send_bind();
             next_bind = now + 0.2;
         }
         receive_udp();
         if ((any_frame || bound) && state == ClientState::Connecting) state = ClientState::Streaming;
-        if (!any_frame && !bound && now - started > cfg.connect_timeout + 600.0) return fail("no answer from the server's UDP port");
+        if (!all_assets_ready()) {
+            if (now - last_progress > cfg.connect_timeout)
+                return fail("timed out downloading " + catalogue[downloading].name + " (" +
+                            std::to_string(catalogue[downloading].bytes.size()) + " of " +
+                            std::to_string(catalogue[downloading].size) + " bytes)");
+        } else if (!any_frame && !bound && now - started > cfg.connect_timeout) {
+            return fail("no answer from the server's UDP port");
+        }
         if (any_frame && now - last_datagram > cfg.stream_timeout && has_characters())
             return fail("lost the stream: no datagram for " + std::to_string(int(now - last_datagram)) + " s");
         // Acks

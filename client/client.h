@@ -127,6 +127,7 @@ struct ClientStats {
     double delay_ms = 0;           // largest display delay used
     uint64_t asset_bytes_downloaded = 0;
     int assets_cached = 0;
+    double download_seconds = -1;  // from connect() until every catalogue asset was ready (-1: not yet)
     uint64_t poses_sent = 0, poses_refused = 0;  // publish(): sent, and refused (out of the codec's range)
     std::vector<double> per_second_bytes;  // wire bytes per second since the first frame
 };
@@ -276,6 +277,7 @@ struct ClientReport {
     double delay_ms = 0;
     uint64_t asset_bytes_downloaded = 0;
     int assets_cached = 0;
+    double download_seconds = 0;  // from connecting until every asset was ready (cache or download)
     std::vector<InstanceReport> instances;
     // Remote published characters (--verify): error against what their
     // publisher displays at the same world time, and latency from the

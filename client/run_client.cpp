@@ -272,6 +272,7 @@ ClientReport run_client(const ClientOptions& opt) {
     rep.delay_ms = st.delay_ms;
     rep.asset_bytes_downloaded = st.asset_bytes_downloaded;
     rep.assets_cached = st.assets_cached;
+    rep.download_seconds = st.download_seconds;
     rep.poses_sent = st.poses_sent;
     const double stream_seconds = st.seconds;
     double total = 0;
@@ -354,7 +355,7 @@ std::string report_json(const ClientReport& r) {
     o << ", \"rate_max_kbps\": " << r.rate_max_kbps << ", \"max_jump_pct\": " << r.max_jump_pct
       << ", \"delay_ms_max\": " << r.delay_ms << ", \"rtt_ms\": " << r.rtt_ms << ", \"estimate_kbps\": " << r.estimate_kbps
       << ", \"malformed\": " << r.malformed << ", \"duplicates\": " << r.duplicates
-      << ", \"asset_bytes_downloaded\": " << r.asset_bytes_downloaded << ", \"assets_cached\": " << r.assets_cached
+      << ", \"asset_bytes_downloaded\": " << r.asset_bytes_downloaded << ", \"assets_cached\": " << r.assets_cached << ", \"download_seconds\": " << r.download_seconds
       << ", \"published\": " << r.published << ", \"poses_sent\": " << r.poses_sent << ", \"remote\": {\"characters\": "
       << r.remote_characters << ", \"rms_pct\": ";
     num_or_null(o, r.remote_rms_pct);

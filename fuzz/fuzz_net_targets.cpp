@@ -4,6 +4,7 @@
 #include "bone_codec.h"
 #include "client.h"
 #include "server.h"
+#include "crypto.h"
 #include "frame_reader.h"
 #include "fuzz_targets.h"
 #include "pose_buffer.h"
@@ -13,6 +14,16 @@ namespace progskin::fuzz {
 
 int frame_stream(const uint8_t* data, size_t size) {
     using namespace progskin::net;
+    {  // The same bytes as a sealed datagram (--seal-datagrams) under a fixed key:
+       // refused (no input carries a valid tag) without reading out of bounds.
+        static crypto::Opener opener(crypto::Key{});
+        static std::vector<uint8_t> plain;
+        uint64_t seq = 0;
+        const uint64_t id = crypto::sealed_session_id({data, size});
+        if (crypto::open_datagram(opener, id, PROTOCOL_VERSION, {data, size}, plain, seq) == crypto::OpenResult::ok &&
+            !verify_datagram(plain))
+            return 0;
+    }
     const wire::Datagram* d = verify_datagram({data, size});
     if (!d) return 0;
     if (const wire::Frame* f = d->body_as_Frame()) {
@@ -47,7 +58,7 @@ int frame_stream(const uint8_t* data, size_t size) {
         }
         return accepted > 0;
     }
-    // Ack, Bind, BindAck: verified tables, every field read.
+    // Ack, Bind, BindAck, Challenge, ChallengeResponse: verified tables, every field read.
     [[maybe_unused]] static volatile uint64_t sink;
     if (const wire::Ack* a = d->body_as_Ack()) {
         sink = a->session_id() ^ a->token() ^ a->ack() ^ a->ack_bits() ^ a->echo_time_us() ^ a->hold_us();
@@ -59,6 +70,14 @@ int frame_stream(const uint8_t* data, size_t size) {
     }
     if (const wire::BindAck* b = d->body_as_BindAck()) {
         sink = b->session_id();
+        return 1;
+    }
+    if (const wire::Challenge* c = d->body_as_Challenge()) {
+        sink = c->session_id() ^ (c->nonce() && c->nonce()->size() == CHALLENGE_NONCE ? c->nonce()->Get(15) : 0);
+        return 1;
+    }
+    if (const wire::ChallengeResponse* r = d->body_as_ChallengeResponse()) {
+        sink = r->session_id() ^ r->token() ^ (r->nonce() ? r->nonce()->size() : 0) ^ (r->pad() ? r->pad()->size() : 0);
         return 1;
     }
     // Pose: what the server checks before using a player's pose (server.cpp).

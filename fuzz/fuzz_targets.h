@@ -21,7 +21,9 @@ int gltf_import(const uint8_t* data, size_t size);
 // as one received UDP datagram the way the client does: verify_datagram, then
 // for a Frame read_frame (proto/frame_reader.h) into the PoseBuffers of a
 // fixed scene (instances 0..4: 24 and 19 bones, 12-byte records, the last
-// 14-byte records) and a few interpolated poses; for an Ack or Bind its fields. Returns 1 when the
+// 14-byte records) and a few interpolated poses; for an Ack, Bind, BindAck,
+// Challenge or ChallengeResponse its fields; and the bytes as a sealed
+// datagram (crypto.h open_datagram, a fixed key). Returns 1 when the
 // datagram was accepted, 0 when it was dropped.
 int frame_stream(const uint8_t* data, size_t size);
 

@@ -1,7 +1,7 @@
 // make_frame_corpus.cpp — writes the seed corpus of the frame-stream fuzz
 // target (fuzz/corpus/frame): real datagrams of the default character set
 // (progskin-server's scene without arguments) as the server packs them at
-// several budgets, and one Bind, BindAck and Ack.
+// several budgets, and one Bind, BindAck, Ack, Challenge and ChallengeResponse.
 //
 //   build/fuzz/make_frame_corpus fuzz/corpus/frame
 #include <cstdio>
@@ -70,6 +70,17 @@ int main(int argc, char** argv) {
     write(dir, "bind-ack", finish(fbb, wire::DatagramBody::BindAck, wire::CreateBindAck(fbb, 0x1234).Union()));
     fbb.Clear();
     write(dir, "ack", finish(fbb, wire::DatagramBody::Ack, wire::CreateAck(fbb, 0x1234, 0x5678, 40, 0xfffffffbu, 99, 250).Union()));
+    fbb.Clear();
+    std::vector<uint8_t> nonce(CHALLENGE_NONCE);
+    for (size_t i = 0; i < nonce.size(); ++i) nonce[i] = uint8_t(17 * i + 3);
+    auto nv = fbb.CreateVector(nonce);
+    write(dir, "challenge", finish(fbb, wire::DatagramBody::Challenge, wire::CreateChallenge(fbb, 0x1234, nv).Union()));
+    fbb.Clear();
+    std::vector<uint8_t> pad32(32, 0);
+    auto nv2 = fbb.CreateVector(nonce);
+    auto p32 = fbb.CreateVector(pad32);
+    write(dir, "challenge-response",
+          finish(fbb, wire::DatagramBody::ChallengeResponse, wire::CreateChallengeResponse(fbb, 0x1234, 0x5678, nv2, p32).Union()));
     fbb.Clear();
     {
         std::vector<uint8_t> root(ROOT_BYTES), rec(24 * 12);

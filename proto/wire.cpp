@@ -79,4 +79,21 @@ void build_refuse(flatbuffers::FlatBufferBuilder& fbb, const std::string& reason
     fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Refuse, g.Union()), wire::ControlIdentifier());
 }
 
+void build_bind(flatbuffers::FlatBufferBuilder& fbb, uint64_t session_id, uint64_t token) {
+    const std::vector<uint8_t> pad(64, 0);  // a Bind is always larger than its Challenge or BindAck
+    auto p = fbb.CreateVector(pad);
+    auto b = wire::CreateBind(fbb, session_id, token, p);
+    fbb.Finish(wire::CreateDatagram(fbb, 0, now_us32(), wire::DatagramBody::Bind, b.Union()), wire::DatagramIdentifier());
+}
+
+void build_challenge_response(flatbuffers::FlatBufferBuilder& fbb, uint64_t session_id, uint64_t token,
+                              std::span<const uint8_t> nonce) {
+    const std::vector<uint8_t> pad(32, 0);
+    auto n = fbb.CreateVector(nonce.data(), nonce.size());
+    auto p = fbb.CreateVector(pad);
+    auto r = wire::CreateChallengeResponse(fbb, session_id, token, n, p);
+    fbb.Finish(wire::CreateDatagram(fbb, 0, now_us32(), wire::DatagramBody::ChallengeResponse, r.Union()),
+               wire::DatagramIdentifier());
+}
+
 }  // namespace progskin::net

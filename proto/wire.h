@@ -26,11 +26,12 @@ inline constexpr size_t MAX_ASSET_CHUNK = 32768;      // AssetRequest.length lim
 inline constexpr size_t MAX_NAME = 64;                // Hello.client_name
 inline constexpr size_t MAX_TOKEN = 256;              // Hello.token
 inline constexpr int MAX_BONES = 255;                 // bones per character on the wire
-inline constexpr int HOLD_TICKS = 16;
+inline constexpr size_t CHALLENGE_NONCE = 16;          // Challenge.nonce bytes
+inline constexpr int HOLD_TICKS = 16;                 // a bone stays shown this many ticks after its newest frame
 inline constexpr uint8_t CHUNK_ROOT = 1, CHUNK_SCALED = 2;   // Chunk.flags
 inline constexpr size_t ROOT_BYTES = 26;              // root block (datagram.fbs Chunk)
 inline constexpr int MAX_SPAWNED = 16;                // characters one session may own
-inline constexpr size_t MAX_INSTANCES = 65535;        // instance ids are uint16 (0xFFFF unused)                 // a bone stays shown this many ticks after its newest frame
+inline constexpr size_t MAX_INSTANCES = 65535;        // instance ids are uint16 (0xFFFF unused)
 
 // FNV-1a 64 of bytes: the asset id (content hash; not cryptographic).
 uint64_t content_hash(std::span<const uint8_t> bytes);
@@ -54,5 +55,11 @@ double now_seconds();  // monotonic seconds
 // Helpers building the small messages both sides send.
 void build_goodbye(flatbuffers::FlatBufferBuilder& fbb, const std::string& reason);
 void build_refuse(flatbuffers::FlatBufferBuilder& fbb, const std::string& reason);
+// Datagrams a client sends to bind its UDP address (docs/protocol.md "Bind"):
+// the Bind (padded so that it is larger than any answer) and the answer to a
+// Challenge, echoing its nonce (padded so that it is larger than BindAck).
+void build_bind(flatbuffers::FlatBufferBuilder& fbb, uint64_t session_id, uint64_t token);
+void build_challenge_response(flatbuffers::FlatBufferBuilder& fbb, uint64_t session_id, uint64_t token,
+                              std::span<const uint8_t> nonce);
 
 }  // namespace progskin::net

@@ -1,10 +1,23 @@
 // server.cpp — see server.h. Session state machine (docs/protocol.md):
-//   AwaitHello --Hello ok--> Welcomed --valid UDP Bind--> Streaming
-//   any --Goodbye / TCP close / timeout / limit--> Closed
-//   AwaitHello --bad version or token, server full--> Refuse, Closed
+//   AwaitHello --Hello ok--> Welcomed --Bind, Challenge, ChallengeResponse
+//       from the same address--> Streaming
+//   Streaming --Bind from a new address, Challenge, ChallengeResponse--> Streaming (moved)
+//   any --Goodbye / TCP close / error / output backlog--> Closed
+//   AwaitHello --no Hello in hello_timeout--> Closed
+//   Welcomed --not bound client_timeout after Welcome (TCP traffic or not)--> Goodbye, Closing
+//   Streaming --no Ack from the bound address in client_timeout--> Goodbye, Closing
+//   AwaitHello --bad version or token, server full, Welcome too large--> Refuse, Closing
+//   Closing --queued output written, or 1 s--> Closed
+// With tls_cert_file set, the control channel is TLS (asio::ssl) from the
+// first byte (handshake within hello_timeout); with seal_datagrams too, every
+// datagram both ways is sealed with keys sent in the Welcome. Nothing blocks:
+// every TCP write is asynchronous, each session's queued output is capped
+// (max_queued_bytes), a failed accept backs off 100 ms, and an exception in
+// one session's handler closes that session only.
 #include "server.h"
 
 #include <asio.hpp>
+#include <asio/ssl.hpp>
 #include <chrono>
 #include <cstdio>
 #include <deque>
@@ -13,6 +26,9 @@
 #include <algorithm>
 #include <random>
 
+#include <sodium.h>
+
+#include "crypto.h"
 #include "datagram_packer.h"
 #include "error.h"
 #include "frame_encoder.h"
@@ -26,7 +42,28 @@ using asio::ip::tcp;
 using asio::ip::udp;
 
 namespace {
-enum class State { AwaitHello, Welcomed, Streaming, Closed };
+enum class State { AwaitHello, Welcomed, Streaming, Closing, Closed };
+
+// 64 bits from the operating system's cryptographic generator (libsodium).
+uint64_t random_u64() {
+    uint64_t v = 0;
+    while (v == 0) randombytes_buf(&v, sizeof v);
+    return v;
+}
+
+bool equal_u64(uint64_t a, uint64_t b) { return sodium_memcmp(&a, &b, sizeof a) == 0; }
+
+// Constant-time comparison of two strings of any lengths: compares their
+// BLAKE2b digests, so neither the content nor the length leaks through timing.
+bool equal_secret(const std::string& a, const std::string& b) {
+    unsigned char ha[32], hb[32];
+    crypto_generichash(ha, sizeof ha, reinterpret_cast<const unsigned char*>(a.data()), a.size(), nullptr, 0);
+    crypto_generichash(hb, sizeof hb, reinterpret_cast<const unsigned char*>(b.data()), b.size(), nullptr, 0);
+    return sodium_memcmp(ha, hb, sizeof ha) == 0;
+}
+
+constexpr double LINGER_SECONDS = 1.0;     // Closing: time to write the last message
+constexpr double CHALLENGE_SECONDS = 5.0;  // a Challenge's nonce is valid this long
 
 // The time range of clips played together (what an observer's reference plays).
 ClipSelection selection_of(const Character& c, const std::vector<int>& clips) {
@@ -49,6 +86,7 @@ struct Server::Impl {
         Impl* server;
         uint64_t id = 0, token = 0;
         tcp::socket sock;
+        std::unique_ptr<asio::ssl::stream<tcp::socket&>> tls;  // over `sock` when TLS is on
         State state = State::AwaitHello;
         std::string name;
         uint8_t len_buf[4];
@@ -57,7 +95,18 @@ struct Server::Impl {
         size_t queued = 0;
         udp::endpoint peer;
         bool bound = false;
-        double opened = 0, last_heard = 0;
+        double opened = 0, welcomed = 0, last_heard = 0;  // last_heard: newest Ack from the bound address
+        asio::ip::address remote;                          // TCP peer (per-address limit)
+        // Return routability: the address a Bind came from and the nonce sent there.
+        udp::endpoint challenge_peer;
+        std::array<uint8_t, CHALLENGE_NONCE> challenge_nonce{};
+        double challenge_sent = -1e300;
+        std::string close_reason;
+        double close_deadline = 0;
+        // seal_datagrams: server -> client and client -> server keys (sent in the Welcome).
+        crypto::Key tx_key{}, rx_key{};
+        std::unique_ptr<crypto::Sealer> sealer;
+        std::unique_ptr<crypto::Opener> opener;
         RateController rate;
         Scheduler scheduler;
         ViewSpec view;
@@ -81,14 +130,16 @@ struct Server::Impl {
     tcp::acceptor acceptor{io};
     udp::socket udp_sock{io};
     asio::steady_timer timer{io};
+    asio::steady_timer accept_timer{io};
+    std::unique_ptr<asio::ssl::context> tls_ctx;  // set when ServerConfig::tls_cert_file is
     std::chrono::steady_clock::time_point next_tick;
     std::map<uint64_t, std::shared_ptr<Session>> sessions;
-    std::mt19937_64 rng{std::random_device{}()};
     DatagramPacker packer;
     std::vector<Pick> picks;
     std::vector<std::vector<uint8_t>> out_dgrams;
     alignas(16) std::array<uint8_t, 2048> udp_buf;
     udp::endpoint udp_from;
+    std::vector<uint8_t> sealed_buf, opened_buf;  // seal_datagrams scratch
     uint32_t tick = 0;
     double last_tick_time = 0;
     std::atomic<uint64_t> instances_version{1};  // bumped by every add / remove
@@ -96,11 +147,37 @@ struct Server::Impl {
     double total_asset_bytes = 0;
     mutable std::mutex stats_mutex;
     ServerStats st;
+    bool connect_tokens = false;
+    crypto::PublicKey token_key{};
+    crypto::TokenReplayCache token_replays;
 
     Impl(ServerConfig c, std::vector<std::shared_ptr<ServerAsset>> a, std::vector<InstanceSpec> inst)
         : cfg(std::move(c)), assets(a), encoder(a, std::move(inst), cfg.tick_rate) {
         if (!(cfg.tick_rate > 0 && cfg.tick_rate <= 240)) throw Error("tick rate must be in (0, 240]");
         if (assets.empty()) throw Error("server: no assets");
+        if (sodium_init() < 0) throw Error("server: libsodium could not be initialised");
+        if (!cfg.tls_cert_file.empty() || !cfg.tls_key_file.empty()) {
+            if (cfg.tls_cert_file.empty() || cfg.tls_key_file.empty())
+                throw Error("server: TLS needs both a certificate and a private key file");
+            tls_ctx = std::make_unique<asio::ssl::context>(asio::ssl::context::tls_server);
+            tls_ctx->set_options(asio::ssl::context::default_workarounds | asio::ssl::context::no_sslv2 |
+                                 asio::ssl::context::no_sslv3 | asio::ssl::context::no_tlsv1 | asio::ssl::context::no_tlsv1_1 |
+                                 asio::ssl::context::single_dh_use);
+            asio::error_code ec;
+            tls_ctx->use_certificate_chain_file(cfg.tls_cert_file, ec);
+            if (ec) throw Error("server: TLS certificate " + cfg.tls_cert_file + ": " + ec.message());
+            tls_ctx->use_private_key_file(cfg.tls_key_file, asio::ssl::context::pem, ec);
+            if (ec) throw Error("server: TLS private key " + cfg.tls_key_file + ": " + ec.message());
+        }
+        if (cfg.seal_datagrams && !tls_ctx)
+            throw Error("server: sealed datagrams need TLS (their keys travel in the Welcome)");
+        if (!cfg.token_public_key.empty() && !cfg.token.empty())
+            throw Error("server: an access token and connect tokens both travel in Hello.token; configure one");
+        if (!cfg.token_public_key.empty()) {
+            if (!crypto::from_hex(cfg.token_public_key, token_key))
+                throw Error("server: the connect token public key must be 64 hex digits");
+            connect_tokens = true;
+        }
         for (const auto& x : assets) total_asset_bytes += double(x->bytes.size());
         auto addr = asio::ip::make_address(cfg.bind_address);
         // Bind TCP, then UDP on the same number when possible.
@@ -143,22 +220,85 @@ struct Server::Impl {
     // ---------------------------------------------------------------- TCP --
     void accept() {
         acceptor.async_accept([this](asio::error_code ec, tcp::socket s) {
+            if (ec == asio::error::operation_aborted) return;
             if (ec) {
-                if (ec != asio::error::operation_aborted) accept();
+                // Out of descriptors (EMFILE, ENFILE) or memory: the pending
+                // connection stays queued and accept() would fail again at
+                // once; wait before trying again instead of spinning.
+                with_stats([](ServerStats& st) { ++st.accept_errors; });
+                if (ec == asio::error::connection_aborted) {
+                    accept();
+                    return;
+                }
+                log("accept: " + ec.message() + "; retrying in 100 ms");
+                accept_timer.expires_after(std::chrono::milliseconds(100));
+                accept_timer.async_wait([this](asio::error_code e) {
+                    if (!e) accept();
+                });
                 return;
             }
-            asio::error_code ig;
-            s.set_option(tcp::no_delay(true), ig);
-            auto sess = std::make_shared<Session>(this, std::move(s));
-            sess->id = rng();
-            sess->token = rng();
-            sess->opened = sess->last_heard = now_seconds();
-            sess->rate = RateController(cfg.max_kbps, std::min(cfg.initial_kbps, cfg.max_kbps));
-            sessions[sess->id] = sess;
-            with_stats([](ServerStats& s) { ++s.sessions_total; });
-            read_header(sess);
+            try {
+                admit(std::move(s));
+            } catch (const std::exception& e) {
+                with_stats([](ServerStats& st) { ++st.handler_errors; });
+                log(std::string("accept: ") + e.what());
+            }
             accept();
         });
+    }
+
+    void admit(tcp::socket s) {
+        asio::error_code ig;
+        s.set_option(tcp::no_delay(true), ig);
+        auto sess = std::make_shared<Session>(this, std::move(s));
+        sess->remote = sess->sock.remote_endpoint(ig).address();
+        if (ig) return;  // already gone
+        do sess->id = random_u64();
+        while (sessions.count(sess->id));
+        sess->token = random_u64();
+        sess->opened = sess->last_heard = now_seconds();
+        sess->rate = RateController(cfg.max_kbps, std::min(cfg.initial_kbps, cfg.max_kbps));
+        int same = 0;
+        for (auto& [id, x] : sessions)
+            if (x->state != State::Closed && x->state != State::Closing && x->remote == sess->remote) ++same;
+        sessions[sess->id] = sess;
+        with_stats([](ServerStats& st) { ++st.sessions_total; });
+        if (cfg.max_per_address > 0 && same >= cfg.max_per_address) {
+            if (tls_ctx) {  // no handshake spent on it: closed without a message
+                with_stats([](ServerStats& st) { ++st.refused; });
+                close(sess, "too many connections from " + sess->remote.to_string());
+                return;
+            }
+            refuse(sess, "too many connections from " + sess->remote.to_string() + " (" + std::to_string(cfg.max_per_address) +
+                             ")");
+            return;
+        }
+        if (tls_ctx) {  // the handshake runs under hello_timeout like the rest of AwaitHello
+            sess->tls = std::make_unique<asio::ssl::stream<tcp::socket&>>(sess->sock, *tls_ctx);
+            sess->tls->async_handshake(asio::ssl::stream_base::server, [this, sess](asio::error_code ec) {
+                if (sess->state == State::Closed) return;
+                if (ec) {
+                    with_stats([](ServerStats& st) { ++st.tls_failures; });
+                    close(sess, "TLS handshake: " + ec.message());
+                    return;
+                }
+                read_header(sess);
+            });
+            return;
+        }
+        read_header(sess);
+    }
+
+    // The session's byte stream: TLS over the socket when configured, else the socket.
+    template <class Buffers, class Handler>
+    void read_exactly(const std::shared_ptr<Session>& s, const Buffers& b, Handler&& h) {
+        if (s->tls) asio::async_read(*s->tls, b, std::forward<Handler>(h));
+        else asio::async_read(s->sock, b, std::forward<Handler>(h));
+    }
+    template <class Buffers, class Handler>
+    void write_all(const std::shared_ptr<Session>& s, const Buffers& b, Handler&& h) {
+        if (s->tls) asio::async_write(*s->tls, b, std::forward<Handler>(h));
+        else asio::async_write(s->sock, b, std::forward<Handler>(h));
     }
 
     void close(const std::shared_ptr<Session>& s, const std::string& why) {
@@ -172,46 +312,53 @@ struct Server::Impl {
         asio::post(io, [this, id = s->id] { sessions.erase(id); });
     }
 
-    void send(const std::shared_ptr<Session>& s, const flatbuffers::FlatBufferBuilder& fbb, bool close_after = false) {
-        if (s->state == State::Closed) return;
+    // Queues one control message; never blocks. A peer that does not read
+    // what it asked for is closed once max_queued_bytes are waiting.
+    void send(const std::shared_ptr<Session>& s, const flatbuffers::FlatBufferBuilder& fbb) {
+        if (s->state == State::Closed || s->state == State::Closing) return;
         std::vector<uint8_t> msg;
         frame_control(fbb, msg);
-        s->queued += msg.size();
-        if (s->queued > (8u << 20)) {  // slow reader
-            close(s, "control backlog");
+        if (s->queued + msg.size() > cfg.max_queued_bytes) {  // slow reader
+            with_stats([](ServerStats& st) { ++st.backlog_closes; });
+            close(s, "control backlog over " + std::to_string(cfg.max_queued_bytes) + " bytes");
             return;
         }
+        s->queued += msg.size();
         s->writes.push_back(std::move(msg));
-        if (s->writes.size() == 1) write_next(s, close_after);
-        else if (close_after) {
-            // closes once the queue drains
-            s->writes.push_back({});
-        }
+        if (s->writes.size() == 1) write_next(s);
     }
 
-    void write_next(const std::shared_ptr<Session>& s, bool close_after) {
+    // Sends a last message (Refuse or Goodbye) and closes once it is written,
+    // or after LINGER_SECONDS if the peer does not read it.
+    void finish(const std::shared_ptr<Session>& s, const flatbuffers::FlatBufferBuilder& last, const std::string& why) {
+        if (s->state == State::Closed || s->state == State::Closing) return;
+        send(s, last);
+        if (s->state == State::Closed) return;
+        s->state = State::Closing;
+        despawn_all(*s);  // its characters leave with it
+        s->close_reason = why;
+        s->close_deadline = now_seconds() + LINGER_SECONDS;
+        if (s->writes.empty()) close(s, why);
+    }
+
+    void write_next(const std::shared_ptr<Session>& s) {
         if (s->writes.empty()) return;
-        if (s->writes.front().empty()) {  // close marker
-            close(s, "refused");
-            return;
-        }
-        asio::async_write(s->sock, asio::buffer(s->writes.front()), [this, s, close_after](asio::error_code ec, size_t) {
+        write_all(s, asio::buffer(s->writes.front()), [this, s](asio::error_code ec, size_t) {
+            if (s->state == State::Closed) return;
             if (ec) {
                 close(s, "write: " + ec.message());
                 return;
             }
             s->queued -= s->writes.front().size();
             s->writes.pop_front();
-            if (close_after && s->writes.empty()) {
-                close(s, "refused");
-                return;
-            }
-            write_next(s, close_after);
+            if (!s->writes.empty()) write_next(s);
+            else if (s->state == State::Closing) close(s, s->close_reason);
         });
     }
 
     void read_header(const std::shared_ptr<Session>& s) {
-        asio::async_read(s->sock, asio::buffer(s->len_buf, 4), [this, s](asio::error_code ec, size_t) {
+        read_exactly(s, asio::buffer(s->len_buf, 4), [this, s](asio::error_code ec, size_t) {
+            if (s->state == State::Closing) return;  // nothing more is read once the last message is queued
             if (ec || s->state == State::Closed) {
                 close(s, ec ? ec.message() : "closed");
                 return;
@@ -224,12 +371,21 @@ struct Server::Impl {
                 return;
             }
             s->body.resize(n);
-            asio::async_read(s->sock, asio::buffer(s->body), [this, s](asio::error_code ec2, size_t) {
+            read_exactly(s, asio::buffer(s->body), [this, s](asio::error_code ec2, size_t) {
+                if (s->state == State::Closing) return;
                 if (ec2 || s->state == State::Closed) {
                     close(s, ec2 ? ec2.message() : "closed");
                     return;
                 }
-                if (!handle_control(s)) return;
+                bool more = false;
+                try {
+                    more = handle_control(s);
+                } catch (const std::exception& e) {  // one session's failure never reaches io.run()
+                    with_stats([](ServerStats& st) { ++st.handler_errors; });
+                    close(s, std::string("error: ") + e.what());
+                    return;
+                }
+                if (!more || s->state == State::Closing || s->state == State::Closed) return;
                 read_header(s);
             });
         });
@@ -240,7 +396,7 @@ struct Server::Impl {
         flatbuffers::FlatBufferBuilder fbb;
         build_refuse(fbb, reason);
         log("refused: " + reason);
-        send(s, fbb, true);
+        finish(s, fbb, "refused: " + reason);
     }
 
     bool handle_control(const std::shared_ptr<Session>& s) {
@@ -250,7 +406,8 @@ struct Server::Impl {
             close(s, "malformed control message");
             return false;
         }
-        s->last_heard = std::max(s->last_heard, now_seconds() - cfg.client_timeout * 0.5);
+        // Control messages never extend a session's life: only Acks from the
+        // bound address do (handle_datagram), so a TCP-only peer cannot hold a slot.
         switch (c->body_type()) {
             case wire::ControlBody::Hello: {
                 if (s->state != State::AwaitHello) break;
@@ -264,9 +421,23 @@ struct Server::Impl {
                     refuse(s, "client name or token too long");
                     return false;
                 }
-                if (!cfg.token.empty() && (!h->token() || h->token()->str() != cfg.token)) {
+                if (!cfg.token.empty() && (!h->token() || !equal_secret(h->token()->str(), cfg.token))) {
                     refuse(s, "bad or missing access token");
                     return false;
+                }
+                if (connect_tokens) {
+                    crypto::ConnectToken ct;
+                    const uint64_t now_unix = crypto::unix_now();
+                    std::string why = h->token() ? crypto::verify_connect_token(h->token()->str(), token_key, now_unix,
+                                                                                cfg.public_address, ct)
+                                                 : std::string("missing connect token");
+                    if (why.empty() && !token_replays.first_use(ct, now_unix)) why = "connect token already used";
+                    if (!why.empty()) {
+                        with_stats([](ServerStats& st) { ++st.tokens_refused; });
+                        refuse(s, why);
+                        return false;
+                    }
+                    s->name += "client " + std::to_string(ct.client_id) + " ";
                 }
                 int active = 0;
                 for (auto& [id, x] : sessions)
@@ -275,13 +446,20 @@ struct Server::Impl {
                     refuse(s, "server full (" + std::to_string(cfg.max_clients) + " clients)");
                     return false;
                 }
-                s->name = h->client_name() ? h->client_name()->str() : "";
+                s->name += h->client_name() ? h->client_name()->str() : "";
                 double cap = h->max_kbps() ? std::min(double(h->max_kbps()), cfg.max_kbps) : cfg.max_kbps;
                 s->rate = RateController(cap, std::min(cap, cfg.initial_kbps));
                 s->scheduler.reset(0);
-                s->state = State::Welcomed;
-                s->last_heard = now_seconds();
+                if (cfg.seal_datagrams) {
+                    s->tx_key = crypto::random_key();
+                    s->rx_key = crypto::random_key();
+                    s->sealer = std::make_unique<crypto::Sealer>(s->tx_key);
+                    s->opener = std::make_unique<crypto::Opener>(s->rx_key);
+                }
                 if (!send_welcome(s, cap)) return false;
+                if (s->state == State::Closed) return false;
+                s->state = State::Welcomed;
+                s->welcomed = s->last_heard = now_seconds();
                 log("session " + hex64(s->id) + " (" + s->name + ") welcomed, cap " + std::to_string(int(cap)) + " kbit/s");
                 return true;
             }
@@ -419,11 +597,20 @@ struct Server::Impl {
         }
         auto va = fbb.CreateVector(as);
         auto sn = fbb.CreateString("progskin-server");
+        flatbuffers::Offset<flatbuffers::Vector<uint8_t>> keys;
+        if (s->sealer) {
+            std::array<uint8_t, 2 * crypto::KEY_BYTES> k;
+            std::copy(s->tx_key.begin(), s->tx_key.end(), k.begin());
+            std::copy(s->rx_key.begin(), s->rx_key.end(), k.begin() + crypto::KEY_BYTES);
+            keys = fbb.CreateVector(k.data(), k.size());
+            sodium_memzero(k.data(), k.size());
+        }
         auto w = wire::CreateWelcome(fbb, PROTOCOL_VERSION, s->id, s->token, udp_sock.local_endpoint().port(), cfg.tick_rate,
-                                     uint32_t(cap), va, sn);
+                                     uint32_t(cap), va, sn, keys);
         fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Welcome, w.Union()), wire::ControlIdentifier());
-        if (fbb.GetSize() > MAX_CONTROL_MESSAGE) {
-            refuse(s, "the asset catalogue exceeds the control message limit");
+        if (fbb.GetSize() > MAX_CONTROL_MESSAGE) {  // the catalogue alone (instances travel apart)
+            refuse(s, "Welcome would be " + std::to_string(fbb.GetSize()) + " bytes, over the " +
+                          std::to_string(MAX_CONTROL_MESSAGE) + "-byte control message limit (too many assets)");
             return false;
         }
         send(s, fbb);
@@ -522,14 +709,32 @@ struct Server::Impl {
     void receive() {
         udp_sock.async_receive_from(asio::buffer(udp_buf), udp_from, [this](asio::error_code ec, size_t n) {
             if (ec == asio::error::operation_aborted) return;
-            if (!ec) handle_datagram(n);
+            if (!ec) {
+                try {
+                    handle_datagram(n);
+                } catch (const std::exception& e) {
+                    with_stats([](ServerStats& st) { ++st.handler_errors; });
+                    log(std::string("datagram: ") + e.what());
+                }
+            }
             receive();
         });
     }
 
+    // Sends one datagram to `to`, sealed when the session seals; returns the bytes sent.
+    size_t send_datagram(Session& s, std::span<const uint8_t> plain, const udp::endpoint& to) {
+        asio::error_code ig;
+        if (!s.sealer) {
+            udp_sock.send_to(asio::buffer(plain.data(), plain.size()), to, 0, ig);
+            return plain.size();
+        }
+        crypto::seal_datagram(*s.sealer, s.id, PROTOCOL_VERSION, plain, sealed_buf);
+        udp_sock.send_to(asio::buffer(sealed_buf), to, 0, ig);
+        return sealed_buf.size();
+    }
+
     void handle_datagram(size_t n) {
         with_stats([](ServerStats& st) { ++st.datagrams_received; });
-        const wire::Datagram* d = verify_datagram({udp_buf.data(), n});
         auto reject = [&](bool malformed) {
             with_stats([&](ServerStats& st) {
                 if (malformed) ++st.malformed_datagrams;
@@ -537,47 +742,92 @@ struct Server::Impl {
                 st.unverified_bytes_in += n;
             });
         };
+        std::span<const uint8_t> bytes(udp_buf.data(), n);
+        Session* sealed_by = nullptr;  // seal_datagrams: the session whose key opened it
+        if (cfg.seal_datagrams) {
+            auto it = sessions.find(crypto::sealed_session_id(bytes));
+            if (it == sessions.end() || !it->second->opener) return reject(false);
+            uint64_t seq = 0;
+            if (crypto::open_datagram(*it->second->opener, it->first, PROTOCOL_VERSION, bytes, opened_buf, seq) !=
+                crypto::OpenResult::ok)
+                return reject(false);  // forged, replayed, or unsealed
+            sealed_by = it->second.get();
+            bytes = opened_buf;
+        }
+        const wire::Datagram* d = verify_datagram(bytes);
         if (!d) return reject(true);
+        // Sends `fbb` to the datagram's source only if it is smaller than what
+        // came from there (never amplifies toward an unproven address; sealing
+        // adds the same 32 bytes to both).
+        auto answer = [&](Session& s, const flatbuffers::FlatBufferBuilder& fbb, bool unverified) {
+            if (fbb.GetSize() >= bytes.size()) return;
+            const size_t sent = send_datagram(s, {fbb.GetBufferPointer(), fbb.GetSize()}, udp_from);
+            if (unverified) with_stats([&](ServerStats& st) { st.unverified_bytes_out += sent; });
+        };
+        auto find = [&](uint64_t id, uint64_t token) -> Session* {
+            auto it = sessions.find(id);
+            if (it == sessions.end() || !equal_u64(it->second->token, token)) return nullptr;
+            Session* s = it->second.get();
+            if (sealed_by && s != sealed_by) return nullptr;  // sealed under another session's key
+            return s->state == State::Welcomed || s->state == State::Streaming ? s : nullptr;
+        };
+        auto bind_ack = [&](Session& s) {
+            flatbuffers::FlatBufferBuilder fbb(64);
+            auto ba = wire::CreateBindAck(fbb, s.id);
+            fbb.Finish(wire::CreateDatagram(fbb, s.seq, now_us32(), wire::DatagramBody::BindAck, ba.Union()),
+                       wire::DatagramIdentifier());
+            answer(s, fbb, false);
+        };
+        const double now = now_seconds();
         if (d->body_type() == wire::DatagramBody::Bind) {
             const wire::Bind* b = d->body_as_Bind();
-            auto it = sessions.find(b->session_id());
-            if (it == sessions.end() || it->second->token != b->token() || it->second->state == State::AwaitHello ||
-                it->second->state == State::Closed)
+            Session* s = find(b->session_id(), b->token());
+            if (!s) return reject(false);
+            if (s->bound && s->peer == udp_from) return bind_ack(*s);  // already proven
+            // A new address: only a Challenge goes there until its nonce comes
+            // back from it. The same nonce is repeated for repeated Binds.
+            if (s->challenge_peer != udp_from || now - s->challenge_sent > CHALLENGE_SECONDS) {
+                randombytes_buf(s->challenge_nonce.data(), s->challenge_nonce.size());
+                s->challenge_peer = udp_from;
+                s->challenge_sent = now;
+            }
+            flatbuffers::FlatBufferBuilder fbb(96);
+            auto nv = fbb.CreateVector(s->challenge_nonce.data(), s->challenge_nonce.size());
+            auto ch = wire::CreateChallenge(fbb, s->id, nv);
+            fbb.Finish(wire::CreateDatagram(fbb, s->seq, now_us32(), wire::DatagramBody::Challenge, ch.Union()),
+                       wire::DatagramIdentifier());
+            with_stats([](ServerStats& st) { ++st.challenges_sent; });
+            return answer(*s, fbb, true);
+        }
+        if (d->body_type() == wire::DatagramBody::ChallengeResponse) {
+            const wire::ChallengeResponse* r = d->body_as_ChallengeResponse();
+            Session* s = find(r->session_id(), r->token());
+            if (!s || !r->nonce() || r->nonce()->size() != CHALLENGE_NONCE || s->challenge_peer != udp_from ||
+                now - s->challenge_sent > CHALLENGE_SECONDS ||
+                sodium_memcmp(r->nonce()->data(), s->challenge_nonce.data(), CHALLENGE_NONCE) != 0)
                 return reject(false);
-            auto& s = it->second;
+            const bool moved = s->bound && s->peer != udp_from;
             s->peer = udp_from;
             s->bound = true;
-            s->last_heard = now_seconds();
-            if (s->state == State::Welcomed) {
-                s->state = State::Streaming;
-                log("session " + hex64(s->id) + " bound to " + udp_from.address().to_string() + ":" + std::to_string(udp_from.port()));
-            }
-            flatbuffers::FlatBufferBuilder fbb(64);
-            auto ba = wire::CreateBindAck(fbb, s->id);
-            fbb.Finish(wire::CreateDatagram(fbb, s->seq, now_us32(), wire::DatagramBody::BindAck, ba.Union()),
-                       wire::DatagramIdentifier());
-            if (fbb.GetSize() <= n) {  // never more bytes back than the request carried
-                asio::error_code ig;
-                udp_sock.send_to(asio::buffer(fbb.GetBufferPointer(), fbb.GetSize()), udp_from, 0, ig);
-            }
-            return;
+            s->last_heard = now;
+            s->challenge_sent = -1e300;  // one use
+            if (s->state == State::Welcomed) s->state = State::Streaming;
+            log("session " + hex64(s->id) + (moved ? " moved to " : " bound to ") + udp_from.address().to_string() + ":" +
+                std::to_string(udp_from.port()));
+            return bind_ack(*s);
         }
         if (d->body_type() == wire::DatagramBody::Ack) {
             const wire::Ack* a = d->body_as_Ack();
-            auto it = sessions.find(a->session_id());
-            if (it == sessions.end() || it->second->token != a->token() || !it->second->bound || it->second->peer != udp_from)
-                return reject(false);
-            auto& s = it->second;
-            s->last_heard = now_seconds();
+            Session* s = find(a->session_id(), a->token());
+            if (!s || !s->bound || s->peer != udp_from) return reject(false);  // counts only from the bound address
+            s->last_heard = now;
             s->rate.on_ack(a->ack(), a->ack_bits(), a->echo_time_us(), a->hold_us(), now_us32());
             return;
         }
         if (d->body_type() == wire::DatagramBody::Pose) {
             const wire::Pose* p = d->body_as_Pose();
-            auto it = sessions.find(p->session_id());
-            if (it == sessions.end() || it->second->token != p->token() || !it->second->bound || it->second->peer != udp_from)
-                return reject(false);
-            auto& s = it->second;
+            Session* s = find(p->session_id(), p->token());
+            if (!s || !s->bound || s->peer != udp_from || s->state != State::Streaming) return reject(false);
             auto o = std::find_if(s->owned.begin(), s->owned.end(), [&](const Session::Owned& x) { return x.instance == p->instance(); });
             if (o == s->owned.end()) return reject(false);  // not this session's character (or despawned)
             const ServerAsset& a = *assets[size_t(encoder.spec(o->instance).asset)];
@@ -607,7 +857,7 @@ struct Server::Impl {
                 with_stats([](ServerStats& st) { ++st.poses_stale; });
             return;
         }
-        reject(false);  // Frame / BindAck are server -> client only
+        reject(false);  // Frame / BindAck / Challenge are server -> client only
     }
 
     // --------------------------------------------------------------- tick --
@@ -637,11 +887,18 @@ struct Server::Impl {
         uint64_t dg = 0, bytes = 0, timeouts = 0;
         std::vector<std::shared_ptr<Session>> drop;
         for (auto& [id, s] : sessions) {
+            if (s->state == State::Closing) {
+                if (t0 > s->close_deadline) drop.push_back(s);
+                continue;
+            }
             if (s->state == State::AwaitHello && t0 - s->opened > cfg.hello_timeout) {
                 drop.push_back(s);
                 continue;
             }
-            if ((s->state == State::Welcomed || s->state == State::Streaming) && t0 - s->last_heard > cfg.client_timeout) {
+            // Unbound: client_timeout after Welcome, whatever arrives over TCP.
+            // Streaming: client_timeout after the newest Ack from the bound address.
+            if ((s->state == State::Welcomed && t0 - s->welcomed > cfg.client_timeout) ||
+                (s->state == State::Streaming && t0 - s->last_heard > cfg.client_timeout)) {
                 drop.push_back(s);
                 continue;
             }
@@ -662,9 +919,9 @@ struct Server::Impl {
             uint32_t first_seq = s->seq;
             size_t wire = packer.pack(*frame, picks, s->seq, out_dgrams);
             for (size_t i = 0; i < out_dgrams.size(); ++i) {
-                asio::error_code ec;
-                udp_sock.send_to(asio::buffer(out_dgrams[i]), s->peer, 0, ec);
-                s->rate.on_sent(first_seq + uint32_t(i), now_us32(), out_dgrams[i].size() + UDP_IP_OVERHEAD);
+                const size_t sent = send_datagram(*s, out_dgrams[i], s->peer);
+                s->rate.on_sent(first_seq + uint32_t(i), now_us32(), sent + UDP_IP_OVERHEAD);
+                wire += sent - out_dgrams[i].size();  // the seal's 32 bytes count against the rate
             }
             s->rate.spend(wire);
             s->scheduler.sent(picks, tick);
@@ -672,14 +929,18 @@ struct Server::Impl {
             bytes += wire;
         }
         for (auto& s : drop) {
+            if (s->state == State::Closing) {  // the peer did not read its last message in time
+                close(s, s->close_reason + " (not read)");
+                continue;
+            }
             ++timeouts;
-            flatbuffers::FlatBufferBuilder fbb;
-            build_goodbye(fbb, "timeout");
-            std::vector<uint8_t> msg;
-            frame_control(fbb, msg);
-            asio::error_code ig;
-            if (s->state != State::AwaitHello) asio::write(s->sock, asio::buffer(msg), ig);  // best effort
-            close(s, "timeout");
+            if (s->state == State::AwaitHello) {
+                close(s, "timeout");
+                continue;
+            }
+            flatbuffers::FlatBufferBuilder fbb;  // queued like any message: a peer that does not read cannot stall the tick
+            build_goodbye(fbb, s->state == State::Welcomed ? "timeout: UDP address not bound" : "timeout: no acks");
+            finish(s, fbb, "timeout");
         }
         const double t1 = now_seconds();
         with_stats([&](ServerStats& st) {
@@ -690,7 +951,7 @@ struct Server::Impl {
             st.tick_seconds += t1 - t0;
             uint64_t active = 0;
             for (auto& [id, s] : sessions)
-                if (s->state != State::Closed) ++active;
+                if (s->state != State::Closed && s->state != State::Closing) ++active;
             st.sessions_active = active;
         });
     }
@@ -738,7 +999,14 @@ void Server::run() {
     impl_->receive();
     impl_->next_tick = std::chrono::steady_clock::now();
     impl_->schedule_tick();
-    impl_->io.run();
+    for (;;) {  // a handler's exception stops run() only: log it and go on serving
+        try {
+            impl_->io.run();
+            return;
+        } catch (const std::exception& e) {
+            std::fprintf(stderr, "progskin-server: error: %s\n", e.what());
+        }
+    }
 }
 
 void Server::stop() {
@@ -747,6 +1015,7 @@ void Server::stop() {
         impl_->acceptor.close(ig);
         impl_->udp_sock.close(ig);
         impl_->timer.cancel();
+        impl_->accept_timer.cancel();
         for (auto& [id, s] : impl_->sessions) {
             s->state = State::Closed;
             s->sock.close(ig);

@@ -36,9 +36,24 @@ struct ServerConfig {
     double max_kbps = 50000;      // per-client ceiling (a client's cap is min(its own, this))
     double initial_kbps = 1000;   // start of the adaptive estimate
     double hello_timeout = 5.0;   // seconds to receive Hello after connecting
-    double client_timeout = 10.0; // seconds without UDP acks (or without binding) before dropping
+    double client_timeout = 10.0; // seconds without UDP acks from the bound address (or unbound after Welcome) before dropping
     std::string token;            // non-empty: Hello.token must match
+    // Non-empty (64 hex digits, an Ed25519 public key; off by default): Hello.token
+    // must be a connect token signed by the matching secret key (proto/crypto.h,
+    // `progskin token`), unexpired, for public_address if that is set, never used before.
+    std::string token_public_key;
+    std::string public_address;   // "host:port" as written in connect tokens; empty: any
+    // Both non-empty (PEM files; off by default): the control channel is TLS
+    // 1.2+ (OpenSSL through asio::ssl) from the first byte; clients that speak
+    // plain TCP fail the handshake and are closed.
+    std::string tls_cert_file, tls_key_file;
+    // With TLS (off by default): every datagram both ways is sealed
+    // (proto/crypto.h seal_datagram) with per-session keys sent in the Welcome;
+    // unsealed or forged datagrams are dropped and counted.
+    bool seal_datagrams = false;
     double asset_bytes_factor = 4.0;  // per-session download limit, x total asset bytes
+    size_t max_queued_bytes = 1 << 20;  // per-session control output waiting to be written; more closes the session
+    int max_per_address = 64;     // open TCP connections from one IP address (0: no limit)
     bool verbose = false;
 };
 
@@ -46,10 +61,14 @@ struct ServerStats {
     uint64_t sessions_total = 0, sessions_active = 0, refused = 0, timeouts = 0;
     uint64_t ticks = 0, datagrams_sent = 0, wire_bytes_sent = 0;
     uint64_t datagrams_received = 0, malformed_datagrams = 0, rejected_datagrams = 0;
-    uint64_t unverified_bytes_in = 0, unverified_bytes_out = 0;  // to/from addresses not bound
+    uint64_t unverified_bytes_in = 0, unverified_bytes_out = 0;  // from addresses not bound / to them (Challenges only)
     uint64_t malformed_control = 0, asset_bytes_sent = 0;
     uint64_t poses_received = 0, poses_stale = 0, poses_rate_limited = 0;  // players' Pose datagrams
     uint64_t poses_out_of_range = 0;  // live poses refused by the codec's range (FrameEncoder)
+    uint64_t challenges_sent = 0;  // return-routability challenges (answers to Binds from new addresses)
+    uint64_t accept_errors = 0, backlog_closes = 0, handler_errors = 0;
+    uint64_t tls_failures = 0;     // TLS handshakes that failed
+    uint64_t tokens_refused = 0;   // connect tokens invalid, expired, for another server or replayed
     double tick_seconds = 0;      // total time spent in ticks
 };
 

@@ -36,6 +36,11 @@ static const char* kUsage =
     "  --max-clients N   (default 256)\n"
     "  --max-kbps N      per-client rate ceiling in kbit/s (default 50000)\n"
     "  --token T         require this access token in Hello\n"
+    "  --token-public-key HEX  require a connect token signed by the matching secret\n"
+    "                    key (progskin token keygen / issue) in Hello\n"
+    "  --public-address HOST:PORT  the address connect tokens must name (default: any)\n"
+    "  --tls-cert FILE --tls-key FILE  TLS on the control channel (PEM; default: plain TCP)\n"
+    "  --seal-datagrams  (with TLS) seal every datagram with per-session keys\n"
     "  --duration S      stop after S seconds (default: run until SIGINT/SIGTERM)\n"
     "  --verbose         log sessions on stderr\n"
     "  --help\n"
@@ -87,6 +92,11 @@ int main(int argc, char** argv) {
             else if (a == "--max-clients") cfg.max_clients = cli::to_int(a, need(i));
             else if (a == "--max-kbps") cfg.max_kbps = cli::to_number(a, need(i));
             else if (a == "--token") cfg.token = need(i);
+            else if (a == "--token-public-key") cfg.token_public_key = need(i);
+            else if (a == "--public-address") cfg.public_address = need(i);
+            else if (a == "--tls-cert") cfg.tls_cert_file = need(i);
+            else if (a == "--tls-key") cfg.tls_key_file = need(i);
+            else if (a == "--seal-datagrams") cfg.seal_datagrams = true;
             else if (a == "--duration") duration = cli::to_number(a, need(i));
             else if (a == "--verbose") cfg.verbose = true;
             else {

@@ -22,6 +22,9 @@
 #include "gltf_import.h"
 #include "plot.h"
 #include "progressive_skin.h"
+#ifdef PROGSKIN_HAVE_NET
+#include "crypto.h"
+#endif
 #include "scratch_build.h"
 #include "vertex_animation.h"
 
@@ -79,6 +82,13 @@ usage:
   progskin render FILE -o OUT.png [--clip SPEC] [--time T] [--bones 1,2,4,all] [--heatmap]
       One image, a panel per LOD, rendered off screen with OpenGL (GPU skinning);
       see progskin render --help and docs/rendering.md.
+  progskin token keygen
+      A new Ed25519 key pair for connect tokens: prints "public HEX" (give it
+      to progskin-server --token-public-key) and "secret HEX" (keep it on the
+      backend that issues tokens).
+  progskin token issue --secret-key HEX --client-id N --server HOST:PORT [--seconds 30]
+      A connect token for one client and server, valid SECONDS from now, for
+      progskin-client --token (docs/protocol.md "Security").
 
 clip SPEC: a clip name, an index, a comma-separated list, or "all" (played
 together). Default for build/inspect: "auto" (all clips together when they
@@ -376,6 +386,51 @@ int cmd_pose(int argc, char** argv) {
     return 0;
 }
 
+#ifdef PROGSKIN_HAVE_NET
+int cmd_token(int argc, char** argv) {
+    using namespace progskin::net::crypto;
+    if (argc < 3) throw UsageError("token needs keygen or issue");
+    const std::string sub = argv[2];
+    if (sub == "keygen") {
+        if (argc != 3) throw UsageError("token keygen takes no arguments");
+        PublicKey pk;
+        SecretKey sk;
+        signing_keypair(pk, sk);
+        std::printf("public %s\nsecret %s\n", to_hex(pk).c_str(), to_hex(sk).c_str());
+        return 0;
+    }
+    if (sub != "issue") throw UsageError("unknown token command '" + sub + "'");
+    std::string key_hex, server;
+    uint64_t client_id = 0, seconds = 30;
+    bool have_id = false;
+    for (int i = 3; i < argc; ++i) {
+        const std::string a = argv[i];
+        auto val = [&]() -> std::string {
+            if (i + 1 >= argc) throw UsageError(a + " needs a value");
+            return argv[++i];
+        };
+        if (a == "--secret-key") key_hex = val();
+        else if (a == "--client-id") {
+            const std::string v = val();
+            char* end = nullptr;
+            client_id = std::strtoull(v.c_str(), &end, 10);
+            if (v.empty() || *end || v[0] == '-') throw UsageError("--client-id needs an unsigned integer");
+            have_id = true;
+        } else if (a == "--server") server = val();
+        else if (a == "--seconds") {
+            const int v = progskin::cli::to_int(a, val());
+            if (v < 1) throw UsageError("--seconds must be at least 1");
+            seconds = uint64_t(v);
+        } else throw UsageError("unknown argument " + a);
+    }
+    if (key_hex.empty() || !have_id || server.empty()) throw UsageError("token issue needs --secret-key, --client-id and --server");
+    SecretKey sk;
+    if (!from_hex(key_hex, sk)) throw UsageError("--secret-key must be 128 hex digits");
+    std::printf("%s\n", issue_connect_token(sk, client_id, unix_now(), seconds, server).c_str());
+    return 0;
+}
+#endif
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -389,6 +444,9 @@ int main(int argc, char** argv) {
         if (cmd == "build") return cmd_build(argc, argv);
         if (cmd == "inspect") return cmd_inspect(argc, argv);
         if (cmd == "pose") return cmd_pose(argc, argv);
+#ifdef PROGSKIN_HAVE_NET
+        if (cmd == "token") return cmd_token(argc, argv);
+#endif
 #ifdef PROGSKIN_HAVE_RENDER
         if (cmd == "render") return render_command(argc, argv);
 #endif

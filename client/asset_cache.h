@@ -1,0 +1,41 @@
+// asset_cache.h — the client's asset files: the disk cache named by content
+// hash (the Client downloads into it: AssetRequest / AssetChunk,
+// docs/protocol.md), the checks a downloaded file passes before it is
+// imported, and a cached file plus the server's Asset description turned
+// into a ClientAsset.
+#pragma once
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "client.h"
+#include "client_palette.h"
+#include "wire.h"
+
+namespace progskin::net {
+
+// Largest asset file the client accepts; a larger announced size is refused
+// before anything is allocated.
+inline constexpr uint64_t MAX_ASSET_BYTES = uint64_t(256) << 20;
+
+// $XDG_CACHE_HOME/progskin, else ~/.cache/progskin, else /tmp/progskin-cache.
+std::string default_cache_dir();
+
+// The whole file at `path` (empty when it cannot be read).
+std::vector<uint8_t> read_file(const std::string& path);
+
+// Throws Error unless every external buffer / image URI of the glTF or GLB at
+// `path` is embedded (data:) or names an existing file inside the folder of
+// `path` (a plain relative name: no "..", no absolute path, no scheme, no
+// percent escapes; symbolic links resolved). Then the loader, which searches
+// the file's folder first and the working directory second, only ever opens
+// files in that folder.
+void check_external_uris(const std::string& path);
+
+// Imports the cached file (after check_external_uris) and checks the server's
+// skin description against it.
+std::shared_ptr<ClientAsset> load_client_asset(const wire::Asset* a, const std::string& path);
+
+}  // namespace progskin::net

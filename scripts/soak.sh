@@ -1,0 +1,147 @@
+#!/usr/bin/env bash
+# soak.sh — a long run on loopback (not part of CI): one progskin-server, N
+# clients (default 30) streaming for M minutes (default 10), half of them
+# through progskin-netem at 10 % loss, 5 % reordering, 2 % duplication (5 ms
+# jitter). Reports the server's memory growth (resident set after the first
+# fifth of the run -> end; target < 5 %), whether the server crashed, each
+# client's exit code and its mean rate against its cap.
+#
+#   scripts/soak.sh [--minutes M] [--clients N] [--cap KBPS] [--build DIR]
+#
+# Exit status: 0 when every client exited 0, the server survived and its
+# memory grew less than 5 %; 1 otherwise. Stops every process it started.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+BUILD=${PROGSKIN_BUILD:-build}
+MINUTES=10
+CLIENTS=30
+CAP=256
+while (($#)); do
+  case "$1" in
+    --minutes) MINUTES=$2; shift 2;;
+    --clients) CLIENTS=$2; shift 2;;
+    --cap) CAP=$2; shift 2;;
+    --build) BUILD=$2; shift 2;;
+    -h|--help) sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
+    *) echo "soak.sh: unknown argument $1" >&2; exit 2;;
+  esac
+done
+SECONDS_RUN=$(awk -v m="$MINUTES" 'BEGIN { printf "%d", m * 60 }')
+((SECONDS_RUN >= 10)) || { echo "soak.sh: --minutes too small (at least 10 s)" >&2; exit 2; }
+
+SERVER=$BUILD/server/progskin-server
+CLIENT=$BUILD/client/progskin-client
+NETEM=$BUILD/server/progskin-netem
+for b in "$SERVER" "$CLIENT" "$NETEM"; do
+  [[ -x $b ]] || { echo "soak.sh: $b missing (cmake --build $BUILD --target progskin-server progskin-client progskin-netem)" >&2; exit 2; }
+done
+
+TMP=$(mktemp -d)
+PIDS=()
+cleanup() {
+  for p in "${PIDS[@]:-}"; do [[ -n $p ]] && kill "$p" 2>/dev/null || true; done
+  wait 2>/dev/null || true
+  rm -rf "$TMP"
+}
+trap cleanup EXIT INT TERM
+
+wait_port() {  # file, pattern -> port
+  local port=""
+  for _ in $(seq 1 200); do
+    port=$(grep -o "$2 [0-9.]*:*[0-9]*" "$1" 2>/dev/null | head -1 | grep -o '[0-9]*$' || true)
+    [[ -n $port ]] && { echo "$port"; return 0; }
+    sleep 0.1
+  done
+  return 1
+}
+
+"$SERVER" --port 0 --max-clients $((CLIENTS + 8)) >"$TMP/server.out" 2>"$TMP/server.err" &
+SERVER_PID=$!
+PIDS+=("$SERVER_PID")
+PORT=$(wait_port "$TMP/server.out" "TCP") || { echo "soak.sh: server did not start" >&2; cat "$TMP/server.err" >&2; exit 1; }
+UDP_PORT=$(grep -o 'UDP [0-9]*' "$TMP/server.out" | cut -d' ' -f2)
+"$NETEM" --to 127.0.0.1:"$UDP_PORT" --listen 0 --loss 0.1 --reorder 0.05 --duplicate 0.02 --jitter-ms 5 \
+  >"$TMP/netem.out" 2>"$TMP/netem.err" &
+NETEM_PID=$!
+PIDS+=("$NETEM_PID")
+NETEM_PORT=$(wait_port "$TMP/netem.out" "UDP") || { echo "soak.sh: netem did not start" >&2; exit 1; }
+
+"$CLIENT" --server 127.0.0.1:"$PORT" --duration 0.2 --cache "$TMP/cache" >/dev/null  # assets once
+rss() { awk '/^VmRSS:/ { print $2 }' "/proc/$SERVER_PID/status" 2>/dev/null || echo 0; }
+
+CPIDS=()
+for i in $(seq 1 "$CLIENTS"); do
+  via=()
+  ((i % 2 == 0)) && via=(--udp-via 127.0.0.1:"$NETEM_PORT")
+  "$CLIENT" --server 127.0.0.1:"$PORT" "${via[@]}" --max-kbps "$CAP" --duration "$SECONDS_RUN" --report json \
+    --cache "$TMP/cache" --name "soak-$i" >"$TMP/client-$i.json" 2>"$TMP/client-$i.err" &
+  CPIDS+=($!)
+  PIDS+=($!)
+done
+
+# Memory: resident set every 5 s; the baseline is taken after a fifth of the run.
+start=$(date +%s)
+base=""
+peak=0
+: >"$TMP/rss"
+while :; do
+  now=$(date +%s)
+  el=$((now - start))
+  alive=0
+  for p in "${CPIDS[@]}"; do kill -0 "$p" 2>/dev/null && alive=1 && break; done
+  ((alive)) || break
+  kill -0 "$SERVER_PID" 2>/dev/null || break
+  r=$(rss)
+  echo "$el $r" >>"$TMP/rss"
+  ((r > peak)) && peak=$r
+  [[ -z $base ]] && ((el * 5 >= SECONDS_RUN)) && base=$r
+  sleep 5
+done
+end_rss=$(rss)
+
+status=0
+codes=()
+for i in "${!CPIDS[@]}"; do
+  rc=0
+  wait "${CPIDS[$i]}" || rc=$?
+  codes+=("$rc")
+  ((rc == 0)) || status=1
+done
+crashed=0
+if kill -0 "$SERVER_PID" 2>/dev/null; then
+  kill -TERM "$SERVER_PID"
+  rc=0; wait "$SERVER_PID" || rc=$?
+  ((rc == 0)) || { crashed=1; echo "soak.sh: server exited $rc on SIGTERM" >&2; }
+else
+  crashed=1
+  wait "$SERVER_PID" || true
+fi
+kill "$NETEM_PID" 2>/dev/null || true
+wait "$NETEM_PID" 2>/dev/null || true
+PIDS=()
+((crashed)) && status=1
+
+field() { grep -o "\"$2\": [^,}]*" "$1" | head -1 | cut -d' ' -f2; }
+echo "soak: $CLIENTS clients x ${SECONDS_RUN} s, cap $CAP kbit/s, even-numbered clients via netem (10 % loss, 5 % reorder, 2 % duplication)"
+[[ -z $base ]] && base=$(head -1 "$TMP/rss" | cut -d' ' -f2)
+growth=$(awk -v a="${base:-0}" -v b="${end_rss:-0}" 'BEGIN { if (a > 0) printf "%.1f", 100 * (b - a) / a; else print "n/a" }')
+echo "server: crashed=$crashed, RSS ${base:-?} KiB after $((SECONDS_RUN / 5)) s -> ${end_rss:-?} KiB at end (${growth} %), peak $peak KiB"
+awk -v g="$growth" 'BEGIN { exit !(g != "n/a" && g + 0 >= 5) }' && { echo "soak: memory grew 5 % or more" >&2; status=1; }
+printf "%-8s %-6s %5s %12s %9s %8s %10s\n" client path exit "rate kbit/s" "of cap" loss "bones/char"
+for i in $(seq 1 "$CLIENTS"); do
+  f=$TMP/client-$i.json
+  path=direct; ((i % 2 == 0)) && path=netem
+  if [[ ! -s $f ]]; then
+    printf "%-8s %-6s %5s  %s\n" "soak-$i" "$path" "${codes[$((i - 1))]}" "$(tail -1 "$TMP/client-$i.err")"
+    continue
+  fi
+  r=$(field "$f" rate_kbps)
+  printf "%-8s %-6s %5s %12.1f %8.0f%% %7.1f%% %10.1f\n" "soak-$i" "$path" "${codes[$((i - 1))]}" "$r" \
+    "$(awk -v r="$r" -v c="$CAP" 'BEGIN { print 100 * r / c }')" "$(awk -v l="$(field "$f" loss)" 'BEGIN { print 100 * l }')" \
+    "$(field "$f" bones_mean)"
+done | tee "$TMP/table"
+for path in direct netem; do
+  awk -v p="$path" -v c="$CAP" '$2 == p && NF >= 7 { n++; s += $4; if (min == "" || $4 < min) min = $4; if ($4 > max) max = $4 }
+    END { if (n) printf "%s: %d clients, rate mean %.1f min %.1f max %.1f kbit/s (cap %s)\n", p, n, s / n, min, max, c }' "$TMP/table"
+done
+exit $status
