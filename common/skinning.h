@@ -30,27 +30,74 @@ struct SkinningJob {
     void run() const;  // reference scalar loop; no allocation
 };
 
-// The same contract over a packed vertex layout built once per mesh and
-// influence count: per vertex (x,y,z,1) and (nx,ny,nz,0) as 16-byte rows, u16
-// joints and weights pre-normalised over the kept slots. skin_packed blends the
-// 3x4 matrices of a vertex with 4-wide SIMD (SSE, FMA when the CPU has AVX2)
-// and transforms once; several times faster than SkinningJob::run.
-struct PackedSkin {
-    int count = 0;
-    int influences = 0;       // slots packed per vertex (the max_influences it was packed for)
-    std::vector<float> pos;   // 4 floats per vertex
-    std::vector<float> nrm;   // 4 floats per vertex
-    std::vector<float> wgt;   // influences per vertex
-    std::vector<uint16_t> jnt;
-    uint16_t max_joint = 0;   // largest joint index packed (checked against the palette)
+// ---- fast skinning (skinning_simd.cpp) -------------------------------------
+//
+// The same contract as SkinningJob over a layout built once per mesh, with
+// two differences: normals are NOT renormalised unless asked (GPU and ozz
+// skinning use them unnormalised; the blended normal of a rigid palette is
+// already unit length), and weights may be quantised. Blocks of 16 vertices
+// are stored structure-of-arrays (x[16] y[16] z[16], then 16 joints per slot,
+// 16 weights per slot) so that one SIMD instruction skins 4, 8 or 16 vertices
+// (SSE4, AVX2, AVX-512, chosen at run time by Google Highway). Joints are u8
+// when every index is < 256, else u16. The last kept slot's weight is not
+// stored: it is 1 minus the others, so quantised weights still sum to 1.
+
+enum class SkinWeightFormat : uint8_t {
+    F32,  // exact (float, pre-normalised)
+    U16,  // w rounded to k/65535: |dw| <= 7.7e-6 per stored slot
+    U8,   // w rounded to k/255:   |dw| <= 2.0e-3 per stored slot
 };
-PackedSkin pack_skin(std::span<const glm::vec3> positions, std::span<const glm::vec3> normals,
-                     std::span<const uint16_t> joints, std::span<const float> weights,
-                     int influences, int max_influences);
-// Skins a PackedSkin; out_normals may be empty. Returns false (and does
-// nothing) when the palette is smaller than max_joint + 1 or an output span has
-// the wrong size; otherwise the cost is only the arithmetic.
-bool skin_packed(const PackedSkin& p, std::span<const Mat34> palette,
-                 std::span<glm::vec3> out_positions, std::span<glm::vec3> out_normals);
+
+struct SkinStream {
+    int count = 0;                      // vertices
+    int influences = 0;                 // slots kept per vertex (1..8)
+    bool has_normals = false;
+    bool u8_joints = false;             // joints8 holds the indices, else joints16
+    SkinWeightFormat weight_format = SkinWeightFormat::F32;
+    uint16_t max_joint = 0;             // largest joint index (the palette must be larger)
+    std::vector<float> positions;       // per block: x[16] y[16] z[16]
+    std::vector<float> normals;         // the same layout, or empty
+    std::vector<uint8_t> joints8;       // per block: influences * 16
+    std::vector<uint16_t> joints16;
+    std::vector<uint8_t> weights;       // per block: (influences - 1) * 16 of F32/U16/U8
+};
+constexpr int kSkinBlock = 16;
+
+// Builds the stream of a SkinningJob's vertex data (positions, normals when
+// given, joints, weights, influences; max_influences slots are kept, weights
+// renormalised over them; palette and outputs are not read). Returns false
+// and leaves out empty when the spans disagree in size, influences is not in
+// 1..8 or max_influences < 1. Cost: one pass over the vertices, allocates.
+bool build_skin_stream(SkinStream& out, const SkinningJob& src, SkinWeightFormat weights = SkinWeightFormat::U16);
+
+struct SkinRunOptions {
+    int max_influences = 0;     // use the first k slots of the stream (0 or >= influences: all);
+                                // weights are renormalised over them as SkinningJob does
+    bool renormalize = false;   // unit normals: rsqrt estimate + one Newton step (rel. error < 1e-6)
+};
+
+// Skins a stream with a palette into out_positions (count) and, when not
+// empty, out_normals (count; the stream must have normals). Returns false and
+// writes nothing when a size is wrong or the palette has <= max_joint entries.
+// No allocation; cost ~ 12 gathered floats + 12 FMA per vertex and slot, plus
+// 9 (positions) or 18 (with normals) FMA per vertex, SIMD-wide.
+bool skin_stream(const SkinStream& s, std::span<const Mat34> palette, std::span<glm::vec3> out_positions,
+                 std::span<glm::vec3> out_normals = {}, const SkinRunOptions& options = {});
+
+// One character of a frame for skin_many.
+struct SkinTask {
+    const SkinStream* stream = nullptr;
+    std::span<const Mat34> palette;
+    std::span<glm::vec3> out_positions;
+    std::span<glm::vec3> out_normals;  // or empty
+    SkinRunOptions options;
+};
+// Skins every task in order on the calling thread. All tasks are validated
+// first: returns false and writes nothing when any is invalid (null stream or
+// a skin_stream refusal). No allocation.
+bool skin_many(std::span<const SkinTask> tasks);
+
+// The SIMD target skin_stream dispatches to now ("AVX3", "AVX2", "SSE4", ...).
+const char* skin_simd_target();
 
 }  // namespace progskin

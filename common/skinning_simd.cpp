@@ -1,0 +1,385 @@
+// skinning_simd.cpp — skin_stream and skin_many (skinning.h): structure-of-
+// arrays linear blend skinning, one SIMD lane per vertex, compiled once per
+// x86 target (SSE4, AVX2, AVX-512, ...) by Google Highway and dispatched at run
+// time to the best one the CPU supports.
+//
+// Per block of L vertices (L = 4, 8 or 16 lanes): the palette rows of each
+// kept slot are gathered (12 floats per lane), blended with the slot weights
+// by FMA, and the blended 3x4 matrix transforms x, y, z (and the normal by its
+// 3x3 part) lane-wise; the results are interleaved back to glm::vec3.
+#undef HWY_TARGET_INCLUDE
+#define HWY_TARGET_INCLUDE "skinning_simd.cpp"
+#include <hwy/foreach_target.h>  // IWYU pragma: keep
+
+#include <hwy/highway.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+#include "skinning.h"
+
+#ifndef PROGSKIN_SKINNING_SIMD_ONCE
+#define PROGSKIN_SKINNING_SIMD_ONCE
+namespace progskin {
+namespace {
+struct SkinArgs {
+    const SkinStream* s;
+    const float* palette;  // Mat34 rows, `stride` floats per joint (12, or 16 when copied aligned)
+    size_t stride;
+    float* out_p;          // count * 3
+    float* out_n;          // count * 3 or null
+    int m;                 // slots used, 1..s->influences
+    bool renormalize;
+};
+}  // namespace
+}  // namespace progskin
+#endif
+
+HWY_BEFORE_NAMESPACE();
+namespace progskin {
+namespace HWY_NAMESPACE {
+namespace {
+namespace hn = hwy::HWY_NAMESPACE;
+
+using DF = hn::CappedTag<float, kSkinBlock>;
+using DI = hn::RebindToSigned<DF>;
+using DU = hn::RebindToUnsigned<DF>;
+using VF = hn::Vec<DF>;
+using VI = hn::Vec<DI>;
+
+#if HWY_TARGET == HWY_SCALAR
+// No 128-bit vectors: the same arithmetic one vertex at a time.
+template <class JT, int WF, bool kNormals>
+HWY_NOINLINE void SkinT(const SkinArgs& a) {
+    const SkinStream& st = *a.s;
+    const size_t B = kSkinBlock, n = size_t(st.count);
+    const int K = st.influences, m = a.m;
+    const JT* J;
+    if constexpr (sizeof(JT) == 1) J = st.joints8.data();
+    else J = st.joints16.data();
+    for (size_t v = 0; v < n; ++v) {
+        const size_t b0 = v / B * B, o = v % B;
+        float w[8], sum = 0.0f;
+        for (int s = 0; s < m && s < K - 1; ++s) {
+            const size_t i = b0 * size_t(K - 1) + size_t(s) * B + o;
+            if constexpr (WF == 0) std::memcpy(&w[s], &st.weights[i * 4], 4);
+            else if constexpr (WF == 1) {
+                uint16_t q;
+                std::memcpy(&q, &st.weights[i * 2], 2);
+                w[s] = float(q) * (1.0f / 65535.0f);
+            } else w[s] = float(st.weights[i]) * (1.0f / 255.0f);
+            sum += w[s];
+        }
+        if (m == K) {
+            w[K - 1] = 1.0f - sum;
+        } else {
+            const float inv = sum > 0.0f ? 1.0f / sum : 0.0f;
+            for (int s = 0; s < m; ++s) w[s] *= inv;
+            if (!(sum > 0.0f)) w[0] = 1.0f;
+        }
+        if (m == 1) w[0] = 1.0f;
+        float M[12] = {};
+        for (int s = 0; s < m; ++s) {
+            const float* r = a.palette + size_t(J[b0 * size_t(K) + size_t(s) * B + o]) * 12;
+            for (int c = 0; c < 12; ++c) M[c] += w[s] * r[c];
+        }
+        const float* p = &st.positions[v * 3];
+        for (int r = 0; r < 3; ++r)
+            a.out_p[v * 3 + r] = M[r * 4] * p[0] + M[r * 4 + 1] * p[1] + M[r * 4 + 2] * p[2] + M[r * 4 + 3];
+        if constexpr (kNormals) {
+            const float* q = &st.normals[v * 3];
+            float o3[3];
+            for (int r = 0; r < 3; ++r) o3[r] = M[r * 4] * q[0] + M[r * 4 + 1] * q[1] + M[r * 4 + 2] * q[2];
+            float l2 = o3[0] * o3[0] + o3[1] * o3[1] + o3[2] * o3[2];
+            const float sc = a.renormalize && l2 > 0.0f ? 1.0f / std::sqrt(l2) : 1.0f;
+            for (int r = 0; r < 3; ++r) a.out_n[v * 3 + r] = o3[r] * sc;
+        }
+    }
+}
+#else
+// Weight of element i of the weight stream (F32 = 0, U16 = 1, U8 = 2), L lanes.
+template <int WF>
+HWY_INLINE VF LoadWeight(const uint8_t* w, size_t i) {
+    const DF df;
+    if constexpr (WF == 0) {
+        return hn::LoadU(df, reinterpret_cast<const float*>(w) + i);
+    } else if constexpr (WF == 1) {
+        const hn::Rebind<uint16_t, DF> d16;
+        const VI q = hn::BitCast(DI(), hn::PromoteTo(DU(), hn::LoadU(d16, reinterpret_cast<const uint16_t*>(w) + i)));
+        return hn::Mul(hn::ConvertTo(df, q), hn::Set(df, 1.0f / 65535.0f));
+    } else {
+        const hn::Rebind<uint8_t, DF> d8;
+        const VI q = hn::BitCast(DI(), hn::PromoteTo(DU(), hn::LoadU(d8, w + i)));
+        return hn::Mul(hn::ConvertTo(df, q), hn::Set(df, 1.0f / 255.0f));
+    }
+}
+
+// The m weights of the 16 vertices of a block as floats, slot-major: the last
+// of all K slots is 1 - the others; fewer slots are renormalised as
+// SkinningJob does (a vertex whose kept weights sum to 0 keeps slot 0 at 1).
+template <int WF>
+HWY_INLINE void BlockWeights(const uint8_t* W, size_t wb, int K, int m, float (*wf)[kSkinBlock]) {
+    const DF df;
+    const size_t L = hn::Lanes(df);
+    const VF one = hn::Set(df, 1.0f), zero = hn::Zero(df);
+    for (size_t o = 0; o < kSkinBlock; o += L) {
+        VF w[8], sum = zero;
+        if (m == K) {
+            for (int s = 0; s < K - 1; ++s) sum = hn::Add(sum, w[s] = LoadWeight<WF>(W, wb + size_t(s) * kSkinBlock + o));
+            w[K - 1] = hn::Sub(one, sum);
+        } else {
+            for (int s = 0; s < m; ++s) sum = hn::Add(sum, w[s] = LoadWeight<WF>(W, wb + size_t(s) * kSkinBlock + o));
+            const auto pos = hn::Gt(sum, zero);
+            const VF inv = hn::IfThenElseZero(pos, hn::Div(one, hn::IfThenElse(pos, sum, one)));
+            for (int s = 0; s < m; ++s) w[s] = hn::Mul(w[s], inv);
+            w[0] = hn::IfThenElse(pos, w[0], one);
+        }
+        for (int s = 0; s < m; ++s) hn::Store(w[s], df, &wf[s][o]);
+    }
+}
+
+// Per 128-bit block: (sum of a0's block, of a1's, of a2's, of a3's).
+HWY_INLINE VF SumBlocks4(VF a0, VF a1, VF a2, VF a3) {
+    const DF df;
+    const hn::Repartition<uint64_t, DF> d64;
+    const VF u0 = hn::Add(hn::InterleaveLower(df, a0, a1), hn::InterleaveUpper(df, a0, a1));
+    const VF u1 = hn::Add(hn::InterleaveLower(df, a2, a3), hn::InterleaveUpper(df, a2, a3));
+    const auto b0 = hn::BitCast(d64, u0), b1 = hn::BitCast(d64, u1);
+    return hn::Add(hn::BitCast(df, hn::InterleaveLower(d64, b0, b1)), hn::BitCast(df, hn::InterleaveUpper(d64, b0, b1)));
+}
+
+// 1 / sqrt(l2) by the estimate and one Newton step; 1 where l2 <= 0.
+template <class D, class V>
+HWY_INLINE V RsqrtNewton(D d, V l2) {
+    const V one = hn::Set(d, 1.0f);
+    const auto pos = hn::Gt(l2, hn::Zero(d));
+    V r = hn::ApproximateReciprocalSqrt(hn::IfThenElse(pos, l2, one));
+    r = hn::Mul(r, hn::NegMulAdd(hn::Mul(hn::Set(d, 0.5f), l2), hn::Mul(r, r), hn::Set(d, 1.5f)));
+    return hn::IfThenElse(pos, r, one);
+}
+
+// Vectors per 3x4 matrix: 1 (16 lanes: rows in blocks 0-2), 2 (8 lanes: rows
+// 0|1 and 1|2), 3 (4 lanes: one row each).
+constexpr size_t kLanes = hn::MaxLanes(DF());
+constexpr int kG = kLanes >= 16 ? 1 : kLanes == 8 ? 2 : 3;
+#ifndef HWY_UNROLL_G
+#define HWY_UNROLL_G _Pragma("GCC unroll 3")
+#endif
+static_assert(kLanes >= 4, "skinning needs 128-bit vectors");
+
+HWY_INLINE void LoadMatrix(const float* m, VF* M) {
+    const DF df;
+    if constexpr (kG == 1) {
+        M[0] = hn::MaskedLoad(hn::FirstN(df, 12), df, m);
+    } else if constexpr (kG == 2) {
+        M[0] = hn::LoadU(df, m), M[1] = hn::LoadU(df, m + 4);
+    } else {
+        M[0] = hn::LoadU(df, m), M[1] = hn::LoadU(df, m + 4), M[2] = hn::LoadU(df, m + 8);
+    }
+}
+
+// Writes 4 vertices (cnt <= 4 of them) of the block sums R (rows x, y, z as
+// above) interleaved to out, renormalising first when asked.
+template <int G = kG>
+HWY_INLINE void Store4(const VF* R, float* out, size_t cnt, bool room16, bool renormalize) {
+    const DF df;
+    if constexpr (G == 1) {
+        VF r = R[0];  // blocks: x(v0..3) y(v0..3) z(v0..3) -
+        if (renormalize) {
+            alignas(64) static constexpr int32_t kY[16] = {4, 5, 6, 7, 8, 9, 10, 11, 0, 1, 2, 3, 12, 13, 14, 15};
+            alignas(64) static constexpr int32_t kZ[16] = {8, 9, 10, 11, 0, 1, 2, 3, 4, 5, 6, 7, 12, 13, 14, 15};
+            const VF y = hn::TableLookupLanes(r, hn::SetTableIndices(df, kY));
+            const VF z = hn::TableLookupLanes(r, hn::SetTableIndices(df, kZ));
+            r = hn::Mul(r, RsqrtNewton(df, hn::MulAdd(r, r, hn::MulAdd(y, y, hn::Mul(z, z)))));
+        }
+        alignas(64) static constexpr int32_t kAoS[16] = {0, 4, 8, 1, 5, 9, 2, 6, 10, 3, 7, 11, 12, 13, 14, 15};
+        const VF o = hn::TableLookupLanes(r, hn::SetTableIndices(df, kAoS));
+        if (room16) hn::StoreU(o, df, out);
+        else hn::BlendedStore(o, hn::FirstN(df, cnt * 3), df, out);
+    } else {
+        const hn::Full128<float> d4;
+        hn::Vec<decltype(d4)> x, y, z;
+        if constexpr (G == 2) {
+            const hn::Half<DF> dh;
+            x = hn::LowerHalf(dh, R[0]), y = hn::UpperHalf(dh, R[0]), z = hn::UpperHalf(dh, R[1]);
+        } else {
+            x = R[0], y = R[1], z = R[2];
+        }
+        if (renormalize) {
+            const auto r = RsqrtNewton(d4, hn::MulAdd(x, x, hn::MulAdd(y, y, hn::Mul(z, z))));
+            x = hn::Mul(x, r), y = hn::Mul(y, r), z = hn::Mul(z, r);
+        }
+        if (cnt == 4) {
+            hn::StoreInterleaved3(x, y, z, d4, out);
+        } else {
+            alignas(16) float tmp[12];
+            hn::StoreInterleaved3(x, y, z, d4, tmp);
+            std::memcpy(out, tmp, cnt * 3 * sizeof(float));
+        }
+    }
+}
+
+template <class JT, int WF, bool kNormals>
+HWY_NOINLINE void SkinT(const SkinArgs& a) {
+    const DF df;
+    const DU du;
+    constexpr size_t B = kSkinBlock;
+    const size_t n = size_t(a.s->count);
+    const int K = a.s->influences, m = a.m;
+    const JT* J;
+    if constexpr (sizeof(JT) == 1) J = a.s->joints8.data();
+    else J = a.s->joints16.data();
+    const uint8_t* W = a.s->weights.data();
+    const float* P = a.s->positions.data();
+    const float* N = a.s->normals.data();
+    const float* pal = a.palette;
+    const size_t stride = a.stride;
+    const VF one = hn::Set(df, 1.0f);
+    // Lane 3 of every block: w = 1 for positions, 0 for normals.
+    const auto wlane = hn::RebindMask(df, hn::Eq(hn::And(hn::Iota(du, 0), hn::Set(du, 3)), hn::Set(du, 3)));
+    // Weights as floats, one block ahead of their use: the stores have left the
+    // store queue by the time the broadcast loads read them.
+    HWY_ALIGN float wf[2][8][B];
+    if (m > 1) BlockWeights<WF>(W, 0, K, m, wf[0]);
+    for (size_t b0 = 0; b0 < n; b0 += B) {
+        const JT* jb = J + b0 * size_t(K);
+        const float(*w)[B] = wf[(b0 / B) & 1];
+        if (m > 1 && b0 + B < n) BlockWeights<WF>(W, (b0 + B) * size_t(K - 1), K, m, wf[((b0 / B) + 1) & 1]);
+        const size_t bend = std::min(n - b0, B);
+        for (size_t q = 0; q < bend; q += 4) {
+            // Blend the matrices of 4 vertices, slot by slot (4 independent FMA chains).
+            VF M[4][kG];
+#pragma GCC unroll 4
+            for (size_t i = 0; i < 4; ++i) LoadMatrix(pal + size_t(jb[q + i]) * stride, M[i]);
+            if (m > 1) {
+#pragma GCC unroll 4
+                for (size_t i = 0; i < 4; ++i) {
+                    const VF w0 = hn::Set(df, w[0][q + i]);
+                    HWY_UNROLL_G for (int g = 0; g < kG; ++g) M[i][g] = hn::Mul(w0, M[i][g]);
+                }
+                for (int s = 1; s < m; ++s) {
+                    const JT* js = jb + size_t(s) * B + q;
+#pragma GCC unroll 4
+                    for (size_t i = 0; i < 4; ++i) {
+                        VF Ms[kG];
+                        LoadMatrix(pal + size_t(js[i]) * stride, Ms);
+                        const VF ws = hn::Set(df, w[s][q + i]);
+                        HWY_UNROLL_G for (int g = 0; g < kG; ++g) M[i][g] = hn::MulAdd(ws, Ms[g], M[i][g]);
+                    }
+                }
+            }
+            VF A[4][kG], AN[4][kG];
+#pragma GCC unroll 4
+            for (size_t i = 0; i < 4; ++i) {
+                const size_t v = b0 + q + i;
+                const VF p = hn::IfThenElse(wlane, one, hn::LoadDup128(df, P + v * 3));
+                HWY_UNROLL_G for (int g = 0; g < kG; ++g) A[i][g] = hn::Mul(M[i][g], p);
+                if constexpr (kNormals) {
+                    const VF nv = hn::IfThenZeroElse(wlane, hn::LoadDup128(df, N + v * 3));
+                    HWY_UNROLL_G for (int g = 0; g < kG; ++g) AN[i][g] = hn::Mul(M[i][g], nv);
+                }
+            }
+            const size_t v0 = b0 + q, cnt = std::min<size_t>(4, n - v0);
+            const bool room16 = v0 + 6 <= n;  // 16 floats from v0 * 3 stay inside the output
+            VF R[kG];
+            HWY_UNROLL_G for (int g = 0; g < kG; ++g) R[g] = SumBlocks4(A[0][g], A[1][g], A[2][g], A[3][g]);
+            Store4(R, a.out_p + v0 * 3, cnt, room16, false);
+            if constexpr (kNormals) {
+                HWY_UNROLL_G for (int g = 0; g < kG; ++g) R[g] = SumBlocks4(AN[0][g], AN[1][g], AN[2][g], AN[3][g]);
+                Store4(R, a.out_n + v0 * 3, cnt, room16, a.renormalize);
+            }
+        }
+    }
+}
+
+#endif  // HWY_TARGET == HWY_SCALAR
+
+}  // namespace
+
+void SkinRun(const SkinArgs& args) {
+#if HWY_TARGET != HWY_SCALAR
+    // Small palettes (every u8-joint skin) are copied to 64-byte rows first so
+    // that no matrix load splits a cache line (half of them do at 48 bytes).
+    constexpr size_t kMaxCopied = 256;
+    HWY_ALIGN float aligned[kMaxCopied * 16];
+    SkinArgs a = args;
+    if (size_t(a.s->max_joint) < kMaxCopied) {
+        for (size_t j = 0; j <= a.s->max_joint; ++j) {
+            std::memcpy(aligned + j * 16, a.palette + j * 12, 12 * sizeof(float));
+            std::memset(aligned + j * 16 + 12, 0, 4 * sizeof(float));
+        }
+        a.palette = aligned;
+        a.stride = 16;
+    }
+#else
+    const SkinArgs& a = args;
+#endif
+    const bool nrm = a.out_n != nullptr;
+    const int wf = int(a.s->weight_format);
+#define PROGSKIN_SKIN_CASE(JT, WF)              \
+    if (wf == WF) {                             \
+        if (nrm) SkinT<JT, WF, true>(a);        \
+        else SkinT<JT, WF, false>(a);           \
+        return;                                 \
+    }
+    if (a.s->u8_joints) {
+        PROGSKIN_SKIN_CASE(uint8_t, 0)
+        PROGSKIN_SKIN_CASE(uint8_t, 1)
+        PROGSKIN_SKIN_CASE(uint8_t, 2)
+    } else {
+        PROGSKIN_SKIN_CASE(uint16_t, 0)
+        PROGSKIN_SKIN_CASE(uint16_t, 1)
+        PROGSKIN_SKIN_CASE(uint16_t, 2)
+    }
+#undef PROGSKIN_SKIN_CASE
+}
+
+const char* SkinTargetName() { return hwy::TargetName(HWY_TARGET); }
+
+}  // namespace HWY_NAMESPACE
+}  // namespace progskin
+HWY_AFTER_NAMESPACE();
+
+#if HWY_ONCE
+namespace progskin {
+HWY_EXPORT(SkinRun);
+HWY_EXPORT(SkinTargetName);
+
+namespace {
+bool valid(const SkinStream& s, std::span<const Mat34> palette, std::span<glm::vec3> out_positions,
+           std::span<glm::vec3> out_normals) {
+    if (s.count < 0 || s.influences < 1 || s.influences > 8) return false;
+    if (palette.size() <= s.max_joint || out_positions.size() != size_t(s.count)) return false;
+    if (!out_normals.empty() && (out_normals.size() != size_t(s.count) || !s.has_normals)) return false;
+    // The stream's arrays must match its header (a hand-edited stream is refused, not read past).
+    const size_t B = kSkinBlock, padded = (size_t(s.count) + B - 1) / B * B, K = size_t(s.influences);
+    if (s.positions.size() != padded * 3 + 4 || (s.has_normals && s.normals.size() != padded * 3 + 4)) return false;
+    if ((s.u8_joints ? s.joints8.size() : s.joints16.size()) != padded * K) return false;
+    const size_t wsize = s.weight_format == SkinWeightFormat::F32 ? 4 : s.weight_format == SkinWeightFormat::U16 ? 2 : 1;
+    if (int(s.weight_format) > 2 || s.weights.size() != padded * (K - 1) * wsize) return false;
+    return true;
+}
+}  // namespace
+
+bool skin_stream(const SkinStream& s, std::span<const Mat34> palette, std::span<glm::vec3> out_positions,
+                 std::span<glm::vec3> out_normals, const SkinRunOptions& options) {
+    if (!valid(s, palette, out_positions, out_normals)) return false;
+    const int m = options.max_influences <= 0 ? s.influences : std::min(options.max_influences, s.influences);
+    const SkinArgs a{&s, palette.data()->m, 12, &out_positions.data()->x,
+                     out_normals.empty() ? nullptr : &out_normals.data()->x, m, options.renormalize};
+    if (s.count > 0) HWY_DYNAMIC_DISPATCH(SkinRun)(a);
+    return true;
+}
+
+bool skin_many(std::span<const SkinTask> tasks) {
+    for (const SkinTask& t : tasks)
+        if (!t.stream || !valid(*t.stream, t.palette, t.out_positions, t.out_normals)) return false;
+    for (const SkinTask& t : tasks) skin_stream(*t.stream, t.palette, t.out_positions, t.out_normals, t.options);
+    return true;
+}
+
+const char* skin_simd_target() { return HWY_DYNAMIC_DISPATCH(SkinTargetName)(); }
+
+}  // namespace progskin
+#endif  // HWY_ONCE
