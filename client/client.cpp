@@ -188,7 +188,7 @@ std::shared_ptr<ClientAsset> load_client_asset(const wire::Asset* a, const std::
             e.max = a->error()->Get(k)->max();
             s.error.push_back(e);
         }
-    remap_skin_vertices(ca->character, s);
+    remap_skin_vertices(*ca);
     s.diagonal = a->diagonal();
     ca->diagonal = rest_diagonal(ca->character);
     if (!(ca->diagonal > 0)) ca->diagonal = a->diagonal() > 0 ? a->diagonal() : 1.0;
@@ -594,7 +594,7 @@ ClientReport run_client(const ClientOptions& opt) {
                 for (size_t i = 0; i < views.size(); ++i) {
                     const InstanceView& v = *views[i];
                     if (acc[i].frames == 0) continue;  // nothing displayed yet
-                    snap.characters.push_back({instance_ids[i], &v.asset().character, &v.asset().skin, v.palette(),
+                    snap.characters.push_back({instance_ids[i], &v.asset().character, &v.asset().skin, &v.asset().stream, v.palette(),
                                                instance_positions[i], v.target_bones()});
                 }
                 if (!snap.characters.empty()) opt.on_snapshot(snap);

@@ -29,6 +29,13 @@ double ClipInfo::clip_time(double tick, double tick_rate) const {
     return selection.looped(time_offset + tick / tick_rate * speed);
 }
 
+void remap_skin_vertices(ClientAsset& a) {
+    remap_skin_vertices(a.character, a.skin);
+    std::vector<glm::vec3> none;
+    if (!build_skin_stream(a.stream, skinning_job(a.character, a.skin, {}, none), SkinWeightFormat::U16))
+        throw Error(a.character.source + ": vertex stream does not fit the skin");
+}
+
 InstanceView::InstanceView(std::shared_ptr<const ClientAsset> asset, ClipInfo clip, int blend_frames)
     : asset_(std::move(asset)), clip_(std::move(clip)), buffer_(asset_->skin.bone_count(), asset_->format) {
     const int B = asset_->skin.bone_count();
@@ -76,7 +83,8 @@ bool InstanceView::display(double d) {
 void InstanceView::skin(std::vector<glm::vec3>& out) const {
     const Character& c = asset_->character;
     out.resize(c.vertex_count());
-    skinning_job(c, asset_->skin, palette_, out).run();
+    if (!skin_stream(asset_->stream, palette_, out))
+        throw Error(c.source + ": palette or vertex stream does not fit the skin");
 }
 
 void InstanceView::reference(double clip_time, std::vector<glm::vec3>& out) const {

@@ -220,10 +220,29 @@ HWY_INLINE void Store4(const VF* R, float* out, size_t cnt, bool room16, bool re
     }
 }
 
+// The joints of 4 consecutive vertices of one slot in one integer load.
+template <class JT>
+HWY_INLINE uint64_t Joints4(const JT* j) {
+    if constexpr (sizeof(JT) == 1) {
+        uint32_t x;
+        std::memcpy(&x, j, 4);
+        return x;
+    } else {
+        uint64_t x;
+        std::memcpy(&x, j, 8);
+        return x;
+    }
+}
+template <class JT>
+HWY_INLINE size_t JointOf(uint64_t j4, size_t i) {
+    return size_t(j4 >> (i * 8 * sizeof(JT))) & ((size_t(1) << (8 * sizeof(JT))) - 1);
+}
+
 template <class JT, int WF, bool kNormals>
 HWY_NOINLINE void SkinT(const SkinArgs& a) {
     const DF df;
     const DU du;
+    const auto Joint = [](uint64_t j4, size_t i) { return JointOf<JT>(j4, i); };
     constexpr size_t B = kSkinBlock;
     const size_t n = size_t(a.s->count);
     const int K = a.s->influences, m = a.m;
@@ -250,20 +269,31 @@ HWY_NOINLINE void SkinT(const SkinArgs& a) {
         for (size_t q = 0; q < bend; q += 4) {
             // Blend the matrices of 4 vertices, slot by slot (4 independent FMA chains).
             VF M[4][kG];
+            uint64_t j4 = Joints4(jb + q);
 #pragma GCC unroll 4
-            for (size_t i = 0; i < 4; ++i) LoadMatrix(pal + size_t(jb[q + i]) * stride, M[i]);
-            if (m > 1) {
+            for (size_t i = 0; i < 4; ++i) LoadMatrix(pal + Joint(j4, i) * stride, M[i]);
+            if (m == 2 && K == 2) {
+                // Two slots, w1 = 1 - w0: M1 + w0 (M0 - M1), one weight per vertex.
+                j4 = Joints4(jb + B + q);
+#pragma GCC unroll 4
+                for (size_t i = 0; i < 4; ++i) {
+                    VF M1[kG];
+                    LoadMatrix(pal + Joint(j4, i) * stride, M1);
+                    const VF w0 = hn::Set(df, w[0][q + i]);
+                    HWY_UNROLL_G for (int g = 0; g < kG; ++g) M[i][g] = hn::MulAdd(w0, hn::Sub(M[i][g], M1[g]), M1[g]);
+                }
+            } else if (m > 1) {
 #pragma GCC unroll 4
                 for (size_t i = 0; i < 4; ++i) {
                     const VF w0 = hn::Set(df, w[0][q + i]);
                     HWY_UNROLL_G for (int g = 0; g < kG; ++g) M[i][g] = hn::Mul(w0, M[i][g]);
                 }
                 for (int s = 1; s < m; ++s) {
-                    const JT* js = jb + size_t(s) * B + q;
+                    j4 = Joints4(jb + size_t(s) * B + q);
 #pragma GCC unroll 4
                     for (size_t i = 0; i < 4; ++i) {
                         VF Ms[kG];
-                        LoadMatrix(pal + size_t(js[i]) * stride, Ms);
+                        LoadMatrix(pal + Joint(j4, i) * stride, Ms);
                         const VF ws = hn::Set(df, w[s][q + i]);
                         HWY_UNROLL_G for (int g = 0; g < kG; ++g) M[i][g] = hn::MulAdd(ws, Ms[g], M[i][g]);
                     }
