@@ -63,41 +63,40 @@ bool build_skin_stream(SkinStream& out, const SkinningJob& src, SkinWeightFormat
     uint16_t max_joint = 0;
     for (size_t v = 0; v < n; ++v)
         for (int s = 0; s < K; ++s) max_joint = std::max(max_joint, src.joints[v * I + s]);
-    out.count = int(n);
-    out.influences = K;
-    out.has_normals = !src.normals.empty();
-    out.u8_joints = max_joint < 256;
-    out.weight_format = format;
-    out.max_joint = max_joint;
+    out.count_ = int(n);
+    out.influences_ = K;
+    const bool has_normals = !src.normals.empty(), u8 = max_joint < 256;
+    out.weight_format_ = format;
+    out.max_joint_ = max_joint;
     // xyz per vertex, padded to whole blocks plus one vector (kernels read 4 floats at a time).
-    out.positions.assign(blocks * B * 3 + 4, 0.0f);
-    if (out.has_normals) out.normals.assign(blocks * B * 3 + 4, 0.0f);
-    (out.u8_joints ? out.joints8.assign(blocks * B * K, 0) : out.joints16.assign(blocks * B * K, 0));
+    out.positions_.assign(blocks * B * 3 + 4, 0.0f);
+    if (has_normals) out.normals_.assign(blocks * B * 3 + 4, 0.0f);
+    (u8 ? out.joints8_.assign(blocks * B * K, 0) : out.joints16_.assign(blocks * B * K, 0));
     const size_t wsize = format == SkinWeightFormat::F32 ? 4 : format == SkinWeightFormat::U16 ? 2 : 1;
-    out.weights.assign(blocks * B * size_t(K - 1) * wsize, 0);
+    out.weights_.assign(blocks * B * size_t(K - 1) * wsize, 0);
     for (size_t v = 0; v < n; ++v) {
         const size_t b = v / B, o = v % B;
         for (int c = 0; c < 3; ++c) {
-            out.positions[v * 3 + c] = src.positions[v][c];
-            if (out.has_normals) out.normals[v * 3 + c] = src.normals[v][c];
+            out.positions_[v * 3 + c] = src.positions[v][c];
+            if (has_normals) out.normals_[v * 3 + c] = src.normals[v][c];
         }
         float sum = 0.0f;
         for (int s = 0; s < K; ++s) sum += src.weights[v * I + s];
         for (int s = 0; s < K; ++s) {
             const size_t at = b * B * K + size_t(s) * B + o;
             const uint16_t j = src.joints[v * I + s];
-            if (out.u8_joints) out.joints8[at] = uint8_t(j);
-            else out.joints16[at] = j;
+            if (u8) out.joints8_[at] = uint8_t(j);
+            else out.joints16_[at] = j;
             if (s == K - 1) break;  // the last weight is 1 - the others
             const float w = sum > 0.0f ? src.weights[v * I + s] / sum : (s == 0 ? 1.0f : 0.0f);
             const size_t wi = b * B * (K - 1) + size_t(s) * B + o;
             if (format == SkinWeightFormat::F32) {
-                std::memcpy(&out.weights[wi * 4], &w, 4);
+                std::memcpy(&out.weights_[wi * 4], &w, 4);
             } else if (format == SkinWeightFormat::U16) {
                 const uint16_t q = uint16_t(std::lround(std::clamp(w, 0.0f, 1.0f) * 65535.0f));
-                std::memcpy(&out.weights[wi * 2], &q, 2);
+                std::memcpy(&out.weights_[wi * 2], &q, 2);
             } else {
-                out.weights[wi] = uint8_t(std::lround(std::clamp(w, 0.0f, 1.0f) * 255.0f));
+                out.weights_[wi] = uint8_t(std::lround(std::clamp(w, 0.0f, 1.0f) * 255.0f));
             }
         }
     }

@@ -36,9 +36,11 @@ struct SkinningJob {
 // two differences: normals are NOT renormalised unless asked (GPU and ozz
 // skinning use them unnormalised; the blended normal of a rigid palette is
 // already unit length), and weights may be quantised. Blocks of 16 vertices
-// are stored structure-of-arrays (x[16] y[16] z[16], then 16 joints per slot,
-// 16 weights per slot) so that one SIMD instruction skins 4, 8 or 16 vertices
-// (SSE4, AVX2, AVX-512, chosen at run time by Google Highway). Joints are u8
+// keep their joints and weights slot-major (16 joints of slot 0, 16 of slot 1,
+// ...); positions and normals stay xyz. The kernel blends each vertex's 3x4
+// matrices in one 16-lane vector (AVX-512; two with AVX2, three with SSE4,
+// chosen at run time by Google Highway), transforms 4 vertices at a time and
+// transposes the sums back to xyz. Joints are u8
 // when every index is < 256, else u16. The last kept slot's weight is not
 // stored: it is 1 minus the others, so quantised weights still sum to 1.
 
@@ -48,18 +50,33 @@ enum class SkinWeightFormat : uint8_t {
     U8,   // w rounded to k/255:   |dw| <= 2.0e-3 per stored slot
 };
 
-struct SkinStream {
-    int count = 0;                      // vertices
-    int influences = 0;                 // slots kept per vertex (1..8)
-    bool has_normals = false;
-    bool u8_joints = false;             // joints8 holds the indices, else joints16
-    SkinWeightFormat weight_format = SkinWeightFormat::F32;
-    uint16_t max_joint = 0;             // largest joint index (the palette must be larger)
-    std::vector<float> positions;       // per block: x[16] y[16] z[16]
-    std::vector<float> normals;         // the same layout, or empty
-    std::vector<uint8_t> joints8;       // per block: influences * 16
-    std::vector<uint16_t> joints16;
-    std::vector<uint8_t> weights;       // per block: (influences - 1) * 16 of F32/U16/U8
+// Built only by build_skin_stream (its members are private, so a stream is
+// always consistent: joints < max_joint + 1, arrays sized for count).
+class SkinStream {
+public:
+    int count() const { return count_; }                // vertices
+    int influences() const { return influences_; }      // slots kept per vertex (1..8)
+    bool has_normals() const { return !normals_.empty(); }
+    bool u8_joints() const { return !joints8_.empty() || count_ == 0; }  // else u16
+    SkinWeightFormat weight_format() const { return weight_format_; }
+    uint16_t max_joint() const { return max_joint_; }   // the palette must be larger
+    size_t bytes() const {                              // memory held by the arrays
+        return (positions_.size() + normals_.size()) * sizeof(float) + joints8_.size() +
+               joints16_.size() * sizeof(uint16_t) + weights_.size();
+    }
+
+private:
+    friend bool build_skin_stream(SkinStream&, const SkinningJob&, SkinWeightFormat);
+    friend struct SkinStreamAccess;  // the kernels (skinning_simd.cpp)
+    int count_ = 0;
+    int influences_ = 0;
+    SkinWeightFormat weight_format_ = SkinWeightFormat::F32;
+    uint16_t max_joint_ = 0;
+    std::vector<float> positions_;       // xyz per vertex (+ padding)
+    std::vector<float> normals_;         // the same, or empty
+    std::vector<uint8_t> joints8_;       // per block of 16 vertices: influences * 16 (slot-major)
+    std::vector<uint16_t> joints16_;     // the same when some joint is >= 256
+    std::vector<uint8_t> weights_;       // per block: (influences - 1) * 16 of F32/U16/U8
 };
 constexpr int kSkinBlock = 16;
 

@@ -22,11 +22,28 @@
 #ifndef PROGSKIN_SKINNING_SIMD_ONCE
 #define PROGSKIN_SKINNING_SIMD_ONCE
 namespace progskin {
+// The stream's arrays for the kernels (SkinStream's friend).
+struct SkinStreamAccess {
+    static const float* positions(const SkinStream& s) { return s.positions_.data(); }
+    static const float* normals(const SkinStream& s) { return s.normals_.data(); }
+    static const uint8_t* joints8(const SkinStream& s) { return s.joints8_.data(); }
+    static const uint16_t* joints16(const SkinStream& s) { return s.joints16_.data(); }
+    static const uint8_t* weights(const SkinStream& s) { return s.weights_.data(); }
+    // The arrays match the header (always, for a stream from build_skin_stream).
+    static bool consistent(const SkinStream& s) {
+        if (s.count_ < 0 || s.influences_ < 1 || s.influences_ > 8 || int(s.weight_format_) > 2) return false;
+        const size_t B = kSkinBlock, padded = (size_t(s.count_) + B - 1) / B * B, K = size_t(s.influences_);
+        if (s.positions_.size() != padded * 3 + 4) return false;
+        if (!s.normals_.empty() && s.normals_.size() != padded * 3 + 4) return false;
+        if (s.joints8_.size() + s.joints16_.size() != padded * K) return false;
+        const size_t wsize = s.weight_format_ == SkinWeightFormat::F32 ? 4 : s.weight_format_ == SkinWeightFormat::U16 ? 2 : 1;
+        return s.weights_.size() == padded * (K - 1) * wsize;
+    }
+};
 namespace {
 struct SkinArgs {
     const SkinStream* s;
-    const float* palette;  // Mat34 rows, `stride` floats per joint (12, or 16 when copied aligned)
-    size_t stride;
+    const float* palette;  // Mat34 rows: 12 floats per joint (u16 joints), 16 (u8: copied, 64-byte aligned)
     float* out_p;          // count * 3
     float* out_n;          // count * 3 or null
     int m;                 // slots used, 1..s->influences
@@ -53,22 +70,23 @@ using VI = hn::Vec<DI>;
 template <class JT, int WF, bool kNormals>
 HWY_NOINLINE void SkinT(const SkinArgs& a) {
     const SkinStream& st = *a.s;
-    const size_t B = kSkinBlock, n = size_t(st.count);
-    const int K = st.influences, m = a.m;
+    const size_t B = kSkinBlock, n = size_t(st.count());
+    const int K = st.influences(), m = a.m;
     const JT* J;
-    if constexpr (sizeof(JT) == 1) J = st.joints8.data();
-    else J = st.joints16.data();
+    if constexpr (sizeof(JT) == 1) J = SkinStreamAccess::joints8(st);
+    else J = SkinStreamAccess::joints16(st);
+    const uint8_t* W = SkinStreamAccess::weights(st);
     for (size_t v = 0; v < n; ++v) {
         const size_t b0 = v / B * B, o = v % B;
         float w[8], sum = 0.0f;
         for (int s = 0; s < m && s < K - 1; ++s) {
             const size_t i = b0 * size_t(K - 1) + size_t(s) * B + o;
-            if constexpr (WF == 0) std::memcpy(&w[s], &st.weights[i * 4], 4);
+            if constexpr (WF == 0) std::memcpy(&w[s], W + i * 4, 4);
             else if constexpr (WF == 1) {
                 uint16_t q;
-                std::memcpy(&q, &st.weights[i * 2], 2);
+                std::memcpy(&q, W + i * 2, 2);
                 w[s] = float(q) * (1.0f / 65535.0f);
-            } else w[s] = float(st.weights[i]) * (1.0f / 255.0f);
+            } else w[s] = float(W[i]) * (1.0f / 255.0f);
             sum += w[s];
         }
         if (m == K) {
@@ -84,11 +102,11 @@ HWY_NOINLINE void SkinT(const SkinArgs& a) {
             const float* r = a.palette + size_t(J[b0 * size_t(K) + size_t(s) * B + o]) * 12;
             for (int c = 0; c < 12; ++c) M[c] += w[s] * r[c];
         }
-        const float* p = &st.positions[v * 3];
+        const float* p = SkinStreamAccess::positions(st) + v * 3;
         for (int r = 0; r < 3; ++r)
             a.out_p[v * 3 + r] = M[r * 4] * p[0] + M[r * 4 + 1] * p[1] + M[r * 4 + 2] * p[2] + M[r * 4 + 3];
         if constexpr (kNormals) {
-            const float* q = &st.normals[v * 3];
+            const float* q = SkinStreamAccess::normals(st) + v * 3;
             float o3[3];
             for (int r = 0; r < 3; ++r) o3[r] = M[r * 4] * q[0] + M[r * 4 + 1] * q[1] + M[r * 4 + 2] * q[2];
             float l2 = o3[0] * o3[0] + o3[1] * o3[1] + o3[2] * o3[2];
@@ -168,10 +186,12 @@ constexpr int kG = kLanes >= 16 ? 1 : kLanes == 8 ? 2 : 3;
 #endif
 static_assert(kLanes >= 4, "skinning needs 128-bit vectors");
 
+template <bool kAligned>
 HWY_INLINE void LoadMatrix(const float* m, VF* M) {
     const DF df;
     if constexpr (kG == 1) {
-        M[0] = hn::MaskedLoad(hn::FirstN(df, 12), df, m);
+        if constexpr (kAligned) M[0] = hn::Load(df, m);  // 16 floats, the last 4 zero
+        else M[0] = hn::MaskedLoad(hn::FirstN(df, 12), df, m);
     } else if constexpr (kG == 2) {
         M[0] = hn::LoadU(df, m), M[1] = hn::LoadU(df, m + 4);
     } else {
@@ -244,16 +264,17 @@ HWY_NOINLINE void SkinT(const SkinArgs& a) {
     const DU du;
     const auto Joint = [](uint64_t j4, size_t i) { return JointOf<JT>(j4, i); };
     constexpr size_t B = kSkinBlock;
-    const size_t n = size_t(a.s->count);
-    const int K = a.s->influences, m = a.m;
+    const size_t n = size_t(a.s->count());
+    const int K = a.s->influences(), m = a.m;
     const JT* J;
-    if constexpr (sizeof(JT) == 1) J = a.s->joints8.data();
-    else J = a.s->joints16.data();
-    const uint8_t* W = a.s->weights.data();
-    const float* P = a.s->positions.data();
-    const float* N = a.s->normals.data();
+    if constexpr (sizeof(JT) == 1) J = SkinStreamAccess::joints8(*a.s);
+    else J = SkinStreamAccess::joints16(*a.s);
+    const uint8_t* W = SkinStreamAccess::weights(*a.s);
+    const float* P = SkinStreamAccess::positions(*a.s);
+    const float* N = SkinStreamAccess::normals(*a.s);
     const float* pal = a.palette;
-    const size_t stride = a.stride;
+    constexpr bool kAligned = sizeof(JT) == 1;  // SkinRun copied the palette to 64-byte rows
+    constexpr size_t stride = kAligned ? 16 : 12;
     const VF one = hn::Set(df, 1.0f);
     // Lane 3 of every block: w = 1 for positions, 0 for normals.
     const auto wlane = hn::RebindMask(df, hn::Eq(hn::And(hn::Iota(du, 0), hn::Set(du, 3)), hn::Set(du, 3)));
@@ -271,14 +292,14 @@ HWY_NOINLINE void SkinT(const SkinArgs& a) {
             VF M[4][kG];
             uint64_t j4 = Joints4(jb + q);
 #pragma GCC unroll 4
-            for (size_t i = 0; i < 4; ++i) LoadMatrix(pal + Joint(j4, i) * stride, M[i]);
+            for (size_t i = 0; i < 4; ++i) LoadMatrix<kAligned>(pal + Joint(j4, i) * stride, M[i]);
             if (m == 2 && K == 2) {
                 // Two slots, w1 = 1 - w0: M1 + w0 (M0 - M1), one weight per vertex.
                 j4 = Joints4(jb + B + q);
 #pragma GCC unroll 4
                 for (size_t i = 0; i < 4; ++i) {
                     VF M1[kG];
-                    LoadMatrix(pal + Joint(j4, i) * stride, M1);
+                    LoadMatrix<kAligned>(pal + Joint(j4, i) * stride, M1);
                     const VF w0 = hn::Set(df, w[0][q + i]);
                     HWY_UNROLL_G for (int g = 0; g < kG; ++g) M[i][g] = hn::MulAdd(w0, hn::Sub(M[i][g], M1[g]), M1[g]);
                 }
@@ -293,7 +314,7 @@ HWY_NOINLINE void SkinT(const SkinArgs& a) {
 #pragma GCC unroll 4
                     for (size_t i = 0; i < 4; ++i) {
                         VF Ms[kG];
-                        LoadMatrix(pal + Joint(j4, i) * stride, Ms);
+                        LoadMatrix<kAligned>(pal + Joint(j4, i) * stride, Ms);
                         const VF ws = hn::Set(df, w[s][q + i]);
                         HWY_UNROLL_G for (int g = 0; g < kG; ++g) M[i][g] = hn::MulAdd(ws, Ms[g], M[i][g]);
                     }
@@ -331,29 +352,27 @@ void SkinRun(const SkinArgs& args) {
 #if HWY_TARGET != HWY_SCALAR
     // Small palettes (every u8-joint skin) are copied to 64-byte rows first so
     // that no matrix load splits a cache line (half of them do at 48 bytes).
-    constexpr size_t kMaxCopied = 256;
-    HWY_ALIGN float aligned[kMaxCopied * 16];
+    alignas(64) float aligned[256 * 16];
     SkinArgs a = args;
-    if (size_t(a.s->max_joint) < kMaxCopied) {
-        for (size_t j = 0; j <= a.s->max_joint; ++j) {
+    if (a.s->u8_joints()) {  // max_joint < 256
+        for (size_t j = 0; j <= a.s->max_joint(); ++j) {
             std::memcpy(aligned + j * 16, a.palette + j * 12, 12 * sizeof(float));
             std::memset(aligned + j * 16 + 12, 0, 4 * sizeof(float));
         }
         a.palette = aligned;
-        a.stride = 16;
     }
 #else
     const SkinArgs& a = args;
 #endif
     const bool nrm = a.out_n != nullptr;
-    const int wf = int(a.s->weight_format);
+    const int wf = int(a.s->weight_format());
 #define PROGSKIN_SKIN_CASE(JT, WF)              \
     if (wf == WF) {                             \
         if (nrm) SkinT<JT, WF, true>(a);        \
         else SkinT<JT, WF, false>(a);           \
         return;                                 \
     }
-    if (a.s->u8_joints) {
+    if (a.s->u8_joints()) {
         PROGSKIN_SKIN_CASE(uint8_t, 0)
         PROGSKIN_SKIN_CASE(uint8_t, 1)
         PROGSKIN_SKIN_CASE(uint8_t, 2)
@@ -379,15 +398,9 @@ HWY_EXPORT(SkinTargetName);
 namespace {
 bool valid(const SkinStream& s, std::span<const Mat34> palette, std::span<glm::vec3> out_positions,
            std::span<glm::vec3> out_normals) {
-    if (s.count < 0 || s.influences < 1 || s.influences > 8) return false;
-    if (palette.size() <= s.max_joint || out_positions.size() != size_t(s.count)) return false;
-    if (!out_normals.empty() && (out_normals.size() != size_t(s.count) || !s.has_normals)) return false;
-    // The stream's arrays must match its header (a hand-edited stream is refused, not read past).
-    const size_t B = kSkinBlock, padded = (size_t(s.count) + B - 1) / B * B, K = size_t(s.influences);
-    if (s.positions.size() != padded * 3 + 4 || (s.has_normals && s.normals.size() != padded * 3 + 4)) return false;
-    if ((s.u8_joints ? s.joints8.size() : s.joints16.size()) != padded * K) return false;
-    const size_t wsize = s.weight_format == SkinWeightFormat::F32 ? 4 : s.weight_format == SkinWeightFormat::U16 ? 2 : 1;
-    if (int(s.weight_format) > 2 || s.weights.size() != padded * (K - 1) * wsize) return false;
+    if (!SkinStreamAccess::consistent(s)) return false;
+    if (palette.size() <= s.max_joint() || out_positions.size() != size_t(s.count())) return false;
+    if (!out_normals.empty() && (out_normals.size() != size_t(s.count()) || !s.has_normals())) return false;
     return true;
 }
 }  // namespace
@@ -395,10 +408,10 @@ bool valid(const SkinStream& s, std::span<const Mat34> palette, std::span<glm::v
 bool skin_stream(const SkinStream& s, std::span<const Mat34> palette, std::span<glm::vec3> out_positions,
                  std::span<glm::vec3> out_normals, const SkinRunOptions& options) {
     if (!valid(s, palette, out_positions, out_normals)) return false;
-    const int m = options.max_influences <= 0 ? s.influences : std::min(options.max_influences, s.influences);
-    const SkinArgs a{&s, palette.data()->m, 12, &out_positions.data()->x,
+    const int m = options.max_influences <= 0 ? s.influences() : std::min(options.max_influences, s.influences());
+    const SkinArgs a{&s, palette.data()->m, &out_positions.data()->x,
                      out_normals.empty() ? nullptr : &out_normals.data()->x, m, options.renormalize};
-    if (s.count > 0) HWY_DYNAMIC_DISPATCH(SkinRun)(a);
+    if (s.count() > 0) HWY_DYNAMIC_DISPATCH(SkinRun)(a);
     return true;
 }
 
