@@ -60,7 +60,7 @@ def main():
             if k and p:
                 print(f"| {i} | {label} | {k['Mvert/s']:.0f} | {k['Mvert/s'] / p['Mvert/s']:.2f} |")
     print()
-    for a, label in ((0, "skin_many"), (1, "SkinningJob::run")):
+    for a, label in ((2, "nothing (palettes only)"), (0, "skin_many"), (1, "SkinningJob::run")):
         c = r.get(f"BM_ClientFrame/{a}")
         if c:
             print(f"client frame, 100 Fox + 100 CesiumMan ({c['verts']:.0f} vertices), palettes + {label}: "
