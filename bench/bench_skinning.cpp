@@ -8,6 +8,7 @@
 //       --benchmark_out_format=json --benchmark_out=skin.json   (one line)
 //   python3 bench/skin_table.py skin.json
 #include <benchmark/benchmark.h>
+#include <hwy/targets.h>
 
 #include <map>
 #include <random>
@@ -163,6 +164,33 @@ BENCHMARK(BM_Kernel)->Apply([](auto* b) {
         if (I > 1) b->Args({I, 1, 100000, 0, 0}), b->Args({I, 1, 100000, 2, 0});  // F32, U8
     }
 })->Unit(benchmark::kMicrosecond);
+
+// The kernel forced onto each SIMD target this CPU supports (arg: index in
+// hwy::SupportedAndGeneratedTargets()), 100k vertices, 4 influences, U16.
+void BM_KernelPerTarget(benchmark::State& st) {
+    const std::vector<int64_t> targets = hwy::SupportedAndGeneratedTargets();
+    const size_t t = size_t(st.range(0));
+    if (t >= targets.size()) {
+        st.SkipWithError("no such target here");
+        for (auto _ : st) {
+        }
+        return;
+    }
+    const bool N = st.range(1) != 0;
+    Data& d = data(4, 100000);
+    hwy::SetSupportedTargetsForTest(targets[t]);
+    hwy::GetChosenTarget().Update(hwy::SupportedTargets());
+    std::span<glm::vec3> on = N ? std::span<glm::vec3>(d.out_n) : std::span<glm::vec3>();
+    for (auto _ : st) {
+        if (!skin_stream(d.streams.at(SkinWeightFormat::U16), d.palette, d.out_p, on)) st.SkipWithError("refused");
+        benchmark::ClobberMemory();
+    }
+    st.SetLabel(skin_simd_target());
+    hwy::SetSupportedTargetsForTest(0);
+    hwy::GetChosenTarget().Update(hwy::SupportedTargets());
+    set_counters(st, d.n, footprint_per_vertex(4, N, SkinWeightFormat::U16));
+}
+BENCHMARK(BM_KernelPerTarget)->ArgsProduct({{0, 1, 2, 3, 4}, {0, 1}})->Unit(benchmark::kMicrosecond);
 
 // ---- a client frame: 100 Fox + 100 CesiumMan instances ----------------------
 

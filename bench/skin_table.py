@@ -60,6 +60,17 @@ def main():
             if k and p:
                 print(f"| {i} | {label} | {k['Mvert/s']:.0f} | {k['Mvert/s'] / p['Mvert/s']:.2f} |")
     print()
+    print("Per SIMD target (forced), N = 100,000, 4 influences, U16:\n")
+    print("| target | attrs | kernel Mvert/s | kernel / plain | target (1.5x ozz/plain) |")
+    print("|---|---|---|---|---|")
+    for t in range(5):
+        for nn in (0, 1):
+            k = r.get(f"BM_KernelPerTarget/{t}/{nn}")
+            p = r.get(f"BM_PlainLoop/4/{nn}/100000")
+            if k and p and "error_occurred" not in k:
+                print(f"| {k.get('label', t)} | {'P+N' if nn else 'P'} | {k['Mvert/s']:.0f} | "
+                      f"{k['Mvert/s'] / p['Mvert/s']:.2f} | {1.5 * OZZ_OVER_PLAIN[(4, nn)]:.2f} |")
+    print()
     for a, label in ((2, "nothing (palettes only)"), (0, "skin_many"), (1, "SkinningJob::run")):
         c = r.get(f"BM_ClientFrame/{a}")
         if c:

@@ -392,6 +392,8 @@ HWY_AFTER_NAMESPACE();
 
 #if HWY_ONCE
 namespace progskin {
+static_assert(sizeof(glm::vec3) == 3 * sizeof(float) && sizeof(Mat34) == 12 * sizeof(float),
+              "the kernels read vec3 and Mat34 arrays as floats");
 HWY_EXPORT(SkinRun);
 HWY_EXPORT(SkinTargetName);
 
@@ -409,9 +411,11 @@ bool skin_stream(const SkinStream& s, std::span<const Mat34> palette, std::span<
                  std::span<glm::vec3> out_normals, const SkinRunOptions& options) {
     if (!valid(s, palette, out_positions, out_normals)) return false;
     const int m = options.max_influences <= 0 ? s.influences() : std::min(options.max_influences, s.influences());
-    const SkinArgs a{&s, palette.data()->m, &out_positions.data()->x,
-                     out_normals.empty() ? nullptr : &out_normals.data()->x, m, options.renormalize};
-    if (s.count() > 0) HWY_DYNAMIC_DISPATCH(SkinRun)(a);
+    if (s.count() == 0) return true;
+    const SkinArgs a{&s, reinterpret_cast<const float*>(palette.data()), reinterpret_cast<float*>(out_positions.data()),
+                     out_normals.empty() ? nullptr : reinterpret_cast<float*>(out_normals.data()), m,
+                     options.renormalize};
+    HWY_DYNAMIC_DISPATCH(SkinRun)(a);
     return true;
 }
 

@@ -107,19 +107,22 @@ double max_err(const std::vector<glm::vec3>& a, const std::vector<glm::dvec3>& b
     return e;
 }
 
+void list_targets_once(const std::vector<int64_t>& targets) {
+    static bool listed = false;
+    if (listed) return;
+    listed = true;
+    std::printf("SIMD targets tested:");
+    for (int64_t t : targets) std::printf(" %s", hwy::TargetName(t));
+    std::printf("\n");
+}
+
 // Runs f once per SIMD target compiled into the library and supported here,
 // with skin_stream forced onto it; restores the normal dispatch afterwards.
 template <class F>
 void for_each_target(F&& f) {
     const std::vector<int64_t> targets = hwy::SupportedAndGeneratedTargets();
     ASSERT_FALSE(targets.empty());
-    static bool listed = false;
-    if (!listed) {
-        listed = true;
-        std::printf("SIMD targets tested:");
-        for (int64_t t : targets) std::printf(" %s", hwy::TargetName(t));
-        std::printf("\n");
-    }
+    list_targets_once(targets);
     for (int64_t t : targets) {
         hwy::SetSupportedTargetsForTest(t);
         hwy::GetChosenTarget().Update(hwy::SupportedTargets());
