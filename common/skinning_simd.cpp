@@ -1,12 +1,16 @@
-// skinning_simd.cpp — skin_stream and skin_many (skinning.h): structure-of-
-// arrays linear blend skinning, one SIMD lane per vertex, compiled once per
-// x86 target (SSE4, AVX2, AVX-512, ...) by Google Highway and dispatched at run
-// time to the best one the CPU supports.
+// skinning_simd.cpp — skin_stream and skin_many (skinning.h), compiled once
+// per x86 target (SSSE3, SSE4, AVX2, AVX-512, scalar) by Google Highway and
+// dispatched at run time to the best one the CPU supports.
 //
-// Per block of L vertices (L = 4, 8 or 16 lanes): the palette rows of each
-// kept slot are gathered (12 floats per lane), blended with the slot weights
-// by FMA, and the blended 3x4 matrix transforms x, y, z (and the normal by its
-// 3x3 part) lane-wise; the results are interleaved back to glm::vec3.
+// Per group of 4 vertices: each vertex's 3x4 matrix is blended row-wise in
+// kG vectors (AVX-512: rows 0-2 in one 16-lane vector; AVX2: rows 0|1 and
+// 1|2; SSE4: one row each) by one load and one FMA per kept slot, with the
+// weights converted to floats one block of 16 vertices ahead. Multiplying by
+// (x, y, z, 1) (or (nx, ny, nz, 0)) and summing each 128-bit block gives one
+// output coordinate; SumBlocks4 does that for 4 vertices at once (a 4x4
+// transpose folded into the adds), and the block sums are permuted back to
+// xyz xyz xyz xyz. No gathers: on Zen 4 a 16-lane gather moves about one
+// element per cycle, which made the one-lane-per-vertex form 5x slower.
 #undef HWY_TARGET_INCLUDE
 #define HWY_TARGET_INCLUDE "skinning_simd.cpp"
 #include <hwy/foreach_target.h>  // IWYU pragma: keep
