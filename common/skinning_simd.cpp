@@ -171,14 +171,15 @@ HWY_INLINE VF SumBlocks4(VF a0, VF a1, VF a2, VF a3) {
     return hn::Add(hn::BitCast(df, hn::InterleaveLower(d64, b0, b1)), hn::BitCast(df, hn::InterleaveUpper(d64, b0, b1)));
 }
 
-// 1 / sqrt(l2) by the estimate and one Newton step; 1 where l2 <= 0.
+// 1 / sqrt(l2) by the estimate and one Newton step. l2 is clamped to 1e-30
+// (not lower: 0.5 l2 must not be denormal, which is slow), so a zero vector is
+// scaled by a finite factor and stays zero without masks; a vector shorter than
+// 1e-15 comes out shorter than 1.
 template <class D, class V>
 HWY_INLINE V RsqrtNewton(D d, V l2) {
-    const V one = hn::Set(d, 1.0f);
-    const auto pos = hn::Gt(l2, hn::Zero(d));
-    V r = hn::ApproximateReciprocalSqrt(hn::IfThenElse(pos, l2, one));
-    r = hn::Mul(r, hn::NegMulAdd(hn::Mul(hn::Set(d, 0.5f), l2), hn::Mul(r, r), hn::Set(d, 1.5f)));
-    return hn::IfThenElse(pos, r, one);
+    l2 = hn::Max(l2, hn::Set(d, 1e-30f));
+    const V r = hn::ApproximateReciprocalSqrt(l2);
+    return hn::Mul(r, hn::NegMulAdd(hn::Mul(hn::Set(d, 0.5f), l2), hn::Mul(r, r), hn::Set(d, 1.5f)));
 }
 
 // Vectors per 3x4 matrix: 1 (16 lanes: rows in blocks 0-2), 2 (8 lanes: rows
