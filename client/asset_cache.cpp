@@ -102,7 +102,7 @@ std::shared_ptr<ClientAsset> load_client_asset(const wire::Asset* a, const std::
             e.max = a->error()->Get(k)->max();
             s.error.push_back(e);
         }
-    remap_skin_vertices(ca->character, s);
+    remap_skin_vertices(*ca);
     s.diagonal = a->diagonal();
     ca->diagonal = rest_diagonal(ca->character);
     if (!(ca->diagonal > 0)) ca->diagonal = a->diagonal() > 0 ? a->diagonal() : 1.0;

@@ -204,6 +204,7 @@ struct DisplayedCharacter {
     int instance = 0;
     const Character* character = nullptr;
     const ProgressiveSkin* skin = nullptr;
+    const SkinStream* stream = nullptr;  // skin's vertex stream for skin_stream
     std::span<const Mat34> palette;  // B matrices in progressive order (copy-down and blending applied)
     glm::vec3 position{0.0f};        // world placement
     int bones = 0;                   // bones displayed (the LOD target)

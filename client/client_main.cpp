@@ -158,6 +158,7 @@ int main(int argc, char** argv) {
                 render::SnapshotCharacter c;
                 c.character = d.character;
                 c.skin = d.skin;
+                c.stream = d.stream;
                 c.palette = d.palette;
                 Mat34 place = Mat34::identity();
                 place.m[3] = d.position.x, place.m[7] = d.position.y, place.m[11] = d.position.z;

@@ -31,6 +31,13 @@ double ClipInfo::at(double u) const {
     return selection.looped(u);
 }
 
+void remap_skin_vertices(ClientAsset& a) {
+    remap_skin_vertices(a.character, a.skin);
+    std::vector<glm::vec3> none;
+    if (!build_skin_stream(a.stream, skinning_job(a.character, a.skin, {}, none), SkinWeightFormat::U16))
+        throw Error(a.character.source + ": vertex stream does not fit the skin");
+}
+
 double ClipInfo::clip_time(double tick, double tick_rate) const { return at(time_offset + tick / tick_rate * speed); }
 
 InstanceView::InstanceView(std::shared_ptr<const ClientAsset> asset, ClipInfo clip, int blend_frames, double tick_rate)
@@ -115,7 +122,8 @@ const Mat34& InstanceView::carried(int joint, double anchor, double d, Mat34& ou
 void InstanceView::skin(std::vector<glm::vec3>& out) const {
     const Character& c = asset_->character;
     out.resize(c.vertex_count());
-    skinning_job(c, asset_->skin, palette_, out).run();
+    if (!skin_stream(asset_->stream, palette_, out))
+        throw Error(c.source + ": palette or vertex stream does not fit the skin");
 }
 
 void InstanceView::reference(double clip_time, std::vector<glm::vec3>& out) const {

@@ -28,11 +28,14 @@ struct ClientAsset {
     ProgressiveSkin skin;   // order, parents, corrections, error; joints/weights in progressive indices
     RecordFormat format;
     double diagonal = 1;    // rest_diagonal(character)
+    SkinStream stream;      // skin's vertex stream for skin_stream (positions, U16 weights)
 };
 
 // Fills skin.joints/weights from the character's vertex stream remapped to
 // progressive indices (skin.order must be set). Throws Error on a bad order.
 void remap_skin_vertices(const Character& c, ProgressiveSkin& skin);
+// The same for an asset (its character and skin), then builds asset.stream.
+void remap_skin_vertices(ClientAsset& asset);
 
 struct ClipInfo {
     ClipSelection selection;  // empty clips: live poses (no reference)

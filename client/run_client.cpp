@@ -242,7 +242,7 @@ ClientReport run_client(const ClientOptions& opt) {
                 snap.rate_kbps = bins.size() >= 2 ? bins[bins.size() - 2] * 8.0 / 1000.0 : 0.0;
                 for (const RemoteCharacter& c : chars)
                     if (c.shown)
-                        snap.characters.push_back({c.instance, &c.asset->character, &c.asset->skin, c.palette,
+                        snap.characters.push_back({c.instance, &c.asset->character, &c.asset->skin, &c.asset->stream, c.palette,
                                                    glm::vec3(c.root.position), c.bones});
                 if (!snap.characters.empty()) opt.on_snapshot(snap);
             }

@@ -30,27 +30,96 @@ struct SkinningJob {
     void run() const;  // reference scalar loop; no allocation
 };
 
-// The same contract over a packed vertex layout built once per mesh and
-// influence count: per vertex (x,y,z,1) and (nx,ny,nz,0) as 16-byte rows, u16
-// joints and weights pre-normalised over the kept slots. skin_packed blends the
-// 3x4 matrices of a vertex with 4-wide SIMD (SSE, FMA when the CPU has AVX2)
-// and transforms once; several times faster than SkinningJob::run.
-struct PackedSkin {
-    int count = 0;
-    int influences = 0;       // slots packed per vertex (the max_influences it was packed for)
-    std::vector<float> pos;   // 4 floats per vertex
-    std::vector<float> nrm;   // 4 floats per vertex
-    std::vector<float> wgt;   // influences per vertex
-    std::vector<uint16_t> jnt;
-    uint16_t max_joint = 0;   // largest joint index packed (checked against the palette)
+// ---- fast skinning (skinning_simd.cpp) -------------------------------------
+//
+// The same contract as SkinningJob over a layout built once per mesh, with
+// two differences: normals are NOT renormalised unless asked (GPU and ozz
+// skinning use them unnormalised; the blended normal of a rigid palette is
+// already unit length), and weights may be quantised. Blocks of 16 vertices
+// keep their joints and weights slot-major (16 joints of slot 0, 16 of slot 1,
+// ...); positions and normals stay xyz. The kernel blends each vertex's 3x4
+// matrices in one 16-lane vector (AVX-512; two with AVX2, three with SSE4,
+// chosen at run time by Google Highway), transforms 4 vertices at a time and
+// transposes the sums back to xyz. Joints are u8 when every index is < 256,
+// else u16. The last kept slot's weight is not stored: it is 1 minus the
+// others, so quantised weights still sum to 1 (rigid palettes stay rigid).
+// docs/performance.md "CPU skinning" has the speed against ozz-animation and
+// the plain loop, and the errors of the quantised formats.
+
+enum class SkinWeightFormat : uint8_t {
+    F32,  // exact (float, pre-normalised)
+    U16,  // w rounded to k/65535: |dw| <= 7.7e-6 per stored slot, the last slot the sum of those
+    U8,   // w rounded to k/255:   |dw| <= 2.0e-3 per stored slot (visible on large meshes)
+};        // a run-time max_influences below the stream's divides these by the kept weight sum
+
+// Built only by build_skin_stream (its members are private, so a stream is
+// always consistent: joints < max_joint + 1, arrays sized for count).
+class SkinStream {
+public:
+    int count() const { return count_; }                // vertices
+    int influences() const { return influences_; }      // slots kept per vertex (1..8)
+    bool has_normals() const { return !normals_.empty(); }
+    bool u8_joints() const { return !joints8_.empty() || count_ == 0; }  // else u16
+    SkinWeightFormat weight_format() const { return weight_format_; }
+    uint16_t max_joint() const { return max_joint_; }   // the palette must be larger
+    size_t bytes() const {                              // memory held by the arrays
+        return (positions_.size() + normals_.size()) * sizeof(float) + joints8_.size() +
+               joints16_.size() * sizeof(uint16_t) + weights_.size();
+    }
+
+private:
+    friend bool build_skin_stream(SkinStream&, const SkinningJob&, SkinWeightFormat);
+    friend struct SkinStreamAccess;  // the kernels (skinning_simd.cpp)
+    int count_ = 0;
+    int influences_ = 0;
+    SkinWeightFormat weight_format_ = SkinWeightFormat::F32;
+    uint16_t max_joint_ = 0;
+    std::vector<float> positions_;       // xyz per vertex (+ padding)
+    std::vector<float> normals_;         // the same, or empty
+    std::vector<uint8_t> joints8_;       // per block of 16 vertices: influences * 16 (slot-major)
+    std::vector<uint16_t> joints16_;     // the same when some joint is >= 256
+    std::vector<uint8_t> weights_;       // per block: (influences - 1) * 16 of F32/U16/U8
 };
-PackedSkin pack_skin(std::span<const glm::vec3> positions, std::span<const glm::vec3> normals,
-                     std::span<const uint16_t> joints, std::span<const float> weights,
-                     int influences, int max_influences);
-// Skins a PackedSkin; out_normals may be empty. Returns false (and does
-// nothing) when the palette is smaller than max_joint + 1 or an output span has
-// the wrong size; otherwise the cost is only the arithmetic.
-bool skin_packed(const PackedSkin& p, std::span<const Mat34> palette,
-                 std::span<glm::vec3> out_positions, std::span<glm::vec3> out_normals);
+constexpr int kSkinBlock = 16;
+
+// Builds the stream of a SkinningJob's vertex data (positions, normals when
+// given, joints, weights, influences; max_influences slots are kept, weights
+// renormalised over them; palette and outputs are not read). Returns false
+// and leaves out empty when the spans disagree in size, influences is not in
+// 1..8 or max_influences < 1. Cost: one pass over the vertices, allocates.
+bool build_skin_stream(SkinStream& out, const SkinningJob& src, SkinWeightFormat weights = SkinWeightFormat::U16);
+
+struct SkinRunOptions {
+    int max_influences = 0;     // use the first k slots of the stream (0 or >= influences: all);
+                                // weights are renormalised over them as SkinningJob does
+    bool renormalize = false;   // unit normals: rsqrt estimate + one Newton step (| |n| - 1 | < 2e-7)
+};
+
+// Skins a stream with a palette into out_positions (count) and, when not
+// empty, out_normals (count; the stream must have normals). Returns false and
+// writes nothing when a size is wrong, the stream was never built or the
+// palette has <= max_joint entries. No allocation (a u8-joint stream copies the
+// palette to 64-byte rows on the stack, 16 KiB at most). Cost per vertex
+// (AVX-512): one 64-byte matrix load and one FMA per slot, then per attribute
+// one multiply and ~2 shuffles; 1.5 Gvert/s at 1 influence, 0.3 at 8 (Zen 4).
+bool skin_stream(const SkinStream& s, std::span<const Mat34> palette, std::span<glm::vec3> out_positions,
+                 std::span<glm::vec3> out_normals = {}, const SkinRunOptions& options = {});
+
+// One character of a frame for skin_many.
+struct SkinTask {
+    const SkinStream* stream = nullptr;
+    std::span<const Mat34> palette;
+    std::span<glm::vec3> out_positions;
+    std::span<glm::vec3> out_normals;  // or empty
+    SkinRunOptions options;
+};
+// Skins every task (a character: its stream, its palette, its influence limit)
+// in order on the calling thread. All tasks are validated first: returns false
+// and writes nothing when any is invalid (null stream or a skin_stream
+// refusal). No allocation. Tasks are independent: split the list to use threads.
+bool skin_many(std::span<const SkinTask> tasks);
+
+// The SIMD target skin_stream dispatches to now ("AVX3", "AVX2", "SSE4", ...).
+const char* skin_simd_target();
 
 }  // namespace progskin

@@ -62,9 +62,13 @@ bool render_snapshot(const std::vector<SnapshotCharacter>& chars, const std::str
         if (!sc.palette.empty()) {
             if (int(sc.palette.size()) != s.bone_count()) return fail("snapshot: palette size != bone count");
             tmp.resize(c.vertex_count());
-            const SkinningJob job = skinning_job(c, s, sc.palette, tmp);
-            if (!job.validate()) return fail("snapshot: palette does not fit the skin");
-            job.run();
+            if (sc.stream) {
+                if (!skin_stream(*sc.stream, sc.palette, tmp)) return fail("snapshot: palette does not fit the stream");
+            } else {
+                const SkinningJob job = skinning_job(c, s, sc.palette, tmp);
+                if (!job.validate()) return fail("snapshot: palette does not fit the skin");
+                job.run();
+            }
             model_pos = tmp;
         } else if (model_pos.size() != c.vertex_count()) {
             return fail("snapshot: neither a palette nor vertex_count() positions");

@@ -26,6 +26,8 @@ struct SnapshotCharacter {
     const ProgressiveSkin* skin = nullptr;  // vertex stream in progressive bone indices
     std::span<const Mat34> palette;         // B matrices, progressive order (GPU skinning), or empty and:
     std::span<const glm::vec3> positions;   // vertices skinned by the caller (model space), vertex_count()
+    const SkinStream* stream = nullptr;     // the skin's stream (skinning.h) when the caller has one: the
+                                            // palette is CPU-skinned by skin_stream, else by SkinningJob
     Mat34 placement = Mat34::identity();    // model -> world (where this character stands)
     int bones_received = 0;                 // shown as "k/B"
     std::string label;                      // optional extra text, e.g. the character's id

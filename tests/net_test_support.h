@@ -52,7 +52,7 @@ inline std::shared_ptr<ClientAsset> client_asset(const ServerAsset& s) {
     c->skin.parents = s.skin.parents;
     c->skin.corrections = s.skin.corrections;
     c->skin.error = s.skin.error;
-    remap_skin_vertices(c->character, c->skin);
+    remap_skin_vertices(*c);
     c->format = s.format;
     c->diagonal = rest_diagonal(c->character);
     return c;

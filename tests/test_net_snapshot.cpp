@@ -34,6 +34,7 @@ TEST(NetSnapshot, ClientRendersWhatItDisplays) {
             render::SnapshotCharacter c;
             c.character = d.character;
             c.skin = d.skin;
+            c.stream = d.stream;
             c.palette = d.palette;
             c.bones_received = d.bones;
             cs.push_back(c);

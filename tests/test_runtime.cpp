@@ -142,7 +142,7 @@ TEST(LodBlender, SwitchingDoesNotPop) {
     EXPECT_LT(blended, 0.5 * pop);
 }
 
-TEST(Skinning, PackedMatchesScalarForEveryInfluenceCount) {
+TEST(Skinning, StreamMatchesScalarForEveryInfluenceCount) {
     const Character c = import_character(asset("CesiumMan.glb"));
     const FrameSet fr = sample_frames(c, {select_clips(c, "all")}, 5.0);
     std::span<const Mat34> pal(fr.frame(3), c.joint_count());
@@ -152,8 +152,11 @@ TEST(Skinning, PackedMatchesScalarForEveryInfluenceCount) {
         SkinningJob sj{c.positions, c.normals, c.joints, c.weights, c.influences, m, pal, p1, n1};
         ASSERT_TRUE(sj.validate());
         sj.run();
-        const PackedSkin pk = pack_skin(c.positions, c.normals, c.joints, c.weights, c.influences, m);
-        ASSERT_TRUE(skin_packed(pk, pal, p2, n2));
+        SkinStream st;
+        ASSERT_TRUE(build_skin_stream(st, sj, SkinWeightFormat::F32));
+        SkinRunOptions o;
+        o.renormalize = true;  // SkinningJob::run renormalises normals
+        ASSERT_TRUE(skin_stream(st, pal, p2, n2, o));
         const double diag = rest_diagonal(c);
         EXPECT_LE(max_dist(p1, p2), 1e-6 * diag) << m << " influences";
         EXPECT_LE(max_dist(n1, n2), 1e-4) << m << " influences";
@@ -170,9 +173,10 @@ TEST(Skinning, RejectsOutOfRangeJointsAndSizes) {
     EXPECT_TRUE((SkinningJob{pos, {}, joints, w, 4, 4, pal, out, {}}.validate()));
     std::vector<glm::vec3> short_out(1);
     EXPECT_FALSE((SkinningJob{pos, {}, joints, w, 4, 4, pal, short_out, {}}.validate()));
-    const PackedSkin pk = pack_skin(pos, {}, joints, w, 4, 4);
+    SkinStream st;
+    ASSERT_TRUE(build_skin_stream(st, SkinningJob{pos, {}, joints, w, 4, 4, pal, out, {}}));
     std::vector<Mat34> tiny(1);
-    EXPECT_FALSE(skin_packed(pk, tiny, out, {}));
+    EXPECT_FALSE(skin_stream(st, tiny, out));
 }
 
 TEST(Skinning, InfluenceLimitRenormalises) {
