@@ -268,6 +268,10 @@ std::shared_ptr<ServerAsset> load_server_asset(const std::string& path) {
     } else {
         a->skin = build_progressive_skin(a->character, sample_frames(a->character, a->selections, 30.0));
     }
+    if (!a->character.morphs.empty())
+        a->warnings.push_back(path + ": " + std::to_string(a->character.morphs.size()) +
+                              " morph targets are not streamed yet: clients show the mesh at its bind shape "
+                              "(their --verify error includes the morphs)");
     finish_server_asset(*a);
     return a;
 }

@@ -63,6 +63,9 @@ struct ServerAsset {
     };
     std::vector<Segment> segments;
     double bind_radius = 0;          // max |bind-space position|
+    // What the stream does not carry that the file has (e.g. morph targets),
+    // one line each, for the server to print on stderr.
+    std::vector<std::string> warnings;
     double max_scale = 1;            // of the skinning matrices over the training frames
     int bone_count() const { return skin.bone_count(); }
 };

@@ -103,6 +103,7 @@ int main(int argc, char** argv) {
             std::fprintf(stderr, "progskin-server:   %s: %d bones, %zu vertices, %zu clip groups, id %s, %zu bytes\n",
                          a.name.c_str(), a.bone_count(), a.character.vertex_count(), a.selections.size(),
                          hex64(a.id).c_str(), a.bytes.size());
+            for (const std::string& w : a.warnings) std::fprintf(stderr, "progskin-server: warning: %s\n", w.c_str());
         }
         std::vector<InstanceSpec> instances;
         if (crowd > 0) {

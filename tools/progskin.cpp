@@ -225,6 +225,11 @@ int cmd_build(int argc, char** argv) {
     if (!quiet)
         std::fprintf(stderr, "%s: %zu joints, %zu vertices, %zu frames at %g fps\n", a.positional[0].c_str(),
                      c.joint_count(), c.vertex_count(), frames.frame_count(), fps);
+    if (!c.morphs.empty() && !quiet)
+        std::fprintf(stderr,
+                     "%s: %zu morph targets: kept in the output and evaluated before skinning; the error table is "
+                     "the skinning error on the morphed mesh\n",
+                     a.positional[0].c_str(), c.morphs.size());
     const ProgressiveSkin s = build_with_progress(c, frames, st, !a.has("--plain-copy"), quiet);
     save_progressive(c, s, a.get("-o"));
     if (!quiet) {
@@ -258,7 +263,17 @@ int cmd_inspect(int argc, char** argv) {
         out["clips"].push_back({{"name", cl.name}, {"start", cl.start}, {"end", cl.end},
                                 {"channels", cl.channels.size()}});
     out["renormalised_vertices"] = c.renormalised_vertices;
-    out["morph_targets_ignored"] = c.has_morph_targets;
+    out["morph_targets_ignored"] = false;  // evaluated by import, pose and the error tables
+    out["morph_targets_streamed"] = false; // the wire carries bones only (yet)
+    out["morph_targets"] = json::array();
+    const std::vector<double> importance = morph_importance(c);
+    for (size_t m = 0; m < c.morphs.size(); ++m)
+        out["morph_targets"].push_back({{"name", c.morphs[m].name},
+                                        {"node", c.morphs[m].gltf_node},
+                                        {"target", c.morphs[m].target},
+                                        {"default_weight", c.morphs[m].default_weight},
+                                        {"vertices", c.morphs[m].vertices.size()},
+                                        {"importance", importance[m]}});
     out["notes"] = c.notes;
     out["progressive"] = asset.progressive;
     out["strategies"] = json::object();
@@ -290,7 +305,16 @@ int cmd_inspect(int argc, char** argv) {
     for (const Clip& cl : c.clips) std::printf(" \"%s\" (%.3g-%.3g s)", cl.name.c_str(), cl.start, cl.end);
     std::printf("\n");
     for (const std::string& n : c.notes) std::printf("  note: %s\n", n.c_str());
-    if (c.has_morph_targets) std::printf("  note: morph targets are ignored\n");
+    if (!c.morphs.empty()) {
+        std::printf("  morph targets: %zu (evaluated before skinning in pose and the error tables; the server does "
+                    "not stream their weights yet)\n",
+                    c.morphs.size());
+        for (size_t m = 0; m < c.morphs.size(); ++m)
+            std::printf("    \"%s\" node %d target %d: default weight %g, %zu vertices, importance %.4g (RMS units "
+                        "per unit weight)\n",
+                        c.morphs[m].name.c_str(), c.morphs[m].gltf_node, c.morphs[m].target,
+                        double(c.morphs[m].default_weight), c.morphs[m].vertices.size(), importance[m]);
+    }
     std::printf("  %s\n", asset.progressive ? "progressive skin (PROGSKIN_progressive_skin)" : "plain glTF skin");
     for (const auto& [name, t] : tables) print_table("strategy " + name, t, diag);
     return 0;
@@ -321,13 +345,7 @@ int cmd_pose(int argc, char** argv) {
     } else {
         sel = select_clips(c, spec);
     }
-    FrameSet one;
-    one.joint_count = B;
-    one.times = {t};
-    one.selection_of_frame = {0};
-    std::vector<glm::dmat4> m(static_cast<size_t>(B));
-    sample_skinning_matrices(c, sel, t, m);
-    for (const auto& x : m) one.skinning.push_back(Mat34::from_glm(x));
+    const FrameSet one = sample_pose(c, sel, t);  // bones and morph weights at exactly t
     if (!asset.progressive && k < B) {
         asset.skin = build_with_progress(c, sample_frames(c, default_training_set(c), 30.0), Strategy::Reorder, true,
                                          true);
