@@ -3,6 +3,7 @@
 
 #include <tiny_gltf.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -246,6 +247,31 @@ void save_progressive(const Character& c, const ProgressiveSkin& s, const std::s
     }
     if (std::find(m.extensionsUsed.begin(), m.extensionsUsed.end(), kExtension) == m.extensionsUsed.end())
         m.extensionsUsed.push_back(kExtension);
+    write_gltf(m, skin_ext, out_path);
+}
+
+void write_with_skins_first(const std::string& path, const std::vector<int>& first, const std::string& out_path) {
+    tinygltf::Model m = load_model(path);
+    std::vector<int> order;  // new skin index -> old
+    for (int s : first) {
+        if (s < 0 || size_t(s) >= m.skins.size()) throw Error(path + ": no skin " + std::to_string(s));
+        if (std::find(order.begin(), order.end(), s) == order.end()) order.push_back(s);
+    }
+    for (int s = 0; s < int(m.skins.size()); ++s)
+        if (std::find(order.begin(), order.end(), s) == order.end()) order.push_back(s);
+    std::vector<int> new_index(m.skins.size());
+    for (size_t i = 0; i < order.size(); ++i) new_index[size_t(order[i])] = int(i);
+    std::vector<tinygltf::Skin> skins;
+    std::map<int, nlohmann::json> skin_ext;
+    for (size_t i = 0; i < order.size(); ++i) {
+        skins.push_back(m.skins[size_t(order[i])]);
+        if (skins.back().extensions.count(kExtension))
+            skin_ext[int(i)] = from_value(skins.back().extensions.at(kExtension));
+    }
+    m.skins = std::move(skins);
+    for (auto& n : m.nodes)
+        if (n.skin >= 0 && size_t(n.skin) < new_index.size()) n.skin = new_index[size_t(n.skin)];
+    merge_buffers(m);
     write_gltf(m, skin_ext, out_path);
 }
 

@@ -11,6 +11,7 @@
 #include <map>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <vector>
 
 #include "character.h"
 #include "progressive_skin.h"
@@ -51,6 +52,13 @@ int append_accessor(tinygltf::Model& m, const void* data, size_t bytes, int comp
 // Reads a file; when it carries PROGSKIN_progressive_skin, the skin is read
 // from it (joints already in progressive order), else progressive = false.
 ProgressiveAsset load_progressive(const std::string& path, int character_index = 0);
+
+// Writes a copy of the glTF at `path` (as .glb, buffers merged, images kept as
+// they are) in which the skins `first` come first, in that order, followed by
+// the others in file order, with every node.skin and skin extension moved
+// along: import_gltf of the copy lists the character of those skins as
+// character 0 (what a client that imports character 0 needs). Throws Error.
+void write_with_skins_first(const std::string& path, const std::vector<int>& first, const std::string& out_path);
 
 // Decodes the extension of an already imported character (character joints in
 // file order must be the progressive order). Used by load_progressive.

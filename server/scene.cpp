@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <cstdlib>
 #include <fstream>
 
 #include "error.h"
@@ -11,7 +12,9 @@
 #include "gltf_export.h"
 #include "gltf_import.h"
 #include "progressive_skin.h"
+#include "scratch_build.h"
 #include "skinning.h"
+#include "vertex_animation.h"
 #include "wire.h"
 
 namespace progskin::net {
@@ -270,6 +273,186 @@ std::shared_ptr<ServerAsset> load_server_asset(const std::string& path) {
     }
     if (!a->character.morphs.empty())
         a->warnings.push_back(path + ": " + std::to_string(a->character.morphs.size()) +
+                              " morph targets are not streamed yet: clients show the mesh at its bind shape "
+                              "(their --verify error includes the morphs)");
+    finish_server_asset(*a);
+    return a;
+}
+
+std::string server_cache_dir() {
+    if (const char* x = std::getenv("XDG_CACHE_HOME"); x && *x) return std::string(x) + "/progskin";
+    if (const char* h = std::getenv("HOME"); h && *h) return std::string(h) + "/.cache/progskin";
+    return "progskin-cache";
+}
+
+namespace {
+
+// An --asset argument split into the file and the character index (-1: all).
+// "FILE#N" names character N unless FILE#N itself is an existing file.
+std::pair<std::string, int> split_asset_arg(const std::string& arg) {
+    const size_t hash = arg.rfind('#');
+    if (hash == std::string::npos || hash + 1 == arg.size() || fs::exists(arg)) return {arg, -1};
+    const std::string digits = arg.substr(hash + 1);
+    if (digits.find_first_not_of("0123456789") != std::string::npos || digits.size() > 6) return {arg, -1};
+    return {arg.substr(0, hash), std::stoi(digits)};
+}
+
+// Frames the default training set takes at 30 fps (sample_frames' count), without sampling.
+double training_frames(const Character& c) {
+    double n = 0;
+    for (const ClipSelection& sel : default_training_set(c))
+        n += std::floor(std::max(0.0, double(sel.end) - double(sel.start)) * 30.0 + 1e-6) + 1.0;
+    return n;
+}
+
+// Size problems of one imported character ("" when it can be served).
+std::string character_problem(const Character& c, const std::string& label) {
+    if (c.joint_count() > size_t(MAX_BONES))
+        return label + ": " + std::to_string(c.joint_count()) + " joints, at most " + std::to_string(MAX_BONES) +
+               " can be streamed";
+    if (c.vertex_count() == 0) return label + ": the skinned meshes have no vertices";
+    const double frames = training_frames(c);
+    if (frames > double(kMaxSampledFrames))
+        return label + ": its clips span " + std::to_string(size_t(frames)) + " frames at 30 fps, more than " +
+               std::to_string(kMaxSampledFrames);
+    return {};
+}
+
+// The skins of a character (those its skinned primitives use), in file order.
+std::vector<int> skins_of(const Character& c) {
+    std::vector<int> skins;
+    for (const PrimitiveRange& r : c.primitives)
+        if (!r.rigid && r.skin >= 0 && std::find(skins.begin(), skins.end(), r.skin) == skins.end()) skins.push_back(r.skin);
+    std::sort(skins.begin(), skins.end());
+    return skins;
+}
+
+// Checks one --asset argument, appending its characters or its problems.
+void check_one(const std::string& arg, const AssetOptions& o, std::vector<PendingAsset>& out,
+               std::vector<std::string>& problems) {
+    const auto [path, index] = split_asset_arg(arg);
+    std::vector<Character> chars;
+    try {
+        if (!fs::exists(path)) {
+            problems.push_back(path + ": no such file");
+            return;
+        }
+        ImportOptions io;
+        io.require_skin = false;
+        chars = import_gltf(path, io);
+    } catch (const std::exception& e) {
+        problems.push_back(e.what());
+        return;
+    }
+    const std::string base = fs::path(path).filename().string();
+    if (chars.empty()) {
+        if (!o.from_vertices) {
+            problems.push_back(path + ": no skin (no mesh uses a skin): the server streams skinned characters; build one "
+                               "from its vertex animation with `progskin build --from-vertices " + path +
+                               " -o OUT.glb` and serve OUT.glb, or start progskin-server with --from-vertices");
+            return;
+        }
+        try {
+            const VertexAnimation anim = load_vertex_animation(path);
+            if (anim.vertex_count == 0 || anim.frame_count == 0) {
+                problems.push_back(path + ": --from-vertices: no vertices or no frames to build a skin from");
+                return;
+            }
+        } catch (const std::exception& e) {
+            problems.push_back(std::string(e.what()) + " (--from-vertices)");
+            return;
+        }
+        PendingAsset p;
+        p.path = path;
+        p.label = base;
+        p.from_vertices = true;
+        out.push_back(std::move(p));
+        return;
+    }
+    if (index >= int(chars.size())) {
+        problems.push_back(path + ": no character " + std::to_string(index) + " (the file has " +
+                           std::to_string(chars.size()) + (chars.size() == 1 ? " character)" : " characters)"));
+        return;
+    }
+    for (int i = 0; i < int(chars.size()); ++i) {
+        if (index >= 0 && i != index) continue;
+        PendingAsset p;
+        p.path = path;
+        p.character = i;
+        p.characters_in_file = int(chars.size());
+        p.label = chars.size() > 1 ? base + "#" + std::to_string(i) : base;
+        const std::string problem = character_problem(chars[size_t(i)], p.label);
+        if (!problem.empty()) {
+            problems.push_back(path + (chars.size() > 1 ? " character " + std::to_string(i) : std::string()) + ": " +
+                               problem.substr(p.label.size() + 2));
+            continue;
+        }
+        try {
+            p.progressive = read_progressive_extension(path, chars[size_t(i)], p.skin);
+        } catch (const std::exception& e) {
+            problems.push_back(e.what());
+            continue;
+        }
+        p.imported = std::move(chars[size_t(i)]);
+        out.push_back(std::move(p));
+    }
+}
+
+}  // namespace
+
+std::vector<std::string> check_server_assets(const std::vector<std::string>& args, const AssetOptions& options,
+                                             std::vector<PendingAsset>& out) {
+    std::vector<std::string> problems;
+    out.clear();
+    for (const std::string& arg : args) check_one(arg, options, out, problems);
+    return problems;
+}
+
+std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const AssetOptions& options) {
+    const std::string cache = options.cache_dir.empty() ? server_cache_dir() : options.cache_dir;
+    auto a = std::make_shared<ServerAsset>();
+    a->name = p.label;
+    if (p.from_vertices) {
+        // Build (or reuse) the progressive file and serve it like any progressive file.
+        const uint64_t hash = content_hash(read_file(p.path));
+        fs::create_directories(cache);
+        const std::string out = (fs::path(cache) / (hex64(hash) + "-scratch" + std::to_string(options.scratch_bones) +
+                                                     ".glb")).string();
+        if (!fs::exists(out)) {
+            ScratchOptions so;
+            so.max_bones = options.scratch_bones;
+            save_scratch(build_from_vertices(load_vertex_animation(p.path), so), out);
+        }
+        a->path = out;
+        a->bytes = read_file(out);
+        ProgressiveAsset pa = load_progressive(out);
+        if (!pa.progressive) throw Error(out + ": the built file has no progressive skin");
+        a->character = std::move(pa.character);
+        a->skin = std::move(pa.skin);
+        a->progressive_file = true;
+    } else {
+        a->path = p.path;
+        a->bytes = read_file(p.path);
+        if (p.character > 0) {
+            // A client plays character 0 of what it downloads: serve a copy with this character's skins first.
+            fs::create_directories(cache);
+            const std::string out = (fs::path(cache) / (hex64(content_hash(a->bytes)) + "-character" +
+                                                         std::to_string(p.character) + ".glb")).string();
+            if (!fs::exists(out)) write_with_skins_first(p.path, skins_of(p.imported), out);
+            a->bytes = read_file(out);
+        }
+        a->character = p.imported;
+        if (p.progressive) {
+            a->skin = p.skin;
+            a->progressive_file = true;
+        }
+    }
+    a->id = content_hash(a->bytes);
+    a->selections = default_training_set(a->character);
+    if (!a->progressive_file)
+        a->skin = build_progressive_skin(a->character, sample_frames(a->character, a->selections, 30.0));
+    if (!a->character.morphs.empty())
+        a->warnings.push_back(p.path + ": " + std::to_string(a->character.morphs.size()) +
                               " morph targets are not streamed yet: clients show the mesh at its bind shape "
                               "(their --verify error includes the morphs)");
     finish_server_asset(*a);

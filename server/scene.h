@@ -70,9 +70,48 @@ struct ServerAsset {
     int bone_count() const { return skin.bone_count(); }
 };
 
-// Loads a glTF (progressive or plain: a plain file's skin is built here with
-// build_progressive_skin on its default training set at 30 fps). Throws Error.
+// Loads character 0 of a glTF (progressive or plain: a plain file's skin is
+// built here with build_progressive_skin on its default training set at 30
+// fps). Throws Error.
 std::shared_ptr<ServerAsset> load_server_asset(const std::string& path);
+
+// How progskin-server turns its --asset arguments into assets: first
+// check_server_assets (import and size checks of every file, nothing built),
+// then build_server_asset per character (the expensive part).
+struct AssetOptions {
+    bool from_vertices = false;  // files without a skin: build one from their vertex animation
+    int scratch_bones = 16;      // bones of such a build (progskin build --from-vertices --bones)
+    std::string cache_dir;       // derived files (server_cache_dir() when empty)
+};
+// $XDG_CACHE_HOME/progskin, else $HOME/.cache/progskin, else ./progskin-cache.
+std::string server_cache_dir();
+
+// One character to serve, checked but not built.
+struct PendingAsset {
+    std::string path;             // the file
+    std::string label;            // "file.glb", or "file.glb#N" when the file holds several characters
+    int character = 0;            // index in the file (import_gltf order)
+    int characters_in_file = 1;
+    bool from_vertices = false;   // no skin: a skin is built from the vertex animation
+    Character imported;           // the imported character (empty when from_vertices)
+    ProgressiveSkin skin;         // read from the file's extension when progressive
+    bool progressive = false;
+};
+
+// Checks every --asset argument (FILE: every character of the file; FILE#N:
+// character N) before anything expensive is built: the file imports, it has a
+// skin (else the message names `progskin build --from-vertices`, unless
+// options.from_vertices), the index exists, bones fit the wire (MAX_BONES),
+// the character has vertices, its clips fit the sampling limit, a progressive
+// extension decodes. Returns every problem found, one line each naming the
+// file (empty: all fine); `out` gets one PendingAsset per character to serve.
+std::vector<std::string> check_server_assets(const std::vector<std::string>& args, const AssetOptions& options,
+                                             std::vector<PendingAsset>& out);
+// Builds what a checked character needs to be served. Characters other than
+// the file's first are served as a copy of the file with their skins first
+// (written to the cache directory), since a client plays character 0 of the
+// file it downloads. Throws Error.
+std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const AssetOptions& options);
 // Builds the derived fields (format, hull, motion...) of an asset whose
 // character and skin are set; used by load_server_asset and by tests.
 void finish_server_asset(ServerAsset& a);

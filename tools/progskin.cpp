@@ -66,7 +66,8 @@ usage:
       scale uniformly. The output plays in any glTF viewer (rigid TRS joint
       animation) and carries the error table (strategy "scratch").
   progskin inspect FILE [--json] [--clip SPEC] [--fps 30] [--character N] [--plot OUT.svg]
-      Joints, vertices, clips and the error table k -> RMS / max error (units
+      Lists every character of FILE (one per skeleton); for character N
+      (default 0): joints, vertices, clips, morph targets and the error table k -> RMS / max error (units
       and % of the rest bounding-box diagonal) and mean distinct influences per
       vertex. For a plain glTF it builds and compares the strategies reorder,
       flatten and leaf_prune (naive baseline: deepest bones first, plain copy).
@@ -249,11 +250,29 @@ int cmd_inspect(int argc, char** argv) {
     const bool as_json = a.has("--json");
     const double fps = a.has("--fps") ? to_number("--fps", a.get("--fps")) : 30.0;
     if (fps <= 0 || fps > 1000) throw UsageError("--fps must be in (0, 1000]");
-    const ProgressiveAsset asset = load_progressive(a.positional[0], character_arg(a));
+    // Every character of the file (listed), the one of --character (default 0) in detail.
+    std::vector<Character> all = import_gltf(a.positional[0]);
+    const int index = character_arg(a);
+    if (index < 0 || size_t(index) >= all.size())
+        throw Error(a.positional[0] + ": no character " + std::to_string(index) + " (the file has " +
+                    std::to_string(all.size()) + (all.size() == 1 ? " character)" : " characters)"));
+    json characters = json::array();
+    for (size_t i = 0; i < all.size(); ++i)
+        characters.push_back({{"index", i},
+                              {"name", all[i].name},
+                              {"joints", all[i].joint_count()},
+                              {"vertices", all[i].vertex_count()},
+                              {"clips", all[i].clips.size()},
+                              {"morph_targets", all[i].morphs.size()}});
+    ProgressiveAsset asset;
+    asset.character = std::move(all[size_t(index)]);
+    asset.progressive = read_progressive_extension(a.positional[0], asset.character, asset.skin);
     const Character& c = asset.character;
     const double diag = rest_diagonal(c);
     json out;
     out["file"] = a.positional[0];
+    out["character"] = index;
+    out["characters"] = characters;
     out["joints"] = c.joint_count();
     out["vertices"] = c.vertex_count();
     out["diagonal"] = diag;
@@ -299,8 +318,18 @@ int cmd_inspect(int argc, char** argv) {
         std::cout << out.dump(2) << "\n";
         return 0;
     }
-    std::printf("%s\n  joints %zu, vertices %zu, %d influence slots per vertex, diagonal %.6g\n",
-                a.positional[0].c_str(), c.joint_count(), c.vertex_count(), c.influences, diag);
+    std::printf("%s\n", a.positional[0].c_str());
+    if (characters.size() > 1) {
+        std::printf("  %zu characters (--character N picks one; progskin-server serves FILE#N):\n", characters.size());
+        for (const json& ch : characters)
+            std::printf("  %s #%d \"%s\": %d joints, %d vertices, %d clips, %d morph targets\n",
+                        ch["index"].get<int>() == index ? "*" : " ", ch["index"].get<int>(),
+                        ch["name"].get<std::string>().c_str(), ch["joints"].get<int>(), ch["vertices"].get<int>(),
+                        ch["clips"].get<int>(), ch["morph_targets"].get<int>());
+        std::printf("  character %d:\n", index);
+    }
+    std::printf("  joints %zu, vertices %zu, %d influence slots per vertex, diagonal %.6g\n", c.joint_count(),
+                c.vertex_count(), c.influences, diag);
     std::printf("  clips:");
     for (const Clip& cl : c.clips) std::printf(" \"%s\" (%.3g-%.3g s)", cl.name.c_str(), cl.start, cl.end);
     std::printf("\n");
