@@ -192,7 +192,7 @@ void write_gltf(tinygltf::Model& m, const std::map<int, nlohmann::json>& skin_ex
 
 
 void save_progressive(const Character& c, const ProgressiveSkin& s, const std::string& out_path,
-                      const std::string& note) {
+                      const std::string& note, const nlohmann::json& extra) {
     const int B = s.bone_count();
     if (B != int(c.joint_count()) || s.parents.size() != size_t(B) || s.corrections.size() != size_t(B))
         throw Error(out_path + ": progressive skin does not match the character");
@@ -214,6 +214,8 @@ void save_progressive(const Character& c, const ProgressiveSkin& s, const std::s
 
     nlohmann::json ext = progressive_extension_json(s);
     if (!note.empty()) ext["note"] = note;
+    if (extra.is_object())
+        for (const auto& [key, value] : extra.items()) ext[key] = value;
     std::vector<char> skin_done(m.skins.size(), 0);
     std::map<int, nlohmann::json> skin_ext;
     const int I = s.influences;
@@ -275,7 +277,8 @@ void write_with_skins_first(const std::string& path, const std::vector<int>& fir
     write_gltf(m, skin_ext, out_path);
 }
 
-bool read_progressive_extension(const std::string& path, const Character& c, ProgressiveSkin& out) {
+bool read_progressive_extension(const std::string& path, const Character& c, ProgressiveSkin& out,
+                                nlohmann::json* raw) {
     tinygltf::Model m = load_model(path);
     const tinygltf::Skin* skin = nullptr;
     for (const PrimitiveRange& r : c.primitives)
@@ -286,6 +289,7 @@ bool read_progressive_extension(const std::string& path, const Character& c, Pro
         }
     if (!skin) return false;
     const nlohmann::json j = from_value(skin->extensions.at(kExtension));
+    if (raw) *raw = j;
     const int B = int(c.joint_count());
     auto bad = [&](const std::string& what) { return Error(path + ": " + kExtension + ": " + what); };
     if (!j.is_object() || j.value("version", 0) != 1) throw bad("unsupported version");

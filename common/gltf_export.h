@@ -31,8 +31,10 @@ struct ProgressiveAsset {
 // Writes `skin` of `c` (imported from c.source) to out_path (.glb binary, or
 // .gltf with embedded buffers). The file is written to a temporary name and
 // renamed, so a failure leaves no partial output. Throws Error.
+// `extra`: further members of the extension object (e.g. "server", the
+// server's precomputed tables, server/scene.h); must be an object or null.
 void save_progressive(const Character& c, const ProgressiveSkin& skin, const std::string& out_path,
-                      const std::string& note = "");
+                      const std::string& note = "", const nlohmann::json& extra = nullptr);
 
 // The extension object of a skin (the JSON above).
 nlohmann::json progressive_extension_json(const ProgressiveSkin& skin);
@@ -62,6 +64,8 @@ void write_with_skins_first(const std::string& path, const std::vector<int>& fir
 
 // Decodes the extension of an already imported character (character joints in
 // file order must be the progressive order). Used by load_progressive.
-bool read_progressive_extension(const std::string& path, const Character& c, ProgressiveSkin& out);
+// raw (optional) receives the whole extension object as stored.
+bool read_progressive_extension(const std::string& path, const Character& c, ProgressiveSkin& out,
+                                nlohmann::json* raw = nullptr);
 
 }  // namespace progskin

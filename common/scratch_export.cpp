@@ -11,6 +11,8 @@
 #include "gltf_export.h"
 #include "scratch_build.h"
 
+#include <filesystem>
+
 namespace progskin {
 
 namespace {
@@ -140,7 +142,8 @@ void save_scratch(const ScratchResult& r, const std::string& path) {
     nlohmann::json ext = progressive_extension_json(s);
     ext["fps"] = r.frames.frame_count() > 1 ? 1.0 / (r.frames.times[1] - r.frames.times[0]) : 30.0;
     ext["clips"] = "all";
-    ext["source"] = c.source;
+    // The input's file name only: a path would publish the build machine's directories.
+    ext["source"] = std::filesystem::path(c.source).filename().string();
     write_gltf(m, {{0, ext}}, path);
 }
 

@@ -279,6 +279,114 @@ std::shared_ptr<ServerAsset> load_server_asset(const std::string& path) {
     return a;
 }
 
+namespace {
+
+nlohmann::json vec3_json(const glm::vec3& v) { return nlohmann::json::array({v.x, v.y, v.z}); }
+
+template <size_t N>
+nlohmann::json rows_json(const std::vector<std::array<double, N>>& rows) {
+    nlohmann::json a = nlohmann::json::array();
+    for (const auto& r : rows) a.push_back(r);
+    return a;
+}
+
+// Reads a JSON array of numbers of exactly n entries into out; false otherwise.
+bool read_numbers(const nlohmann::json& j, size_t n, double* out) {
+    if (!j.is_array() || j.size() != n) return false;
+    for (size_t i = 0; i < n; ++i) {
+        if (!j[i].is_number()) return false;
+        out[i] = j[i].get<double>();
+        if (!std::isfinite(out[i])) return false;
+    }
+    return true;
+}
+
+}  // namespace
+
+nlohmann::json server_tables_json(const ServerAsset& a) {
+    nlohmann::json j;
+    j["version"] = kServerTablesVersion;
+    j["fps"] = 30;
+    j["selections"] = a.selections.size();
+    j["bones"] = a.bone_count();
+    j["diagonal"] = a.diagonal;
+    j["motion"] = a.motion;
+    j["bind_radius"] = a.bind_radius;
+    j["max_scale"] = a.max_scale;
+    j["format"] = {{"t_min", vec3_json(a.format.t_min)}, {"t_max", vec3_json(a.format.t_max)}, {"scaled", a.format.scaled}};
+    j["segments"] = nlohmann::json::array();
+    for (const ServerAsset::Segment& s : a.segments)
+        j["segments"].push_back({{"from", s.from},
+                                 {"to", s.to},
+                                 {"collapse", s.collapse},
+                                 {"gap", rows_json(s.gap)},
+                                 {"refresh", rows_json(s.refresh)},
+                                 {"show_value", s.show_value}});
+    return j;
+}
+
+bool read_server_tables(const nlohmann::json& j, ServerAsset& a, std::string* why) {
+    auto no = [&](const std::string& w) {
+        if (why) *why = w;
+        return false;
+    };
+    if (!j.is_object()) return no("no stored server tables");
+    if (j.value("version", 0) != kServerTablesVersion)
+        return no("stored server tables are version " + std::to_string(j.value("version", 0)) + ", this server uses " +
+                  std::to_string(kServerTablesVersion));
+    const size_t M = a.selections.size() + 1;
+    if (j.value("bones", -1) != a.bone_count() || j.value("selections", size_t(0)) != a.selections.size() ||
+        j.value("fps", 0) != 30)
+        return no("stored server tables do not match the character (bones, clip groups or fps)");
+    ServerAsset t;  // parsed into a scratch copy: `a` changes only when everything reads
+    double v[3];
+    t.diagonal = j.value("diagonal", 0.0);
+    t.motion = j.value("motion", -1.0);
+    t.bind_radius = j.value("bind_radius", -1.0);
+    t.max_scale = j.value("max_scale", 0.0);
+    if (!(t.diagonal > 0) || !(t.motion >= 0) || !(t.bind_radius >= 0) || !(t.max_scale > 0))
+        return no("stored server tables have a bad diagonal, motion, bind radius or scale");
+    const nlohmann::json& f = j.contains("format") ? j["format"] : nlohmann::json();
+    if (!f.is_object() || !read_numbers(f.value("t_min", nlohmann::json()), 3, v)) return no("bad stored format");
+    t.format.t_min = glm::vec3(float(v[0]), float(v[1]), float(v[2]));
+    if (!read_numbers(f.value("t_max", nlohmann::json()), 3, v)) return no("bad stored format");
+    t.format.t_max = glm::vec3(float(v[0]), float(v[1]), float(v[2]));
+    t.format.scaled = f.value("scaled", false);
+    const nlohmann::json& segs = j.contains("segments") ? j["segments"] : nlohmann::json();
+    if (!segs.is_array() || segs.empty()) return no("no stored segments");
+    int expect_from = 0;
+    for (const nlohmann::json& sj : segs) {
+        ServerAsset::Segment s;
+        s.from = sj.value("from", -1);
+        s.to = sj.value("to", -1);
+        if (s.from != expect_from || s.to <= s.from || s.to > a.bone_count()) return no("stored segments do not tile the bones");
+        expect_from = s.to;
+        s.collapse.resize(M);
+        s.show_value.resize(M);
+        s.gap.resize(M);
+        s.refresh.resize(M);
+        if (!read_numbers(sj.value("collapse", nlohmann::json()), M, s.collapse.data()) ||
+            !read_numbers(sj.value("show_value", nlohmann::json()), M, s.show_value.data()))
+            return no("bad stored segment values");
+        const nlohmann::json gap = sj.value("gap", nlohmann::json()), refresh = sj.value("refresh", nlohmann::json());
+        if (!gap.is_array() || gap.size() != M || !refresh.is_array() || refresh.size() != M)
+            return no("bad stored segment tables");
+        for (size_t m = 0; m < M; ++m)
+            if (!read_numbers(gap[m], ServerAsset::kGapTable, s.gap[m].data()) ||
+                !read_numbers(refresh[m], ServerAsset::kGapTable, s.refresh[m].data()))
+                return no("bad stored segment tables");
+        t.segments.push_back(std::move(s));
+    }
+    if (expect_from != a.bone_count()) return no("stored segments do not cover every bone");
+    a.diagonal = t.diagonal;
+    a.motion = t.motion;
+    a.bind_radius = t.bind_radius;
+    a.max_scale = t.max_scale;
+    a.format = t.format;
+    a.segments = std::move(t.segments);
+    return true;
+}
+
 std::string server_cache_dir() {
     if (const char* x = std::getenv("XDG_CACHE_HOME"); x && *x) return std::string(x) + "/progskin";
     if (const char* h = std::getenv("HOME"); h && *h) return std::string(h) + "/.cache/progskin";
@@ -388,7 +496,7 @@ void check_one(const std::string& arg, const AssetOptions& o, std::vector<Pendin
             continue;
         }
         try {
-            p.progressive = read_progressive_extension(path, chars[size_t(i)], p.skin);
+            p.progressive = read_progressive_extension(path, chars[size_t(i)], p.skin, &p.extension);
         } catch (const std::exception& e) {
             problems.push_back(e.what());
             continue;
@@ -407,6 +515,70 @@ std::vector<std::string> check_server_assets(const std::vector<std::string>& arg
     for (const std::string& arg : args) check_one(arg, options, out, problems);
     return problems;
 }
+
+namespace {
+
+// Cache file of a plain file's build: content hash of the file, character, table version.
+std::string cached_build_path(const PendingAsset& p, const std::string& cache, const std::vector<uint8_t>& bytes) {
+    return (fs::path(cache) / (hex64(content_hash(bytes)) + "-c" + std::to_string(p.character) + "-t" +
+                               std::to_string(kServerTablesVersion) + ".glb"))
+        .string();
+}
+
+// Reads a cached build (a progressive copy of the file with the server tables)
+// into a: the skin with its order mapped back to the file's joints, the
+// tables. False when absent or not matching (then nothing in `a` changed).
+bool load_cached_build(const PendingAsset& p, const std::string& cache, ServerAsset& a) {
+    const std::string path = cached_build_path(p, cache, read_file(p.path));
+    if (!fs::exists(path)) return false;
+    try {
+        Character cached = import_character(path, p.character);
+        ProgressiveSkin skin;
+        nlohmann::json ext;
+        if (!read_progressive_extension(path, cached, skin, &ext) || !ext.contains("server")) return false;
+        const Character& c = a.character;
+        if (cached.joint_count() != c.joint_count() || cached.vertex_count() != c.vertex_count()) return false;
+        // Cached joint b (progressive order) is the file's joint with the same node and inverse bind matrix.
+        std::vector<int> order(cached.joint_count(), -1);
+        std::vector<char> used(c.joint_count(), 0);
+        for (size_t b = 0; b < cached.joint_count(); ++b) {
+            const int node = cached.nodes[size_t(cached.joint_node[b])].gltf_index;
+            for (size_t j = 0; j < c.joint_count() && order[b] < 0; ++j) {
+                if (used[j] || c.nodes[size_t(c.joint_node[j])].gltf_index != node) continue;
+                double d = 0;
+                for (int x = 0; x < 4; ++x)
+                    for (int y = 0; y < 4; ++y) d = std::max(d, std::abs(c.inverse_bind[j][x][y] - cached.inverse_bind[b][x][y]));
+                if (d > 1e-4 * std::max(1.0, a.diagonal)) continue;
+                order[b] = int(j);
+                used[j] = 1;
+            }
+            if (order[b] < 0) return false;
+        }
+        skin.order = order;
+        ServerAsset t = a;
+        t.skin = std::move(skin);
+        if (!read_server_tables(ext["server"], t)) return false;
+        a = std::move(t);
+        return true;
+    } catch (const std::exception&) {
+        return false;  // a damaged cache entry is rebuilt
+    }
+}
+
+// Writes the build of a plain file to the cache; a failure only costs the next start.
+void save_cached_build(const PendingAsset& p, const std::string& cache, ServerAsset& a) {
+    try {
+        fs::create_directories(cache);
+        nlohmann::json extra;
+        extra["server"] = server_tables_json(a);
+        save_progressive(a.character, a.skin, cached_build_path(p, cache, read_file(p.path)),
+                         "cached build of " + fs::path(p.path).filename().string(), extra);
+    } catch (const std::exception& e) {
+        a.warnings.push_back(p.path + ": cannot cache the build in " + cache + ": " + e.what());
+    }
+}
+
+}  // namespace
 
 std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const AssetOptions& options) {
     const std::string cache = options.cache_dir.empty() ? server_cache_dir() : options.cache_dir;
@@ -449,13 +621,26 @@ std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const Ass
     }
     a->id = content_hash(a->bytes);
     a->selections = default_training_set(a->character);
-    if (!a->progressive_file)
+    if (a->selections.empty()) a->selections.push_back(ClipSelection{});
+    std::string why;
+    if (a->progressive_file) {
+        const nlohmann::json* tables = p.extension.contains("server") ? &p.extension["server"] : nullptr;
+        if (!p.from_vertices && !(tables && read_server_tables(*tables, *a, &why))) {
+            a->warnings.push_back(p.path + ": " + (why.empty() ? "no stored server tables" : why) +
+                                  ": computed at start (rebuild the file with progskin build to store them)");
+            finish_server_asset(*a);
+        } else if (p.from_vertices) {
+            finish_server_asset(*a);
+        }
+    } else if (!load_cached_build(p, cache, *a)) {
         a->skin = build_progressive_skin(a->character, sample_frames(a->character, a->selections, 30.0));
+        finish_server_asset(*a);
+        save_cached_build(p, cache, *a);
+    }
     if (!a->character.morphs.empty())
         a->warnings.push_back(p.path + ": " + std::to_string(a->character.morphs.size()) +
                               " morph targets are not streamed yet: clients show the mesh at its bind shape "
                               "(their --verify error includes the morphs)");
-    finish_server_asset(*a);
     return a;
 }
 

@@ -5,6 +5,7 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
@@ -96,6 +97,7 @@ struct PendingAsset {
     Character imported;           // the imported character (empty when from_vertices)
     ProgressiveSkin skin;         // read from the file's extension when progressive
     bool progressive = false;
+    nlohmann::json extension;     // the file's extension object (its "server" tables, if any)
 };
 
 // Checks every --asset argument (FILE: every character of the file; FILE#N:
@@ -107,14 +109,30 @@ struct PendingAsset {
 // file (empty: all fine); `out` gets one PendingAsset per character to serve.
 std::vector<std::string> check_server_assets(const std::vector<std::string>& args, const AssetOptions& options,
                                              std::vector<PendingAsset>& out);
-// Builds what a checked character needs to be served. Characters other than
-// the file's first are served as a copy of the file with their skins first
-// (written to the cache directory), since a client plays character 0 of the
-// file it downloads. Throws Error.
+// Builds what a checked character needs to be served. A progressive file's
+// skin and stored server tables are used as they are (tables missing or of
+// another version are recomputed, with a warning). A plain file is built once:
+// its progressive skin and tables are cached as <cache>/<content hash>-c<N>-t<version>.glb
+// and read from there on later starts. Characters other than the file's first
+// are served as a copy of the file with their skins first (cached too), since
+// a client plays character 0 of the file it downloads. Throws Error.
 std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const AssetOptions& options);
 // Builds the derived fields (format, hull, motion...) of an asset whose
 // character and skin are set; used by load_server_asset and by tests.
 void finish_server_asset(ServerAsset& a);
+// What finish_server_asset derives (diagonal, format, motion, bind_radius,
+// max_scale and the segment tables), as JSON: `progskin build` stores it in
+// the PROGSKIN_progressive_skin extension under "server", and the server's
+// cache of plain files keeps it, so that loading builds nothing. Versioned
+// (kServerTablesVersion): tables of another version are not used.
+inline constexpr int kServerTablesVersion = 1;
+nlohmann::json server_tables_json(const ServerAsset& a);
+// Sets those fields of `a` (character, skin and selections already set) from
+// server_tables_json output. Returns false, leaving `a` as it was and saying
+// why in *why, when the JSON is absent, of another version, or does not fit
+// the asset (bone count, selections, segment layout); throws nothing.
+bool read_server_tables(const nlohmann::json& j, ServerAsset& a, std::string* why = nullptr);
+
 // The lower convex hull of the points (k, e[k - 1]), k = 1..B, as steps.
 std::vector<HullStep> error_hull(const std::vector<double>& e);
 

@@ -141,3 +141,92 @@ TEST(ServerAssets, FromVerticesBuildsAndCachesASkin) {
     EXPECT_EQ(a->id, b->id);
     EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 5.0);
 }
+
+namespace {
+
+// Two assets' derived tables agree (relative tolerance: float rounding of recomputation).
+void expect_same_tables(const ServerAsset& a, const ServerAsset& b) {
+    auto near = [](double x, double y) { return std::abs(x - y) <= 1e-4 * std::max({1.0, std::abs(x), std::abs(y)}); };
+    EXPECT_TRUE(near(a.diagonal, b.diagonal));
+    EXPECT_TRUE(near(a.motion, b.motion)) << a.motion << " " << b.motion;
+    EXPECT_TRUE(near(a.bind_radius, b.bind_radius));
+    EXPECT_TRUE(near(a.max_scale, b.max_scale));
+    EXPECT_EQ(a.format.scaled, b.format.scaled);
+    for (int i = 0; i < 3; ++i) EXPECT_TRUE(near(a.format.t_min[i], b.format.t_min[i]));
+    ASSERT_EQ(a.segments.size(), b.segments.size());
+    for (size_t s = 0; s < a.segments.size(); ++s) {
+        EXPECT_EQ(a.segments[s].from, b.segments[s].from);
+        EXPECT_EQ(a.segments[s].to, b.segments[s].to);
+        ASSERT_EQ(a.segments[s].gap.size(), b.segments[s].gap.size());
+        for (size_t m = 0; m < a.segments[s].gap.size(); ++m) {
+            EXPECT_TRUE(near(a.segments[s].collapse[m], b.segments[s].collapse[m])) << s << " " << m;
+            EXPECT_TRUE(near(a.segments[s].show_value[m], b.segments[s].show_value[m])) << s << " " << m;
+            for (int g = 0; g < ServerAsset::kGapTable; ++g) {
+                EXPECT_TRUE(near(a.segments[s].gap[m][size_t(g)], b.segments[s].gap[m][size_t(g)])) << s << " " << m << " " << g;
+                EXPECT_TRUE(near(a.segments[s].refresh[m][size_t(g)], b.segments[s].refresh[m][size_t(g)]));
+            }
+        }
+    }
+}
+
+}  // namespace
+
+TEST(ServerAssets, ProgressiveFileTablesAreReadNotBuilt) {
+    const std::string progskin = std::string(PROGSKIN_BIN_DIR) + "/tools/progskin";
+    if (!std::ifstream(progskin).good()) GTEST_SKIP() << progskin << " not built";
+    AssetOptions o;
+    o.cache_dir = temp_cache("progressive");
+    fs::create_directories(o.cache_dir);
+    const std::string file = o.cache_dir + "/CesiumMan_progressive.glb";
+    ASSERT_EQ(run(progskin + " build " + asset("CesiumMan.glb") + " -o " + file + " --quiet").code, 0);
+    std::vector<PendingAsset> pending;
+    ASSERT_TRUE(check_server_assets({file}, o, pending).empty());
+    ASSERT_EQ(pending.size(), 1u);
+    ASSERT_TRUE(pending[0].progressive);
+    ASSERT_TRUE(pending[0].extension.contains("server"));
+    const auto start = std::chrono::steady_clock::now();
+    const auto stored = build_server_asset(pending[0], o);
+    const double read_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    EXPECT_TRUE(stored->warnings.empty()) << stored->warnings.front();
+    // What the server would compute from the same file: the same tables.
+    const auto computed = load_server_asset(file);
+    const double build_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() - read_s;
+    std::printf("CesiumMan progressive: tables read in %.3f s, computed in %.3f s\n", read_s, build_s);
+    expect_same_tables(*stored, *computed);
+    EXPECT_LT(read_s, build_s);
+    // Tables of another version are not used: computed, with a warning.
+    PendingAsset old = pending[0];
+    old.extension["server"]["version"] = kServerTablesVersion + 1;
+    const auto rebuilt = build_server_asset(old, o);
+    ASSERT_FALSE(rebuilt->warnings.empty());
+    EXPECT_NE(rebuilt->warnings.front().find("version"), std::string::npos) << rebuilt->warnings.front();
+    expect_same_tables(*rebuilt, *computed);
+}
+
+TEST(ServerAssets, PlainFileBuiltOnceThenReadFromTheCache) {
+    AssetOptions o;
+    o.cache_dir = temp_cache("plain");
+    std::vector<PendingAsset> pending;
+    ASSERT_TRUE(check_server_assets({asset("Fox.glb")}, o, pending).empty());
+    ASSERT_EQ(pending.size(), 1u);
+    const auto t0 = std::chrono::steady_clock::now();
+    const auto first = build_server_asset(pending[0], o);
+    const auto t1 = std::chrono::steady_clock::now();
+    const auto second = build_server_asset(pending[0], o);
+    const auto t2 = std::chrono::steady_clock::now();
+    const double build_s = std::chrono::duration<double>(t1 - t0).count();
+    const double cached_s = std::chrono::duration<double>(t2 - t1).count();
+    std::printf("Fox plain: built in %.3f s, from the cache in %.3f s\n", build_s, cached_s);
+    size_t files = 0;
+    for (const auto& e : fs::directory_iterator(o.cache_dir)) files += e.path().extension() == ".glb";
+    EXPECT_EQ(files, 1u);
+    EXPECT_LT(cached_s, build_s);
+    EXPECT_EQ(first->id, second->id);  // clients download the original file either way
+    EXPECT_EQ(first->skin.order, second->skin.order);
+    EXPECT_EQ(first->skin.parents, second->skin.parents);
+    EXPECT_EQ(first->skin.joints, second->skin.joints);
+    ASSERT_EQ(first->skin.error.size(), second->skin.error.size());
+    for (size_t k = 0; k < first->skin.error.size(); ++k)
+        EXPECT_NEAR(first->skin.error[k].rms, second->skin.error[k].rms, 1e-9 + 1e-6 * first->skin.error[k].rms);
+    expect_same_tables(*first, *second);
+}

@@ -33,6 +33,10 @@ using progskin::cli::to_int;
 using progskin::cli::to_number;
 using progskin::cli::UsageError;
 
+#ifdef PROGSKIN_HAVE_NET
+#include "scene.h"
+#endif
+
 #ifdef PROGSKIN_HAVE_RENDER
 int render_command(int argc, char** argv);  // render/render_command.cpp
 #endif
@@ -144,6 +148,27 @@ ProgressiveSkin build_with_progress(const Character& c, const FrameSet& frames, 
     return build_progressive_skin(c, frames, opt);
 }
 
+// The server's tables of a built skin (server/scene.h), stored in the
+// extension so that progskin-server reads instead of computing them; null
+// when progskin is built without the streaming library.
+json server_tables(const Character& c, const ProgressiveSkin& s, const std::string& path) {
+#ifdef PROGSKIN_HAVE_NET
+    net::ServerAsset a;
+    a.path = path;
+    a.character = c;
+    a.skin = s;
+    a.selections = default_training_set(c);
+    if (a.selections.empty()) a.selections.push_back(ClipSelection{});
+    net::finish_server_asset(a);
+    json extra;
+    extra["server"] = net::server_tables_json(a);
+    return extra;
+#else
+    (void)c, (void)s, (void)path;
+    return nullptr;
+#endif
+}
+
 int character_arg(const Args& a) { return a.has("--character") ? to_int("--character", a.get("--character")) : 0; }
 
 int cmd_build_from_vertices(const Args& a) {
@@ -232,7 +257,7 @@ int cmd_build(int argc, char** argv) {
                      "the skinning error on the morphed mesh\n",
                      a.positional[0].c_str(), c.morphs.size());
     const ProgressiveSkin s = build_with_progress(c, frames, st, !a.has("--plain-copy"), quiet);
-    save_progressive(c, s, a.get("-o"));
+    save_progressive(c, s, a.get("-o"), "", server_tables(c, s, a.positional[0]));
     if (!quiet) {
         print_table(std::string("progressive skin, strategy ") + strategy_name(st), s.error, s.diagonal);
         std::printf("\nwrote %s\n", a.get("-o").c_str());
