@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <cstdio>
 #include <cstdlib>
 #include <fstream>
 
@@ -281,12 +282,27 @@ std::shared_ptr<ServerAsset> load_server_asset(const std::string& path) {
 
 namespace {
 
+// x to 7 significant digits: the tables are a cost model, and the shortest
+// decimal of the rounded value takes half the bytes of a full double.
+double round7(double x) {
+    if (x == 0 || !std::isfinite(x)) return x;
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.7g", x);
+    return std::strtod(buf, nullptr);
+}
+
 nlohmann::json vec3_json(const glm::vec3& v) { return nlohmann::json::array({v.x, v.y, v.z}); }
+
+nlohmann::json numbers_json(const double* x, size_t n) {
+    nlohmann::json a = nlohmann::json::array();
+    for (size_t i = 0; i < n; ++i) a.push_back(round7(x[i]));
+    return a;
+}
 
 template <size_t N>
 nlohmann::json rows_json(const std::vector<std::array<double, N>>& rows) {
     nlohmann::json a = nlohmann::json::array();
-    for (const auto& r : rows) a.push_back(r);
+    for (const auto& r : rows) a.push_back(numbers_json(r.data(), N));
     return a;
 }
 
@@ -318,10 +334,10 @@ nlohmann::json server_tables_json(const ServerAsset& a) {
     for (const ServerAsset::Segment& s : a.segments)
         j["segments"].push_back({{"from", s.from},
                                  {"to", s.to},
-                                 {"collapse", s.collapse},
+                                 {"collapse", numbers_json(s.collapse.data(), s.collapse.size())},
                                  {"gap", rows_json(s.gap)},
                                  {"refresh", rows_json(s.refresh)},
-                                 {"show_value", s.show_value}});
+                                 {"show_value", numbers_json(s.show_value.data(), s.show_value.size())}});
     return j;
 }
 
