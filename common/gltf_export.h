@@ -46,6 +46,19 @@ nlohmann::json progressive_extension_json(const ProgressiveSkin& skin);
 // partial output on failure. Throws Error.
 void write_gltf(tinygltf::Model& model, const std::map<int, nlohmann::json>& skin_ext, const std::string& path);
 
+// Removes accessors that no mesh, skin or animation refers to and buffer
+// views that no accessor or image refers to, and compacts buffer 0 (views
+// keep their offset modulo 16, so every accessor keeps its alignment).
+// Expects one buffer (after merging); does nothing for a model using an
+// extension that refers to accessors by index (GPU instancing, Draco, meshopt,
+// animation pointer). Returns the number of accessors removed.
+size_t prune_unused(tinygltf::Model& m);
+
+// Sets accessor.min/max where glTF requires them and the input left them out
+// (POSITION attributes and morph targets, animation inputs), computed from
+// the data. `path` names the file in error messages. Throws Error on bad data.
+void add_missing_bounds(tinygltf::Model& m, const std::string& path);
+
 // Appends `bytes` of data to buffer 0 of m (4-byte aligned) behind a new
 // buffer view and accessor; returns the accessor index.
 int append_accessor(tinygltf::Model& m, const void* data, size_t bytes, int component, int type, size_t count,

@@ -165,7 +165,7 @@ json server_tables(const Character& c, const ProgressiveSkin& s, const std::stri
     return extra;
 #else
     (void)c, (void)s, (void)path;
-    return nullptr;
+    return json::object();
 #endif
 }
 
@@ -257,7 +257,19 @@ int cmd_build(int argc, char** argv) {
                      "the skinning error on the morphed mesh\n",
                      a.positional[0].c_str(), c.morphs.size());
     const ProgressiveSkin s = build_with_progress(c, frames, st, !a.has("--plain-copy"), quiet);
-    save_progressive(c, s, a.get("-o"), "", server_tables(c, s, a.positional[0]));
+    json extra = server_tables(c, s, a.positional[0]);
+    // What the error table was measured on (GUIDE.md §2: a table is only comparable with its frames).
+    extra["fps"] = fps;
+    extra["clips"] = a.get("--clip", "auto");
+    extra["training"] = json::array();
+    for (const ClipSelection& sel : training_set(c, a.get("--clip"))) {
+        json names = json::array();
+        for (int i : sel.clips) names.push_back(c.clips[size_t(i)].name);
+        extra["training"].push_back(names);
+    }
+    extra["frames"] = frames.frame_count();
+    extra["source"] = std::filesystem::path(a.positional[0]).filename().string();
+    save_progressive(c, s, a.get("-o"), "", extra);
     if (!quiet) {
         print_table(std::string("progressive skin, strategy ") + strategy_name(st), s.error, s.diagonal);
         std::printf("\nwrote %s\n", a.get("-o").c_str());
@@ -291,9 +303,13 @@ int cmd_inspect(int argc, char** argv) {
                               {"morph_targets", all[i].morphs.size()}});
     ProgressiveAsset asset;
     asset.character = std::move(all[size_t(index)]);
-    asset.progressive = read_progressive_extension(a.positional[0], asset.character, asset.skin);
+    json ext;
+    asset.progressive = read_progressive_extension(a.positional[0], asset.character, asset.skin, &ext);
     const Character& c = asset.character;
-    const double diag = rest_diagonal(c);
+    // One diagonal: the one the table's percentages use (a progressive file's
+    // stored diagonal; for --from-vertices outputs that of the vertex animation).
+    const double rest_diag = rest_diagonal(c);
+    const double diag = asset.progressive && asset.skin.diagonal > 0 ? asset.skin.diagonal : rest_diag;
     json out;
     out["file"] = a.positional[0];
     out["character"] = index;
@@ -301,6 +317,11 @@ int cmd_inspect(int argc, char** argv) {
     out["joints"] = c.joint_count();
     out["vertices"] = c.vertex_count();
     out["diagonal"] = diag;
+    out["rest_diagonal"] = rest_diag;
+    if (asset.progressive) {  // what the stored table was measured on, when the file says
+        for (const char* key : {"fps", "clips", "training", "frames", "source"})
+            if (ext.contains(key)) out["table_" + std::string(key)] = ext[key];
+    }
     out["influences_per_vertex"] = c.influences;
     out["clips"] = json::array();
     for (const Clip& cl : c.clips)
@@ -370,6 +391,9 @@ int cmd_inspect(int argc, char** argv) {
                         double(c.morphs[m].default_weight), c.morphs[m].vertices.size(), importance[m]);
     }
     std::printf("  %s\n", asset.progressive ? "progressive skin (PROGSKIN_progressive_skin)" : "plain glTF skin");
+    if (ext.contains("fps") && ext.contains("training"))
+        std::printf("  table measured on %s at %g fps (%s frames)\n", ext["training"].dump().c_str(),
+                    ext["fps"].get<double>(), ext.contains("frames") ? ext["frames"].dump().c_str() : "?");
     for (const auto& [name, t] : tables) print_table("strategy " + name, t, diag);
     return 0;
 }

@@ -288,7 +288,7 @@ def skinned_morph():
     def blend(y):
         # (joint, weight) pairs along the column: root below 1, neck 1..2, head above 2.
         if y <= 0.75:
-            return (0, 1, 0, 0), (1.0, 0.0, 0.0, 0.0)
+            return (0, 0, 0, 0), (1.0, 0.0, 0.0, 0.0)
         if y < 1.25:
             a = (y - 0.75) / 0.5
             return (0, 1, 0, 0), (1 - a, a, 0.0, 0.0)
@@ -339,13 +339,13 @@ def skinned_morph():
                           'weights': [0.2]})
     ibm = g.accessor(FLOAT, 'MAT4', [translation(0, 0, 0), translation(0, -1, 0), translation(0, -2, 0)])
     g.j['skins'].append({'joints': [0, 1, 2], 'inverseBindMatrices': ibm})
-    t3 = g.accessor(FLOAT, 'SCALAR', [(0.0,), (1.0,), (2.0,)])
+    t3 = g.accessor(FLOAT, 'SCALAR', [(0.0,), (1.0,), (2.0,)], minmax=True)
     nod = g.accessor(FLOAT, 'VEC4', [quat_z(0), quat_z(25), quat_z(-10)])
-    tw = g.accessor(FLOAT, 'SCALAR', [(0.0,), (0.8,), (2.0,)])
+    tw = g.accessor(FLOAT, 'SCALAR', [(0.0,), (0.8,), (2.0,)], minmax=True)
     cubic = g.accessor(FLOAT, 'SCALAR', [(x,) for x in (0, 0, 0, 0, 0, 0.25, 1.5, 0, 0,          # key 0: in, value, out
                                                        -0.5, 2, 0, 0.8, 0.5, 0.6, 0.3, -1, 0.2,  # key 1
                                                        0, 0, 0, 0.2, 0.1, 0, 0, 0, 0)])          # key 2
-    ts = g.accessor(FLOAT, 'SCALAR', [(0.0,), (0.5,), (1.0,)])
+    ts = g.accessor(FLOAT, 'SCALAR', [(0.0,), (0.5,), (1.0,)], minmax=True)
     steps = g.accessor(FLOAT, 'SCALAR', [(x,) for x in (0, 0, 0, 0, 1, 0, 0, 0, 0)])
     g.j['animations'] = [
         {'name': 'talk', 'samplers': [{'input': t3, 'output': nod},
