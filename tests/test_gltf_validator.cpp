@@ -10,6 +10,8 @@
 #include <array>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
+#include <iterator>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -101,6 +103,7 @@ TEST(GltfValidator, EveryWrittenFileIsValid) {
     build(data("skinned_morph.gltf"), "morph.glb", "");
     build(data("multi_skin.gltf"), "multi.glb", "--character 1");
     build(asset("AnimatedMorphSphere.gltf"), "sphere.glb", "--from-vertices --bones 3");
+    build(asset("CesiumMan.glb"), "cesium_scratch.glb", "--from-vertices --bones 3");
     {
         const std::string path = (dir / "multi_second_first.glb").string();
         progskin::write_with_skins_first(data("multi_skin.gltf"), {3}, path);
@@ -130,4 +133,41 @@ TEST(GltfValidator, EveryWrittenFileIsValid) {
         EXPECT_LE(code_count(r, "UNUSED_OBJECT"), code_count(reports.at(in), "UNUSED_OBJECT")) << out;
     }
     fs::remove_all(dir);
+}
+
+namespace {
+
+// The JSON chunk of a .glb.
+nlohmann::json glb_json(const std::string& path) {
+    std::ifstream f(path, std::ios::binary);
+    std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+    if (bytes.size() < 20) return {};
+    uint32_t n = 0;
+    std::memcpy(&n, bytes.data() + 12, 4);
+    return nlohmann::json::parse(bytes.substr(20, n));
+}
+
+}  // namespace
+
+TEST(GltfOutputs, FromVerticesKeepsTheSourceMeshes) {
+    if (!std::ifstream(progskin_bin()).good()) GTEST_SKIP() << progskin_bin() << " not built";
+    const std::string out = (fs::temp_directory_path() / ("progskin_scratch_keep_" + std::to_string(::getpid()) + ".glb")).string();
+    const CmdResult r = run(progskin_bin() + " build --from-vertices " + asset("CesiumMan.glb") + " -o " + out +
+                            " --bones 3 --quiet");
+    ASSERT_EQ(r.code, 0) << r.out;
+    const nlohmann::json j = glb_json(out);
+    const nlohmann::json in = glb_json(asset("CesiumMan.glb"));
+    fs::remove(out);
+    ASSERT_EQ(j["meshes"].size(), 1u);
+    EXPECT_EQ(j["meshes"][0]["name"], in["meshes"][0]["name"]);
+    const auto& prim = j["meshes"][0]["primitives"][0];
+    EXPECT_TRUE(prim["attributes"].contains("TEXCOORD_0"));
+    EXPECT_EQ(prim["material"], in["meshes"][0]["primitives"][0]["material"]);
+    ASSERT_EQ(j["materials"].size(), in["materials"].size());  // tinygltf leaves out default values (emissiveFactor 0)
+    EXPECT_EQ(j["materials"][0]["name"], in["materials"][0]["name"]);
+    EXPECT_EQ(j["materials"][0]["pbrMetallicRoughness"], in["materials"][0]["pbrMetallicRoughness"]);
+    ASSERT_EQ(j["images"].size(), in["images"].size());
+    const auto& ext = j["skins"][0]["extensions"]["PROGSKIN_progressive_skin"];
+    EXPECT_EQ(ext["source"], "CesiumMan.glb");  // the file name, never the build machine's path
+    EXPECT_TRUE(ext["source_meshes_kept"].get<bool>());
 }
