@@ -4,10 +4,13 @@
 #include <tiny_gltf.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <limits>
 
+#include "animation.h"
 #include "error.h"
+#include "gltf_import.h"
 #include "gltf_export.h"
 #include "scratch_build.h"
 #include "gltf_accessor.h"
@@ -162,6 +165,50 @@ bool keep_source_meshes(tinygltf::Model& m, const ScratchResult& r, const std::v
     return true;
 }
 
+// A run of keys of the fitted clip that came from one clip (group) of the source.
+struct ClipPart {
+    std::string name;
+    size_t keys = 0;
+};
+
+// How the `keys` frames of a vertex animation loaded from `source` divide into
+// its clips: a skinned glTF's default training set (each independently played
+// group, names joined by "+", floor(duration * fps) + 1 frames each at the
+// fitted clip's rate) when the counts add up; a morph-animation glTF's single
+// named animation; else one part named `fallback`.
+std::vector<ClipPart> source_clip_parts(const std::string& source, size_t keys, double fps,
+                                        const std::string& fallback) {
+    std::vector<ClipPart> parts;
+    try {
+        if (!gltf_source_primitives(source).empty()) {
+            tinygltf::Model src;
+            gltf::load_model(source, src);
+            bool skinned = false;
+            for (const auto& n : src.nodes) skinned = skinned || (n.skin >= 0 && n.mesh >= 0);
+            if (skinned) {
+                const Character c = import_character(source, 0);
+                const auto sels = default_training_set(c);
+                // The fitted clip's keys are sample_frames' frames of the default training set at fps.
+                size_t total = 0;
+                for (const ClipSelection& sel : sels) {
+                    ClipPart p;
+                    for (int i : sel.clips) p.name += (p.name.empty() ? "" : "+") + c.clips[size_t(i)].name;
+                    p.keys = size_t(std::floor(std::max(0.0, double(sel.end) - double(sel.start)) * fps + 1e-6)) + 1;
+                    total += p.keys;
+                    parts.push_back(p);
+                }
+                if (total == keys && !parts.empty() && !parts[0].name.empty()) return parts;
+                parts.clear();
+            } else if (src.animations.size() == 1 && !src.animations[0].name.empty()) {
+                return {{src.animations[0].name, keys}};
+            }
+        }
+    } catch (const Error&) {
+        parts.clear();
+    }
+    return {{fallback, keys}};
+}
+
 }  // namespace
 
 void save_scratch(const ScratchResult& r, const std::string& path) {
@@ -247,42 +294,58 @@ void save_scratch(const ScratchResult& r, const std::string& path) {
         append_accessor(m, ibm.data(), ibm.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT, TINYGLTF_TYPE_MAT4, size_t(B), 0);
     m.skins.push_back(skin);
 
-    // Animation: one sampler per channel, a shared time accessor.
+    // Animations: the fitted clip cut back into the source's clips (one per
+    // independently played group), else one; one sampler per channel, a
+    // shared time accessor per animation, times from 0.
     const Clip& clip = c.clips[0];
-    tinygltf::Animation anim;
-    anim.name = clip.name;
-    int time_acc = -1;
-    for (const Channel& ch : clip.channels) {
-        if (time_acc < 0) {
-            time_acc = append_accessor(m, ch.times.data(), ch.times.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT,
-                                    TINYGLTF_TYPE_SCALAR, ch.times.size(), 0);
-            set_min_max<1>(m.accessors[size_t(time_acc)], ch.times.data(), ch.times.size());
+    const size_t keys = clip.channels.empty() ? 0 : clip.channels[0].times.size();
+    const double fps = r.frames.frame_count() > 1 ? 1.0 / (r.frames.times[1] - r.frames.times[0]) : 30.0;
+    const std::vector<ClipPart> parts = source_clip_parts(c.source, keys, fps, clip.name);
+    size_t first_key = 0;
+    for (const ClipPart& part : parts) {
+        tinygltf::Animation anim;
+        anim.name = part.name;
+        int time_acc = -1;
+        for (const Channel& ch : clip.channels) {
+            if (ch.times.size() < first_key + part.keys) continue;
+            if (time_acc < 0) {
+                std::vector<float> t(ch.times.begin() + std::ptrdiff_t(first_key),
+                                     ch.times.begin() + std::ptrdiff_t(first_key + part.keys));
+                const float t0 = t.front();
+                for (float& x : t) x -= t0;
+                time_acc = append_accessor(m, t.data(), t.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT,
+                                           TINYGLTF_TYPE_SCALAR, t.size(), 0);
+                set_min_max<1>(m.accessors[size_t(time_acc)], t.data(), t.size());
+            }
+            const bool rot = ch.path == ChannelPath::Rotation;
+            const size_t n = rot ? 4 : 3;
+            tinygltf::AnimationSampler smp;
+            smp.input = time_acc;
+            smp.interpolation = "LINEAR";
+            smp.output = append_accessor(m, ch.values.data() + first_key * n, part.keys * n * 4,
+                                         TINYGLTF_COMPONENT_TYPE_FLOAT, rot ? TINYGLTF_TYPE_VEC4 : TINYGLTF_TYPE_VEC3,
+                                         part.keys, 0);
+            anim.samplers.push_back(smp);
+            tinygltf::AnimationChannel ac;
+            ac.sampler = int(anim.samplers.size() - 1);
+            ac.target_node = c.nodes[size_t(ch.node)].gltf_index;
+            ac.target_path = ch.path == ChannelPath::Translation ? "translation" : rot ? "rotation" : "scale";
+            anim.channels.push_back(ac);
         }
-        const bool rot = ch.path == ChannelPath::Rotation;
-        const int n = rot ? 4 : 3;
-        tinygltf::AnimationSampler smp;
-        smp.input = time_acc;
-        smp.interpolation = "LINEAR";
-        smp.output = append_accessor(m, ch.values.data(), ch.values.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT,
-                                  rot ? TINYGLTF_TYPE_VEC4 : TINYGLTF_TYPE_VEC3, ch.values.size() / size_t(n), 0);
-        anim.samplers.push_back(smp);
-        tinygltf::AnimationChannel ac;
-        ac.sampler = int(anim.samplers.size() - 1);
-        ac.target_node = c.nodes[size_t(ch.node)].gltf_index;
-        ac.target_path = ch.path == ChannelPath::Translation ? "translation" : rot ? "rotation" : "scale";
-        anim.channels.push_back(ac);
+        m.animations.push_back(anim);
+        first_key += part.keys;
     }
-    m.animations.push_back(anim);
 
     m.extensionsUsed.push_back("PROGSKIN_progressive_skin");
     nlohmann::json ext = progressive_extension_json(s);
-    ext["fps"] = r.frames.frame_count() > 1 ? 1.0 / (r.frames.times[1] - r.frames.times[0]) : 30.0;
+    ext["fps"] = fps;
     ext["clips"] = "all";
     // The input's file name only: a path would publish the build machine's directories.
     ext["source"] = std::filesystem::path(c.source).filename().string();
     ext["source_meshes_kept"] = split;  // meshes, names, materials, UVs and colours of a glTF source
     for (const auto& [key, value] : kept.items()) ext[key] = value;
-    if (c.clips.size() == 1) ext["clips_kept"] = nlohmann::json::array({c.clips[0].name});
+    ext["clips_kept"] = nlohmann::json::array();
+    for (const ClipPart& part : parts) ext["clips_kept"].push_back(part.name);
     write_gltf(m, {{0, ext}}, path);
 }
 

@@ -171,3 +171,20 @@ TEST(GltfOutputs, FromVerticesKeepsTheSourceMeshes) {
     EXPECT_EQ(ext["source"], "CesiumMan.glb");  // the file name, never the build machine's path
     EXPECT_TRUE(ext["source_meshes_kept"].get<bool>());
 }
+
+TEST(GltfOutputs, FromVerticesKeepsTheSourceClips) {
+    if (!std::ifstream(progskin_bin()).good()) GTEST_SKIP() << progskin_bin() << " not built";
+    const std::string out = (fs::temp_directory_path() / ("progskin_scratch_clips_" + std::to_string(::getpid()) + ".glb")).string();
+    const CmdResult r = run(progskin_bin() + " build --from-vertices " + asset("Fox.glb") + " -o " + out +
+                            " --bones 4 --quiet");
+    ASSERT_EQ(r.code, 0) << r.out;
+    const nlohmann::json j = glb_json(out);
+    fs::remove(out);
+    // The Fox's three clips, trained one after another, come back as three animations.
+    ASSERT_EQ(j["animations"].size(), 3u);
+    EXPECT_EQ(j["animations"][0]["name"], "Survey");
+    EXPECT_EQ(j["animations"][1]["name"], "Walk");
+    EXPECT_EQ(j["animations"][2]["name"], "Run");
+    const auto& ext = j["skins"][0]["extensions"]["PROGSKIN_progressive_skin"];
+    EXPECT_EQ(ext["clips_kept"].size(), 3u);
+}
