@@ -461,9 +461,17 @@ void check_one(const std::string& arg, const AssetOptions& o, std::vector<Pendin
             problems.push_back(path + ": no such file");
             return;
         }
-        ImportOptions io;
-        io.require_skin = false;
-        chars = import_gltf(path, io);
+        const bool pc2 = path.size() >= 4 && (path.compare(path.size() - 4, 4, ".pc2") == 0 ||
+                                               path.compare(path.size() - 4, 4, ".PC2") == 0);
+        if (!pc2) {
+            ImportOptions io;
+            io.require_skin = false;
+            chars = import_gltf(path, io);
+        } else if (!o.from_vertices) {
+            problems.push_back(path + ": a PC2 point cache has no skin: build one with `progskin build --from-vertices " +
+                               path + " -o OUT.glb` and serve OUT.glb, or start progskin-server with --from-vertices");
+            return;
+        }
     } catch (const std::exception& e) {
         problems.push_back(e.what());
         return;

@@ -13,6 +13,7 @@
 
 #include "gltf_import.h"
 #include "scene.h"
+#include "vertex_animation.h"
 
 using namespace progskin;
 using namespace progskin::net;
@@ -229,4 +230,24 @@ TEST(ServerAssets, PlainFileBuiltOnceThenReadFromTheCache) {
     for (size_t k = 0; k < first->skin.error.size(); ++k)
         EXPECT_NEAR(first->skin.error[k].rms, second->skin.error[k].rms, 1e-9 + 1e-6 * first->skin.error[k].rms);
     expect_same_tables(*first, *second);
+}
+
+TEST(ServerAssets, PointCacheNeedsFromVertices) {
+    // A PC2 point cache written from the sphere's morph animation.
+    AssetOptions o;
+    o.cache_dir = temp_cache("pc2");
+    fs::create_directories(o.cache_dir);
+    const std::string pc2 = o.cache_dir + "/sphere.pc2";
+    progskin::save_pc2(progskin::load_vertex_animation(asset("AnimatedMorphSphere.gltf")), pc2);
+    std::vector<PendingAsset> pending;
+    const auto problems = check_server_assets({pc2}, o, pending);
+    ASSERT_EQ(problems.size(), 1u);
+    EXPECT_NE(problems[0].find("progskin build --from-vertices"), std::string::npos) << problems[0];
+    o.from_vertices = true;
+    o.scratch_bones = 3;
+    ASSERT_TRUE(check_server_assets({pc2}, o, pending).empty());
+    ASSERT_EQ(pending.size(), 1u);
+    const auto a = build_server_asset(pending[0], o);
+    EXPECT_LE(a->bone_count(), 3);
+    EXPECT_EQ(a->character.vertex_count(), progskin::load_pc2(pc2).vertex_count);
 }
