@@ -39,6 +39,10 @@ struct ServerAsset {
     // the lower convex hull of the squared error table e(k)^2. Each table has
     // one entry per clip selection (what an instance plays) and a last one
     // over all of them (live poses).
+    // These tables are stored in progressive files and the server's cache
+    // (server_tables_json): whoever changes what they hold or how
+    // finish_server_asset computes them must bump kServerTablesVersion, so
+    // that stale stored tables are recomputed instead of read.
     static constexpr int kGapTable = 17;
     struct Segment {
         int from = 0, to = 1;
