@@ -323,6 +323,8 @@ nlohmann::json server_tables_json(const ServerAsset& a) {
     nlohmann::json j;
     j["version"] = kServerTablesVersion;
     j["fps"] = 30;
+    j["hold_ticks"] = HOLD_TICKS;  // constants the tables were computed with
+    j["gap_table"] = ServerAsset::kGapTable;
     j["selections"] = a.selections.size();
     j["bones"] = a.bone_count();
     j["diagonal"] = a.diagonal;
@@ -354,6 +356,8 @@ bool read_server_tables(const nlohmann::json& j, ServerAsset& a, std::string* wh
     if (j.value("bones", -1) != a.bone_count() || j.value("selections", size_t(0)) != a.selections.size() ||
         j.value("fps", 0) != 30)
         return no("stored server tables do not match the character (bones, clip groups or fps)");
+    if (j.value("hold_ticks", -1) != HOLD_TICKS || j.value("gap_table", -1) != ServerAsset::kGapTable)
+        return no("stored server tables were computed with another HOLD_TICKS or gap table size");
     ServerAsset t;  // parsed into a scratch copy: `a` changes only when everything reads
     double v[3];
     t.diagonal = j.value("diagonal", 0.0);
