@@ -658,7 +658,18 @@ std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const Ass
                                   ": computed at start (rebuild the file with progskin build to store them)");
             finish_server_asset(*a);
         } else if (p.from_vertices) {
-            finish_server_asset(*a);
+            // The scratch file's tables are kept beside it (.tables.json) once computed.
+            const std::string side = a->path + ".tables-t" + std::to_string(kServerTablesVersion) + ".json";
+            nlohmann::json stored;
+            if (std::ifstream in(side); in) stored = nlohmann::json::parse(in, nullptr, false);
+            if (!read_server_tables(stored, *a)) {
+                finish_server_asset(*a);
+                std::ofstream out(side + ".tmp");
+                out << server_tables_json(*a).dump();
+                out.close();
+                std::error_code ec;
+                if (out) fs::rename(side + ".tmp", side, ec);
+            }
         }
     } else if (!load_cached_build(p, cache, *a)) {
         a->skin = build_progressive_skin(a->character, sample_frames(a->character, a->selections, 30.0));

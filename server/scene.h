@@ -119,7 +119,9 @@ std::vector<std::string> check_server_assets(const std::vector<std::string>& arg
 // its progressive skin and tables are cached as <cache>/<content hash>-c<N>-t<version>.glb
 // and read from there on later starts. Characters other than the file's first
 // are served as a copy of the file with their skins first (cached too), since
-// a client plays character 0 of the file it downloads. Throws Error.
+// a client plays character 0 of the file it downloads. A file without a skin
+// (options.from_vertices) is built into <cache>/<content hash>-scratch<bones>.glb
+// once, its tables kept beside it. Throws Error.
 std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const AssetOptions& options);
 // Builds the derived fields (format, hull, motion...) of an asset whose
 // character and skin are set; used by load_server_asset and by tests.

@@ -54,6 +54,8 @@ bool contains(const std::vector<std::string>& lines, const std::string& a, const
     return false;
 }
 
+void expect_same_tables(const ServerAsset& a, const ServerAsset& b);
+
 }  // namespace
 
 TEST(ServerAssets, EveryProblemListedBeforeAnyBuild) {
@@ -136,11 +138,15 @@ TEST(ServerAssets, FromVerticesBuildsAndCachesASkin) {
     EXPECT_TRUE(a->progressive_file);
     EXPECT_LE(a->bone_count(), 4);
     EXPECT_GE(a->bone_count(), 1);
-    // The second load reuses the cached build (same bytes, no rebuild).
+    // The second load reuses the cached build and its tables (same bytes, nothing rebuilt).
     const auto start = std::chrono::steady_clock::now();
     const auto b = build_server_asset(pending[0], o);
     EXPECT_EQ(a->id, b->id);
     EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 5.0);
+    size_t sidecars = 0;
+    for (const auto& e : fs::directory_iterator(o.cache_dir)) sidecars += e.path().extension() == ".json";
+    EXPECT_EQ(sidecars, 1u);
+    expect_same_tables(*a, *b);
 }
 
 namespace {
