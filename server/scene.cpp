@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
+#include <unistd.h>
 
 #include "error.h"
 #include "error_metric.h"
@@ -606,11 +607,24 @@ void save_cached_build(const PendingAsset& p, const std::string& cache, ServerAs
     }
 }
 
+// The cache directory, created; when it cannot be (a read-only home), a
+// per-user directory under the system's temporary directory, with a warning.
+std::string usable_cache(const std::string& wanted, std::vector<std::string>& warnings) {
+    std::error_code ec;
+    fs::create_directories(wanted, ec);
+    if (!ec && fs::is_directory(wanted)) return wanted;
+    const std::string fallback = (fs::temp_directory_path() / ("progskin-cache-" + std::to_string(::getuid()))).string();
+    fs::create_directories(fallback, ec);
+    if (ec) throw Error("cannot create the cache directory " + wanted + " nor " + fallback + ": " + ec.message());
+    warnings.push_back("cache directory " + wanted + " cannot be created; using " + fallback);
+    return fallback;
+}
+
 }  // namespace
 
 std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const AssetOptions& options) {
-    const std::string cache = options.cache_dir.empty() ? server_cache_dir() : options.cache_dir;
     auto a = std::make_shared<ServerAsset>();
+    const std::string cache = usable_cache(options.cache_dir.empty() ? server_cache_dir() : options.cache_dir, a->warnings);
     a->name = p.label;
     if (p.from_vertices) {
         // Build (or reuse) the progressive file and serve it like any progressive file.
