@@ -16,11 +16,19 @@
 // Error: displayed vertices vs the full-detail reference at the display time
 // (GUIDE.md §2), RMS and max over all characters and displayed ticks, % of
 // each character's rest diagonal. Rate: GUIDE.md (payload + 28 per datagram).
+//
+// usage: bench_net_rd [--asset FILE...] [--clip SPEC] [--crowd N] [benchmark flags]
+//   --asset: characters (default assets/Fox.glb assets/CesiumMan.glb; FILE#N
+//   for character N); --clip: the clip selection every asset plays (default:
+//   each asset's default training set, one instance per clip group in the
+//   first scene); --crowd: instances of the second scene (default 24).
 #include <benchmark/benchmark.h>
 
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <map>
+#include <string>
 
 #include "client_palette.h"
 #include "datagram_packer.h"
@@ -41,9 +49,36 @@ namespace {
 
 using Assets = std::vector<std::shared_ptr<ServerAsset>>;
 
+// The command line's scene (see the usage above).
+struct Options {
+    std::vector<std::string> assets = {std::string(PROGSKIN_ASSETS) + "/Fox.glb",
+                                       std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb"};
+    std::string clip;  // empty: each asset's default training set
+    int crowd = 24;
+};
+Options g_options;
+
+// The assets as the server loads them (check first, then build), with --clip applied.
 const Assets& progressive_assets() {
-    static Assets a = {load_server_asset(std::string(PROGSKIN_ASSETS) + "/Fox.glb"),
-                       load_server_asset(std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb")};
+    static Assets a = [] {
+        AssetOptions o;
+        std::vector<PendingAsset> pending;
+        const std::vector<std::string> problems = check_server_assets(g_options.assets, o, pending);
+        if (!problems.empty()) {
+            for (const std::string& p : problems) std::fprintf(stderr, "bench_net_rd: %s\n", p.c_str());
+            std::exit(1);
+        }
+        Assets out;
+        for (const PendingAsset& p : pending) {
+            auto x = build_server_asset(p, o);
+            if (!g_options.clip.empty()) {
+                x->selections = {select_clips(x->character, g_options.clip)};
+                finish_server_asset(*x);
+            }
+            out.push_back(x);
+        }
+        return out;
+    }();
     return a;
 }
 
@@ -219,7 +254,7 @@ void BM_RateDistortion(benchmark::State& st) {
                 specs.push_back(i);
             }
     } else {
-        specs = crowd_layout(progressive_assets(), 24);
+        specs = crowd_layout(progressive_assets(), g_options.crowd);
     }
     std::array<Result, 6> r;
     for (auto _ : st) {
@@ -237,7 +272,8 @@ void BM_RateDistortion(benchmark::State& st) {
     st.counters["leaf_lod_rms_pct"] = r[2].rms;
     st.counters["prog_vs_best_baseline"] = r[0].rms / std::max(1e-9, std::min(r[1].rms, r[2].rms));
     st.counters["prog_vs_best_baseline_100ms"] = r[3].rms / std::max(1e-9, std::min(r[4].rms, r[5].rms));
-    st.SetLabel(scene == 0 ? "default set (4 characters)" : "crowd of 24");
+    st.SetLabel(scene == 0 ? "one per asset and clip group (" + std::to_string(specs.size()) + ")"
+                           : "crowd of " + std::to_string(specs.size()));
 }
 BENCHMARK(BM_RateDistortion)
     ->ArgsProduct({{0}, {16, 32, 64, 128, 256}})
@@ -247,12 +283,54 @@ BENCHMARK(BM_RateDistortion)
 
 }  // namespace
 
+// Parses --asset/--clip/--crowd (what benchmark::Initialize left); false on a bad command line.
+bool parse_options(int argc, char** argv) {
+    bool assets_given = false;
+    for (int i = 1; i < argc; ++i) {
+        const std::string a = argv[i];
+        if (a == "--asset" && i + 1 < argc) {
+            if (!assets_given) g_options.assets.clear();
+            assets_given = true;
+            g_options.assets.push_back(argv[++i]);
+            while (i + 1 < argc && argv[i + 1][0] != '-') g_options.assets.push_back(argv[++i]);
+        } else if (a == "--clip" && i + 1 < argc) {
+            g_options.clip = argv[++i];
+        } else if (a == "--crowd" && i + 1 < argc) {
+            char* end = nullptr;
+            const long n = std::strtol(argv[++i], &end, 10);
+            if (*end || n < 1 || n > 100000) {
+                std::fprintf(stderr, "bench_net_rd: --crowd needs a whole number in 1..100000 (got %s)\n", argv[i]);
+                return false;
+            }
+            g_options.crowd = int(n);
+        } else {
+            std::fprintf(stderr, "bench_net_rd: unknown or incomplete argument %s\n", a.c_str());
+            return false;
+        }
+    }
+    return true;
+}
+
 int main(int argc, char** argv) {
+    for (int i = 1; i < argc; ++i)
+        if (!std::strcmp(argv[i], "--help")) {
+            std::printf("usage: bench_net_rd [--asset FILE...] [--clip SPEC] [--crowd N] [--benchmark_* flags]\n"
+                        "  --asset  characters (default assets/Fox.glb assets/CesiumMan.glb; FILE#N: character N)\n"
+                        "  --clip   clip selection every asset plays (default: each asset's clip groups)\n"
+                        "  --crowd  instances of the crowd scene (default 24)\n");
+            return 0;
+        }
     benchmark::Initialize(&argc, argv);
+    if (!parse_options(argc, argv)) return 2;
     benchmark::RunSpecifiedBenchmarks();
     benchmark::Shutdown();
     if (table().empty()) return 0;
     const char* names[3] = {"progressive", "all bones, fewer updates", "static leaf LOD"};
+    size_t groups = 0;
+    for (const auto& a : progressive_assets()) groups += a->selections.size();
+    const bool defaults = g_options.assets == Options{}.assets && g_options.clip.empty();
+    const std::string scene_name[2] = {(defaults ? "default (" : "assets (") + std::to_string(groups) + ")",
+                                       "crowd (" + std::to_string(g_options.crowd) + ")"};
     for (int part = 0; part < 2; ++part) {
         std::printf(part == 0 ? "\nDisplay delay: each method's largest update gap (at most 600 ms)\n"
                               : "\nEqual latency: display delay at most 100 ms for every method\n");
@@ -261,7 +339,7 @@ int main(int argc, char** argv) {
         for (const auto& [key, rr] : table()) {
             const Result* r = rr.data() + 3 * part;
             for (int m = 0; m < 3; ++m)
-                std::printf("| %s | %d | %s | %.1f | %.1f | %.4f | %.3f | %.0f | %.1f |\n", key.first == 0 ? "default (4)" : "crowd (24)",
+                std::printf("| %s | %d | %s | %.1f | %.1f | %.4f | %.3f | %.0f | %.1f |\n", scene_name[key.first].c_str(),
                             key.second, names[m], r[m].rate_kbps, r[m].bones, r[m].rms, r[m].max, r[m].delay_ms, r[m].header_pct);
             std::printf("| | | progressive / best baseline RMS | | | **%.2f** | | | |\n",
                         r[0].rms / std::max(1e-9, std::min(r[1].rms, r[2].rms)));

@@ -5,6 +5,7 @@
 #include <cmath>
 
 #include "error.h"
+#include "error_metric.h"
 #include "progressive_skin.h"
 #include "skinning.h"
 
@@ -128,11 +129,15 @@ void InstanceView::skin(std::vector<glm::vec3>& out) const {
 
 void InstanceView::reference(double clip_time, std::vector<glm::vec3>& out) const {
     const Character& c = asset_->character;
+    out.resize(c.vertex_count());
+    if (!c.morphs.empty()) {  // GUIDE.md §2 reference: morph targets at the clip's weights, then the skin
+        reference_positions(c, sample_pose(c, clip_.selection, clip_time), 0, out);
+        return;
+    }
     ref_mats_.resize(c.joint_count());
     ref_palette_.resize(c.joint_count());
     sample_skinning_matrices(c, clip_.selection, clip_time, ref_mats_);
     for (size_t j = 0; j < c.joint_count(); ++j) ref_palette_[j] = Mat34::from_glm(ref_mats_[j]);
-    out.resize(c.vertex_count());
     skinning_job(c, ref_palette_, out).run();
 }
 

@@ -118,7 +118,7 @@ void evaluate_globals(const Character& c, const ClipSelection& sel, double t, Po
     double v[4];
     for (int clip : sel.clips) {
         for (const Channel& ch : c.clips[size_t(clip)].channels) {
-            if (ch.node < 0 || size_t(ch.node) >= count) continue;
+            if (ch.node < 0 || size_t(ch.node) >= count || ch.path == ChannelPath::Weights) continue;
             LocalPose& p = s.locals[size_t(ch.node)];
             switch (ch.path) {
                 case ChannelPath::Translation:
@@ -133,6 +133,7 @@ void evaluate_globals(const Character& c, const ClipSelection& sel, double t, Po
                     sample_channel(ch, t, 3, v);
                     p.scale = {v[0], v[1], v[2]};
                     break;
+                case ChannelPath::Weights: break;  // skipped above (sample_morph_weights)
             }
             p.animated = !ch.times.empty() || p.animated;
         }
@@ -170,6 +171,22 @@ void evaluate_globals(const Character& c, const ClipSelection& sel, double t, Po
             done[*it] = 1;
         }
     }
+}
+
+// Morph weights at time t into out (size c.morphs.size()): defaults, then every
+// Weights channel of the selection (later clips win where two animate one node).
+void evaluate_morph_weights(const Character& c, const ClipSelection& sel, double t, std::vector<double>& buf,
+                            std::span<float> out) {
+    for (size_t m = 0; m < c.morphs.size(); ++m) out[m] = c.morphs[m].default_weight;
+    for (int clip : sel.clips)
+        for (const Channel& ch : c.clips[size_t(clip)].channels) {
+            if (ch.path != ChannelPath::Weights || ch.morph_count <= 0 || ch.morph_first < 0 ||
+                size_t(ch.morph_first) + size_t(ch.morph_count) > c.morphs.size())
+                continue;
+            buf.resize(size_t(ch.morph_count));
+            sample_channel(ch, t, ch.morph_count, buf.data());
+            for (int i = 0; i < ch.morph_count; ++i) out[size_t(ch.morph_first + i)] = float(buf[size_t(i)]);
+        }
 }
 
 // M_j = G_j * IBM_j of every joint from already evaluated globals.
@@ -292,10 +309,38 @@ void sample_skinning_matrices(const Character& c, const ClipSelection& sel, doub
     skinning_from_globals(c, s, out);
 }
 
+void sample_morph_weights(const Character& c, const ClipSelection& sel, double t, std::span<float> out) {
+    if (out.size() != c.morphs.size())
+        throw Error("sample_morph_weights: output has " + std::to_string(out.size()) + " weights for " +
+                    std::to_string(c.morphs.size()) + " morph targets");
+    check_selection(c, sel);
+    std::vector<double> buf;
+    evaluate_morph_weights(c, sel, t, buf, out);
+}
+
+FrameSet sample_pose(const Character& c, const ClipSelection& sel, double t) {
+    check_selection(c, sel);
+    FrameSet fs;
+    fs.joint_count = int(c.joint_count());
+    fs.morph_count = int(c.morphs.size());
+    fs.times = {t};
+    fs.selection_of_frame = {0};
+    PoseScratch s;
+    std::vector<glm::dmat4> m(c.joint_count());
+    evaluate_globals(c, sel, t, s);
+    skinning_from_globals(c, s, m);
+    for (const glm::dmat4& x : m) fs.skinning.push_back(Mat34::from_glm(x));
+    fs.morph_weights.resize(c.morphs.size());
+    std::vector<double> buf;
+    evaluate_morph_weights(c, sel, t, buf, fs.morph_weights);
+    return fs;
+}
+
 FrameSet sample_frames(const Character& c, const std::vector<ClipSelection>& sels, double fps) {
     if (!(fps > 0.0) || !std::isfinite(fps)) throw Error("sample_frames: fps must be positive (got " + std::to_string(fps) + ")");
     FrameSet fs;
     fs.joint_count = int(c.joint_count());
+    fs.morph_count = int(c.morphs.size());
     // floor(duration * fps) + 1 frames per selection (the epsilon absorbs float rounding of the end time).
     auto frame_count = [fps](const ClipSelection& sel) {
         const double duration = std::max(0.0, double(sel.end) - double(sel.start));
@@ -317,8 +362,11 @@ FrameSet sample_frames(const Character& c, const std::vector<ClipSelection>& sel
     fs.times.reserve(total);
     fs.selection_of_frame.reserve(total);
     fs.skinning.reserve(total * c.joint_count());
+    fs.morph_weights.reserve(total * c.morphs.size());
     PoseScratch s;
     std::vector<glm::dmat4> m(c.joint_count());
+    std::vector<double> buf;
+    std::vector<float> w(c.morphs.size());
     for (size_t k = 0; k < sels.size(); ++k) {
         const ClipSelection& sel = sels[k];
         const size_t frames = size_t(frame_count(sel));
@@ -329,6 +377,8 @@ FrameSet sample_frames(const Character& c, const std::vector<ClipSelection>& sel
             fs.times.push_back(t);
             fs.selection_of_frame.push_back(int(k));
             for (const glm::dmat4& x : m) fs.skinning.push_back(Mat34::from_glm(x));
+            evaluate_morph_weights(c, sel, t, buf, w);
+            fs.morph_weights.insert(fs.morph_weights.end(), w.begin(), w.end());
         }
     }
     return fs;

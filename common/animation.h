@@ -1,7 +1,8 @@
 // animation.h — clip selection and pose sampling (GUIDE.md §1).
 //
 // Pose at time t: each joint's global matrix G_j(t) from the node hierarchy
-// (non-joint ancestors included), skinning matrix M_j(t) = G_j(t) * IBM_j.
+// (non-joint ancestors included), skinning matrix M_j(t) = G_j(t) * IBM_j, and
+// each morph target's weight (default weight unless a Weights channel plays).
 // Channels: STEP, LINEAR (quaternions by slerp, shortest path) and CUBICSPLINE
 // (Hermite, quaternions normalised), times clamped to the channel's key range.
 #pragma once
@@ -43,18 +44,34 @@ void sample_skinning_matrices(const Character& c, const ClipSelection& sel, doub
 void sample_node_globals(const Character& c, const ClipSelection& sel, double t,
                          std::span<glm::dmat4> out);
 
+// Morph weights of every morph target at time t (out.size() == morphs.size()):
+// what a streamed instance needs per frame besides its bones. Channels clamp to
+// their keys like T/R/S; a target without a channel keeps its default weight.
+void sample_morph_weights(const Character& c, const ClipSelection& sel, double t, std::span<float> out);
+
 // Frames of one or more selections sampled at fps: frame times run from start
 // to end inclusive (floor(duration * fps) + 1 frames, at least 1).
 struct FrameSet {
     int joint_count = 0;
+    int morph_count = 0;                    // Character::morphs.size() (0: no morph targets)
     std::vector<double> times;              // per frame, absolute clip time
     std::vector<int> selection_of_frame;    // which selection it came from
     std::vector<Mat34> skinning;            // frames * joint_count, row-major per frame
+    std::vector<float> morph_weights;       // frames * morph_count (empty when morph_count == 0)
     size_t frame_count() const { return times.size(); }
     const Mat34* frame(size_t f) const { return skinning.data() + f * joint_count; }
+    // Morph weights of frame f (morph_count values), empty when the frame set has none.
+    std::span<const float> weights(size_t f) const {
+        if (morph_weights.size() < (f + 1) * size_t(morph_count)) return {};
+        return {morph_weights.data() + f * size_t(morph_count), size_t(morph_count)};
+    }
 };
 // Throws Error when the selections would take more than kMaxSampledFrames.
 inline constexpr size_t kMaxSampledFrames = 100000;
 FrameSet sample_frames(const Character& c, const std::vector<ClipSelection>& sels, double fps);
+
+// One frame at exactly time t (no rounding of t to a frame rate): what `pose`,
+// --verify and the three.js comparison evaluate.
+FrameSet sample_pose(const Character& c, const ClipSelection& sel, double t);
 
 }  // namespace progskin

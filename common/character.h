@@ -26,14 +26,17 @@ struct Node {
 };
 
 enum class Interpolation : uint8_t { Step, Linear, CubicSpline };
-enum class ChannelPath : uint8_t { Translation, Rotation, Scale };
+enum class ChannelPath : uint8_t { Translation, Rotation, Scale, Weights };
 
-// One animation channel. values: components per key = 3 (T, S) or 4 (R, x y z w
-// as glTF stores quaternions); CubicSpline keys hold in-tangent, value,
-// out-tangent (3 * components floats per key), as the glTF spec lays them out.
+// One animation channel. values: components per key = 3 (T, S), 4 (R, x y z w
+// as glTF stores quaternions) or morph_count (Weights); CubicSpline keys hold
+// in-tangent, value, out-tangent (3 * components floats per key), as the glTF
+// spec lays them out.
 struct Channel {
-    int node = -1;  // index into Character::nodes
+    int node = -1;  // index into Character::nodes (for Weights: the mesh node)
     ChannelPath path = ChannelPath::Translation;
+    int morph_first = 0;  // Weights only: the channel's values are Character::morphs
+    int morph_count = 0;  //   [morph_first, morph_first + morph_count), in target order
     Interpolation interpolation = Interpolation::Linear;
     std::vector<float> times;   // strictly increasing (checked on import)
     std::vector<float> values;  // decoded to float (normalized ints converted)
@@ -58,6 +61,24 @@ struct PrimitiveRange {
     int skin = -1;       // glTF skin index for skinned primitives
 };
 
+// One morph target of the merged vertex stream: target `target` of the mesh of
+// glTF node `gltf_node`, over all primitives of that mesh (glTF requires the
+// same number of targets in every primitive). Sparse: only vertices whose
+// position or normal delta is non-zero are listed. Deltas are in the space of
+// Character::positions (rigid meshes: transformed like their positions).
+// glTF order of evaluation: morphed = positions + sum_m w_m * delta_m, then
+// skinning (common/error_metric.h, morph_positions).
+struct MorphTarget {
+    std::string name;          // mesh.extras.targetNames[target] when present, else "<node name> target i"
+    int node = -1;             // index into Character::nodes of the mesh node
+    int gltf_node = -1;        // its node index in the file
+    int target = -1;           // index of the target in the mesh
+    float default_weight = 0;  // node.weights, else mesh.weights, else 0 (the rest pose's weight)
+    std::vector<uint32_t> vertices;          // ascending indices into Character::positions
+    std::vector<glm::vec3> position_deltas;  // per listed vertex
+    std::vector<glm::vec3> normal_deltas;    // per listed vertex, or empty (no NORMAL target)
+};
+
 struct Character {
     std::string name;
     std::string source;  // file it came from
@@ -80,11 +101,12 @@ struct Character {
     std::vector<float> weights;    // positions.size() * influences
     std::vector<PrimitiveRange> primitives;
 
+    std::vector<MorphTarget> morphs;  // evaluated before skinning; weights animated by Weights channels
     std::vector<Clip> clips;
 
     // Import diagnostics for `inspect`.
     uint32_t renormalised_vertices = 0;  // vertices whose weights did not sum to 1
-    bool has_morph_targets = false;      // morph targets present but ignored
+    bool has_morph_targets = false;      // morphs is not empty (kept for callers of the old flag)
     std::vector<std::string> notes;      // human-readable notes of the above and similar
 
     size_t joint_count() const { return joint_node.size(); }

@@ -35,10 +35,12 @@ ErrorStats ErrorAccumulator::stats() const {
     return s;
 }
 
-static void skin_reference(const Character& c, const Mat34* palette, std::span<glm::vec3> out) {
+// Linear blend skinning of `bind` (vertex_count positions) with the character's own weights.
+static void skin_reference(const Character& c, std::span<const glm::vec3> bind, const Mat34* palette,
+                           std::span<glm::vec3> out) {
     const int I = c.influences;
     for (size_t v = 0; v < c.positions.size(); ++v) {
-        const glm::vec3 p = c.positions[v];
+        const glm::vec3 p = bind[v];
         glm::vec3 acc(0.0f);
         for (int i = 0; i < I; ++i) {
             const float w = c.weights[v * I + i];
@@ -48,13 +50,35 @@ static void skin_reference(const Character& c, const Mat34* palette, std::span<g
     }
 }
 
+void morph_positions(const Character& c, std::span<const float> weights, std::span<glm::vec3> out) {
+    std::copy(c.positions.begin(), c.positions.end(), out.begin());
+    for (size_t m = 0; m < c.morphs.size(); ++m) {
+        const MorphTarget& t = c.morphs[m];
+        const float w = weights.empty() ? t.default_weight : weights[m];
+        if (w == 0.0f) continue;
+        for (size_t i = 0; i < t.vertices.size(); ++i) out[t.vertices[i]] += w * t.position_deltas[i];
+    }
+}
+
+std::vector<double> morph_importance(const Character& c) {
+    std::vector<double> out;
+    const double n = double(std::max<size_t>(c.vertex_count(), 1));
+    for (const MorphTarget& t : c.morphs) {
+        double sum = 0;
+        for (const glm::vec3& d : t.position_deltas) sum += glm::dot(glm::dvec3(d), glm::dvec3(d));
+        out.push_back(std::sqrt(sum / n));
+    }
+    return out;
+}
+
 std::vector<glm::vec3> rest_pose_positions(const Character& c) {
     std::vector<glm::dmat4> m(c.joint_count());
     sample_skinning_matrices(c, ClipSelection{}, 0.0, m);
     std::vector<Mat34> pal(m.size());
     for (size_t j = 0; j < m.size(); ++j) pal[j] = Mat34::from_glm(m[j]);
-    std::vector<glm::vec3> out(c.vertex_count());
-    skin_reference(c, pal.data(), out);
+    std::vector<glm::vec3> bind(c.vertex_count()), out(c.vertex_count());
+    morph_positions(c, {}, bind);
+    skin_reference(c, bind, pal.data(), out);
     return out;
 }
 
@@ -70,7 +94,15 @@ double rest_diagonal(const Character& c) {
 }
 
 void reference_positions(const Character& c, const FrameSet& frames, size_t f, std::span<glm::vec3> out) {
-    skin_reference(c, frames.frame(f), out);
+    if (c.morphs.empty()) return skin_reference(c, c.positions, frames.frame(f), out);
+    thread_local std::vector<glm::vec3> bind;
+    bind.resize(c.vertex_count());
+    morph_positions(c, frames.weights(f), bind);
+    skin_reference(c, bind, frames.frame(f), out);
+}
+
+void skinned_bind_positions(const Character& c, const FrameSet& frames, size_t f, std::span<glm::vec3> out) {
+    skin_reference(c, c.positions, frames.frame(f), out);
 }
 
 }  // namespace progskin

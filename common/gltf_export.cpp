@@ -3,6 +3,7 @@
 
 #include <tiny_gltf.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -73,7 +74,139 @@ void merge_buffers(tinygltf::Model& m) {
     m.buffers[0].uri.clear();
 }
 
+// Extensions whose JSON refers to accessors or buffer views by index: a model
+// using one is not pruned (its references are not visible to prune_unused).
+bool refers_by_index(const tinygltf::Model& m) {
+    for (const std::string& e : m.extensionsUsed)
+        if (e == "EXT_mesh_gpu_instancing" || e == "KHR_draco_mesh_compression" || e == "EXT_meshopt_compression" ||
+            e == "KHR_meshopt_compression" || e == "KHR_animation_pointer")
+            return true;
+    return false;
+}
+
 }  // namespace
+
+void add_missing_bounds(tinygltf::Model& m, const std::string& path) {
+    auto bound = [&](int index, int components, const std::string& what) {
+        if (index < 0 || size_t(index) >= m.accessors.size()) return;
+        tinygltf::Accessor& a = m.accessors[size_t(index)];
+        if (a.minValues.size() == size_t(components) && a.maxValues.size() == size_t(components)) return;
+        const std::vector<double> v = gltf::read_accessor(path, m, index, components, what);
+        if (v.empty()) return;
+        a.minValues.assign(v.begin(), v.begin() + components);
+        a.maxValues = a.minValues;
+        for (size_t i = 0; i < v.size(); ++i) {
+            const size_t c = i % size_t(components);
+            a.minValues[c] = std::min(a.minValues[c], v[i]);
+            a.maxValues[c] = std::max(a.maxValues[c], v[i]);
+        }
+    };
+    for (size_t mi = 0; mi < m.meshes.size(); ++mi)
+        for (const auto& prim : m.meshes[mi].primitives) {
+            auto it = prim.attributes.find("POSITION");
+            if (it != prim.attributes.end()) bound(it->second, 3, "mesh " + std::to_string(mi) + " POSITION");
+            for (const auto& target : prim.targets) {
+                auto t = target.find("POSITION");
+                if (t != target.end()) bound(t->second, 3, "mesh " + std::to_string(mi) + " morph target POSITION");
+            }
+        }
+    for (size_t ai = 0; ai < m.animations.size(); ++ai)
+        for (const auto& smp : m.animations[ai].samplers) bound(smp.input, 1, "animation " + std::to_string(ai) + " input");
+}
+
+size_t prune_unused(tinygltf::Model& m) {
+    if (refers_by_index(m) || m.buffers.size() != 1) return 0;
+    // Accessors referenced by meshes, skins and animations.
+    std::vector<char> used_acc(m.accessors.size(), 0);
+    auto use = [&](int a) {
+        if (a >= 0 && size_t(a) < used_acc.size()) used_acc[size_t(a)] = 1;
+    };
+    for (const auto& mesh : m.meshes)
+        for (const auto& prim : mesh.primitives) {
+            for (const auto& [name, a] : prim.attributes) use(a);
+            use(prim.indices);
+            for (const auto& target : prim.targets)
+                for (const auto& [name, a] : target) use(a);
+        }
+    for (const auto& skin : m.skins) use(skin.inverseBindMatrices);
+    for (const auto& anim : m.animations)
+        for (const auto& smp : anim.samplers) {
+            use(smp.input);
+            use(smp.output);
+        }
+    std::vector<int> acc_index(m.accessors.size(), -1);
+    std::vector<tinygltf::Accessor> accessors;
+    for (size_t a = 0; a < m.accessors.size(); ++a)
+        if (used_acc[a]) {
+            acc_index[a] = int(accessors.size());
+            accessors.push_back(m.accessors[a]);
+        }
+    const size_t removed = m.accessors.size() - accessors.size();
+    auto remap_acc = [&](int& a) {
+        if (a >= 0 && size_t(a) < acc_index.size()) a = acc_index[size_t(a)];
+    };
+    for (auto& mesh : m.meshes)
+        for (auto& prim : mesh.primitives) {
+            for (auto& [name, a] : prim.attributes) remap_acc(a);
+            remap_acc(prim.indices);
+            for (auto& target : prim.targets)
+                for (auto& [name, a] : target) remap_acc(a);
+        }
+    for (auto& skin : m.skins) remap_acc(skin.inverseBindMatrices);
+    for (auto& anim : m.animations)
+        for (auto& smp : anim.samplers) {
+            remap_acc(smp.input);
+            remap_acc(smp.output);
+        }
+    m.accessors = std::move(accessors);
+
+    // Buffer views referenced by the remaining accessors and by images; the buffer compacted.
+    std::vector<char> used_view(m.bufferViews.size(), 0);
+    auto use_view = [&](int v) {
+        if (v >= 0 && size_t(v) < used_view.size()) used_view[size_t(v)] = 1;
+    };
+    for (const auto& a : m.accessors) {
+        use_view(a.bufferView);
+        if (a.sparse.isSparse) {
+            use_view(a.sparse.indices.bufferView);
+            use_view(a.sparse.values.bufferView);
+        }
+    }
+    for (const auto& img : m.images) use_view(img.bufferView);
+    std::vector<int> view_index(m.bufferViews.size(), -1);
+    std::vector<tinygltf::BufferView> views;
+    std::vector<unsigned char> data;
+    const std::vector<unsigned char>& old = m.buffers[0].data;
+    for (size_t v = 0; v < m.bufferViews.size(); ++v) {
+        if (!used_view[v]) continue;
+        tinygltf::BufferView bv = m.bufferViews[v];
+        // Same offset modulo 16 as before: every accessor keeps its alignment.
+        size_t at = (data.size() + 15) & ~size_t(15);
+        at += bv.byteOffset % 16;
+        data.resize(at, 0);
+        if (bv.byteOffset + bv.byteLength > old.size()) return removed;  // malformed: leave the data as it is
+        data.insert(data.end(), old.begin() + std::ptrdiff_t(bv.byteOffset),
+                    old.begin() + std::ptrdiff_t(bv.byteOffset + bv.byteLength));
+        bv.byteOffset = at;
+        view_index[v] = int(views.size());
+        views.push_back(bv);
+    }
+    while (data.size() % 4) data.push_back(0);
+    auto remap_view = [&](int& v) {
+        if (v >= 0 && size_t(v) < view_index.size()) v = view_index[size_t(v)];
+    };
+    for (auto& a : m.accessors) {
+        remap_view(a.bufferView);
+        if (a.sparse.isSparse) {
+            remap_view(a.sparse.indices.bufferView);
+            remap_view(a.sparse.values.bufferView);
+        }
+    }
+    for (auto& img : m.images) remap_view(img.bufferView);
+    m.bufferViews = std::move(views);
+    m.buffers[0].data = std::move(data);
+    return removed;
+}
 
 // Appends bytes to buffer 0 (4-byte aligned) and returns a new buffer view.
 static int append_view(tinygltf::Model& m, const void* data, size_t bytes, int target) {
@@ -191,7 +324,7 @@ void write_gltf(tinygltf::Model& m, const std::map<int, nlohmann::json>& skin_ex
 
 
 void save_progressive(const Character& c, const ProgressiveSkin& s, const std::string& out_path,
-                      const std::string& note) {
+                      const std::string& note, const nlohmann::json& extra) {
     const int B = s.bone_count();
     if (B != int(c.joint_count()) || s.parents.size() != size_t(B) || s.corrections.size() != size_t(B))
         throw Error(out_path + ": progressive skin does not match the character");
@@ -213,6 +346,8 @@ void save_progressive(const Character& c, const ProgressiveSkin& s, const std::s
 
     nlohmann::json ext = progressive_extension_json(s);
     if (!note.empty()) ext["note"] = note;
+    if (extra.is_object())
+        for (const auto& [key, value] : extra.items()) ext[key] = value;
     std::vector<char> skin_done(m.skins.size(), 0);
     std::map<int, nlohmann::json> skin_ext;
     const int I = s.influences;
@@ -246,10 +381,39 @@ void save_progressive(const Character& c, const ProgressiveSkin& s, const std::s
     }
     if (std::find(m.extensionsUsed.begin(), m.extensionsUsed.end(), kExtension) == m.extensionsUsed.end())
         m.extensionsUsed.push_back(kExtension);
+    prune_unused(m);  // the input's JOINTS/WEIGHTS and inverse bind matrices, now replaced
+    add_missing_bounds(m, c.source);
     write_gltf(m, skin_ext, out_path);
 }
 
-bool read_progressive_extension(const std::string& path, const Character& c, ProgressiveSkin& out) {
+void write_with_skins_first(const std::string& path, const std::vector<int>& first, const std::string& out_path) {
+    tinygltf::Model m = load_model(path);
+    std::vector<int> order;  // new skin index -> old
+    for (int s : first) {
+        if (s < 0 || size_t(s) >= m.skins.size()) throw Error(path + ": no skin " + std::to_string(s));
+        if (std::find(order.begin(), order.end(), s) == order.end()) order.push_back(s);
+    }
+    for (int s = 0; s < int(m.skins.size()); ++s)
+        if (std::find(order.begin(), order.end(), s) == order.end()) order.push_back(s);
+    std::vector<int> new_index(m.skins.size());
+    for (size_t i = 0; i < order.size(); ++i) new_index[size_t(order[i])] = int(i);
+    std::vector<tinygltf::Skin> skins;
+    std::map<int, nlohmann::json> skin_ext;
+    for (size_t i = 0; i < order.size(); ++i) {
+        skins.push_back(m.skins[size_t(order[i])]);
+        if (skins.back().extensions.count(kExtension))
+            skin_ext[int(i)] = from_value(skins.back().extensions.at(kExtension));
+    }
+    m.skins = std::move(skins);
+    for (auto& n : m.nodes)
+        if (n.skin >= 0 && size_t(n.skin) < new_index.size()) n.skin = new_index[size_t(n.skin)];
+    merge_buffers(m);
+    add_missing_bounds(m, path);
+    write_gltf(m, skin_ext, out_path);
+}
+
+bool read_progressive_extension(const std::string& path, const Character& c, ProgressiveSkin& out,
+                                nlohmann::json* raw) {
     tinygltf::Model m = load_model(path);
     const tinygltf::Skin* skin = nullptr;
     for (const PrimitiveRange& r : c.primitives)
@@ -260,6 +424,7 @@ bool read_progressive_extension(const std::string& path, const Character& c, Pro
         }
     if (!skin) return false;
     const nlohmann::json j = from_value(skin->extensions.at(kExtension));
+    if (raw) *raw = j;
     const int B = int(c.joint_count());
     auto bad = [&](const std::string& what) { return Error(path + ": " + kExtension + ": " + what); };
     if (!j.is_object() || j.value("version", 0) != 1) throw bad("unsupported version");

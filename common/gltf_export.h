@@ -11,6 +11,7 @@
 #include <map>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <vector>
 
 #include "character.h"
 #include "progressive_skin.h"
@@ -30,8 +31,10 @@ struct ProgressiveAsset {
 // Writes `skin` of `c` (imported from c.source) to out_path (.glb binary, or
 // .gltf with embedded buffers). The file is written to a temporary name and
 // renamed, so a failure leaves no partial output. Throws Error.
+// `extra`: further members of the extension object (e.g. "server", the
+// server's precomputed tables, server/scene.h); must be an object or null.
 void save_progressive(const Character& c, const ProgressiveSkin& skin, const std::string& out_path,
-                      const std::string& note = "");
+                      const std::string& note = "", const nlohmann::json& extra = nullptr);
 
 // The extension object of a skin (the JSON above).
 nlohmann::json progressive_extension_json(const ProgressiveSkin& skin);
@@ -43,6 +46,19 @@ nlohmann::json progressive_extension_json(const ProgressiveSkin& skin);
 // partial output on failure. Throws Error.
 void write_gltf(tinygltf::Model& model, const std::map<int, nlohmann::json>& skin_ext, const std::string& path);
 
+// Removes accessors that no mesh, skin or animation refers to and buffer
+// views that no accessor or image refers to, and compacts buffer 0 (views
+// keep their offset modulo 16, so every accessor keeps its alignment).
+// Expects one buffer (after merging); does nothing for a model using an
+// extension that refers to accessors by index (GPU instancing, Draco, meshopt,
+// animation pointer). Returns the number of accessors removed.
+size_t prune_unused(tinygltf::Model& m);
+
+// Sets accessor.min/max where glTF requires them and the input left them out
+// (POSITION attributes and morph targets, animation inputs), computed from
+// the data. `path` names the file in error messages. Throws Error on bad data.
+void add_missing_bounds(tinygltf::Model& m, const std::string& path);
+
 // Appends `bytes` of data to buffer 0 of m (4-byte aligned) behind a new
 // buffer view and accessor; returns the accessor index.
 int append_accessor(tinygltf::Model& m, const void* data, size_t bytes, int component, int type, size_t count,
@@ -52,8 +68,17 @@ int append_accessor(tinygltf::Model& m, const void* data, size_t bytes, int comp
 // from it (joints already in progressive order), else progressive = false.
 ProgressiveAsset load_progressive(const std::string& path, int character_index = 0);
 
+// Writes a copy of the glTF at `path` (as .glb, buffers merged, images kept as
+// they are) in which the skins `first` come first, in that order, followed by
+// the others in file order, with every node.skin and skin extension moved
+// along: import_gltf of the copy lists the character of those skins as
+// character 0 (what a client that imports character 0 needs). Throws Error.
+void write_with_skins_first(const std::string& path, const std::vector<int>& first, const std::string& out_path);
+
 // Decodes the extension of an already imported character (character joints in
 // file order must be the progressive order). Used by load_progressive.
-bool read_progressive_extension(const std::string& path, const Character& c, ProgressiveSkin& out);
+// raw (optional) receives the whole extension object as stored.
+bool read_progressive_extension(const std::string& path, const Character& c, ProgressiveSkin& out,
+                                nlohmann::json* raw = nullptr);
 
 }  // namespace progskin

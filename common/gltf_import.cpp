@@ -697,6 +697,7 @@ struct Builder {
     const std::vector<int>& animated_nodes;  // 1 for glTF nodes targeted by a T/R/S channel
     bool any_normals = false;
     size_t primitives_without_normals = 0;
+    glm::dmat4 rigid{1.0};  // rigid transform of the last appended primitive (identity when skinned)
 };
 
 // Appends skinned primitive influences to c.joints/c.weights, remapped and renormalised.
@@ -777,6 +778,7 @@ void append_primitive(Builder& b, const MeshNode& mn, int p) {
                               std::to_string(joint_node) + " are frozen at their rest transform");
     }
     const glm::dmat3 rigid_normal = glm::inverseTranspose(glm::dmat3(rigid));
+    b.rigid = rigid;
 
     for (size_t v = 0; v < count; ++v) {
         glm::dvec3 x(pos.at(v, 0), pos.at(v, 1), pos.at(v, 2));
@@ -829,8 +831,6 @@ void append_primitive(Builder& b, const MeshNode& mn, int p) {
         }
     }
 
-    if (!prim.targets.empty()) c.has_morph_targets = true;
-
     if (range.rigid) {
         for (size_t v = 0; v < count; ++v)
             for (int k = 0; k < c.influences; ++k) {
@@ -844,8 +844,115 @@ void append_primitive(Builder& b, const MeshNode& mn, int p) {
     c.primitives.push_back(range);
 }
 
-// Decodes one animation sampler's times and values for a T/R/S channel.
-void read_sampler(const Ctx& ctx, int a, int s, ChannelPath path, Channel& ch) {
+// Names of a mesh's morph targets from mesh.extras.targetNames (the de-facto
+// convention of Blender and three.js); empty strings where absent.
+std::vector<std::string> target_names(const tinygltf::Mesh& mesh, size_t count) {
+    std::vector<std::string> names(count);
+    if (!mesh.extras.IsObject() || !mesh.extras.Has("targetNames")) return names;
+    const tinygltf::Value& v = mesh.extras.Get("targetNames");
+    if (!v.IsArray()) return names;
+    for (size_t i = 0; i < count && i < v.ArrayLen(); ++i)
+        if (v.Get(int(i)).IsString()) names[i] = v.Get(int(i)).Get<std::string>();
+    return names;
+}
+
+// Default weights of a mesh node's morph targets: node.weights, else mesh.weights, else 0.
+std::vector<float> default_morph_weights(const Ctx& ctx, int gltf_node, size_t count) {
+    const tinygltf::Node& node = ctx.model.nodes[size_t(gltf_node)];
+    const tinygltf::Mesh& mesh = ctx.model.meshes[size_t(node.mesh)];
+    const std::vector<double>& w = !node.weights.empty() ? node.weights : mesh.weights;
+    const std::string who = !node.weights.empty() ? "node " + std::to_string(gltf_node) + " weights"
+                                                  : "mesh " + std::to_string(node.mesh) + " weights";
+    std::vector<float> out(count, 0.0f);
+    if (w.empty()) return out;
+    if (w.size() != count)
+        ctx.fail(who + " has " + std::to_string(w.size()) + " values for " + std::to_string(count) + " morph targets");
+    for (size_t i = 0; i < count; ++i) {
+        if (!std::isfinite(w[i])) ctx.fail(who + " has a NaN or infinite value");
+        out[i] = float(w[i]);
+    }
+    return out;
+}
+
+// One VEC3 morph attribute (POSITION or NORMAL) of a target, transformed by m; empty when absent.
+std::vector<glm::dvec3> read_target_attribute(const Ctx& ctx, const std::map<std::string, int>& target,
+                                              const char* attribute, size_t count, const glm::dmat3& m,
+                                              const std::string& who) {
+    auto it = target.find(attribute);
+    if (it == target.end()) return {};
+    const std::string what = who + " " + attribute;
+    AccessorData d = read_typed(ctx, it->second, what, {TINYGLTF_TYPE_VEC3});
+    require_finite(ctx, d, what);
+    if (d.count != count)
+        ctx.fail(what + ": " + std::to_string(d.count) + " elements for " + std::to_string(count) + " vertices");
+    std::vector<glm::dvec3> out(count);
+    for (size_t v = 0; v < count; ++v) out[v] = m * glm::dvec3(d.at(v, 0), d.at(v, 1), d.at(v, 2));
+    return out;
+}
+
+// Morph targets of mesh node `mn` (character node `node`), whose primitives are
+// c.primitives[first_primitive..]: one MorphTarget per target of the mesh.
+void read_morph_targets(Builder& b, const MeshNode& mn, int node, size_t first_primitive) {
+    const Ctx& ctx = b.ctx;
+    Character& c = b.c;
+    const tinygltf::Node& gnode = ctx.model.nodes[size_t(mn.node)];
+    const tinygltf::Mesh& mesh = ctx.model.meshes[size_t(gnode.mesh)];
+    const size_t count = mesh.primitives.empty() ? 0 : mesh.primitives[0].targets.size();
+    for (size_t p = 1; p < mesh.primitives.size(); ++p)
+        if (mesh.primitives[p].targets.size() != count)
+            ctx.fail("mesh " + std::to_string(gnode.mesh) + ": primitive " + std::to_string(p) + " has " +
+                     std::to_string(mesh.primitives[p].targets.size()) + " morph targets, primitive 0 has " +
+                     std::to_string(count) + " (glTF requires the same number)");
+    if (count == 0) {
+        if (!gnode.weights.empty() || !mesh.weights.empty())
+            c.notes.push_back("mesh node " + std::to_string(mn.node) + ": weights given without morph targets (ignored)");
+        return;
+    }
+    const std::vector<std::string> names = target_names(mesh, count);
+    const std::vector<float> weights = default_morph_weights(ctx, mn.node, count);
+    const glm::dmat3 linear(b.rigid);
+    const glm::dmat3 normal_m = glm::inverseTranspose(linear);
+    const size_t base = c.morphs.size();
+    for (size_t t = 0; t < count; ++t) {
+        MorphTarget m;
+        m.name = !names[t].empty() ? names[t]
+                                   : (gnode.name.empty() ? "node " + std::to_string(mn.node) : gnode.name) + " target " +
+                                         std::to_string(t);
+        m.node = node;
+        m.gltf_node = mn.node;
+        m.target = int(t);
+        m.default_weight = weights[t];
+        c.morphs.push_back(std::move(m));
+    }
+    std::vector<char> has_normal(count, 0);  // per target: NORMAL deltas in any primitive
+    for (size_t p = 0; p < mesh.primitives.size(); ++p)
+        for (size_t t = 0; t < count; ++t)
+            if (mesh.primitives[p].targets[t].count("NORMAL")) has_normal[t] = 1;
+    for (size_t p = 0; p < mesh.primitives.size(); ++p) {
+        const PrimitiveRange& range = c.primitives[first_primitive + p];
+        for (size_t t = 0; t < count; ++t) {
+            const std::string who = "mesh " + std::to_string(gnode.mesh) + " primitive " + std::to_string(p) +
+                                    " morph target " + std::to_string(t);
+            const auto& target = mesh.primitives[p].targets[t];
+            const auto dp = read_target_attribute(ctx, target, "POSITION", range.count, linear, who);
+            const auto dn = read_target_attribute(ctx, target, "NORMAL", range.count, normal_m, who);
+            MorphTarget& m = c.morphs[base + t];
+            for (size_t v = 0; v < range.count; ++v) {
+                const glm::dvec3 a = dp.empty() ? glm::dvec3(0.0) : dp[v];
+                const glm::dvec3 n = dn.empty() ? glm::dvec3(0.0) : dn[v];
+                if (a == glm::dvec3(0.0) && n == glm::dvec3(0.0)) continue;
+                m.vertices.push_back(range.first + static_cast<uint32_t>(v));
+                m.position_deltas.emplace_back(a);
+                if (has_normal[t]) m.normal_deltas.emplace_back(n);
+            }
+        }
+    }
+    c.has_morph_targets = true;
+}
+
+// Decodes one animation sampler's times and values for a T/R/S channel, or a
+// weights channel of `weight_count` morph targets.
+void read_sampler(const Ctx& ctx, int a, int s, ChannelPath path, Channel& ch, size_t weight_count = 0) {
     const tinygltf::Animation& anim = ctx.model.animations[size_t(a)];
     if (s < 0 || size_t(s) >= anim.samplers.size())
         ctx.fail("animation " + std::to_string(a) + " channel refers to sampler " + std::to_string(s) +
@@ -868,20 +975,23 @@ void read_sampler(const Ctx& ctx, int a, int s, ChannelPath path, Channel& ch) {
         if (!(float(in.values[k]) > float(in.values[k - 1])))
             ctx.fail(who + ": key times not strictly increasing at key " + std::to_string(k) + " (" +
                      std::to_string(in.values[k - 1]) + " then " + std::to_string(in.values[k]) + ")");
-    AccessorData out = read_typed(ctx, smp.output, who + " output",
-                                  {path == ChannelPath::Rotation ? TINYGLTF_TYPE_VEC4 : TINYGLTF_TYPE_VEC3});
+    const int type = path == ChannelPath::Rotation  ? TINYGLTF_TYPE_VEC4
+                     : path == ChannelPath::Weights ? TINYGLTF_TYPE_SCALAR
+                                                    : TINYGLTF_TYPE_VEC3;
+    AccessorData out = read_typed(ctx, smp.output, who + " output", {type});
     require_finite(ctx, out, who + " output");
-    const size_t per_key = ch.interpolation == Interpolation::CubicSpline ? 3 : 1;
+    const size_t per_key = (ch.interpolation == Interpolation::CubicSpline ? 3 : 1) *
+                           (path == ChannelPath::Weights ? weight_count : 1);
     if (out.count != in.count * per_key)
         ctx.fail(who + ": " + std::to_string(out.count) + " output values for " + std::to_string(in.count) + " keys" +
-                 (per_key == 3 ? " (CUBICSPLINE needs 3 per key)" : ""));
+                 (path == ChannelPath::Weights ? " of " + std::to_string(weight_count) + " morph weights" : "") +
+                 (ch.interpolation == Interpolation::CubicSpline ? " (CUBICSPLINE needs 3 per key)" : ""));
     ch.times.assign(in.values.begin(), in.values.end());
     ch.values.assign(out.values.begin(), out.values.end());
 }
 
 // Clips of the file restricted to the character's nodes (gltf node -> character node via node_index).
 void read_clips(const Ctx& ctx, Character& c, const std::vector<int>& node_index) {
-    bool dropped_weights = false;
     std::set<std::string> unknown_paths;
     for (size_t a = 0; a < ctx.model.animations.size(); ++a) {
         const tinygltf::Animation& anim = ctx.model.animations[a];
@@ -898,10 +1008,9 @@ void read_clips(const Ctx& ctx, Character& c, const std::vector<int>& node_index
                 path = ChannelPath::Rotation;
             else if (src.target_path == "scale")
                 path = ChannelPath::Scale;
-            else if (src.target_path == "weights") {
-                dropped_weights = true;
-                continue;
-            } else {
+            else if (src.target_path == "weights")
+                path = ChannelPath::Weights;
+            else {
                 unknown_paths.insert(src.target_path);
                 continue;
             }
@@ -914,7 +1023,19 @@ void read_clips(const Ctx& ctx, Character& c, const std::vector<int>& node_index
             Channel ch;
             ch.node = node;
             ch.path = path;
-            read_sampler(ctx, int(a), src.sampler, path, ch);
+            if (path == ChannelPath::Weights) {
+                ch.morph_first = -1;
+                for (size_t m = 0; m < c.morphs.size(); ++m)
+                    if (c.morphs[m].gltf_node == src.target_node) {
+                        if (ch.morph_first < 0) ch.morph_first = int(m);
+                        ++ch.morph_count;
+                    }
+                if (ch.morph_first < 0)
+                    ctx.fail("animation " + std::to_string(a) + " channel " + std::to_string(k) +
+                             " animates the morph weights of node " + std::to_string(src.target_node) +
+                             ", which has no morph targets");
+            }
+            read_sampler(ctx, int(a), src.sampler, path, ch, size_t(ch.morph_count));
             clip.start = first ? ch.times.front() : std::min(clip.start, ch.times.front());
             clip.end = first ? ch.times.back() : std::max(clip.end, ch.times.back());
             first = false;
@@ -922,7 +1043,6 @@ void read_clips(const Ctx& ctx, Character& c, const std::vector<int>& node_index
         }
         c.clips.push_back(std::move(clip));
     }
-    if (dropped_weights) c.notes.push_back("morph target weight animation ignored");
     for (const std::string& p : unknown_paths) c.notes.push_back("animation channels with path \"" + p + "\" ignored");
 }
 
@@ -983,7 +1103,9 @@ Character build_character(const Ctx& ctx, const std::vector<int>& skins, const s
     Builder b{ctx, c, table, parent, animated};
     for (const MeshNode& mn : mesh_nodes) {
         const int mesh = ctx.model.nodes[size_t(mn.node)].mesh;
+        const size_t first_primitive = c.primitives.size();
         for (size_t p = 0; p < ctx.model.meshes[size_t(mesh)].primitives.size(); ++p) append_primitive(b, mn, int(p));
+        read_morph_targets(b, mn, node_index[size_t(mn.node)], first_primitive);
     }
     if (!b.any_normals) c.normals.clear();
     if (b.any_normals && b.primitives_without_normals > 0)
@@ -991,7 +1113,6 @@ Character build_character(const Ctx& ctx, const std::vector<int>& skins, const s
                           " primitive(s) without NORMAL: normals set to (0, 0, 1)");
     if (c.renormalised_vertices > 0)
         c.notes.push_back(std::to_string(c.renormalised_vertices) + " vertices had weights not summing to 1 (renormalised)");
-    if (c.has_morph_targets) c.notes.push_back("morph targets ignored");
 
     read_clips(ctx, c, node_index);
     return c;

@@ -6,8 +6,9 @@
 // joint become vertices with weight 1 on that joint. JOINTS_0/1, WEIGHTS_0/1
 // (up to 8 influences), every component type the spec allows, byte strides and
 // sparse accessors are read. Node matrices and TRS, inverse bind matrices
-// (identity when absent), and animation channels (T/R/S; morph weights are
-// ignored and reported) are read.
+// (identity when absent), morph targets (POSITION and NORMAL deltas, default
+// weights from node.weights or mesh.weights, names from extras.targetNames) and
+// animation channels (translation, rotation, scale and morph weights) are read.
 //
 // Any defect throws progskin::Error("<file>: <what is wrong>"): not glTF, no
 // skin, accessor or buffer view out of range, joint index out of range,

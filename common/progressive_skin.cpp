@@ -96,11 +96,14 @@ public:
         S_.resize(F_ * size_t(B_));
         for (size_t f = 0; f < F_; ++f)
             for (int j = 0; j < B_; ++j) S_[f * B_ + j] = to_eigen(fr_.frame(f)[j]);
-        // Reference positions, vertex-major.
+        // Reference positions, vertex-major. The collapse works on constant
+        // bind positions, so its reference is the unmorphed mesh skinned; with
+        // morph targets the final table is measured on the morphed mesh
+        // (build_progressive_skin).
         ref_.resize(V_ * F_);
         std::vector<glm::vec3> tmp(V_);
         for (size_t f = 0; f < F_; ++f) {
-            reference_positions(c_, fr_, f, tmp);
+            skinned_bind_positions(c_, fr_, f, tmp);
             for (size_t v = 0; v < V_; ++v) ref_[v * F_ + f] = Eigen::Vector3d(tmp[v].x, tmp[v].y, tmp[v].z);
         }
         // Initial owners: one entry per distinct joint with non-zero weight.
@@ -537,7 +540,12 @@ ProgressiveSkin build_progressive_skin(const Character& c, const FrameSet& frame
     if (opt.strategy == Strategy::Scratch) throw Error("build_progressive_skin: use build_from_vertices for 'scratch'");
     Collapser col(c, frames, opt);
     col.set_diagonal(rest_diagonal(c));
-    return col.run();
+    ProgressiveSkin s = col.run();
+    // Morph targets: a LOD keeps the frame's morph weights exact, so its error
+    // is the skinning error on the morphed mesh, measured against the full
+    // reference (morphs, then the full skin).
+    if (!c.morphs.empty()) s.error = evaluate_error_table(c, s, frames);
+    return s;
 }
 
 namespace {
@@ -574,7 +582,13 @@ void lod_positions(const Character& c, const ProgressiveSkin& s, const FrameSet&
     PaletteJob pj{s.parents, s.corrections, own, {}, palette};
     if (!pj.validate()) throw Error("lod_positions: invalid progressive skin");
     pj.run();
-    const SkinningJob sj = skinning_job(c, s, palette, out);
+    SkinningJob sj = skinning_job(c, s, palette, out);
+    thread_local std::vector<glm::vec3> morphed;
+    if (!c.morphs.empty()) {  // glTF order: morph targets at the frame's weights, then skinning
+        morphed.resize(c.vertex_count());
+        morph_positions(c, frames.weights(f), morphed);
+        sj.positions = morphed;
+    }
     if (!sj.validate()) throw Error("lod_positions: invalid skinning data");
     sj.run();
 }

@@ -67,7 +67,11 @@ ProgressiveSkin build_progressive_skin(const Character& c, const FrameSet& frame
                                        const BuildOptions& options = {});
 
 // The error table evaluated independently of the build: for every k, the
-// palette (palette.h) and skinning (skinning.h) against the reference.
+// palette (palette.h) and skinning (skinning.h) against the reference. With
+// morph targets both sides use the frame's morph weights (lod_positions), so
+// the table is the skinning error on the morphed mesh. build_progressive_skin
+// returns this table for characters with morph targets (its collapse itself
+// runs on the unmorphed mesh).
 std::vector<LodError> evaluate_error_table(const Character& c, const ProgressiveSkin& s,
                                            const FrameSet& frames);
 
@@ -79,7 +83,8 @@ SkinningJob skinning_job(const Character& c, const ProgressiveSkin& s, std::span
 // full-detail reference when given the character's skinning matrices.
 SkinningJob skinning_job(const Character& c, std::span<const Mat34> palette, std::span<glm::vec3> out_positions);
 
-// Reconstructed vertices at frame f with k bones (copy-down with corrections).
+// Reconstructed vertices at frame f with k bones (copy-down with corrections),
+// morph targets applied at the frame's exact weights before skinning.
 void lod_positions(const Character& c, const ProgressiveSkin& s, const FrameSet& frames, size_t f,
                    int k, std::span<glm::vec3> out);
 

@@ -454,6 +454,37 @@ VertexAnimation load_gltf_skinned_as_vertices(const std::string& path, const Ver
     return a;
 }
 
+std::vector<SourcePrimitive> gltf_source_primitives(const std::string& path, int character) {
+    if (!(ends_with_ci(path, ".gltf") || ends_with_ci(path, ".glb"))) return {};
+    Gltf g;
+    g.path = path;
+    load(g);
+    std::vector<SourcePrimitive> out;
+    bool skinned = false;
+    for (const auto& n : g.m.nodes)
+        if (n.skin >= 0 && n.mesh >= 0) skinned = true;
+    if (skinned) {
+        for (const PrimitiveRange& r : import_character(path, character).primitives)
+            out.push_back({r.node, r.mesh, r.primitive, r.first, r.count});
+        return out;
+    }
+    uint32_t first = 0;
+    for (size_t ni = 0; ni < g.m.nodes.size(); ++ni) {  // as load_gltf_morph_animation
+        const auto& node = g.m.nodes[ni];
+        if (node.mesh < 0 || size_t(node.mesh) >= g.m.meshes.size()) continue;
+        const auto& mesh = g.m.meshes[size_t(node.mesh)];
+        for (size_t pi = 0; pi < mesh.primitives.size(); ++pi) {
+            auto it = mesh.primitives[pi].attributes.find("POSITION");
+            if (it == mesh.primitives[pi].attributes.end()) continue;
+            if (it->second < 0 || size_t(it->second) >= g.m.accessors.size()) g.fail("bad POSITION accessor");
+            const uint32_t count = uint32_t(g.m.accessors[size_t(it->second)].count);
+            out.push_back({int(ni), node.mesh, int(pi), first, count});
+            first += count;
+        }
+    }
+    return out;
+}
+
 VertexAnimation load_vertex_animation(const std::string& path, const VertexAnimationOptions& o) {
     if (ends_with_ci(path, ".pc2")) return load_pc2(path);
     // A glTF with a skin is evaluated as skinned vertices, else as morph targets.

@@ -61,6 +61,18 @@ void save_pc2(const VertexAnimation& anim, const std::string& path, float start_
 VertexAnimation load_gltf_morph_animation(const std::string& path, double fps = 30.0);
 VertexAnimation load_gltf_skinned_as_vertices(const std::string& path, const VertexAnimationOptions& options = {});
 
+// Where each run of a glTF input's vertices came from, in the order the
+// loaders above merge them: mesh nodes by node index, then primitives (only
+// those with POSITION; for a skinned input, those of character `character`,
+// import_character's order). Lets an exporter keep per-primitive data the
+// vertex animation does not carry (materials, UVs, colours, names). Empty
+// for PC2 and for files that are not glTF. Throws Error as the loaders do.
+struct SourcePrimitive {
+    int node = -1, mesh = -1, primitive = -1;  // glTF indices in the source file
+    uint32_t first = 0, count = 0;             // vertex range in the animation
+};
+std::vector<SourcePrimitive> gltf_source_primitives(const std::string& path, int character = 0);
+
 // Bounding-box diagonal of frame f.
 double frame_diagonal(const VertexAnimation& anim, size_t f = 0);
 

@@ -15,3 +15,11 @@ if ((${#missing[@]})); then
   $SUDO apt-get update -qq
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${missing[@]}" >/dev/null
 fi
+# The Khronos glTF validator for tests/test_gltf_validator.cpp (npm, pinned in
+# scripts/gltf_validator/package.json); the test skips, saying so, without it.
+validator_dir="$(cd "$(dirname "$0")" && pwd)/gltf_validator"
+if command -v npm >/dev/null 2>&1 && [ ! -d "$validator_dir/node_modules/gltf-validator" ]; then
+  echo "setup: installing the glTF validator (npm ci in scripts/gltf_validator)" >&2
+  (cd "$validator_dir" && npm ci --no-audit --no-fund >/dev/null 2>&1) ||
+    echo "setup: npm ci failed (offline?); tests/test_gltf_validator.cpp will be skipped" >&2
+fi

@@ -113,11 +113,19 @@ void RateController::update(double now) {
         --hold_;  // let the last back-off take effect before judging again
     } else if ((judged >= 4 && loss_ > 0.20) || delay_growth) {
         hold_ = 2;
+        slow_start_ = false;
         double e = estimate_kbps_ * 0.8;
         if (delivered_kbps > 0) e = std::min(e, 0.95 * delivered_kbps);  // straight to what got through
         estimate_kbps_ = std::max(kMinKbps, e);
     } else if (limited_) {
-        estimate_kbps_ = std::min(cap_kbps_, estimate_kbps_ * 1.10 + 4.0);
+        // Slow start: double while the client keeps up with what was sent
+        // (at least half of the target acknowledged in the window; acks lag
+        // by one RTT, so not all of it).
+        if (slow_start_ && judged >= 4 && delivered_kbps < 0.5 * target_kbps()) slow_start_ = false;
+        if (slow_start_ && judged >= 4)
+            estimate_kbps_ = std::min(cap_kbps_, estimate_kbps_ * 2.0);
+        else
+            estimate_kbps_ = std::min(cap_kbps_, estimate_kbps_ * 1.10 + 4.0);
     }
     // Let the minimum RTT forget after ~10 s so a changed path is learnt.
     min_rtt_age_ += 0.25;

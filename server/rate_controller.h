@@ -2,8 +2,12 @@
 // and an estimate that adapts to measured loss and delay (multiplicative back
 // off, to at most 95% of the rate the client acknowledged, on loss > 20% or on
 // RTT growing 25 ms / 50% above its minimum, then hold for two
-// windows; probe up
-// by 10% per 250 ms otherwise while the budget is used), never above the cap.
+// windows; probe up otherwise while the budget is used), never above the cap.
+// Probing starts in slow start, as TCP's: the estimate doubles every 250 ms
+// window in which the budget was used and the client acknowledged at least
+// half of the window's target, until the first loss or delay back-off (or a
+// window whose deliveries fall short); from then on it grows by 10% + 4
+// kbit/s per window.
 //
 // Pacing is a token bucket in wire bytes: 10% of a second of the target deep,
 // or 470 bytes on slow links (below 60 kbit/s: fewer, fuller datagrams, so
@@ -41,6 +45,10 @@ public:
     double estimate_kbps() const { return estimate_kbps_; }
     double target_kbps() const { return estimate_kbps_ < cap_kbps_ ? estimate_kbps_ : cap_kbps_; }
     double loss() const { return loss_; }       // last window's loss fraction
+    bool in_slow_start() const { return slow_start_; }
+    // Off: probe by 10% per window from the start (the behaviour before slow
+    // start, kept for comparisons; tests/test_net_rate.cpp).
+    void set_slow_start(bool on) { slow_start_ = on; }
     double rtt_ms() const { return srtt_ms_; }
     uint64_t acked() const { return acked_total_; }
     uint64_t lost() const { return lost_total_; }
@@ -63,6 +71,7 @@ private:
     double loss_ = 0, srtt_ms_ = 0, min_rtt_ms_ = 1e9, min_rtt_age_ = 0;
     double last_update_ = -1;
     int hold_ = 0;  // windows to wait after a back-off
+    bool slow_start_ = true;  // doubling until the first back-off or short delivery
 };
 
 }  // namespace progskin::net

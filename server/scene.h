@@ -5,6 +5,7 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
@@ -38,6 +39,10 @@ struct ServerAsset {
     // the lower convex hull of the squared error table e(k)^2. Each table has
     // one entry per clip selection (what an instance plays) and a last one
     // over all of them (live poses).
+    // These tables are stored in progressive files and the server's cache
+    // (server_tables_json): whoever changes what they hold or how
+    // finish_server_asset computes them must bump kServerTablesVersion, so
+    // that stale stored tables are recomputed instead of read.
     static constexpr int kGapTable = 17;
     struct Segment {
         int from = 0, to = 1;
@@ -63,16 +68,77 @@ struct ServerAsset {
     };
     std::vector<Segment> segments;
     double bind_radius = 0;          // max |bind-space position|
+    // What the stream does not carry that the file has (e.g. morph targets),
+    // one line each, for the server to print on stderr.
+    std::vector<std::string> warnings;
     double max_scale = 1;            // of the skinning matrices over the training frames
     int bone_count() const { return skin.bone_count(); }
 };
 
-// Loads a glTF (progressive or plain: a plain file's skin is built here with
-// build_progressive_skin on its default training set at 30 fps). Throws Error.
+// Loads character 0 of a glTF (progressive or plain: a plain file's skin is
+// built here with build_progressive_skin on its default training set at 30
+// fps). Throws Error.
 std::shared_ptr<ServerAsset> load_server_asset(const std::string& path);
+
+// How progskin-server turns its --asset arguments into assets: first
+// check_server_assets (import and size checks of every file, nothing built),
+// then build_server_asset per character (the expensive part).
+struct AssetOptions {
+    bool from_vertices = false;  // files without a skin: build one from their vertex animation
+    int scratch_bones = 16;      // bones of such a build (progskin build --from-vertices --bones)
+    std::string cache_dir;       // derived files (server_cache_dir() when empty)
+};
+// $XDG_CACHE_HOME/progskin, else $HOME/.cache/progskin, else ./progskin-cache.
+std::string server_cache_dir();
+
+// One character to serve, checked but not built.
+struct PendingAsset {
+    std::string path;             // the file
+    std::string label;            // "file.glb", or "file.glb#N" when the file holds several characters
+    int character = 0;            // index in the file (import_gltf order)
+    int characters_in_file = 1;
+    bool from_vertices = false;   // no skin: a skin is built from the vertex animation
+    Character imported;           // the imported character (empty when from_vertices)
+    ProgressiveSkin skin;         // read from the file's extension when progressive
+    bool progressive = false;
+    nlohmann::json extension;     // the file's extension object (its "server" tables, if any)
+};
+
+// Checks every --asset argument (FILE: every character of the file; FILE#N:
+// character N) before anything expensive is built: the file imports, it has a
+// skin (else the message names `progskin build --from-vertices`, unless
+// options.from_vertices), the index exists, bones fit the wire (MAX_BONES),
+// the character has vertices, its clips fit the sampling limit, a progressive
+// extension decodes. Returns every problem found, one line each naming the
+// file (empty: all fine); `out` gets one PendingAsset per character to serve.
+std::vector<std::string> check_server_assets(const std::vector<std::string>& args, const AssetOptions& options,
+                                             std::vector<PendingAsset>& out);
+// Builds what a checked character needs to be served. A progressive file's
+// skin and stored server tables are used as they are (tables missing or of
+// another version are recomputed, with a warning). A plain file is built once:
+// its progressive skin and tables are cached as <cache>/<content hash>-c<N>-t<version>.glb
+// and read from there on later starts. Characters other than the file's first
+// are served as a copy of the file with their skins first (cached too), since
+// a client plays character 0 of the file it downloads. A file without a skin
+// (options.from_vertices) is built into <cache>/<content hash>-scratch<bones>.glb
+// once, its tables kept beside it. Throws Error.
+std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const AssetOptions& options);
 // Builds the derived fields (format, hull, motion...) of an asset whose
 // character and skin are set; used by load_server_asset and by tests.
 void finish_server_asset(ServerAsset& a);
+// What finish_server_asset derives (diagonal, format, motion, bind_radius,
+// max_scale and the segment tables), as JSON: `progskin build` stores it in
+// the PROGSKIN_progressive_skin extension under "server", and the server's
+// cache of plain files keeps it, so that loading builds nothing. Versioned
+// (kServerTablesVersion): tables of another version are not used.
+inline constexpr int kServerTablesVersion = 1;
+nlohmann::json server_tables_json(const ServerAsset& a);
+// Sets those fields of `a` (character, skin and selections already set) from
+// server_tables_json output. Returns false, leaving `a` as it was and saying
+// why in *why, when the JSON is absent, of another version, or does not fit
+// the asset (bone count, selections, segment layout); throws nothing.
+bool read_server_tables(const nlohmann::json& j, ServerAsset& a, std::string* why = nullptr);
+
 // The lower convex hull of the points (k, e[k - 1]), k = 1..B, as steps.
 std::vector<HullStep> error_hull(const std::vector<double>& e);
 

@@ -26,7 +26,13 @@ static const char* kUsage =
     "                    same number unless --udp-port is given\n"
     "  --udp-port P      UDP frame stream port\n"
     "  --bind ADDR       address to listen on (default 0.0.0.0)\n"
-    "  --asset FILE ...  glTF/glb characters (progressive or plain; repeatable)\n"
+    "  --asset FILE ...  glTF/glb characters (progressive or plain; repeatable): every\n"
+    "                    character of FILE, or FILE#N for character N only. Every file is\n"
+    "                    checked before anything is built; all problems are listed together\n"
+    "  --from-vertices   serve files without a skin (morph-target animation, PC2) by building\n"
+    "                    a skin from their vertex animation (as progskin build --from-vertices)\n"
+    "  --bones N         bones of such a build (default 16)\n"
+    "  --cache DIR       derived files (default $XDG_CACHE_HOME/progskin or ~/.cache/progskin)\n"
     "  --crowd N         lay out N instances over the assets and their clips (default:\n"
     "                    one instance per asset and clip group)\n"
     "  --no-scene        host a catalogue only: no server-driven instances (players spawn\n"
@@ -55,6 +61,7 @@ int main(int argc, char** argv) {
     ServerConfig cfg;
     cfg.port = 7777;
     std::vector<std::string> asset_paths;
+    AssetOptions asset_options;
     int crowd = 0;
     double duration = 0;
     bool no_scene = false, once = false;
@@ -78,6 +85,9 @@ int main(int argc, char** argv) {
                 asset_paths.push_back(need(i));
                 while (i + 1 < argc && argv[i + 1][0] != '-') asset_paths.push_back(argv[++i]);  // --asset A B C
             }
+            else if (a == "--from-vertices") asset_options.from_vertices = true;
+            else if (a == "--bones") asset_options.scratch_bones = cli::to_int(a, need(i));
+            else if (a == "--cache") asset_options.cache_dir = need(i);
             else if (a == "--crowd") crowd = cli::to_int(a, need(i));
             else if (a == "--no-scene") no_scene = true;
             else if (a == "--play") {
@@ -108,7 +118,8 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "progskin-server: %s\n%s", e.what(), kUsage);
         return 2;
     }
-    if (!(cfg.tick_rate > 0 && cfg.tick_rate <= 240) || crowd < 0 || cfg.max_clients < 1 || cfg.max_kbps <= 0) {
+    if (!(cfg.tick_rate > 0 && cfg.tick_rate <= 240) || crowd < 0 || cfg.max_clients < 1 || cfg.max_kbps <= 0 ||
+        asset_options.scratch_bones < 1 || asset_options.scratch_bones > MAX_BONES) {
         std::fprintf(stderr, "progskin-server: argument out of range\n%s", kUsage);
         return 2;
     }
@@ -118,14 +129,27 @@ int main(int argc, char** argv) {
             auto slash = exe.rfind('/');
             asset_paths = default_asset_paths(slash == std::string::npos ? "." : exe.substr(0, slash));
         }
+        // Check every file first (cheap), so that one bad file is reported at once,
+        // together with every other problem, before minutes of building.
+        std::vector<PendingAsset> pending;
+        const std::vector<std::string> problems = check_server_assets(asset_paths, asset_options, pending);
+        if (!problems.empty()) {
+            for (const std::string& p : problems) std::fprintf(stderr, "progskin-server: error: %s\n", p.c_str());
+            std::fprintf(stderr, "progskin-server: %zu problem%s in the assets; nothing was built\n", problems.size(),
+                         problems.size() == 1 ? "" : "s");
+            return 1;
+        }
         std::vector<std::shared_ptr<ServerAsset>> assets;
-        for (const auto& p : asset_paths) {
-            std::fprintf(stderr, "progskin-server: loading %s\n", p.c_str());
-            assets.push_back(load_server_asset(p));
+        for (const auto& p : pending) {
+            std::fprintf(stderr, "progskin-server: loading %s%s%s\n", p.path.c_str(),
+                         p.characters_in_file > 1 ? (" character " + std::to_string(p.character)).c_str() : "",
+                         p.from_vertices ? " (building a skin from its vertex animation)" : "");
+            assets.push_back(build_server_asset(p, asset_options));
             const auto& a = *assets.back();
             std::fprintf(stderr, "progskin-server:   %s: %d bones, %zu vertices, %zu clip groups, id %s, %zu bytes\n",
                          a.name.c_str(), a.bone_count(), a.character.vertex_count(), a.selections.size(),
                          hex64(a.id).c_str(), a.bytes.size());
+            for (const std::string& w : a.warnings) std::fprintf(stderr, "progskin-server: warning: %s\n", w.c_str());
         }
         std::vector<InstanceSpec> instances;
         if (no_scene) {

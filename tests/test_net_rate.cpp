@@ -4,7 +4,9 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <deque>
+#include <vector>
 
 #include "rate_controller.h"
 #include "wire.h"
@@ -50,4 +52,93 @@ TEST(NetRate, PacingStaysUnderTheCapAndSlowLinksGetFullerDatagrams) {
         }
         EXPECT_GT(datagrams, 0u);
     }
+}
+
+namespace {
+
+// Seconds until an unlimited link carries 90% of what the sender wants
+// (demand_kbps), starting from the server's initial estimate (1 Mbit/s): 30
+// ticks per second, the sender sends min(budget, demand) in datagrams of at
+// most MAX_DATAGRAM, every datagram acknowledged 2 ms later (the next tick).
+// Measured over sliding 250 ms windows of delivered bytes.
+double seconds_to_90_percent(double demand_kbps, bool slow_start) {
+    RateController rc(50000, 1000);
+    rc.set_slow_start(slow_start);
+    const double tick = 1.0 / 30.0;
+    uint32_t seq = 0;
+    std::vector<uint32_t> to_ack;
+    std::deque<size_t> window;  // bytes per tick, last 7.5 ticks ~ 250 ms
+    size_t window_bytes = 0;
+    double demand_bytes = demand_kbps * 125.0 * tick, backlog = 0;
+    for (int t = 0; t < 30 * 20; ++t) {
+        const double now = t * tick;
+        const uint32_t now_us = uint32_t(now * 1e6);
+        // Acks of the previous tick's datagrams (one cumulative ack with bits).
+        if (!to_ack.empty()) {
+            const uint32_t last = to_ack.back();
+            uint32_t bits = 0;
+            for (uint32_t s : to_ack)
+                if (s != last && last - s <= 32) bits |= 1u << (last - s - 1);
+            rc.on_ack(last, bits, now_us - 2000, 0, now_us);
+            to_ack.clear();
+        }
+        rc.update(now);
+        rc.refill(tick);
+        backlog = demand_bytes;  // what this tick's frame holds; the rest waits for the next tick
+        size_t sent = 0;
+        for (size_t b = rc.budget(); b > 0 && backlog > 0; b = rc.budget()) {
+            const size_t d = size_t(std::min({double(b), double(MAX_DATAGRAM + UDP_IP_OVERHEAD), backlog}));
+            if (d == 0) break;
+            rc.spend(d);
+            rc.on_sent(++seq, now_us, d);
+            to_ack.push_back(seq);
+            sent += d;
+            backlog -= double(d);
+        }
+        if (backlog > 1) rc.mark_limited();
+        window.push_back(sent);
+        window_bytes += sent;
+        if (window.size() > 8) {
+            window_bytes -= window.front();
+            window.pop_front();
+        }
+        const double rate_kbps = double(window_bytes) * 8.0 / 1000.0 / (double(window.size()) * tick);
+        if (window.size() == 8 && rate_kbps >= 0.9 * demand_kbps) return now;
+    }
+    return 1e9;
+}
+
+}  // namespace
+
+TEST(NetRate, SlowStartReachesAnUnlimitedLinkFast) {
+    for (double demand : {2300.0, 10000.0}) {
+        const double before = seconds_to_90_percent(demand, false);
+        const double after = seconds_to_90_percent(demand, true);
+        std::printf("unlimited link, sender wants %.0f kbit/s: 90%% after %.2f s with slow start, %.2f s without\n",
+                    demand, after, before);
+        EXPECT_LT(after, before);
+        EXPECT_LE(after, 1.5) << demand;
+    }
+}
+
+TEST(NetRate, SlowStartEndsAtTheFirstLoss) {
+    RateController rc(50000, 1000);
+    ASSERT_TRUE(rc.in_slow_start());
+    uint32_t seq = 0;
+    // A window in which nothing is acknowledged but later datagrams are: loss.
+    for (int t = 0; t < 15; ++t) {
+        rc.refill(1.0 / 30.0);
+        for (size_t b = rc.budget(); b > 0; b = rc.budget()) {
+            const size_t d = std::min(b, MAX_DATAGRAM + UDP_IP_OVERHEAD);
+            rc.spend(d);
+            rc.on_sent(++seq, uint32_t(t * 33333), d);
+        }
+        rc.mark_limited();
+        rc.update(t / 30.0);
+    }
+    rc.on_ack(seq, 0, uint32_t(14 * 33333), 0, uint32_t(15 * 33333));  // only the newest arrived
+    const double before = rc.estimate_kbps();
+    rc.update(1.0);
+    EXPECT_FALSE(rc.in_slow_start());
+    EXPECT_LT(rc.estimate_kbps(), before);
 }

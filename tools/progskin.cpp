@@ -36,6 +36,10 @@ using progskin::cli::to_int;
 using progskin::cli::to_number;
 using progskin::cli::UsageError;
 
+#ifdef PROGSKIN_HAVE_NET
+#include "scene.h"
+#endif
+
 #ifdef PROGSKIN_HAVE_RENDER
 int render_command(int argc, char** argv);  // render/render_command.cpp
 #endif
@@ -69,7 +73,8 @@ usage:
       scale uniformly. The output plays in any glTF viewer (rigid TRS joint
       animation) and carries the error table (strategy "scratch").
   progskin inspect FILE [--json] [--clip SPEC] [--fps 30] [--character N] [--plot OUT.svg]
-      Joints, vertices, clips and the error table k -> RMS / max error (units
+      Lists every character of FILE (one per skeleton); for character N
+      (default 0): joints, vertices, clips, morph targets and the error table k -> RMS / max error (units
       and % of the rest bounding-box diagonal) and mean distinct influences per
       vertex. For a plain glTF it builds and compares the strategies reorder,
       flatten and leaf_prune (naive baseline: deepest bones first, plain copy).
@@ -151,6 +156,27 @@ ProgressiveSkin build_with_progress(const Character& c, const FrameSet& frames, 
     Progress p(quiet, std::string("build ") + strategy_name(st));
     opt.progress = [&p](int s, int t) { p(s, t); };
     return build_progressive_skin(c, frames, opt);
+}
+
+// The server's tables of a built skin (server/scene.h), stored in the
+// extension so that progskin-server reads instead of computing them; null
+// when progskin is built without the streaming library.
+json server_tables(const Character& c, const ProgressiveSkin& s, const std::string& path) {
+#ifdef PROGSKIN_HAVE_NET
+    net::ServerAsset a;
+    a.path = path;
+    a.character = c;
+    a.skin = s;
+    a.selections = default_training_set(c);
+    if (a.selections.empty()) a.selections.push_back(ClipSelection{});
+    net::finish_server_asset(a);
+    json extra;
+    extra["server"] = net::server_tables_json(a);
+    return extra;
+#else
+    (void)c, (void)s, (void)path;
+    return json::object();
+#endif
 }
 
 int character_arg(const Args& a) { return a.has("--character") ? to_int("--character", a.get("--character")) : 0; }
@@ -235,8 +261,25 @@ int cmd_build(int argc, char** argv) {
     if (!quiet)
         std::fprintf(stderr, "%s: %zu joints, %zu vertices, %zu frames at %g fps\n", a.positional[0].c_str(),
                      c.joint_count(), c.vertex_count(), frames.frame_count(), fps);
+    if (!c.morphs.empty() && !quiet)
+        std::fprintf(stderr,
+                     "%s: %zu morph targets: kept in the output and evaluated before skinning; the error table is "
+                     "the skinning error on the morphed mesh\n",
+                     a.positional[0].c_str(), c.morphs.size());
     const ProgressiveSkin s = build_with_progress(c, frames, st, !a.has("--plain-copy"), quiet);
-    save_progressive(c, s, a.get("-o"));
+    json extra = server_tables(c, s, a.positional[0]);
+    // What the error table was measured on (GUIDE.md §2: a table is only comparable with its frames).
+    extra["fps"] = fps;
+    extra["clips"] = a.get("--clip", "auto");
+    extra["training"] = json::array();
+    for (const ClipSelection& sel : training_set(c, a.get("--clip"))) {
+        json names = json::array();
+        for (int i : sel.clips) names.push_back(c.clips[size_t(i)].name);
+        extra["training"].push_back(names);
+    }
+    extra["frames"] = frames.frame_count();
+    extra["source"] = std::filesystem::path(a.positional[0]).filename().string();
+    save_progressive(c, s, a.get("-o"), "", extra);
     if (!quiet) {
         print_table(std::string("progressive skin, strategy ") + strategy_name(st), s.error, s.diagonal);
         std::printf("\nwrote %s\n", a.get("-o").c_str());
@@ -254,21 +297,58 @@ int cmd_inspect(int argc, char** argv) {
     const bool as_json = a.has("--json");
     const double fps = a.has("--fps") ? to_number("--fps", a.get("--fps")) : 30.0;
     if (fps <= 0 || fps > 1000) throw UsageError("--fps must be in (0, 1000]");
-    const ProgressiveAsset asset = load_progressive(a.positional[0], character_arg(a));
+    // Every character of the file (listed), the one of --character (default 0) in detail.
+    std::vector<Character> all = import_gltf(a.positional[0]);
+    const int index = character_arg(a);
+    if (index < 0 || size_t(index) >= all.size())
+        throw Error(a.positional[0] + ": no character " + std::to_string(index) + " (the file has " +
+                    std::to_string(all.size()) + (all.size() == 1 ? " character)" : " characters)"));
+    json characters = json::array();
+    for (size_t i = 0; i < all.size(); ++i)
+        characters.push_back({{"index", i},
+                              {"name", all[i].name},
+                              {"joints", all[i].joint_count()},
+                              {"vertices", all[i].vertex_count()},
+                              {"clips", all[i].clips.size()},
+                              {"morph_targets", all[i].morphs.size()}});
+    ProgressiveAsset asset;
+    asset.character = std::move(all[size_t(index)]);
+    json ext;
+    asset.progressive = read_progressive_extension(a.positional[0], asset.character, asset.skin, &ext);
     const Character& c = asset.character;
-    const double diag = rest_diagonal(c);
+    // One diagonal: the one the table's percentages use (a progressive file's
+    // stored diagonal; for --from-vertices outputs that of the vertex animation).
+    const double rest_diag = rest_diagonal(c);
+    const double diag = asset.progressive && asset.skin.diagonal > 0 ? asset.skin.diagonal : rest_diag;
     json out;
     out["file"] = a.positional[0];
+    out["character"] = index;
+    out["characters"] = characters;
     out["joints"] = c.joint_count();
     out["vertices"] = c.vertex_count();
     out["diagonal"] = diag;
+    out["rest_diagonal"] = rest_diag;
+    if (asset.progressive) {  // what the stored table was measured on, when the file says
+        for (const char* key : {"fps", "clips", "training", "frames", "source"})
+            if (ext.contains(key)) out["table_" + std::string(key)] = ext[key];
+    }
     out["influences_per_vertex"] = c.influences;
     out["clips"] = json::array();
     for (const Clip& cl : c.clips)
         out["clips"].push_back({{"name", cl.name}, {"start", cl.start}, {"end", cl.end},
                                 {"channels", cl.channels.size()}});
     out["renormalised_vertices"] = c.renormalised_vertices;
-    out["morph_targets_ignored"] = c.has_morph_targets;
+    out["morph_targets_ignored"] = false;  // evaluated by import, pose and the error tables
+    out["morph_targets_streamed"] = false; // the wire carries bones only (yet)
+    out["morph_targets"] = json::array();
+    const std::vector<double> importance = morph_importance(c);
+    for (size_t m = 0; m < c.morphs.size(); ++m)
+        out["morph_targets"].push_back({{"name", c.morphs[m].name},
+                                        {"node", c.morphs[m].gltf_node},
+                                        {"target", c.morphs[m].target},
+                                        {"default_weight", c.morphs[m].default_weight},
+                                        {"vertices", c.morphs[m].vertices.size()},
+                                        {"importance", importance[m]}});
     out["notes"] = c.notes;
     out["progressive"] = asset.progressive;
     out["strategies"] = json::object();
@@ -294,14 +374,36 @@ int cmd_inspect(int argc, char** argv) {
         std::cout << out.dump(2) << "\n";
         return 0;
     }
-    std::printf("%s\n  joints %zu, vertices %zu, %d influence slots per vertex, diagonal %.6g\n",
-                a.positional[0].c_str(), c.joint_count(), c.vertex_count(), c.influences, diag);
+    std::printf("%s\n", a.positional[0].c_str());
+    if (characters.size() > 1) {
+        std::printf("  %zu characters (--character N picks one; progskin-server serves FILE#N):\n", characters.size());
+        for (const json& ch : characters)
+            std::printf("  %s #%d \"%s\": %d joints, %d vertices, %d clips, %d morph targets\n",
+                        ch["index"].get<int>() == index ? "*" : " ", ch["index"].get<int>(),
+                        ch["name"].get<std::string>().c_str(), ch["joints"].get<int>(), ch["vertices"].get<int>(),
+                        ch["clips"].get<int>(), ch["morph_targets"].get<int>());
+        std::printf("  character %d:\n", index);
+    }
+    std::printf("  joints %zu, vertices %zu, %d influence slots per vertex, diagonal %.6g\n", c.joint_count(),
+                c.vertex_count(), c.influences, diag);
     std::printf("  clips:");
     for (const Clip& cl : c.clips) std::printf(" \"%s\" (%.3g-%.3g s)", cl.name.c_str(), cl.start, cl.end);
     std::printf("\n");
     for (const std::string& n : c.notes) std::printf("  note: %s\n", n.c_str());
-    if (c.has_morph_targets) std::printf("  note: morph targets are ignored\n");
+    if (!c.morphs.empty()) {
+        std::printf("  morph targets: %zu (evaluated before skinning in pose and the error tables; the server does "
+                    "not stream their weights yet)\n",
+                    c.morphs.size());
+        for (size_t m = 0; m < c.morphs.size(); ++m)
+            std::printf("    \"%s\" node %d target %d: default weight %g, %zu vertices, importance %.4g (RMS units "
+                        "per unit weight)\n",
+                        c.morphs[m].name.c_str(), c.morphs[m].gltf_node, c.morphs[m].target,
+                        double(c.morphs[m].default_weight), c.morphs[m].vertices.size(), importance[m]);
+    }
     std::printf("  %s\n", asset.progressive ? "progressive skin (PROGSKIN_progressive_skin)" : "plain glTF skin");
+    if (ext.contains("fps") && ext.contains("training"))
+        std::printf("  table measured on %s at %g fps (%s frames)\n", ext["training"].dump().c_str(),
+                    ext["fps"].get<double>(), ext.contains("frames") ? ext["frames"].dump().c_str() : "?");
     for (const auto& [name, t] : tables) print_table("strategy " + name, t, diag);
     return 0;
 }
@@ -331,13 +433,7 @@ int cmd_pose(int argc, char** argv) {
     } else {
         sel = select_clips(c, spec);
     }
-    FrameSet one;
-    one.joint_count = B;
-    one.times = {t};
-    one.selection_of_frame = {0};
-    std::vector<glm::dmat4> m(static_cast<size_t>(B));
-    sample_skinning_matrices(c, sel, t, m);
-    for (const auto& x : m) one.skinning.push_back(Mat34::from_glm(x));
+    const FrameSet one = sample_pose(c, sel, t);  // bones and morph weights at exactly t
     if (!asset.progressive && k < B) {
         asset.skin = build_with_progress(c, sample_frames(c, default_training_set(c), 30.0), Strategy::Reorder, true,
                                          true);

@@ -18,10 +18,12 @@ const assetsDir = path.resolve(process.argv[2] ?? path.join(here, '../../assets'
 const outDir = path.resolve(process.argv[3] ?? path.join(here, '../../tests/data/threejs'));
 
 // clip: progskin --clip spec (select_clips); names: the three.js clips played together.
+// dir: the file's folder relative to the repository root (default: the assets dir).
 const jobs = [
   { file: 'RiggedSimple.gltf', clip: 'all' },
   { file: 'CesiumMan.glb', clip: 'all' },
   { file: 'Fox.glb', clip: 'Survey' },
+  { file: 'skinned_morph.gltf', clip: 'talk', dir: 'tests/data' },
 ];
 const requestedTimes = [0.0, 0.37, 1.1];
 
@@ -76,7 +78,9 @@ function orderedMeshes(gltf) {
   return list;
 }
 
-// World-space positions of all listed meshes as rendered by three.js. In AttachedBindMode
+// World-space positions of all listed meshes as rendered by three.js. getVertexPosition
+// applies the morph targets at the mesh's morphTargetInfluences and then, for a skinned
+// mesh, applyBoneTransform (glTF order: morphs, then skinning). In AttachedBindMode
 // bindMatrixInverse = inverse(matrixWorld), so matrixWorld * applyBoneTransform(v) is
 // sum w * G * IBM * v: the skinned mesh node's own transform cancels, as glTF requires.
 function worldPositions(list) {
@@ -85,8 +89,7 @@ function worldPositions(list) {
   for (const { mesh } of list) {
     const pos = mesh.geometry.attributes.position;
     for (let i = 0; i < pos.count; ++i) {
-      v.fromBufferAttribute(pos, i);
-      if (mesh.isSkinnedMesh) mesh.applyBoneTransform(i, v);
+      mesh.getVertexPosition(i, v);
       v.applyMatrix4(mesh.matrixWorld);
       out.push(v.x, v.y, v.z);
     }
@@ -97,7 +100,7 @@ function worldPositions(list) {
 const round6 = (x) => Number(x.toPrecision(6));
 
 async function run(job) {
-  const gltf = await parseGltf(path.join(assetsDir, job.file));
+  const gltf = await parseGltf(path.join(job.dir ? path.join(here, '../..', job.dir) : assetsDir, job.file));
   const clips = job.clip === 'all' ? gltf.animations : gltf.animations.filter((c) => c.name === job.clip);
   if (clips.length === 0) throw new Error(`${job.file}: no clip ${job.clip}`);
   let start = Infinity, end = -Infinity;

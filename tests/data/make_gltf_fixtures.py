@@ -9,6 +9,10 @@ Outputs (next to this script):
   multi_skin.gltf         five skins: four form one skeleton (shared and top-most joints,
                           a duplicate node with another inverse bind matrix), one is a
                           second character; a mesh rigidly parented to a joint
+  skinned_morph.gltf      a skinned face with morph targets (dense, sparse, with NORMAL deltas)
+                          over two primitives, mesh and node default weights, a rigid hat
+                          with its own target; clips animate weights (CUBICSPLINE, STEP)
+                          together with a joint (three.js reference: tests/data/threejs)
   external_buffer.gltf/.bin, basic.glb   the basic character in the other containers
   broken/*                one defect each (see BROKEN below)
 Only the standard library is used; the output is deterministic.
@@ -273,6 +277,88 @@ def multi_skin():
     write_json('multi_skin.gltf', g.finish())
 
 
+def skinned_morph():
+    g = Gltf()
+    g.node(name='root', children=[1])                                                     # 0 joint
+    g.node(name='neck', translation=[0, 1, 0], children=[2])                              # 1 joint
+    g.node(name='head', translation=[0, 1, 0], children=[4])                              # 2 joint
+    g.node(name='face', mesh=0, skin=0)                                                   # 3 skinned
+    g.node(name='hat', translation=[0, 0.5, 0], rotation=list(quat_z(30)), mesh=1, weights=[0.6])  # 4 rigid
+
+    def blend(y):
+        # (joint, weight) pairs along the column: root below 1, neck 1..2, head above 2.
+        if y <= 0.75:
+            return (0, 0, 0, 0), (1.0, 0.0, 0.0, 0.0)
+        if y < 1.25:
+            a = (y - 0.75) / 0.5
+            return (0, 1, 0, 0), (1 - a, a, 0.0, 0.0)
+        if y <= 1.75:
+            return (1, 0, 0, 0), (1.0, 0.0, 0.0, 0.0)
+        if y < 2.25:
+            a = (y - 1.75) / 0.5
+            return (1, 2, 0, 0), (1 - a, a, 0.0, 0.0)
+        return (2, 0, 0, 0), (1.0, 0.0, 0.0, 0.0)
+
+    prims = []
+    for rows in (range(0, 7), range(6, 13)):
+        verts = [(x, 0.25 * r, 0.0) for r in rows for x in (-0.5, 0.5)]
+        n = len(verts)
+        pos = g.accessor(FLOAT, 'VEC3', verts, minmax=True)
+        nrm = g.accessor(FLOAT, 'VEC3', [(0, 0, 1)] * n)
+        jw = [blend(v[1]) for v in verts]
+        joints = g.accessor(UBYTE, 'VEC4', [j for j, _ in jw])
+        weights = g.accessor(FLOAT, 'VEC4', [w for _, w in jw])
+        quads = []
+        for r in range(len(rows) - 1):
+            a, b, c, d = 2 * r, 2 * r + 1, 2 * r + 2, 2 * r + 3
+            quads += [(a,), (b,), (c,), (c,), (b,), (d,)]
+        idx = g.accessor(USHORT, 'SCALAR', quads)
+        smile = g.accessor(FLOAT, 'VEC3', [(0.1 * v[1] * (1 if v[0] > 0 else -1), 0.05 * math.sin(3 * v[1]), 0.2)
+                                           for v in verts], minmax=True)
+        blink_at = [i for i, v in enumerate(verts) if v[1] > 2.4]
+        if blink_at:
+            blink = g.sparse(FLOAT, 'VEC3', n, None, blink_at, [(0.0, -0.15, 0.05)] * len(blink_at))
+            g.j['accessors'][blink]['min'] = [0.0, -0.15, 0.0]
+            g.j['accessors'][blink]['max'] = [0.0, 0.0, 0.05]
+        else:  # no buffer view, no sparse: all zeros
+            g.j['accessors'].append({'componentType': FLOAT, 'count': n, 'type': 'VEC3',
+                                     'min': [0.0, 0.0, 0.0], 'max': [0.0, 0.0, 0.0]})
+            blink = len(g.j['accessors']) - 1
+        first_upper = rows[0] >= 6
+        puff = g.accessor(FLOAT, 'VEC3', [(0.3 * v[0], 0.0, 0.1) if first_upper else (0.0, 0.0, 0.0) for v in verts],
+                          minmax=True)
+        puff_n = g.accessor(FLOAT, 'VEC3', [(0.1, 0.0, 0.0)] * n)
+        prims.append({'attributes': {'POSITION': pos, 'NORMAL': nrm, 'JOINTS_0': joints, 'WEIGHTS_0': weights},
+                      'indices': idx,
+                      'targets': [{'POSITION': smile}, {'POSITION': blink}, {'POSITION': puff, 'NORMAL': puff_n}]})
+    g.j['meshes'].append({'name': 'face', 'primitives': prims, 'weights': [0.0, 0.0, 0.25],
+                          'extras': {'targetNames': ['smile', 'blink', 'puff']}})
+    hat = g.accessor(FLOAT, 'VEC3', [(-0.3, 0, 0), (0.3, 0, 0), (0, 0.4, 0)], minmax=True)
+    tall = g.accessor(FLOAT, 'VEC3', [(0, 0, 0), (0, 0, 0), (0.1, 0.5, 0)], minmax=True)
+    g.j['meshes'].append({'name': 'hat', 'primitives': [{'attributes': {'POSITION': hat}, 'targets': [{'POSITION': tall}]}],
+                          'weights': [0.2]})
+    ibm = g.accessor(FLOAT, 'MAT4', [translation(0, 0, 0), translation(0, -1, 0), translation(0, -2, 0)])
+    g.j['skins'].append({'joints': [0, 1, 2], 'inverseBindMatrices': ibm})
+    t3 = g.accessor(FLOAT, 'SCALAR', [(0.0,), (1.0,), (2.0,)], minmax=True)
+    nod = g.accessor(FLOAT, 'VEC4', [quat_z(0), quat_z(25), quat_z(-10)])
+    tw = g.accessor(FLOAT, 'SCALAR', [(0.0,), (0.8,), (2.0,)], minmax=True)
+    cubic = g.accessor(FLOAT, 'SCALAR', [(x,) for x in (0, 0, 0, 0, 0, 0.25, 1.5, 0, 0,          # key 0: in, value, out
+                                                       -0.5, 2, 0, 0.8, 0.5, 0.6, 0.3, -1, 0.2,  # key 1
+                                                       0, 0, 0, 0.2, 0.1, 0, 0, 0, 0)])          # key 2
+    ts = g.accessor(FLOAT, 'SCALAR', [(0.0,), (0.5,), (1.0,)], minmax=True)
+    steps = g.accessor(FLOAT, 'SCALAR', [(x,) for x in (0, 0, 0, 0, 1, 0, 0, 0, 0)])
+    g.j['animations'] = [
+        {'name': 'talk', 'samplers': [{'input': t3, 'output': nod},
+                                      {'input': tw, 'output': cubic, 'interpolation': 'CUBICSPLINE'}],
+         'channels': [{'sampler': 0, 'target': {'node': 1, 'path': 'rotation'}},
+                      {'sampler': 1, 'target': {'node': 3, 'path': 'weights'}}]},
+        {'name': 'blink', 'samplers': [{'input': ts, 'output': steps, 'interpolation': 'STEP'}],
+         'channels': [{'sampler': 0, 'target': {'node': 3, 'path': 'weights'}}]},
+    ]
+    write_json('skinned_morph.gltf', g.finish())
+    return g
+
+
 def containers():
     g = basic()
     with open(os.path.join(HERE, 'basic.glb'), 'wb') as f:
@@ -356,12 +442,37 @@ def broken():
     put('ibm_count.gltf', g.finish())
 
 
+def broken_morphs():
+    # Written after skinned_morph(): each has one defect in its morph data.
+    def put(name, j):
+        write_json(os.path.join('broken', name), j)
+
+    j = json.loads(json.dumps(skinned_morph_json()))
+    j['nodes'][4]['weights'] = [0.6, 0.1]  # the hat has 1 target
+    put('morph_weights_count.gltf', j)
+
+    j = json.loads(json.dumps(skinned_morph_json()))
+    del j['meshes'][0]['primitives'][1]['targets'][2]  # primitive 1: 2 targets, primitive 0: 3
+    put('morph_target_count.gltf', j)
+
+    j = json.loads(json.dumps(skinned_morph_json()))
+    j['animations'][1]['samplers'][0]['output'] = j['animations'][0]['samplers'][0]['input']  # 3 values, 9 needed
+    put('morph_channel_count.gltf', j)
+
+
+def skinned_morph_json():
+    with open(os.path.join(HERE, 'skinned_morph.gltf')) as f:
+        return json.load(f)
+
+
 def main():
     sparse_quantized()
     eight_influences()
     multi_skin()
+    skinned_morph()
     containers()
     broken()
+    broken_morphs()
 
 
 if __name__ == '__main__':

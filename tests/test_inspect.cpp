@@ -1,0 +1,53 @@
+// test_inspect.cpp — `progskin inspect` lists every character of a file
+// (README: "characters" and "character" keys of --json) and picks one with
+// --character, with a clear error for an index the file does not have.
+#include <gtest/gtest.h>
+
+#include <array>
+#include <cstdio>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <string>
+
+namespace {
+
+struct CmdResult {
+    int code = -1;
+    std::string out;
+};
+
+CmdResult run(const std::string& cmd) {
+    CmdResult r;
+    FILE* p = ::popen((cmd + " 2>&1").c_str(), "r");
+    if (!p) return r;
+    std::array<char, 4096> buf;
+    size_t n;
+    while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) r.out.append(buf.data(), n);
+    const int st = ::pclose(p);
+    r.code = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+    return r;
+}
+
+std::string progskin() { return std::string(PROGSKIN_BIN_DIR) + "/tools/progskin"; }
+std::string data(const std::string& name) { return std::string(PROGSKIN_TEST_DATA) + "/" + name; }
+
+}  // namespace
+
+TEST(Inspect, ListsEveryCharacter) {
+    if (!std::ifstream(progskin()).good()) GTEST_SKIP() << progskin() << " not built";
+    const CmdResult r = run(progskin() + " inspect " + data("multi_skin.gltf") + " --character 1 --json");
+    ASSERT_EQ(r.code, 0) << r.out;
+    const nlohmann::json j = nlohmann::json::parse(r.out.substr(r.out.find('{')));
+    ASSERT_EQ(j["characters"].size(), 2u);
+    EXPECT_EQ(j["character"], 1);
+    EXPECT_EQ(j["characters"][0]["joints"], 4);
+    EXPECT_EQ(j["characters"][1]["joints"], 1);
+    EXPECT_EQ(j["joints"], 1);  // the detailed part is character 1's
+    EXPECT_EQ(j["vertices"], j["characters"][1]["vertices"]);
+    const CmdResult text = run(progskin() + " inspect " + data("multi_skin.gltf") + " --quiet");
+    EXPECT_EQ(text.code, 0);
+    EXPECT_NE(text.out.find("2 characters"), std::string::npos) << text.out;
+    const CmdResult bad = run(progskin() + " inspect " + data("multi_skin.gltf") + " --character 5");
+    EXPECT_EQ(bad.code, 1);
+    EXPECT_NE(bad.out.find("no character 5 (the file has 2 characters)"), std::string::npos) << bad.out;
+}

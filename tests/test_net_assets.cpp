@@ -1,0 +1,259 @@
+// test_net_assets.cpp — what progskin-server does with its --asset arguments
+// (server/scene.h): every file checked before anything is built, every problem
+// listed, files without a skin pointed at `progskin build --from-vertices` or
+// built with --from-vertices, every character of a file served (FILE#N one).
+#include <gtest/gtest.h>
+
+#include <array>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include "gltf_import.h"
+#include "scene.h"
+#include "vertex_animation.h"
+
+using namespace progskin;
+using namespace progskin::net;
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string asset(const std::string& name) { return std::string(PROGSKIN_ASSETS) + "/" + name; }
+std::string data(const std::string& name) { return std::string(PROGSKIN_TEST_DATA) + "/" + name; }
+
+// A fresh cache directory per test.
+std::string temp_cache(const std::string& name) {
+    const fs::path d = fs::temp_directory_path() / ("progskin_test_assets_" + name + "_" + std::to_string(::getpid()));
+    fs::remove_all(d);
+    return d.string();
+}
+
+struct CmdResult {
+    int code = -1;
+    std::string out;
+};
+
+CmdResult run(const std::string& cmd) {
+    CmdResult r;
+    FILE* p = ::popen((cmd + " 2>&1").c_str(), "r");
+    if (!p) return r;
+    std::array<char, 4096> buf;
+    size_t n;
+    while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) r.out.append(buf.data(), n);
+    const int st = ::pclose(p);
+    r.code = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+    return r;
+}
+
+bool contains(const std::vector<std::string>& lines, const std::string& a, const std::string& b) {
+    for (const std::string& l : lines)
+        if (l.find(a) != std::string::npos && l.find(b) != std::string::npos) return true;
+    return false;
+}
+
+void expect_same_tables(const ServerAsset& a, const ServerAsset& b);
+
+}  // namespace
+
+TEST(ServerAssets, EveryProblemListedBeforeAnyBuild) {
+    AssetOptions o;
+    o.cache_dir = temp_cache("problems");
+    std::vector<PendingAsset> pending;
+    const auto problems = check_server_assets({asset("Fox.glb"), asset("AnimatedMorphSphere.gltf"),
+                                               data("broken/nan_position.gltf"), data("no_such_file.glb"),
+                                               data("multi_skin.gltf#7")},
+                                              o, pending);
+    ASSERT_EQ(problems.size(), 4u);
+    EXPECT_TRUE(contains(problems, "AnimatedMorphSphere.gltf", "progskin build --from-vertices"));
+    EXPECT_TRUE(contains(problems, "nan_position.gltf", "NaN"));
+    EXPECT_TRUE(contains(problems, "no_such_file.glb", "no such file"));
+    EXPECT_TRUE(contains(problems, "multi_skin.gltf", "no character 7 (the file has 2 characters)"));
+    ASSERT_EQ(pending.size(), 1u);  // the Fox, checked but not built
+    EXPECT_FALSE(pending[0].progressive);
+    EXPECT_FALSE(fs::exists(o.cache_dir));  // nothing derived was written
+}
+
+TEST(ServerAssets, ServerExitsAtOnceListingEveryProblem) {
+    const std::string server = std::string(PROGSKIN_BIN_DIR) + "/server/progskin-server";
+    if (!std::ifstream(server).good()) GTEST_SKIP() << server << " not built";
+    const auto start = std::chrono::steady_clock::now();
+    // The Fox first: a server that built before checking would spend seconds on it.
+    const CmdResult r = run(server + " --port 0 --duration 1 --cache " + temp_cache("cli") + " --asset " +
+                            asset("Fox.glb") + " " + asset("AnimatedMorphSphere.gltf") + " " +
+                            data("broken/nan_position.gltf"));
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    EXPECT_EQ(r.code, 1) << r.out;
+    EXPECT_NE(r.out.find("AnimatedMorphSphere.gltf: no skin"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("--from-vertices"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("nan_position.gltf"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("2 problems"), std::string::npos) << r.out;
+    EXPECT_EQ(r.out.find("listening"), std::string::npos) << r.out;
+    EXPECT_LT(seconds, 2.0) << "the check must not build the Fox first";
+}
+
+TEST(ServerAssets, EveryCharacterOfAFileAndOneByIndex) {
+    AssetOptions o;
+    o.cache_dir = temp_cache("multi");
+    std::vector<PendingAsset> all, one;
+    ASSERT_TRUE(check_server_assets({data("multi_skin.gltf")}, o, all).empty());
+    ASSERT_EQ(all.size(), 2u);
+    EXPECT_EQ(all[0].label, "multi_skin.gltf#0");
+    EXPECT_EQ(all[1].label, "multi_skin.gltf#1");
+    ASSERT_TRUE(check_server_assets({data("multi_skin.gltf#1")}, o, one).empty());
+    ASSERT_EQ(one.size(), 1u);
+    EXPECT_EQ(one[0].character, 1);
+    // Character 1 is served as a file whose character 0 is that character (what clients play).
+    const auto a = build_server_asset(one[0], o);
+    const Character reference = import_character(data("multi_skin.gltf"), 1);
+    ASSERT_EQ(a->character.vertex_count(), reference.vertex_count());
+    const std::string copy = (fs::path(o.cache_dir) / "served.glb").string();
+    {
+        std::ofstream f(copy, std::ios::binary);
+        f.write(reinterpret_cast<const char*>(a->bytes.data()), std::streamsize(a->bytes.size()));
+    }
+    const Character downloaded = import_character(copy, 0);
+    ASSERT_EQ(downloaded.vertex_count(), reference.vertex_count());
+    ASSERT_EQ(downloaded.joint_count(), reference.joint_count());
+    for (size_t v = 0; v < reference.vertex_count(); ++v) EXPECT_EQ(downloaded.positions[v], reference.positions[v]);
+    for (size_t j = 0; j < reference.joint_count(); ++j)
+        EXPECT_EQ(downloaded.nodes[size_t(downloaded.joint_node[j])].name,
+                  reference.nodes[size_t(reference.joint_node[j])].name);
+    const auto first = build_server_asset(all[0], o);
+    EXPECT_NE(first->id, a->id);
+}
+
+TEST(ServerAssets, FromVerticesBuildsAndCachesASkin) {
+    AssetOptions o;
+    o.cache_dir = temp_cache("scratch");
+    o.from_vertices = true;
+    o.scratch_bones = 4;
+    std::vector<PendingAsset> pending;
+    ASSERT_TRUE(check_server_assets({asset("AnimatedMorphSphere.gltf")}, o, pending).empty());
+    ASSERT_EQ(pending.size(), 1u);
+    EXPECT_TRUE(pending[0].from_vertices);
+    const auto a = build_server_asset(pending[0], o);
+    EXPECT_TRUE(a->progressive_file);
+    EXPECT_LE(a->bone_count(), 4);
+    EXPECT_GE(a->bone_count(), 1);
+    // The second load reuses the cached build and its tables (same bytes, nothing rebuilt).
+    const auto start = std::chrono::steady_clock::now();
+    const auto b = build_server_asset(pending[0], o);
+    EXPECT_EQ(a->id, b->id);
+    EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 5.0);
+    size_t sidecars = 0;
+    for (const auto& e : fs::directory_iterator(o.cache_dir)) sidecars += e.path().extension() == ".json";
+    EXPECT_EQ(sidecars, 1u);
+    expect_same_tables(*a, *b);
+}
+
+namespace {
+
+// Two assets' derived tables agree (relative tolerance: float rounding of recomputation).
+void expect_same_tables(const ServerAsset& a, const ServerAsset& b) {
+    auto near = [](double x, double y) { return std::abs(x - y) <= 1e-4 * std::max({1.0, std::abs(x), std::abs(y)}); };
+    EXPECT_TRUE(near(a.diagonal, b.diagonal));
+    EXPECT_TRUE(near(a.motion, b.motion)) << a.motion << " " << b.motion;
+    EXPECT_TRUE(near(a.bind_radius, b.bind_radius));
+    EXPECT_TRUE(near(a.max_scale, b.max_scale));
+    EXPECT_EQ(a.format.scaled, b.format.scaled);
+    for (int i = 0; i < 3; ++i) EXPECT_TRUE(near(a.format.t_min[i], b.format.t_min[i]));
+    ASSERT_EQ(a.segments.size(), b.segments.size());
+    for (size_t s = 0; s < a.segments.size(); ++s) {
+        EXPECT_EQ(a.segments[s].from, b.segments[s].from);
+        EXPECT_EQ(a.segments[s].to, b.segments[s].to);
+        ASSERT_EQ(a.segments[s].gap.size(), b.segments[s].gap.size());
+        for (size_t m = 0; m < a.segments[s].gap.size(); ++m) {
+            EXPECT_TRUE(near(a.segments[s].collapse[m], b.segments[s].collapse[m])) << s << " " << m;
+            EXPECT_TRUE(near(a.segments[s].show_value[m], b.segments[s].show_value[m])) << s << " " << m;
+            for (int g = 0; g < ServerAsset::kGapTable; ++g) {
+                EXPECT_TRUE(near(a.segments[s].gap[m][size_t(g)], b.segments[s].gap[m][size_t(g)])) << s << " " << m << " " << g;
+                EXPECT_TRUE(near(a.segments[s].refresh[m][size_t(g)], b.segments[s].refresh[m][size_t(g)]));
+            }
+        }
+    }
+}
+
+}  // namespace
+
+TEST(ServerAssets, ProgressiveFileTablesAreReadNotBuilt) {
+    const std::string progskin = std::string(PROGSKIN_BIN_DIR) + "/tools/progskin";
+    if (!std::ifstream(progskin).good()) GTEST_SKIP() << progskin << " not built";
+    AssetOptions o;
+    o.cache_dir = temp_cache("progressive");
+    fs::create_directories(o.cache_dir);
+    const std::string file = o.cache_dir + "/CesiumMan_progressive.glb";
+    ASSERT_EQ(run(progskin + " build " + asset("CesiumMan.glb") + " -o " + file + " --quiet").code, 0);
+    std::vector<PendingAsset> pending;
+    ASSERT_TRUE(check_server_assets({file}, o, pending).empty());
+    ASSERT_EQ(pending.size(), 1u);
+    ASSERT_TRUE(pending[0].progressive);
+    ASSERT_TRUE(pending[0].extension.contains("server"));
+    const auto start = std::chrono::steady_clock::now();
+    const auto stored = build_server_asset(pending[0], o);
+    const double read_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    EXPECT_TRUE(stored->warnings.empty()) << stored->warnings.front();
+    // What the server would compute from the same file: the same tables.
+    const auto computed = load_server_asset(file);
+    const double build_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() - read_s;
+    std::printf("CesiumMan progressive: tables read in %.3f s, computed in %.3f s\n", read_s, build_s);
+    expect_same_tables(*stored, *computed);
+    EXPECT_LT(read_s, build_s);
+    // Tables of another version are not used: computed, with a warning.
+    PendingAsset old = pending[0];
+    old.extension["server"]["version"] = kServerTablesVersion + 1;
+    const auto rebuilt = build_server_asset(old, o);
+    ASSERT_FALSE(rebuilt->warnings.empty());
+    EXPECT_NE(rebuilt->warnings.front().find("version"), std::string::npos) << rebuilt->warnings.front();
+    expect_same_tables(*rebuilt, *computed);
+}
+
+TEST(ServerAssets, PlainFileBuiltOnceThenReadFromTheCache) {
+    AssetOptions o;
+    o.cache_dir = temp_cache("plain");
+    std::vector<PendingAsset> pending;
+    ASSERT_TRUE(check_server_assets({asset("Fox.glb")}, o, pending).empty());
+    ASSERT_EQ(pending.size(), 1u);
+    const auto t0 = std::chrono::steady_clock::now();
+    const auto first = build_server_asset(pending[0], o);
+    const auto t1 = std::chrono::steady_clock::now();
+    const auto second = build_server_asset(pending[0], o);
+    const auto t2 = std::chrono::steady_clock::now();
+    const double build_s = std::chrono::duration<double>(t1 - t0).count();
+    const double cached_s = std::chrono::duration<double>(t2 - t1).count();
+    std::printf("Fox plain: built in %.3f s, from the cache in %.3f s\n", build_s, cached_s);
+    size_t files = 0;
+    for (const auto& e : fs::directory_iterator(o.cache_dir)) files += e.path().extension() == ".glb";
+    EXPECT_EQ(files, 1u);
+    EXPECT_LT(cached_s, build_s);
+    EXPECT_EQ(first->id, second->id);  // clients download the original file either way
+    EXPECT_EQ(first->skin.order, second->skin.order);
+    EXPECT_EQ(first->skin.parents, second->skin.parents);
+    EXPECT_EQ(first->skin.joints, second->skin.joints);
+    ASSERT_EQ(first->skin.error.size(), second->skin.error.size());
+    for (size_t k = 0; k < first->skin.error.size(); ++k)
+        EXPECT_NEAR(first->skin.error[k].rms, second->skin.error[k].rms, 1e-9 + 1e-6 * first->skin.error[k].rms);
+    expect_same_tables(*first, *second);
+}
+
+TEST(ServerAssets, PointCacheNeedsFromVertices) {
+    // A PC2 point cache written from the sphere's morph animation.
+    AssetOptions o;
+    o.cache_dir = temp_cache("pc2");
+    fs::create_directories(o.cache_dir);
+    const std::string pc2 = o.cache_dir + "/sphere.pc2";
+    progskin::save_pc2(progskin::load_vertex_animation(asset("AnimatedMorphSphere.gltf")), pc2);
+    std::vector<PendingAsset> pending;
+    const auto problems = check_server_assets({pc2}, o, pending);
+    ASSERT_EQ(problems.size(), 1u);
+    EXPECT_NE(problems[0].find("progskin build --from-vertices"), std::string::npos) << problems[0];
+    o.from_vertices = true;
+    o.scratch_bones = 3;
+    ASSERT_TRUE(check_server_assets({pc2}, o, pending).empty());
+    ASSERT_EQ(pending.size(), 1u);
+    const auto a = build_server_asset(pending[0], o);
+    EXPECT_LE(a->bone_count(), 3);
+    EXPECT_EQ(a->character.vertex_count(), progskin::load_pc2(pc2).vertex_count);
+}
