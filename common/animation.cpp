@@ -211,7 +211,9 @@ int find_clip(const Character& c, const std::string& item) {
     return -1;
 }
 
-// Selection of the given clips with its time range.
+
+}  // namespace
+
 ClipSelection make_selection(const Character& c, std::vector<int> clips) {
     ClipSelection sel;
     sel.clips = std::move(clips);
@@ -225,8 +227,6 @@ ClipSelection make_selection(const Character& c, std::vector<int> clips) {
     }
     return sel;
 }
-
-}  // namespace
 
 double ClipSelection::looped(double t) const {
     const double dur = duration();

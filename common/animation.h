@@ -26,6 +26,10 @@ struct ClipSelection {
     double looped(double t) const;
 };
 
+// The selection of the given clips (indices into Character::clips, checked
+// by the caller) played together: its time range is the union of theirs.
+ClipSelection make_selection(const Character& c, std::vector<int> clips);
+
 // Parse a --clip argument: a name, an index, "all" (every clip played
 // together), or a comma-separated list. Throws Error naming the unknown clip.
 ClipSelection select_clips(const Character& c, const std::string& spec);

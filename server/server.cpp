@@ -65,20 +65,6 @@ bool equal_secret(const std::string& a, const std::string& b) {
 constexpr double LINGER_SECONDS = 1.0;     // Closing: time to write the last message
 constexpr double CHALLENGE_SECONDS = 5.0;  // a Challenge's nonce is valid this long
 
-// The time range of clips played together (what an observer's reference plays).
-ClipSelection selection_of(const Character& c, const std::vector<int>& clips) {
-    ClipSelection sel;
-    sel.clips = clips;
-    bool first = true;
-    for (int i : clips) {
-        const Clip& clip = c.clips[size_t(i)];
-        if (clip.channels.empty()) continue;
-        sel.start = first ? clip.start : std::min(sel.start, clip.start);
-        sel.end = first ? clip.end : std::max(sel.end, clip.end);
-        first = false;
-    }
-    return sel;
-}
 }
 
 struct Server::Impl {
@@ -631,7 +617,7 @@ struct Server::Impl {
         } else {
             clips.assign(sp.announced_clips.begin(), sp.announced_clips.end());
             if (!clips.empty()) {
-                const ClipSelection sel = selection_of(a.character, sp.announced_clips);
+                const ClipSelection sel = make_selection(a.character, sp.announced_clips);
                 start = sel.start;
                 end = sel.end;
             }
