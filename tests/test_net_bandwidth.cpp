@@ -38,11 +38,17 @@ TEST(NetBandwidth, CapsFrom16kTo2MRespectedAndErrorFallsWithRate) {
         for (double k : r[i].per_second_kbps) EXPECT_LE(k, caps[i] * 1.05) << "cap " << caps[i];
         EXPECT_GT(r[i].rate_kbps, caps[i] * 0.6) << "cap " << caps[i] << " poorly used";
         EXPECT_EQ(r[i].characters, 24);
-        // Non-increasing within 5 %, and within 0.01 points at the floor where
-        // every bone goes (about 0.05 %: interpolation between ticks at the
-        // display times of five clients and a server sharing two cores).
+        // Non-increasing within 5 % while the cap limits the error; once the
+        // previous cap already reached the floor where every bone goes (under
+        // 0.1 %: interpolation between ticks at the display times of five
+        // verifying clients and a server sharing two cores, which moves with
+        // the load: 1000 and 2000 kbit/s alone gave 0.045 and 0.042 %), the
+        // next stays on it.
         if (i > 0) {
-            EXPECT_LE(r[i].rms_pct, r[i - 1].rms_pct * 1.05 + 0.01) << "cap " << caps[i];
+            if (r[i - 1].rms_pct > 0.1)
+                EXPECT_LE(r[i].rms_pct, r[i - 1].rms_pct * 1.05 + 0.002) << "cap " << caps[i];
+            else
+                EXPECT_LE(r[i].rms_pct, 0.1) << "cap " << caps[i];
         }
     }
 }
