@@ -3,6 +3,8 @@
 // --character, with a clear error for an index the file does not have.
 #include <gtest/gtest.h>
 
+#include "run_command.h"
+
 #include <array>
 #include <cstdio>
 #include <fstream>
@@ -11,22 +13,6 @@
 
 namespace {
 
-struct CmdResult {
-    int code = -1;
-    std::string out;
-};
-
-CmdResult run(const std::string& cmd) {
-    CmdResult r;
-    FILE* p = ::popen((cmd + " 2>&1").c_str(), "r");
-    if (!p) return r;
-    std::array<char, 4096> buf;
-    size_t n;
-    while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) r.out.append(buf.data(), n);
-    const int st = ::pclose(p);
-    r.code = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-    return r;
-}
 
 std::string progskin() { return std::string(PROGSKIN_BIN_DIR) + "/tools/progskin"; }
 std::string data(const std::string& name) { return std::string(PROGSKIN_TEST_DATA) + "/" + name; }

@@ -5,6 +5,8 @@
 // and `inspect --json`, and the broken-file messages.
 #include <gtest/gtest.h>
 
+#include "run_command.h"
+
 #include <array>
 #include <cmath>
 #include <cstdio>
@@ -46,22 +48,6 @@ std::string import_error(const std::string& path) {
     return {};
 }
 
-struct CmdResult {
-    int code = -1;
-    std::string out;
-};
-
-CmdResult run(const std::string& cmd) {
-    CmdResult r;
-    FILE* p = ::popen((cmd + " 2>&1").c_str(), "r");
-    if (!p) return r;
-    std::array<char, 4096> buf;
-    size_t n;
-    while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) r.out.append(buf.data(), n);
-    const int st = ::pclose(p);
-    r.code = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-    return r;
-}
 
 std::string progskin_bin() { return std::string(PROGSKIN_BIN_DIR) + "/tools/progskin"; }
 

@@ -4,6 +4,8 @@
 // built with --from-vertices, every character of a file served (FILE#N one).
 #include <gtest/gtest.h>
 
+#include "run_command.h"
+
 #include <array>
 #include <chrono>
 #include <cstdio>
@@ -31,22 +33,6 @@ std::string temp_cache(const std::string& name) {
     return d.string();
 }
 
-struct CmdResult {
-    int code = -1;
-    std::string out;
-};
-
-CmdResult run(const std::string& cmd) {
-    CmdResult r;
-    FILE* p = ::popen((cmd + " 2>&1").c_str(), "r");
-    if (!p) return r;
-    std::array<char, 4096> buf;
-    size_t n;
-    while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) r.out.append(buf.data(), n);
-    const int st = ::pclose(p);
-    r.code = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-    return r;
-}
 
 bool contains(const std::vector<std::string>& lines, const std::string& a, const std::string& b) {
     for (const std::string& l : lines)
