@@ -152,8 +152,11 @@ public:
     Client& operator=(const Client&) = delete;
 
     // Starts connecting (resolves host synchronously: pass a numeric address
-    // to never block); update() carries on. Throws Error for an unresolvable
-    // host or when called twice.
+    // to never block); update() carries on (TCP, then the TLS handshake and
+    // certificate check when cfg.tls). Throws Error for an unresolvable
+    // host or when called twice. With cfg.tls and nothing to trust the
+    // certificate by (no ca_file, pin_sha256 or insecure), a malformed pin or
+    // an unreadable CA file, the state is Failed on return (see error()).
     void connect(const std::string& host, uint16_t port);
     // Once per game frame; never blocks. `now`: seconds on now_seconds()'s clock.
     void update(double now);
