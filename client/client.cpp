@@ -22,6 +22,7 @@
 #include <algorithm>
 #include <asio.hpp>
 #include <asio/ssl.hpp>
+#include <cctype>
 #include <cmath>
 #include <cstring>
 #include <deque>
