@@ -88,6 +88,9 @@ TEST(NetCli, HelpAndExitCodes) {
         {"progskin-server --crowd 3x", "--crowd"},
         {"progskin-server --port 70000", "--port"},
         {"progskin-client --duration 1s", "--duration"},
+        {"progskin-server --no-tls --seal-datagrams", "--no-tls"},
+        {"progskin-server --tls-cert only.pem", "--tls-key"},
+        {"progskin-client --no-tls --pin 00", "--pin"},
         {"progskin-netem --to 127.0.0.1:7777 --loss 2", "--loss"},
         {"progskin-netem --to 127.0.0.1:7777 --seed 1.5", "--seed"},
     };
