@@ -87,6 +87,8 @@ public:
         std::lock_guard<std::mutex> l(m_);
         return last_;
     }
+    // A new upstream port: the server sees the client's address change (a NAT rebinding).
+    void nat_change() { change_ = true; }
     void inject(const std::vector<uint8_t>& d) {
         std::lock_guard<std::mutex> l(m_);
         asio::error_code ec;
@@ -97,6 +99,13 @@ private:
     void loop() {
         uint8_t buf[2048];
         while (running_) {
+            if (change_.exchange(false)) {
+                std::lock_guard<std::mutex> l(m_);
+                asio::error_code ec;
+                up_.close(ec);
+                up_.open(udp::v4());
+                up_.bind(udp::endpoint(asio::ip::make_address("127.0.0.1"), 0));
+            }
             pollfd p[2] = {{front_.native_handle(), POLLIN, 0}, {up_.native_handle(), POLLIN, 0}};
             if (::poll(p, 2, 5) <= 0) continue;
             std::lock_guard<std::mutex> l(m_);
@@ -123,7 +132,7 @@ private:
     udp::socket front_, up_;
     std::mutex m_;
     std::vector<uint8_t> last_;
-    std::atomic<bool> running_{true};
+    std::atomic<bool> running_{true}, change_{false};
     std::thread thread_;
 };
 
@@ -264,6 +273,34 @@ TEST(NetTls, ForgedUnsealedAndReplayedDatagramsAreDropped) {
     EXPECT_EQ(c.state(), ClientState::Streaming) << c.error();
     std::printf("dropped %llu of 4 injected datagrams; %llu frames opened meanwhile\n",
                 (unsigned long long)(after.malformed - before.malformed), (unsigned long long)(after.datagrams - before.datagrams));
+}
+
+// A NAT rebinding in a sealed session: the client's sealed Binds from the
+// new address are challenged (sealed) and the stream moves there.
+TEST(NetTls, SealedStreamSurvivesNatRebinding) {
+    RunningServer s({}, tls_config(true));
+    Relay relay(s.server->udp_port());
+    ClientConfig cfg = config(s);
+    cfg.pin_sha256 = certificate_sha256(kCert);
+    cfg.udp_via_host = "127.0.0.1";
+    cfg.udp_via_port = relay.port();
+    Client c(cfg);
+    c.connect("127.0.0.1", s.server->tcp_port());
+    ASSERT_EQ(drive(c, 5), ClientState::Streaming) << c.error();
+    auto run_for = [&](double seconds) {
+        const double end = now_seconds() + seconds;
+        while (now_seconds() < end) {
+            c.update(now_seconds());
+            std::this_thread::sleep_for(std::chrono::milliseconds(5));
+        }
+    };
+    run_for(0.5);
+    relay.nat_change();
+    const uint64_t at_change = c.stats().datagrams;
+    run_for(3.0);
+    EXPECT_EQ(c.state(), ClientState::Streaming) << c.error();
+    EXPECT_GT(c.stats().datagrams - at_change, 30u) << "no frames after the address changed";
+    EXPECT_EQ(c.stats().malformed, 0u);
 }
 
 // Datagram keys in a Welcome over plain TCP would be readable by anyone on
