@@ -6,13 +6,21 @@
 // of 200 clients x 100 characters without sockets (encode once + 200 x
 // select/pack). BM_Loopback200Clients: a real Server on loopback with 200
 // lightweight clients (Hello, UDP Bind, Acks; no display) for 5 s: mean tick
-// time and the datagrams and rate each client received.
+// time, the server thread's CPU time per client, and the datagrams, bytes
+// and rate each client received; its 4th argument 1 runs every session over
+// TLS (a self-signed pair from server/tls_identity.h) with sealed datagrams.
 #include <benchmark/benchmark.h>
 #include <poll.h>
+#include <pthread.h>
 #include <time.h>
 
 #include <asio.hpp>
+#include <asio/ssl.hpp>
+#include <filesystem>
 #include <thread>
+
+#include "crypto.h"
+#include "tls_identity.h"
 
 #include "datagram_packer.h"
 #include "frame_encoder.h"
@@ -210,6 +218,9 @@ BENCHMARK(BM_PublishingPlayers)->Args({16, 0})->Args({200, 0})->Args({200, 1})->
 namespace {
 struct LightClient {
     asio::ip::tcp::socket tcp;
+    std::unique_ptr<asio::ssl::stream<asio::ip::tcp::socket&>> tls;  // sealed run
+    std::unique_ptr<crypto::Sealer> sealer;
+    std::unique_ptr<crypto::Opener> opener;
     asio::ip::udp::socket udp;
     uint64_t session = 0, token = 0;
     uint32_t ack = 0, bits = 0, echo = 0;
@@ -218,13 +229,15 @@ struct LightClient {
     explicit LightClient(asio::io_context& io) : tcp(io), udp(io) {}
 };
 
-void send_control(asio::ip::tcp::socket& s, flatbuffers::FlatBufferBuilder& fbb) {
+template <class Stream>
+void send_control(Stream& s, flatbuffers::FlatBufferBuilder& fbb) {
     std::vector<uint8_t> m;
     frame_control(fbb, m);
     asio::write(s, asio::buffer(m));
 }
 
-bool read_control(asio::ip::tcp::socket& s, std::vector<uint8_t>& body) {
+template <class Stream>
+bool read_control(Stream& s, std::vector<uint8_t>& body) {
     uint8_t len[4];
     asio::error_code ec;
     asio::read(s, asio::buffer(len), ec);
@@ -235,21 +248,52 @@ bool read_control(asio::ip::tcp::socket& s, std::vector<uint8_t>& body) {
     asio::read(s, asio::buffer(body), ec);
     return !ec;
 }
+
+// Sends a datagram to the server, sealed when the session seals.
+asio::ip::udp::endpoint g_server_udp;
+void send_dgram(LightClient& c, const flatbuffers::FlatBufferBuilder& b) {
+    static thread_local std::vector<uint8_t> sealed;
+    asio::error_code ec;
+    if (c.sealer) {
+        crypto::seal_datagram(*c.sealer, c.session, PROTOCOL_VERSION, {b.GetBufferPointer(), b.GetSize()}, sealed);
+        c.udp.send_to(asio::buffer(sealed), g_server_udp, 0, ec);
+    } else {
+        c.udp.send_to(asio::buffer(b.GetBufferPointer(), b.GetSize()), g_server_udp, 0, ec);
+    }
+}
 }  // namespace
 
 static void BM_Loopback200Clients(benchmark::State& st) {
     const int clients = int(st.range(0)), n = int(st.range(1));
     const double kbps = double(st.range(2));
+    const bool sealed = st.range(3) != 0;
     for (auto _ : st) {
         ServerConfig cfg;
         cfg.bind_address = "127.0.0.1";
         cfg.max_clients = clients + 8;
         cfg.max_per_address = 0;  // every client comes from 127.0.0.1
+        const std::string tls_dir = (std::filesystem::temp_directory_path() / ("progskin-bench-tls-" + std::to_string(::getpid()))).string();
+        if (sealed) {
+            const TlsIdentity id = ensure_self_signed(tls_dir);
+            cfg.tls_cert_file = id.cert_path;
+            cfg.tls_key_file = id.key_path;
+            cfg.seal_datagrams = true;
+        }
+        asio::ssl::context ctx(asio::ssl::context::tls_client);
+        ctx.set_verify_mode(asio::ssl::verify_none);  // the bench's own pair; clients elsewhere verify
         Server server(cfg, assets(), crowd_layout(assets(), n));
         std::thread th([&] { server.run(); });
+        clockid_t server_clock;
+        pthread_getcpuclockid(th.native_handle(), &server_clock);
+        auto server_cpu = [&] {
+            timespec ts;
+            clock_gettime(server_clock, &ts);
+            return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
+        };
         asio::io_context io;
         std::vector<std::unique_ptr<LightClient>> cs;
         asio::ip::udp::endpoint srv(asio::ip::make_address("127.0.0.1"), server.udp_port());
+        g_server_udp = srv;
         std::vector<uint8_t> body;
         for (int i = 0; i < clients; ++i) {
             auto c = std::make_unique<LightClient>(io);
@@ -258,14 +302,34 @@ static void BM_Loopback200Clients(benchmark::State& st) {
             auto name = fbb.CreateString("bench");
             auto h = wire::CreateHello(fbb, PROTOCOL_VERSION, name, 0, uint32_t(kbps));
             fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Hello, h.Union()), wire::ControlIdentifier());
-            send_control(c->tcp, fbb);
-            if (!read_control(c->tcp, body) || !verify_control(body)) {
+            bool welcomed = false;
+            if (sealed) {
+                c->tls = std::make_unique<asio::ssl::stream<asio::ip::tcp::socket&>>(c->tcp, ctx);
+                c->tls->handshake(asio::ssl::stream_base::client);
+                send_control(*c->tls, fbb);
+                welcomed = read_control(*c->tls, body) && verify_control(body);
+            } else {
+                send_control(c->tcp, fbb);
+                welcomed = read_control(c->tcp, body) && verify_control(body);
+            }
+            if (!welcomed) {
                 st.SkipWithError("no welcome");
                 break;
             }
             const wire::Welcome* w = wire::GetControl(body.data())->body_as_Welcome();
             c->session = w->session_id();
             c->token = w->udp_token();
+            if (sealed) {
+                if (!w->datagram_keys() || w->datagram_keys()->size() != 2 * crypto::KEY_BYTES) {
+                    st.SkipWithError("no datagram keys");
+                    break;
+                }
+                crypto::Key down{}, up{};
+                std::copy(w->datagram_keys()->begin(), w->datagram_keys()->begin() + crypto::KEY_BYTES, down.begin());
+                std::copy(w->datagram_keys()->begin() + crypto::KEY_BYTES, w->datagram_keys()->end(), up.begin());
+                c->opener = std::make_unique<crypto::Opener>(down);
+                c->sealer = std::make_unique<crypto::Sealer>(up);
+            }
             c->udp.open(asio::ip::udp::v4());
             c->udp.bind(asio::ip::udp::endpoint(asio::ip::make_address("127.0.0.1"), 0));
             c->udp.non_blocking(true);
@@ -275,7 +339,7 @@ static void BM_Loopback200Clients(benchmark::State& st) {
             auto p = b.CreateVector(pad);
             auto bo = wire::CreateBind(b, c->session, c->token, p);
             b.Finish(wire::CreateDatagram(b, 0, 0, wire::DatagramBody::Bind, bo.Union()), wire::DatagramIdentifier());
-            c->udp.send_to(asio::buffer(b.GetBufferPointer(), b.GetSize()), srv);
+            send_dgram(*c, b);
             cs.push_back(std::move(c));
         }
         const double seconds = 5.0;
@@ -283,7 +347,9 @@ static void BM_Loopback200Clients(benchmark::State& st) {
         double last_ack = t0;
         std::vector<pollfd> fds(cs.size());
         alignas(16) uint8_t buf[2048];
+        std::vector<uint8_t> opened;
         ServerStats before = server.stats();
+        const double cpu0 = server_cpu();
         while (now_seconds() - t0 < seconds) {
             for (size_t i = 0; i < cs.size(); ++i) fds[i] = {cs[i]->udp.native_handle(), POLLIN, 0};
             ::poll(fds.data(), fds.size(), 5);
@@ -295,12 +361,16 @@ static void BM_Loopback200Clients(benchmark::State& st) {
                     asio::ip::udp::endpoint from;
                     size_t got = c.udp.receive_from(asio::buffer(buf), from, 0, ec);
                     if (ec) break;
-                    const wire::Datagram* d = verify_datagram({buf, got});
+                    const wire::Datagram* d = nullptr;
+                    uint64_t seq = 0;
+                    if (!c.opener) d = verify_datagram({buf, got});
+                    else if (crypto::open_datagram(*c.opener, c.session, PROTOCOL_VERSION, {buf, got}, opened, seq) == crypto::OpenResult::ok)
+                        d = verify_datagram(opened);
                     if (d && d->body_type() == wire::DatagramBody::Challenge && d->body_as_Challenge()->nonce()) {
                         const auto* nonce = d->body_as_Challenge()->nonce();  // return routability
                         flatbuffers::FlatBufferBuilder r;
                         build_challenge_response(r, c.session, c.token, {nonce->data(), nonce->size()});
-                        c.udp.send_to(asio::buffer(r.GetBufferPointer(), r.GetSize()), srv, 0, ec);
+                        send_dgram(c, r);
                         continue;
                     }
                     if (!d || d->body_type() != wire::DatagramBody::Frame) continue;
@@ -322,15 +392,21 @@ static void BM_Loopback200Clients(benchmark::State& st) {
                     flatbuffers::FlatBufferBuilder fbb;
                     auto a = wire::CreateAck(fbb, c.session, c.token, c.ack, 0xffffffffu, c.echo, 0);
                     fbb.Finish(wire::CreateDatagram(fbb, 0, 0, wire::DatagramBody::Ack, a.Union()), wire::DatagramIdentifier());
-                    asio::error_code ec;
-                    c.udp.send_to(asio::buffer(fbb.GetBufferPointer(), fbb.GetSize()), srv, 0, ec);
+                    send_dgram(c, fbb);
                     c.since_ack = 0;
                 }
             }
         }
         ServerStats after = server.stats();
+        const double cpu = server_cpu() - cpu0;
         server.stop();
         th.join();
+        if (sealed) std::filesystem::remove_all(tls_dir);
+        uint64_t datagrams = 0, bytes = 0;
+        for (auto& c : cs) datagrams += c->datagrams, bytes += c->bytes;
+        st.counters["server_cpu_ms_per_client_s"] = 1000.0 * cpu / seconds / double(cs.size());
+        st.counters["wire_bytes_per_datagram"] = datagrams ? double(bytes) / double(datagrams) : 0;
+        st.counters["datagrams_per_client_s"] = double(datagrams) / seconds / double(cs.size());
         double min_kbps = 1e18, sum_kbps = 0;
         for (auto& c : cs) {
             double k = double(c->bytes) * 8 / 1000 / seconds;
@@ -346,6 +422,12 @@ static void BM_Loopback200Clients(benchmark::State& st) {
         st.counters["sessions"] = double(after.sessions_active);
     }
 }
-BENCHMARK(BM_Loopback200Clients)->Args({200, 100, 256})->Args({200, 4, 256})->Iterations(1)->Unit(benchmark::kSecond);
+BENCHMARK(BM_Loopback200Clients)
+    ->Args({200, 100, 256, 0})
+    ->Args({200, 100, 256, 1})
+    ->Args({200, 4, 256, 0})
+    ->Args({200, 4, 256, 1})
+    ->Iterations(1)
+    ->Unit(benchmark::kSecond);
 
 BENCHMARK_MAIN();

@@ -4,6 +4,14 @@
 // Acks (+ Stats each second), Spawn/Spawned/Despawn and Pose datagrams for
 // the player's own characters -> Goodbye. Everything is driven by update():
 // one io_context polled, non-blocking sockets, no thread.
+//
+// With ClientConfig::tls the control channel is TLS from the first byte
+// (asio::ssl::stream over the TCP socket, async handshake in the same
+// io_context); the certificate is checked against ca_file (chain + host
+// name) and/or pin_sha256 (SHA-256 of its DER) before Hello is sent. When the
+// Welcome carries datagram keys (64 bytes: server->client, client->server),
+// every datagram sent is sealed and every one received must open
+// (proto/crypto.h); anything else is dropped and counted as malformed.
 #include "client.h"
 
 #include <netinet/in.h>
@@ -13,6 +21,8 @@
 
 #include <algorithm>
 #include <asio.hpp>
+#include <asio/ssl.hpp>
+#include <cctype>
 #include <cmath>
 #include <cstring>
 #include <deque>
@@ -21,7 +31,13 @@
 #include <map>
 #include <thread>
 
+#include <openssl/evp.h>
+#include <openssl/ssl.h>
+#include <openssl/x509.h>
+#include <openssl/x509_vfy.h>
+
 #include "asset_cache.h"
+#include "crypto.h"
 #include "error.h"
 #include "frame_reader.h"
 #include "error_metric.h"
@@ -127,6 +143,16 @@ struct Client::Impl {
     ClientConfig cfg;
     asio::io_context io;
     tcp::socket tcp_sock{io};
+    // TLS (cfg.tls): the context outlives the stream, the stream runs over tcp_sock.
+    std::unique_ptr<asio::ssl::context> ssl_ctx;
+    std::unique_ptr<asio::ssl::stream<tcp::socket&>> tls;
+    bool tls_started = false;      // TCP connected, handshake under way
+    std::string tls_verify_error;  // the first reason the chain or host name was refused
+    std::string pin;               // cfg.pin_sha256 normalised: 64 lower-case hex digits, or empty
+    // Sealed datagrams (Welcome.datagram_keys): set once keys arrive over TLS.
+    std::unique_ptr<crypto::Sealer> sealer;
+    std::unique_ptr<crypto::Opener> opener;
+    std::vector<uint8_t> sealed_buf, opened_buf;
     udp::socket udp_sock{io};
     udp::endpoint server_udp;
     std::string host;
@@ -241,26 +267,112 @@ struct Client::Impl {
     void write_next() {
         if (writing || tx.empty()) return;
         writing = true;
-        asio::async_write(tcp_sock, asio::buffer(tx.front()), [this](asio::error_code ec, size_t) {
+        auto done = [this](asio::error_code ec, size_t) {
             writing = false;
             if (ec) return fail("control channel: " + ec.message());
             tx.pop_front();
             write_next();
-        });
+        };
+        if (tls) asio::async_write(*tls, asio::buffer(tx.front()), done);
+        else asio::async_write(tcp_sock, asio::buffer(tx.front()), done);
     }
     void read_more() {
         if (reading) return;
         reading = true;
-        tcp_sock.async_read_some(asio::buffer(rx_chunk), [this](asio::error_code ec, size_t n) {
+        auto done = [this](asio::error_code ec, size_t n) {
             reading = false;
             if (ec) {
                 if (state == ClientState::Closed || state == ClientState::Failed) return;
-                return fail(ec == asio::error::eof ? "the server closed the control connection" : "control channel: " + ec.message());
+                if (ec == asio::error::eof || ec == asio::ssl::error::stream_truncated)
+                    return fail(welcomed || tls ? "the server closed the control connection"
+                                                : "the server closed the control connection before its Welcome "
+                                                  "(does it expect TLS?)");
+                return fail("control channel: " + ec.message());
             }
             rx.insert(rx.end(), rx_chunk.begin(), rx_chunk.begin() + long(n));
             drain_control();
             if (state != ClientState::Failed && state != ClientState::Closed) read_more();
-        });
+        };
+        if (tls) tls->async_read_some(asio::buffer(rx_chunk), done);
+        else tcp_sock.async_read_some(asio::buffer(rx_chunk), done);
+    }
+
+    // ---------------------------------------------------------------- TLS --
+    // Sets up the TLS context before connecting; false (and Failed) when the
+    // configuration trusts nothing or the CA file cannot be read.
+    bool setup_tls() {
+        if (!cfg.pin_sha256.empty()) {
+            for (char ch : cfg.pin_sha256)
+                if (ch != ':') pin.push_back(char(std::tolower(static_cast<unsigned char>(ch))));
+            if (pin.size() != 64 || pin.find_first_not_of("0123456789abcdef") != std::string::npos) {
+                fail("the pinned certificate fingerprint must be 64 hex digits (SHA-256), not \"" + cfg.pin_sha256 + "\"");
+                return false;
+            }
+        }
+        if (cfg.ca_file.empty() && pin.empty() && !cfg.insecure) {
+            fail("TLS needs a way to trust the server's certificate: a CA file, a pinned SHA-256 fingerprint, "
+                 "or insecure mode (development only)");
+            return false;
+        }
+        ssl_ctx = std::make_unique<asio::ssl::context>(asio::ssl::context::tls_client);
+        ssl_ctx->set_options(asio::ssl::context::default_workarounds | asio::ssl::context::no_sslv2 |
+                             asio::ssl::context::no_sslv3 | asio::ssl::context::no_tlsv1 | asio::ssl::context::no_tlsv1_1);
+        asio::error_code ec;
+        if (!cfg.ca_file.empty()) {
+            ssl_ctx->load_verify_file(cfg.ca_file, ec);
+            if (ec) {
+                fail("cannot read the CA file " + cfg.ca_file + ": " + ec.message());
+                return false;
+            }
+            ssl_ctx->set_verify_mode(asio::ssl::verify_peer);
+        } else {
+            ssl_ctx->set_verify_mode(asio::ssl::verify_none);  // pinned or insecure: checked after the handshake
+        }
+        tls = std::make_unique<asio::ssl::stream<tcp::socket&>>(tcp_sock, *ssl_ctx);
+        if (!cfg.ca_file.empty()) {
+            asio::ssl::host_name_verification by_name(host);
+            tls->set_verify_callback([this, by_name](bool preverified, asio::ssl::verify_context& vc) {
+                X509_STORE_CTX* x = vc.native_handle();
+                if (!preverified) {
+                    if (tls_verify_error.empty()) tls_verify_error = X509_verify_cert_error_string(X509_STORE_CTX_get_error(x));
+                    return false;
+                }
+                if (!by_name(preverified, vc)) {
+                    if (tls_verify_error.empty()) tls_verify_error = "the certificate is not for " + host;
+                    return false;
+                }
+                return true;
+            });
+        }
+        // SNI for servers hosting several names (not for a numeric address).
+        asio::error_code not_ip;
+        asio::ip::make_address(host, not_ip);
+        if (not_ip) SSL_set_tlsext_host_name(tls->native_handle(), host.c_str());
+        return true;
+    }
+
+    // After the handshake: the pinned fingerprint, when there is one.
+    bool check_pin() {
+        if (pin.empty()) return true;
+        X509* cert = SSL_get1_peer_certificate(tls->native_handle());
+        if (!cert) {
+            fail("the server sent no certificate");
+            return false;
+        }
+        unsigned char md[EVP_MAX_MD_SIZE];
+        unsigned int len = 0;
+        const int ok = X509_digest(cert, EVP_sha256(), md, &len);
+        X509_free(cert);
+        if (!ok) {
+            fail("cannot compute the server certificate's fingerprint");
+            return false;
+        }
+        const std::string got = crypto::to_hex({md, len});
+        if (got != pin) {
+            fail("server certificate fingerprint " + got + " does not match the pinned " + pin);
+            return false;
+        }
+        return true;
     }
     void drain_control() {
         size_t at = 0;
@@ -319,6 +431,15 @@ struct Client::Impl {
         if (w->version() != PROTOCOL_VERSION) return fail("server speaks protocol version " + std::to_string(w->version()));
         tick_rate = w->tick_rate();
         if (!(tick_rate > 0 && tick_rate <= 1000)) return fail("server sent a bad tick rate");
+        if (const auto* keys = w->datagram_keys(); keys && keys->size() > 0) {
+            if (!tls) return fail("server sent datagram keys over an unencrypted channel");
+            if (keys->size() != 2 * crypto::KEY_BYTES) return fail("server sent datagram keys of the wrong size");
+            crypto::Key down{}, up{};
+            std::copy(keys->begin(), keys->begin() + crypto::KEY_BYTES, down.begin());
+            std::copy(keys->begin() + crypto::KEY_BYTES, keys->end(), up.begin());
+            opener = std::make_unique<crypto::Opener>(down);
+            sealer = std::make_unique<crypto::Sealer>(up);
+        }
         welcomed = true;
         welcome = w;
         session = w->session_id();
@@ -496,6 +617,11 @@ struct Client::Impl {
     // ---------------------------------------------------------------- UDP --
     void send_datagram(const flatbuffers::FlatBufferBuilder& b) {
         asio::error_code ig;
+        if (sealer) {
+            crypto::seal_datagram(*sealer, session, PROTOCOL_VERSION, {b.GetBufferPointer(), b.GetSize()}, sealed_buf);
+            udp_sock.send_to(asio::buffer(sealed_buf), server_udp, 0, ig);
+            return;
+        }
         udp_sock.send_to(asio::buffer(b.GetBufferPointer(), b.GetSize()), server_udp, 0, ig);
     }
 
@@ -528,8 +654,16 @@ struct Client::Impl {
             double t = 0;
             const ssize_t got = receive_stamped(udp_sock, buf, sizeof buf, from, t);
             if (got < 0) break;
-            const size_t n = size_t(got);
-            const wire::Datagram* d = verify_datagram({buf, n});
+            const size_t n = size_t(got);  // on the wire (sealed: 32 bytes more than the datagram)
+            const wire::Datagram* d = nullptr;
+            if (opener) {  // sealed session: unsealed, forged and replayed datagrams are dropped
+                uint64_t seq = 0;
+                if (from == server_udp &&
+                    crypto::open_datagram(*opener, session, PROTOCOL_VERSION, {buf, n}, opened_buf, seq) == crypto::OpenResult::ok)
+                    d = verify_datagram(opened_buf);
+            } else {
+                d = verify_datagram({buf, n});
+            }
             if (!d || from != server_udp) {
                 ++st.malformed;
                 continue;
@@ -667,7 +801,8 @@ struct Client::Impl {
             return;
         }
         if (!tcp_connected) {
-            if (now - started > cfg.connect_timeout) fail("cannot connect to " + host + ":" + std::to_string(port) + ": timed out");
+            if (now - started > cfg.connect_timeout)
+                fail((tls_started ? "TLS handshake with " : "cannot connect to ") + host + ":" + std::to_string(port) + ": timed out");
             return;
         }
         if (!welcomed) {
@@ -782,6 +917,9 @@ struct Client::Impl {
         return nullptr;
     }
 
+    // TCP connected (and the TLS handshake and pin checked): Hello, then read.
+    void on_channel_ready();
+
     bool publish(int handle, const RootPose& root, std::span<const Mat34> skinning, bool teleport) {
         Own* o = find_own(handle);
         if (!o || o->instance < 0 || !bound || state != ClientState::Streaming) return false;
@@ -836,10 +974,27 @@ void Client::connect(const std::string& host, uint16_t port) {
     auto res = r.resolve(host, std::to_string(port), ec);
     if (ec) throw Error("cannot resolve " + host + ": " + ec.message());
     m.state = ClientState::Connecting;
+    if (m.cfg.tls && !m.setup_tls()) return;  // Failed: see error()
     asio::async_connect(m.tcp_sock, res, [&m](asio::error_code e, const tcp::endpoint&) {
         if (e) return m.fail("cannot connect to " + m.host + ":" + std::to_string(m.port) + ": " + e.message());
         asio::error_code ig;
         m.tcp_sock.set_option(tcp::no_delay(true), ig);
+        if (!m.tls) return m.on_channel_ready();
+        m.tls_started = true;
+        m.tls->async_handshake(asio::ssl::stream_base::client, [&m](asio::error_code he) {
+            if (m.state == ClientState::Failed || m.state == ClientState::Closed) return;
+            if (he) {
+                if (!m.tls_verify_error.empty()) return m.fail("server certificate not trusted: " + m.tls_verify_error);
+                return m.fail("TLS handshake with " + m.host + ":" + std::to_string(m.port) + " failed: " + he.message());
+            }
+            if (m.check_pin()) m.on_channel_ready();
+        });
+    });
+}
+
+void Client::Impl::on_channel_ready() {
+    Impl& m = *this;
+    {
         m.tcp_connected = true;
         flatbuffers::FlatBufferBuilder b;
         auto name = b.CreateString(m.cfg.name.substr(0, MAX_NAME));
@@ -849,7 +1004,7 @@ void Client::connect(const std::string& host, uint16_t port) {
         b.Finish(wire::CreateControl(b, wire::ControlBody::Hello, h.Union()), wire::ControlIdentifier());
         m.send(b);
         m.read_more();
-    });
+    }
 }
 
 void Client::update(double now) { impl_->update(now); }
@@ -866,7 +1021,10 @@ void Client::close(const std::string& reason) {
         frame_control(b, msg);
         asio::error_code ec;
         m.tcp_sock.non_blocking(true, ec);
-        if (m.tx.empty()) m.tcp_sock.write_some(asio::buffer(msg), ec);
+        if (m.tx.empty()) {
+            if (m.tls) m.tls->write_some(asio::buffer(msg), ec);  // one TLS record; would_block: dropped
+            else m.tcp_sock.write_some(asio::buffer(msg), ec);
+        }
     }
     m.state = ClientState::Closed;
     m.raise(ClientEvent::Type::Closed, -1, -1, -1, reason);

@@ -55,6 +55,18 @@ struct ClientConfig {
     uint16_t protocol_version = 0; // 0: PROTOCOL_VERSION (tests send others)
     double connect_timeout = 10;   // seconds from connect() until the first frame (or every asset ready)
     double stream_timeout = 5;     // seconds without any datagram while characters exist: the stream is lost
+    // TLS on the control channel (docs/protocol.md "Security"). The server's
+    // certificate must be trusted one way at least: signed by a CA of
+    // ca_file (PEM; the certificate must then name the host connected to),
+    // and/or its SHA-256 fingerprint (hex of the DER, colons allowed) equal
+    // to pin_sha256; insecure accepts any certificate (development only; the
+    // caller warns). With none of them, connect() fails: never silent trust.
+    // When the Welcome carries datagram keys (server --seal-datagrams), every
+    // datagram both ways is sealed (proto/crypto.h); keys over plain TCP fail.
+    bool tls = false;
+    std::string ca_file;
+    std::string pin_sha256;
+    bool insecure = false;
     // Called after every asset chunk received (asset name, bytes so far, size); may be empty.
     std::function<void(const std::string&, uint64_t, uint64_t)> on_download;
 };
@@ -140,8 +152,11 @@ public:
     Client& operator=(const Client&) = delete;
 
     // Starts connecting (resolves host synchronously: pass a numeric address
-    // to never block); update() carries on. Throws Error for an unresolvable
-    // host or when called twice.
+    // to never block); update() carries on (TCP, then the TLS handshake and
+    // certificate check when cfg.tls). Throws Error for an unresolvable
+    // host or when called twice. With cfg.tls and nothing to trust the
+    // certificate by (no ca_file, pin_sha256 or insecure), a malformed pin or
+    // an unreadable CA file, the state is Failed on return (see error()).
     void connect(const std::string& host, uint16_t port);
     // Once per game frame; never blocks. `now`: seconds on now_seconds()'s clock.
     void update(double now);
@@ -243,6 +258,10 @@ struct ClientOptions {
     std::string cache_dir;
     uint16_t protocol_version = 0;
     double connect_timeout = 10;
+    bool tls = false;              // ClientConfig::tls, ca_file, pin_sha256, insecure
+    std::string ca_file;
+    std::string pin_sha256;
+    bool insecure = false;
     bool verbose = false;
     std::vector<std::pair<double, double>> cap_schedule;  // (seconds since streaming began, kbit/s): tests
     double snapshot_every = 0;

@@ -44,6 +44,14 @@ static const char* kUsage =
     "  --snap-to-ticks     display on server ticks only (isolates quantisation error)\n"
     "  --report json|text  final summary format on stdout (default text)\n"
     "  --cache DIR         asset cache directory (default ~/.cache/progskin)\n"
+    "  --tls               TLS on the control channel (default); the server's certificate\n"
+    "                      must be trusted by --ca and/or --pin (or --insecure)\n"
+    "  --no-tls            plain TCP (a progskin-server --no-tls)\n"
+    "  --ca FILE           trust certificates signed by these CAs (PEM) for the server's name\n"
+    "  --pin SHA256HEX     trust the certificate with this SHA-256 fingerprint (progskin-server\n"
+    "                      prints it: \"TLS certificate sha256 ...\")\n"
+    "  --insecure          accept any certificate (development only: no protection against\n"
+    "                      an active attacker)\n"
     "  --name NAME         client name sent in Hello\n"
     "  --token T           access token\n"
     "  --protocol-version N  claim another protocol version (testing refusals)\n"
@@ -68,6 +76,7 @@ static std::vector<float> floats(const std::string& s) {
 
 int main(int argc, char** argv) {
     ClientOptions opt;
+    opt.tls = true;  // the program's default (ClientOptions/ClientConfig default to plain)
     std::string report = "text";
     std::string snapshot_dir = "snapshots";
     try {
@@ -128,6 +137,11 @@ int main(int argc, char** argv) {
                 report = val();
                 if (report != "json" && report != "text") throw std::invalid_argument("--report json|text");
             } else if (a == "--cache") opt.cache_dir = val();
+            else if (a == "--tls") opt.tls = true;
+            else if (a == "--no-tls") opt.tls = false;
+            else if (a == "--ca") opt.ca_file = val();
+            else if (a == "--pin") opt.pin_sha256 = val();
+            else if (a == "--insecure") opt.insecure = true;
             else if (a == "--name") opt.name = val();
             else if (a == "--token") opt.token = val();
             else if (a == "--protocol-version") opt.protocol_version = cli::to_u16(a, val());
@@ -136,6 +150,11 @@ int main(int argc, char** argv) {
             else if (a == "--snapshot-dir") snapshot_dir = val();
             else throw std::invalid_argument("unknown argument " + a);
         }
+        if (!opt.tls && (!opt.ca_file.empty() || !opt.pin_sha256.empty() || opt.insecure))
+            throw std::invalid_argument("--ca, --pin and --insecure need TLS (not --no-tls)");
+        if (opt.tls && opt.ca_file.empty() && opt.pin_sha256.empty() && !opt.insecure)
+            throw std::invalid_argument("TLS (the default) needs --pin SHA256HEX (printed by progskin-server), --ca FILE, "
+                                        "or --insecure (development only); --no-tls for a plain server");
         if (opt.snapshot_every < 0) throw std::invalid_argument("--snapshot-every must be positive");
 #ifndef PROGSKIN_HAVE_RENDER
         if (opt.snapshot_every > 0) throw std::invalid_argument("--snapshot-every: this build has no renderer (render/)");
@@ -202,6 +221,8 @@ int main(int argc, char** argv) {
             printed = true;
         }
     };
+    if (opt.tls && opt.insecure)
+        std::fprintf(stderr, "progskin-client: --insecure: the server's certificate is not verified\n");
     try {
         ClientReport r = run_client(opt);
         if (report == "json") std::printf("%s\n", report_json(r).c_str());

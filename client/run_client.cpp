@@ -65,6 +65,10 @@ ClientReport run_client(const ClientOptions& opt) {
     cfg.cache_dir = opt.cache_dir;
     cfg.protocol_version = opt.protocol_version;
     cfg.connect_timeout = opt.connect_timeout;
+    cfg.tls = opt.tls;
+    cfg.ca_file = opt.ca_file;
+    cfg.pin_sha256 = opt.pin_sha256;
+    cfg.insecure = opt.insecure;
     cfg.on_download = opt.on_download;
     Client client(cfg);
     client.connect(opt.host, opt.port);

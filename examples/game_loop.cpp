@@ -4,8 +4,11 @@
 // players' characters once a second. No thread of its own: one update()
 // per frame.
 //
-//   progskin-server --no-scene &
-//   game_loop 127.0.0.1 7777 [seconds]
+//   progskin-server --no-scene &      # prints "TLS certificate sha256 HEX"
+//   game_loop 127.0.0.1 7777 [seconds [HEX]]
+// With HEX the control channel is TLS pinned to that certificate (and the
+// datagrams sealed when the server seals); without it, plain TCP (a server
+// started with --no-tls).
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -21,12 +24,17 @@ using namespace progskin::net;
 
 int main(int argc, char** argv) {
     if (argc < 3 || std::string(argv[1]) == "--help") {
-        std::fprintf(argc < 3 ? stderr : stdout, "usage: game_loop HOST PORT [SECONDS]\n"
+        std::fprintf(argc < 3 ? stderr : stdout, "usage: game_loop HOST PORT [SECONDS [SHA256]]\n"
                      "Joins a progskin-server, publishes one walking character and prints the others.\n");
         return argc < 3 ? 2 : 0;
     }
     const double seconds = argc > 3 ? std::atof(argv[3]) : 10.0;
-    Client client;
+    ClientConfig cfg;
+    if (argc > 4) {  // TLS, trusting the certificate with this fingerprint
+        cfg.tls = true;
+        cfg.pin_sha256 = argv[4];
+    }
+    Client client(cfg);
     try {
         client.connect(argv[1], uint16_t(std::atoi(argv[2])));
     } catch (const std::exception& e) {

@@ -71,17 +71,18 @@ void ReplayWindow::accept(uint64_t seq) {
 }
 
 void Sealer::seal(std::span<const uint8_t> plain, std::span<const uint8_t> ad, std::vector<uint8_t>& out) {
+    out.resize(plain.size() + SEAL_OVERHEAD);
+    seal_to(plain, ad, out.data());
+}
+
+void Sealer::seal_to(std::span<const uint8_t> plain, std::span<const uint8_t> ad, uint8_t* out) {
     const uint64_t seq = seq_++;
-    out.clear();
-    out.reserve(plain.size() + SEAL_OVERHEAD);
-    put_u64(out, seq);
-    out.resize(8 + plain.size() + crypto_aead_xchacha20poly1305_ietf_ABYTES);
+    for (int i = 0; i < 8; ++i) out[i] = uint8_t(seq >> (8 * i));
     uint8_t nonce[crypto_aead_xchacha20poly1305_ietf_NPUBBYTES];
     make_nonce(seq, nonce);
     unsigned long long n = 0;
-    crypto_aead_xchacha20poly1305_ietf_encrypt(out.data() + 8, &n, plain.data(), plain.size(), ad.data(), ad.size(), nullptr,
-                                               nonce, key_.data());
-    out.resize(8 + size_t(n));
+    crypto_aead_xchacha20poly1305_ietf_encrypt(out + 8, &n, plain.data(), plain.size(), ad.data(), ad.size(), nullptr, nonce,
+                                               key_.data());
 }
 
 const char* to_string(OpenResult r) {
@@ -126,11 +127,9 @@ std::array<uint8_t, 10> datagram_ad(uint64_t session_id, uint16_t version) {
 void seal_datagram(Sealer& sealer, uint64_t session_id, uint16_t version, std::span<const uint8_t> plain,
                    std::vector<uint8_t>& out) {
     const auto ad = datagram_ad(session_id, version);
-    std::vector<uint8_t> sealed;
-    sealer.seal(plain, ad, sealed);
-    out.clear();
-    put_u64(out, session_id);
-    out.insert(out.end(), sealed.begin(), sealed.end());
+    out.resize(8 + plain.size() + SEAL_OVERHEAD);  // no allocation once `out` has grown to the largest datagram
+    for (int i = 0; i < 8; ++i) out[size_t(i)] = uint8_t(session_id >> (8 * i));
+    sealer.seal_to(plain, ad, out.data() + 8);
 }
 
 uint64_t sealed_session_id(std::span<const uint8_t> wire) {

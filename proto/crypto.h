@@ -61,6 +61,8 @@ public:
     explicit Sealer(const Key& key) : key_(key) {}
     // Writes the sealed datagram to `out` (resized to plain.size() + SEAL_OVERHEAD).
     void seal(std::span<const uint8_t> plain, std::span<const uint8_t> ad, std::vector<uint8_t>& out);
+    // The same into out[0 .. plain.size() + SEAL_OVERHEAD) (no allocation).
+    void seal_to(std::span<const uint8_t> plain, std::span<const uint8_t> ad, uint8_t* out);
     uint64_t next_sequence() const { return seq_; }
 
 private:

@@ -44,7 +44,7 @@ cleanup() {
 }
 trap cleanup EXIT INT TERM
 
-"$SERVER" --port 0 --duration $((DURATION + 40)) >"$TMP/server.out" 2>"$TMP/server.err" &
+"$SERVER" --port 0 --tls-dir "$TMP/tls" --duration $((DURATION + 40)) >"$TMP/server.out" 2>"$TMP/server.err" &
 PIDS+=($!)
 PORT=""
 for _ in $(seq 1 200); do
@@ -54,11 +54,14 @@ for _ in $(seq 1 200); do
   sleep 0.1
 done
 [[ -n $PORT ]] || { echo "demo: server did not start" >&2; cat "$TMP/server.err" >&2; exit 1; }
+# TLS (the server's default, a self-signed pair in $TMP/tls): the clients pin its fingerprint.
+PIN=$(sed -n 's/^progskin-server: TLS certificate sha256 //p' "$TMP/server.out")
+[[ -n $PIN ]] || { echo "demo: the server printed no certificate fingerprint" >&2; exit 1; }
 
 # Fetch the assets once so the clients start together.
-"$CLIENT" --server 127.0.0.1:$PORT --duration 0.2 --cache "$TMP/cache" >/dev/null
+"$CLIENT" --server 127.0.0.1:$PORT --pin "$PIN" --duration 0.2 --cache "$TMP/cache" >/dev/null
 for cap in $CAPS; do
-  "$CLIENT" --server 127.0.0.1:$PORT --max-kbps "$cap" --duration "$DURATION" --verify --report json \
+  "$CLIENT" --server 127.0.0.1:$PORT --pin "$PIN" --max-kbps "$cap" --duration "$DURATION" --verify --report json \
     --cache "$TMP/cache" --name "demo-$cap" >"$TMP/client-$cap.json" 2>"$TMP/client-$cap.err" &
   PIDS+=($!)
 done

@@ -43,7 +43,7 @@ trap cleanup EXIT INT TERM
 
 printf "%10s %12s %8s %10s %10s %10s %10s\n" "cap kbit/s" "rate kbit/s" "remote" "RMS %diag" "max %diag" "p50 ms" "p99 ms"
 for cap in $CAPS; do
-  "$SERVER" --port 0 --no-scene --duration $((DURATION + 30)) >"$TMP/server.out" 2>"$TMP/server.err" &
+  "$SERVER" --port 0 --tls-dir "$TMP/tls" --no-scene --duration $((DURATION + 30)) >"$TMP/server.out" 2>"$TMP/server.err" &
   SPID=$!
   PIDS+=($SPID)
   PORT=""
@@ -53,11 +53,14 @@ for cap in $CAPS; do
     kill -0 $SPID 2>/dev/null || { cat "$TMP/server.err" >&2; exit 1; }
     sleep 0.1
   done
-  "$CLIENT" --server 127.0.0.1:$PORT --duration 0.2 --publish 0 --cache "$TMP/cache" >/dev/null 2>&1 || true
+  # TLS (the server's default, a self-signed pair in $TMP/tls): the clients pin its fingerprint.
+  PIN=$(sed -n 's/^progskin-server: TLS certificate sha256 //p' "$TMP/server.out")
+  [[ -n $PIN ]] || { echo "multiplayer.sh: the server printed no certificate fingerprint" >&2; exit 1; }
+  "$CLIENT" --server 127.0.0.1:$PORT --pin "$PIN" --duration 0.2 --publish 0 --cache "$TMP/cache" >/dev/null 2>&1 || true
   OTHERS=()
   for i in $(seq 1 $((PLAYERS - 1))); do
     asset=$((i % 2))
-    "$CLIENT" --server 127.0.0.1:$PORT --publish $asset --walk "$WALK" --duration $((DURATION + 4)) \
+    "$CLIENT" --server 127.0.0.1:$PORT --pin "$PIN" --publish $asset --walk "$WALK" --duration $((DURATION + 4)) \
       --cache "$TMP/cache" --name "player$i" >/dev/null 2>"$TMP/p$i.err" &
     OTHERS+=($!)
     PIDS+=($!)
@@ -65,7 +68,7 @@ for cap in $CAPS; do
   sleep 1
   capopt=()
   [[ $cap != 0 ]] && capopt=(--max-kbps "$cap")
-  if ! "$CLIENT" --server 127.0.0.1:$PORT --publish 0 --walk "$WALK" --duration "$DURATION" --warmup 2 --verify \
+  if ! "$CLIENT" --server 127.0.0.1:$PORT --pin "$PIN" --publish 0 --walk "$WALK" --duration "$DURATION" --warmup 2 --verify \
        --verify-every 2 --delay-ms 100 --max-delay-ms 100 --report json --cache "$TMP/cache" --name observer "${capopt[@]}" >"$TMP/obs.json" 2>"$TMP/obs.err"; then
     cat "$TMP/obs.err" >&2; exit 1
   fi

@@ -55,25 +55,29 @@ wait_port() {  # file, pattern -> port
   return 1
 }
 
-"$SERVER" --port 0 --max-clients $((CLIENTS + 8)) >"$TMP/server.out" 2>"$TMP/server.err" &
+"$SERVER" --port 0 --tls-dir "$TMP/tls" --max-clients $((CLIENTS + 8)) >"$TMP/server.out" 2>"$TMP/server.err" &
 SERVER_PID=$!
 PIDS+=("$SERVER_PID")
 PORT=$(wait_port "$TMP/server.out" "TCP") || { echo "soak.sh: server did not start" >&2; cat "$TMP/server.err" >&2; exit 1; }
 UDP_PORT=$(grep -o 'UDP [0-9]*' "$TMP/server.out" | cut -d' ' -f2)
+# TLS and sealed datagrams (the server's defaults; netem relays sealed datagrams,
+# its duplicates are dropped as replays): the clients pin the certificate.
+PIN=$(sed -n 's/^progskin-server: TLS certificate sha256 //p' "$TMP/server.out")
+[[ -n $PIN ]] || { echo "soak.sh: the server printed no certificate fingerprint" >&2; exit 1; }
 "$NETEM" --to 127.0.0.1:"$UDP_PORT" --listen 0 --loss 0.1 --reorder 0.05 --duplicate 0.02 --jitter-ms 5 \
   >"$TMP/netem.out" 2>"$TMP/netem.err" &
 NETEM_PID=$!
 PIDS+=("$NETEM_PID")
 NETEM_PORT=$(wait_port "$TMP/netem.out" "UDP") || { echo "soak.sh: netem did not start" >&2; exit 1; }
 
-"$CLIENT" --server 127.0.0.1:"$PORT" --duration 0.2 --cache "$TMP/cache" >/dev/null  # assets once
+"$CLIENT" --server 127.0.0.1:"$PORT" --pin "$PIN" --duration 0.2 --cache "$TMP/cache" >/dev/null  # assets once
 rss() { awk '/^VmRSS:/ { print $2 }' "/proc/$SERVER_PID/status" 2>/dev/null || echo 0; }
 
 CPIDS=()
 for i in $(seq 1 "$CLIENTS"); do
   via=()
   ((i % 2 == 0)) && via=(--udp-via 127.0.0.1:"$NETEM_PORT")
-  "$CLIENT" --server 127.0.0.1:"$PORT" "${via[@]}" --max-kbps "$CAP" --duration "$SECONDS_RUN" --report json \
+  "$CLIENT" --server 127.0.0.1:"$PORT" --pin "$PIN" "${via[@]}" --max-kbps "$CAP" --duration "$SECONDS_RUN" --report json \
     --cache "$TMP/cache" --name "soak-$i" >"$TMP/client-$i.json" 2>"$TMP/client-$i.err" &
   CPIDS+=($!)
   PIDS+=($!)

@@ -1,4 +1,9 @@
 // server_main.cpp — progskin-server: hosts a scene and streams it (server.h).
+// TLS is on by default (unlike ServerConfig's): with no --tls-cert/--tls-key
+// it uses a self-signed pair generated once in the config directory
+// (tls_identity.h) and prints the certificate's SHA-256 on stdout
+// ("progskin-server: TLS certificate sha256 HEX") for clients to pin; with
+// TLS, datagrams are sealed unless --no-seal-datagrams. --no-tls: plain.
 #include <atomic>
 #include <chrono>
 #include <csignal>
@@ -12,6 +17,7 @@
 #include "cli_args.h"
 #include "error.h"
 #include "server.h"
+#include "tls_identity.h"
 #include "wire.h"
 
 using namespace progskin;
@@ -45,8 +51,15 @@ static const char* kUsage =
     "  --token-public-key HEX  require a connect token signed by the matching secret\n"
     "                    key (progskin token keygen / issue) in Hello\n"
     "  --public-address HOST:PORT  the address connect tokens must name (default: any)\n"
-    "  --tls-cert FILE --tls-key FILE  TLS on the control channel (PEM; default: plain TCP)\n"
-    "  --seal-datagrams  (with TLS) seal every datagram with per-session keys\n"
+    "  TLS on the control channel is on by default, with a self-signed certificate\n"
+    "  generated once (EC P-256, CN progskin-server, SAN 127.0.0.1 and localhost) and\n"
+    "  reused; its SHA-256 is printed on stdout for progskin-client --pin:\n"
+    "  --tls-dir DIR     where that pair lives (default $XDG_CONFIG_HOME/progskin or\n"
+    "                    ~/.config/progskin): server-cert.pem, server-key.pem\n"
+    "  --tls-cert FILE --tls-key FILE  use this certificate (chain) and key instead (PEM)\n"
+    "  --no-tls          plain TCP control channel, unsealed datagrams (clients: --no-tls)\n"
+    "  --seal-datagrams  seal every datagram with per-session keys (default with TLS)\n"
+    "  --no-seal-datagrams  TLS without sealed datagrams\n"
     "  --duration S      stop after S seconds (default: run until SIGINT/SIGTERM)\n"
     "  --verbose         log sessions on stderr\n"
     "  --help\n"
@@ -65,6 +78,8 @@ int main(int argc, char** argv) {
     int crowd = 0;
     double duration = 0;
     bool no_scene = false, once = false;
+    bool no_tls = false, seal = true, seal_asked = false;
+    std::string tls_dir;
     auto need = [&](int& i) -> const char* {
         if (i + 1 >= argc) {
             std::fprintf(stderr, "progskin-server: %s needs a value\n%s", argv[i], kUsage);
@@ -106,7 +121,10 @@ int main(int argc, char** argv) {
             else if (a == "--public-address") cfg.public_address = need(i);
             else if (a == "--tls-cert") cfg.tls_cert_file = need(i);
             else if (a == "--tls-key") cfg.tls_key_file = need(i);
-            else if (a == "--seal-datagrams") cfg.seal_datagrams = true;
+            else if (a == "--seal-datagrams") seal = seal_asked = true;
+            else if (a == "--no-seal-datagrams") seal = false;
+            else if (a == "--no-tls") no_tls = true;
+            else if (a == "--tls-dir") tls_dir = need(i);
             else if (a == "--duration") duration = cli::to_number(a, need(i));
             else if (a == "--verbose") cfg.verbose = true;
             else {
@@ -122,6 +140,33 @@ int main(int argc, char** argv) {
         asset_options.scratch_bones < 1 || asset_options.scratch_bones > MAX_BONES) {
         std::fprintf(stderr, "progskin-server: argument out of range\n%s", kUsage);
         return 2;
+    }
+    if (no_tls && (!cfg.tls_cert_file.empty() || !cfg.tls_key_file.empty() || seal_asked || !tls_dir.empty())) {
+        std::fprintf(stderr, "progskin-server: --no-tls excludes --tls-cert, --tls-key, --tls-dir and --seal-datagrams\n%s", kUsage);
+        return 2;
+    }
+    if (cfg.tls_cert_file.empty() != cfg.tls_key_file.empty()) {
+        std::fprintf(stderr, "progskin-server: --tls-cert and --tls-key go together\n%s", kUsage);
+        return 2;
+    }
+    std::string tls_line;  // printed with the listening line
+    try {
+        if (!no_tls) {
+            if (cfg.tls_cert_file.empty()) {
+                const TlsIdentity id = ensure_self_signed(tls_dir.empty() ? default_tls_dir() : tls_dir);
+                cfg.tls_cert_file = id.cert_path;
+                cfg.tls_key_file = id.key_path;
+                tls_line = "progskin-server: TLS certificate sha256 " + id.sha256_hex + "\nprogskin-server: TLS certificate " +
+                           id.cert_path + ", key " + id.key_path + (id.created ? " (generated)" : " (reused)") + "\n";
+            } else {
+                tls_line = "progskin-server: TLS certificate sha256 " + certificate_sha256(cfg.tls_cert_file) +
+                           "\nprogskin-server: TLS certificate " + cfg.tls_cert_file + ", key " + cfg.tls_key_file + "\n";
+            }
+            cfg.seal_datagrams = seal;
+        }
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "progskin-server: TLS: %s\n", e.what());
+        return 1;
     }
     try {
         if (asset_paths.empty()) {
@@ -164,8 +209,10 @@ int main(int argc, char** argv) {
         g_server = &server;
         std::signal(SIGINT, on_signal);
         std::signal(SIGTERM, on_signal);
-        std::printf("progskin-server: listening on TCP %u, UDP %u, %zu instances, %.0f Hz\n", server.tcp_port(),
-                    server.udp_port(), instances.size(), double(cfg.tick_rate));
+        std::fputs(tls_line.c_str(), stdout);
+        std::printf("progskin-server: listening on TCP %u, UDP %u, %zu instances, %.0f Hz%s\n", server.tcp_port(),
+                    server.udp_port(), instances.size(), double(cfg.tick_rate),
+                    no_tls ? ", plain TCP (no TLS)" : cfg.seal_datagrams ? ", TLS, sealed datagrams" : ", TLS");
         std::fflush(stdout);
         std::thread stopper;
         std::atomic<bool> done{false};

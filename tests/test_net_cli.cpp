@@ -1,5 +1,7 @@
 // test_net_cli.cpp — the executables' contract: --help, exit codes, errors on
-// stderr, and the JSON summary keys scripts read (progskin-client --report json).
+// stderr, and the JSON summary keys scripts read (progskin-client --report json);
+// TLS by default: the server's fingerprint line, the pair it reuses, the
+// client's --pin / --no-tls / --insecure.
 #include <gtest/gtest.h>
 
 #include <array>
@@ -10,6 +12,9 @@
 #include <fstream>
 #include <string>
 #include <thread>
+#include <iterator>
+
+#include <unistd.h>
 
 namespace {
 
@@ -36,6 +41,37 @@ CmdResult run(const std::string& cmd) {
 
 bool built(const std::string& name) { return std::ifstream(bin(name)).good(); }
 
+// A progskin-server in the background (stdout to `out`); waits for its
+// listening line and reads its TCP port and certificate fingerprint.
+struct BackgroundServer {
+    std::string out, port, pin;
+    long pid = 0;
+    BackgroundServer(const std::string& name, const std::string& args) {
+        out = ::testing::TempDir() + name + ".out";
+        std::remove(out.c_str());
+        const std::string cmd = bin("progskin-server") + " " + args + " > " + out + " 2>/dev/null & echo $! > " + out + ".pid";
+        if (std::system(cmd.c_str()) != 0) return;
+        for (int i = 0; i < 200 && port.empty(); ++i) {
+            std::this_thread::sleep_for(std::chrono::milliseconds(50));
+            std::ifstream f(out);
+            std::string line;
+            while (std::getline(f, line)) {
+                if (auto p = line.find("TCP "); p != std::string::npos) port = line.substr(p + 4, line.find(',', p) - p - 4);
+                if (auto p = line.find("TLS certificate sha256 "); p != std::string::npos) pin = line.substr(p + 23);
+            }
+        }
+        std::ifstream pf(out + ".pid");
+        pf >> pid;
+    }
+    ~BackgroundServer() {  // it would stop by itself after its --duration
+        if (pid > 0) std::system(("kill " + std::to_string(pid) + " 2>/dev/null").c_str());
+    }
+    std::string text() const {
+        std::ifstream f(out);
+        return std::string(std::istreambuf_iterator<char>(f), {});
+    }
+};
+
 }  // namespace
 
 TEST(NetCli, HelpAndExitCodes) {
@@ -52,6 +88,9 @@ TEST(NetCli, HelpAndExitCodes) {
         {"progskin-server --crowd 3x", "--crowd"},
         {"progskin-server --port 70000", "--port"},
         {"progskin-client --duration 1s", "--duration"},
+        {"progskin-server --no-tls --seal-datagrams", "--no-tls"},
+        {"progskin-server --tls-cert only.pem", "--tls-key"},
+        {"progskin-client --no-tls --pin 00", "--pin"},
         {"progskin-netem --to 127.0.0.1:7777 --loss 2", "--loss"},
         {"progskin-netem --to 127.0.0.1:7777 --seed 1.5", "--seed"},
     };
@@ -63,35 +102,57 @@ TEST(NetCli, HelpAndExitCodes) {
         EXPECT_NE(r.out.find(option), std::string::npos) << cmd << ": " << r.out;
     }
     if (!built("progskin-client")) GTEST_SKIP();
-    CmdResult refused = run(bin("progskin-client") + " --server 127.0.0.1:1 --duration 1");
+    CmdResult refused = run(bin("progskin-client") + " --no-tls --server 127.0.0.1:1 --duration 1");
     EXPECT_EQ(refused.code, 1);
     EXPECT_NE(refused.out.find("cannot connect"), std::string::npos) << refused.out;
+    // TLS is the default and trusts nothing silently: no --pin/--ca/--insecure is an argument error.
+    CmdResult untrusted = run(bin("progskin-client") + " --server 127.0.0.1:1 --duration 1");
+    EXPECT_EQ(untrusted.code, 2);
+    EXPECT_NE(untrusted.out.find("--pin"), std::string::npos) << untrusted.out;
+    CmdResult insecure = run(bin("progskin-client") + " --insecure --server 127.0.0.1:1 --duration 1");
+    EXPECT_EQ(insecure.code, 1);
+    EXPECT_NE(insecure.out.find("--insecure: the server's certificate is not verified"), std::string::npos) << insecure.out;
+}
+
+// The server's development default: a self-signed pair generated once in
+// --tls-dir, its fingerprint on stdout, the same pair on the next start; a
+// client pinning another fingerprint fails with a clear message.
+TEST(NetCli, ServerPrintsItsFingerprintAndReusesItsPair) {
+    if (!built("progskin-server") || !built("progskin-client")) GTEST_SKIP() << "executables not built";
+    const std::string dir = ::testing::TempDir() + "progskin-cli-tls-" + std::to_string(::getpid());
+    std::system(("rm -rf " + dir).c_str());
+    const std::string args = "--port 0 --duration 10 --tls-dir " + dir + " --asset " + PROGSKIN_ASSETS + "/Fox.glb";
+    std::string first_pin;
+    {
+        BackgroundServer s("progskin-cli-tls1", args);
+        ASSERT_FALSE(s.port.empty()) << s.text();
+        ASSERT_EQ(s.pin.size(), 64u) << s.text();
+        EXPECT_NE(s.text().find("(generated)"), std::string::npos) << s.text();
+        EXPECT_NE(s.text().find(dir + "/server-cert.pem"), std::string::npos) << s.text();
+        first_pin = s.pin;
+        std::string wrong = s.pin;
+        wrong[0] = wrong[0] == '0' ? '1' : '0';
+        CmdResult r = run(bin("progskin-client") + " --server 127.0.0.1:" + s.port + " --pin " + wrong + " --duration 1");
+        EXPECT_EQ(r.code, 1);
+        EXPECT_NE(r.out.find("does not match the pinned"), std::string::npos) << r.out;
+    }
+    BackgroundServer s("progskin-cli-tls2", args);
+    ASSERT_FALSE(s.port.empty()) << s.text();
+    EXPECT_EQ(s.pin, first_pin);
+    EXPECT_NE(s.text().find("(reused)"), std::string::npos) << s.text();
+    std::system(("rm -rf " + dir).c_str());
 }
 
 TEST(NetCli, ClientJsonSummaryHasTheDocumentedKeys) {
     if (!built("progskin-server") || !built("progskin-client")) GTEST_SKIP() << "executables not built";
-    const std::string out = ::testing::TempDir() + "progskin-cli-server.out";
-    std::string cmd = bin("progskin-server") + " --port 0 --duration 15 --asset " + PROGSKIN_ASSETS +
-                      "/Fox.glb > " + out + " 2>/dev/null & echo $! > " + out + ".pid";
-    ASSERT_EQ(std::system(cmd.c_str()), 0);
-    std::string port;
-    for (int i = 0; i < 200 && port.empty(); ++i) {
-        std::this_thread::sleep_for(std::chrono::milliseconds(50));
-        std::ifstream f(out);
-        std::string line;
-        while (std::getline(f, line)) {
-            auto p = line.find("TCP ");
-            if (p != std::string::npos) port = line.substr(p + 4, line.find(',', p) - p - 4);
-        }
-    }
-    ASSERT_FALSE(port.empty());
-    CmdResult r = run(bin("progskin-client") + " --server 127.0.0.1:" + port + " --max-kbps 64 --duration 2 --verify --report json --cache " +
-                ::testing::TempDir() + "progskin-cli-cache");
-    {  // stop the server (it would stop by itself after 15 s)
-        std::ifstream pf(out + ".pid");
-        long pid = 0;
-        if (pf >> pid && pid > 0) std::system(("kill " + std::to_string(pid)).c_str());
-    }
+    // TLS and sealed datagrams (the defaults), the pair in a temporary directory.
+    BackgroundServer s("progskin-cli-server", "--port 0 --duration 15 --tls-dir " + ::testing::TempDir() +
+                                                  "progskin-cli-tls --asset " + PROGSKIN_ASSETS + "/Fox.glb");
+    ASSERT_FALSE(s.port.empty()) << s.text();
+    ASSERT_EQ(s.pin.size(), 64u) << s.text();
+    EXPECT_NE(s.text().find("TLS, sealed datagrams"), std::string::npos) << s.text();
+    CmdResult r = run(bin("progskin-client") + " --server 127.0.0.1:" + s.port + " --pin " + s.pin +
+                      " --max-kbps 64 --duration 2 --verify --report json --cache " + ::testing::TempDir() + "progskin-cli-cache");
     ASSERT_EQ(r.code, 0) << r.out;
     for (const char* key : {"\"seconds\"", "\"rate_kbps\"", "\"datagrams\"", "\"loss\"", "\"characters\"", "\"bones_mean\"",
                             "\"bones_min\"", "\"bones_max\"", "\"rms_pct\"", "\"max_pct\""})

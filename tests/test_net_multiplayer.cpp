@@ -107,7 +107,7 @@ TEST(NetMultiplayer, EightPlayersSeeEachOtherJoinAndLeave) {
 
     // The separate process: publishes a CesiumMan walking 100 diagonals out
     // and verifies what it displays of everybody else.
-    const std::string cmd = std::string(PROGSKIN_BIN_DIR) + "/client/progskin-client --server 127.0.0.1:" + std::to_string(port) +
+    const std::string cmd = std::string(PROGSKIN_BIN_DIR) + "/client/progskin-client --no-tls --server 127.0.0.1:" + std::to_string(port) +
                             " --publish CesiumMan.glb --walk 100 --duration 7 --warmup 1.5 --verify --verify-every 3 --report json --cache " +
                             RunningServer::cache_dir() + " 2>&1";
     auto external = std::async(std::launch::async, [cmd] {
