@@ -20,7 +20,7 @@
 //   c.close();
 //
 // Ownership: every pointer and span a Client returns is owned by it.
-// characters() and each RemoteCharacter::palette are valid until the next
+// characters() and each RemoteCharacter::palette / morph_weights are valid until the next
 // update() or close(); RemoteCharacter::asset (a ClientAsset: character,
 // progressive skin) stays valid as long as the Client lives. events() is
 // valid until the next update().
@@ -85,6 +85,8 @@ struct RemoteCharacter {
     RootPose root;                       // world placement at the display time (source_us: the pose's producer time)
     bool shown = false;                  // a pose exists at the display time (palette valid)
     std::span<const Mat34> palette;      // B matrices in progressive order (copy-down and blending applied)
+    std::span<const float> morph_weights;  // one per morph target of asset->character (apply before skinning:
+                                           // morph_positions in common/error_metric.h); empty without targets
     int bones = 0;                       // bones shown (the LOD target)
     double display_tick = 0;             // the server tick displayed
 };
