@@ -183,3 +183,57 @@ TEST(NetMorph, SchedulerSendsChangedWeightsOnly) {
     EXPECT_LT(weights_sent, n * ticks);
     EXPECT_GE(weights_sent, n);
 }
+
+// A weight outside the wire range ([-2, 2)) is refused by the encoder and
+// counted, never clamped: it does not travel, and the client keeps its last
+// value; the weights in range still go.
+TEST(NetMorph, OutOfRangeWeightsAreRefusedAndCounted) {
+    auto scaled = std::make_shared<ServerAsset>(*morph_asset());
+    const int sel = talk_selection(*scaled);
+    // Weight channels of "talk" times 10: the larger weights leave the range.
+    for (int c : scaled->selections[size_t(sel)].clips)
+        for (Channel& ch : scaled->character.clips[size_t(c)].channels)
+            if (ch.path == ChannelPath::Weights)
+                for (float& v : ch.values) v *= 10.0f;
+    const std::vector<std::shared_ptr<ServerAsset>> assets = {scaled};
+    InstanceSpec spec;
+    spec.selection = sel;
+    FrameEncoder enc(assets, {spec}, 30.0f);
+    const std::vector<float> imp = compute_importance(ViewSpec{}, {spec}, assets);
+    Scheduler sched;
+    DatagramPacker packer;
+    uint32_t seq = 0;
+    size_t refused_ticks = 0, sent = 0;
+    std::vector<float> exact(scaled->character.morphs.size());
+    for (uint32_t t = 1; t <= 60; ++t) {
+        const EncodedFrame& f = enc.encode(t);
+        const auto q = f.morphs(0);
+        std::vector<Pick> picks;
+        sched.select(f, assets, imp, 1 << 20, 30.0f, picks);
+        std::vector<std::vector<uint8_t>> out;
+        packer.pack(f, picks, seq, out);
+        sched.sent(picks, t);
+        sample_morph_weights(scaled->character, scaled->selections[size_t(sel)], enc.clip_time(0, t), exact);
+        for (size_t m = 0; m < q.size(); ++m) {
+            const bool in_range = exact[m] >= -2.0f && exact[m] < 2.0f;
+            EXPECT_EQ(q[m] == kNoWeight, !in_range) << "tick " << t << " weight " << m << " = " << exact[m];
+            if (!in_range) ++refused_ticks;
+        }
+        for (const auto& d : out)
+            ASSERT_TRUE(read_frame(
+                *verify_datagram(d)->body_as_Frame(), [](uint16_t) { return 12; },
+                [](uint16_t, int, int, int, const uint8_t*) {},
+                [&](const wire::Chunk&, const uint8_t*, const uint8_t* m) {
+                    if (!m) return;
+                    for (int i = 0; i < m[0]; ++i) {
+                        const uint8_t* e = m + 1 + i * 3;
+                        ASSERT_NE(q[e[0]], kNoWeight) << "a refused weight travelled";
+                        EXPECT_EQ(int16_t(uint16_t(e[1] | e[2] << 8)), q[e[0]]);
+                        ++sent;
+                    }
+                }));
+    }
+    EXPECT_GT(refused_ticks, 0u);
+    EXPECT_GT(sent, 0u);
+    EXPECT_EQ(enc.stats().morphs_out_of_range, refused_ticks);
+}
