@@ -15,7 +15,8 @@
 //       c.update(now_seconds());
 //       for (const ClientEvent& e : c.events()) ...   // added, removed, spawned, lost
 //       c.publish(me, root, skinning_matrices);  // my pose, joint order, relative to root
-//       for (const RemoteCharacter& rc : c.characters()) draw(rc.asset->character, rc.world, rc.palette);
+//       for (const RemoteCharacter& rc : c.characters())   // morph_weights: before skinning
+//           draw(rc.asset->character, rc.world, rc.palette, rc.morph_weights);
 //   }
 //   c.close();
 //
@@ -210,6 +211,7 @@ struct DisplayedCharacter {
     std::span<const Mat34> palette;  // B matrices in progressive order (copy-down and blending applied)
     glm::vec3 position{0.0f};        // world placement
     int bones = 0;                   // bones displayed (the LOD target)
+    std::span<const float> morph_weights;  // displayed morph weights (apply before skinning), empty without targets
 };
 struct DisplaySnapshot {
     double seconds = 0;    // since streaming began

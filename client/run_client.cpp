@@ -264,7 +264,7 @@ ClientReport run_client(const ClientOptions& opt) {
                 for (const RemoteCharacter& c : chars)
                     if (c.shown)
                         snap.characters.push_back({c.instance, &c.asset->character, &c.asset->skin, &c.asset->stream, c.palette,
-                                                   glm::vec3(c.root.position), c.bones});
+                                                   glm::vec3(c.root.position), c.bones, c.morph_weights});
                 if (!snap.characters.empty()) opt.on_snapshot(snap);
             }
             if (opt.verbose && display_count % size_t(std::max(1.0, opt.display_rate)) == 0) {
