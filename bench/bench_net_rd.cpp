@@ -130,7 +130,11 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
         for (const auto& a : assets) kmax = std::min(kmax, a->bone_count());
         for (int k = kmax; k >= 1; --k) {
             size_t payload = 0;
-            for (const auto& s : specs) payload += WireCost::header(assets[s.asset]->bone_count()) + size_t(std::min(k, assets[s.asset]->bone_count())) * assets[s.asset]->format.size();
+            for (const auto& s : specs) {
+                const size_t morphs = std::min<size_t>(assets[s.asset]->character.morphs.size(), MAX_MORPHS);
+                payload += WireCost::header(assets[s.asset]->bone_count()) + size_t(std::min(k, assets[s.asset]->bone_count())) * assets[s.asset]->format.size() +
+                           (morphs ? 1 + morphs * MORPH_ENTRY_BYTES : 0);  // every weight, as the baselines send them
+            }
             if (WireCost::wire(payload) * 30.0 <= 0.94 * cap_kbps * 125.0) {
                 leaf_k = k;
                 break;
