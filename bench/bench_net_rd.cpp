@@ -22,6 +22,7 @@
 //   for character N); --clip: the clip selection every asset plays (default:
 //   each asset's default training set, one instance per clip group in the
 //   first scene); --crowd: instances of the second scene (default 24).
+#include <array>
 #include <benchmark/benchmark.h>
 
 #include <cmath>
@@ -129,7 +130,11 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
         for (const auto& a : assets) kmax = std::min(kmax, a->bone_count());
         for (int k = kmax; k >= 1; --k) {
             size_t payload = 0;
-            for (const auto& s : specs) payload += WireCost::header(assets[s.asset]->bone_count()) + size_t(std::min(k, assets[s.asset]->bone_count())) * assets[s.asset]->format.size();
+            for (const auto& s : specs) {
+                const size_t morphs = std::min<size_t>(assets[s.asset]->character.morphs.size(), MAX_MORPHS);
+                payload += WireCost::header(assets[s.asset]->bone_count()) + size_t(std::min(k, assets[s.asset]->bone_count())) * assets[s.asset]->format.size() +
+                           (morphs ? 1 + morphs * MORPH_ENTRY_BYTES : 0);  // every weight, as the baselines send them
+            }
             if (WireCost::wire(payload) * 30.0 <= 0.94 * cap_kbps * 125.0) {
                 leaf_k = k;
                 break;
@@ -161,10 +166,16 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
                     size_t i = (rr + c) % n;
                     const auto& a = *assets[specs[i].asset];
                     int k = m == Method::AllBones ? a.bone_count() : std::min(leaf_k, a.bone_count());
-                    size_t b = WireCost::header(a.bone_count()) + size_t(k) * a.format.size();
+                    // Baselines send every morph weight with the bones (no sparse scheduling).
+                    std::array<uint64_t, 4> morphs{};
+                    const auto q = f.morphs(int(i));
+                    for (size_t w = 0; w < q.size(); ++w)
+                        if (q[w] != kNoWeight) morphs[w / 64] |= uint64_t(1) << (w % 64);
+                    size_t b = WireCost::header(a.bone_count()) + size_t(k) * a.format.size() + morph_block_bytes(morphs);
                     if (WireCost::wire(payload + b) > budget) break;
                     payload += b;
                     picks.push_back({int(i), k});
+                    picks.back().morphs = morphs;
                 }
                 rr = (rr + picks.size()) % n;
             }

@@ -709,9 +709,12 @@ struct Client::Impl {
         };
         uint8_t epoch = 0;
         const uint8_t* root = nullptr;
-        auto on_chunk = [&](const wire::Chunk& c, const uint8_t* r) {
+        auto on_chunk = [&](const wire::Chunk& c, const uint8_t* r, const uint8_t* morph) {
             epoch = c.epoch();
             root = r;
+            // Morph weights (sparse: the others keep their values), PoseBuffer::add_morphs.
+            if (morph && !remotes[c.instance()].view->buffer().add_morphs(f->tick(), c.show(), c.show(), c.epoch(), morph))
+                ++st.malformed;
         };
         auto apply = [&](uint16_t instance, int first, int count, int show, const uint8_t* rec) {
             InstanceView& v = *remotes[instance].view;
@@ -900,11 +903,13 @@ struct Client::Impl {
             rc.display_tick = d;
             if (rc.shown) {
                 rc.palette = v.palette();
+                rc.morph_weights = v.morph_weights();
                 rc.bones = v.target_bones();
                 RootPose root;
                 if (v.buffer().root(d, root)) rc.root = root;
             } else {
                 rc.palette = {};
+                rc.morph_weights = {};
                 rc.bones = 0;
             }
         }

@@ -15,12 +15,13 @@
 //       c.update(now_seconds());
 //       for (const ClientEvent& e : c.events()) ...   // added, removed, spawned, lost
 //       c.publish(me, root, skinning_matrices);  // my pose, joint order, relative to root
-//       for (const RemoteCharacter& rc : c.characters()) draw(rc.asset->character, rc.world, rc.palette);
+//       for (const RemoteCharacter& rc : c.characters())   // morph_weights: before skinning
+//           draw(rc.asset->character, rc.world, rc.palette, rc.morph_weights);
 //   }
 //   c.close();
 //
 // Ownership: every pointer and span a Client returns is owned by it.
-// characters() and each RemoteCharacter::palette are valid until the next
+// characters() and each RemoteCharacter::palette / morph_weights are valid until the next
 // update() or close(); RemoteCharacter::asset (a ClientAsset: character,
 // progressive skin) stays valid as long as the Client lives. events() is
 // valid until the next update().
@@ -97,6 +98,8 @@ struct RemoteCharacter {
     RootPose root;                       // world placement at the display time (source_us: the pose's producer time)
     bool shown = false;                  // a pose exists at the display time (palette valid)
     std::span<const Mat34> palette;      // B matrices in progressive order (copy-down and blending applied)
+    std::span<const float> morph_weights;  // one per morph target of asset->character (apply before skinning:
+                                           // morph_positions in common/error_metric.h); empty without targets
     int bones = 0;                       // bones shown (the LOD target)
     double display_tick = 0;             // the server tick displayed
 };
@@ -223,6 +226,7 @@ struct DisplayedCharacter {
     std::span<const Mat34> palette;  // B matrices in progressive order (copy-down and blending applied)
     glm::vec3 position{0.0f};        // world placement
     int bones = 0;                   // bones displayed (the LOD target)
+    std::span<const float> morph_weights;  // displayed morph weights (apply before skinning), empty without targets
 };
 struct DisplaySnapshot {
     double seconds = 0;    // since streaming began

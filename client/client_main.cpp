@@ -9,6 +9,9 @@
 #include "cli_args.h"
 #include "client.h"
 #include "error.h"
+#include "error_metric.h"
+#include "progressive_skin.h"
+#include "skinning.h"
 #ifdef PROGSKIN_HAVE_RENDER
 #include "snapshot.h"
 #endif
@@ -173,12 +176,29 @@ int main(int argc, char** argv) {
         std::filesystem::create_directories(snapshot_dir, ec);
         opt.on_snapshot = [&](const DisplaySnapshot& s) {
             std::vector<render::SnapshotCharacter> chars;
-            for (const DisplayedCharacter& d : s.characters) {
+            std::vector<std::vector<glm::vec3>> morphed(s.characters.size());  // per snapshot, not per frame
+            for (size_t i = 0; i < s.characters.size(); ++i) {
+                const DisplayedCharacter& d = s.characters[i];
                 render::SnapshotCharacter c;
                 c.character = d.character;
                 c.skin = d.skin;
                 c.stream = d.stream;
                 c.palette = d.palette;
+                if (!d.morph_weights.empty() && d.morph_weights.size() == d.character->morphs.size()) {
+                    // Morph targets before skinning: CPU-skinned positions instead of the palette.
+                    std::vector<glm::vec3> bind(d.character->vertex_count());
+                    morph_positions(*d.character, d.morph_weights, bind);
+                    morphed[i].resize(bind.size());
+                    SkinningJob job = skinning_job(*d.character, *d.skin, d.palette, morphed[i]);
+                    job.positions = bind;
+                    job.normals = {};
+                    job.out_normals = {};
+                    if (job.validate()) {
+                        job.run();
+                        c.positions = morphed[i];
+                        c.palette = {};
+                    }
+                }
                 Mat34 place = Mat34::identity();
                 place.m[3] = d.position.x, place.m[7] = d.position.y, place.m[11] = d.position.z;
                 c.placement = place;

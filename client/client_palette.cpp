@@ -42,7 +42,8 @@ void remap_skin_vertices(ClientAsset& a) {
 double ClipInfo::clip_time(double tick, double tick_rate) const { return at(time_offset + tick / tick_rate * speed); }
 
 InstanceView::InstanceView(std::shared_ptr<const ClientAsset> asset, ClipInfo clip, int blend_frames, double tick_rate)
-    : asset_(std::move(asset)), clip_(std::move(clip)), buffer_(asset_->skin.bone_count(), asset_->format), tick_rate_(tick_rate) {
+    : asset_(std::move(asset)), clip_(std::move(clip)), buffer_(asset_->skin.bone_count(), asset_->format, int(std::min<size_t>(asset_->character.morphs.size(), MAX_MORPHS))),
+      tick_rate_(tick_rate) {
     // A looping clip wraps where offset + tick / rate * speed crosses a
     // multiple of its duration: the one between two frames' ticks.
     if (!clip_.once && !clip_.selection.clips.empty() && clip_.selection.duration() > 0 && clip_.speed > 0)
@@ -61,11 +62,14 @@ InstanceView::InstanceView(std::shared_ptr<const ClientAsset> asset, ClipInfo cl
     blender_ = LodBlender(B, blend_frames_, 1);
     own_.resize(B);
     palette_.resize(B, Mat34::identity());
+    weights_.assign(asset_->character.morphs.size(), 0.0f);  // targets past MAX_MORPHS stay 0 (not streamed)
+    if (!weights_.empty()) morphed_.resize(asset_->character.vertex_count());
 }
 
 bool InstanceView::display(double d) {
     int k = buffer_.bones_at(d);
     if (k == 0) return false;
+    if (buffer_.morph_count() > 0) buffer_.weights_at(d, std::span<float>(weights_.data(), size_t(buffer_.morph_count())));
     if (!started_) {
         blender_ = LodBlender(asset_->skin.bone_count(), blend_frames_, k);  // first frame: no fade-in from nothing
         started_ = true;
@@ -123,6 +127,16 @@ const Mat34& InstanceView::carried(int joint, double anchor, double d, Mat34& ou
 void InstanceView::skin(std::vector<glm::vec3>& out) const {
     const Character& c = asset_->character;
     out.resize(c.vertex_count());
+    if (!weights_.empty()) {  // glTF: morph targets on the bind positions, then the skin
+        morph_positions(c, weights_, morphed_);
+        SkinningJob job = skinning_job(c, asset_->skin, palette_, out);
+        job.positions = morphed_;
+        job.normals = {};
+        job.out_normals = {};
+        if (!job.validate()) throw Error(c.source + ": palette does not fit the skin");
+        job.run();
+        return;
+    }
     if (!skin_stream(asset_->stream, palette_, out))
         throw Error(c.source + ": palette or vertex stream does not fit the skin");
 }

@@ -64,7 +64,12 @@ public:
     int target_bones() const { return blender_.target(); }
     std::span<const Mat34> palette() const { return palette_; }
 
-    // CPU skinning of the current palette into positions (all vertices).
+    // Morph weights displayed (one per morph target of the character, 0 for
+    // targets never received or past MAX_MORPHS), updated by display().
+    std::span<const float> morph_weights() const { return weights_; }
+    // CPU skinning of the current palette into positions (all vertices): the
+    // bind positions morphed by morph_weights() first when the character has
+    // morph targets (then the scalar SkinningJob, else skin_stream).
     void skin(std::vector<glm::vec3>& out) const;
     // Reference vertices at clip time t (full detail, original weights).
     void reference(double clip_time, std::vector<glm::vec3>& out) const;
@@ -78,6 +83,8 @@ private:
     int blend_frames_ = 8;
     double tick_rate_ = 30;
     std::vector<Mat34> own_, palette_;
+    std::vector<float> weights_;              // displayed morph weights
+    mutable std::vector<glm::vec3> morphed_;  // morphed bind positions (skin)
     mutable std::vector<glm::dmat4> ref_mats_;
     // Boundary gaps of a looping clip: the clip's own motion from an anchor
     // frame to the display time, per joint (M(d) = M(anchor) L(anchor)^-1 L(d)).

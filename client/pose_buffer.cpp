@@ -8,88 +8,6 @@ namespace progskin::net {
 
 static bool newer(uint32_t a, uint32_t b) { return int32_t(a - b) > 0; }
 
-PoseBuffer::PoseBuffer(int bone_count, RecordFormat fmt) : bones_(bone_count), fmt_(fmt) {
-    frames_.resize(kHistory);
-    for (auto& f : frames_) {
-        f.bones.resize(bone_count);
-        f.have.assign(bone_count, 0);
-    }
-    last_.resize(bone_count);
-    last_tick_.assign(bone_count, 0);
-    last_have_.assign(bone_count, 0);
-}
-
-bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const uint8_t* records, int show, uint8_t epoch,
-                           const uint8_t* root) {
-    if (show == 0) show = total;
-    if (total < 1 || total > bones_ || first < 0 || count < 1 || first + count > total || show < total || show > bones_)
-        return false;
-    Frame* f = nullptr;
-    for (auto& x : frames_)
-        if (x.used && x.tick == tick) f = &x;
-    if (!f) {
-        // Replace an unused slot or the oldest frame, unless this tick is older than all kept.
-        Frame* oldest = nullptr;
-        for (auto& x : frames_) {
-            if (!x.used) { oldest = &x; break; }
-            if (!oldest || newer(oldest->tick, x.tick)) oldest = &x;
-        }
-        if (oldest->used && newer(oldest->tick, tick)) return true;  // too old to matter
-        f = oldest;
-        f->used = true;
-        f->tick = tick;
-        f->total = total;
-        f->show = show;
-        f->count = 0;
-        f->epoch = epoch;
-        f->has_root = false;
-        std::fill(f->have.begin(), f->have.end(), 0);
-    }
-    if (f->total != total || f->show != show || f->epoch != epoch) return false;
-    if (root) {
-        f->root = decode_root(root);
-        f->has_root = true;
-    }
-    last_gap_ = 0;
-    for (int i = 0; i < count; ++i) {
-        int b = first + i;
-        f->bones[b] = decode_bone(records + size_t(i) * fmt_.size(), fmt_);
-        if (!f->have[b]) ++f->count;
-        f->have[b] = 1;
-        if (!last_have_[b] || !newer(last_tick_[b], tick)) {
-            const int32_t gap = int32_t(tick - last_tick_[b]);
-            if (last_have_[b] && gap <= HOLD_TICKS) last_gap_ = std::max(last_gap_, int(gap));
-            last_[b] = f->bones[b];
-            last_tick_[b] = tick;
-            last_have_[b] = 1;
-        }
-    }
-    if (!any_ || newer(tick, newest_)) newest_ = tick;
-    if (!any_ || newer(first_, tick)) first_ = tick;
-    any_ = true;
-    return true;
-}
-
-int PoseBuffer::bones_at(double d) const {
-    const Frame* newest_before = nullptr;
-    const Frame* first_after = nullptr;
-    for (const auto& f : frames_) {
-        if (!f.used || f.count == 0) continue;
-        double t = double(int32_t(f.tick - newest_)) + double(newest_);
-        if (t <= d) {
-            if (!newest_before || newer(f.tick, newest_before->tick)) newest_before = &f;
-        } else if (!first_after || newer(first_after->tick, f.tick)) {
-            first_after = &f;
-        }
-    }
-    const Frame* f = newest_before ? newest_before : first_after;
-    if (!f) return 0;
-    // show >= total >= the bones this frame carries, all of which were received.
-    int have = 0;
-    while (have < f->show && last_have_[size_t(have)]) ++have;
-    return have;
-}
-
 // The frames around display tick d that `use` accepts, within one epoch: a
 // (newest at or before d), a0 (the one before a), c (first after d, same
 // epoch as a) and c1 (the one after c). Without a, c and c1 share c's epoch.
@@ -119,6 +37,165 @@ static void neighbours(const Frames& frames, uint32_t newest, double d, Use&& us
         if (!c1 || newer(c1->tick, f.tick)) c1 = &f;
     }
     a_ = a, a0_ = a0, c_ = c, c1_ = c1;
+}
+
+
+PoseBuffer::PoseBuffer(int bone_count, RecordFormat fmt, int morph_count)
+    : bones_(bone_count), fmt_(fmt) {
+    morphs_ = std::max(0, morph_count);
+    frames_.resize(kHistory);
+    for (auto& f : frames_) {
+        f.bones.resize(bone_count);
+        f.have.assign(bone_count, 0);
+        f.weights.assign(size_t(morphs_), 0.0f);
+        f.whave.assign(size_t(morphs_), 0);
+    }
+    held_w_.assign(size_t(morphs_), 0.0f);
+    held_w_tick_.assign(size_t(morphs_), 0);
+    held_w_have_.assign(size_t(morphs_), 0);
+    last_.resize(bone_count);
+    last_tick_.assign(bone_count, 0);
+    last_have_.assign(bone_count, 0);
+}
+
+bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const uint8_t* records, int show, uint8_t epoch,
+                           const uint8_t* root) {
+    if (show == 0) show = total;
+    if (total < 1 || total > bones_ || first < 0 || count < 1 || first + count > total || show < total || show > bones_)
+        return false;
+    bool too_old = false;
+    Frame* f = frame_for(tick, total, show, epoch, &too_old);
+    if (too_old) return true;  // too old to matter
+    if (!f) return false;
+    if (root) {
+        f->root = decode_root(root);
+        f->has_root = true;
+    }
+    last_gap_ = 0;
+    for (int i = 0; i < count; ++i) {
+        int b = first + i;
+        f->bones[b] = decode_bone(records + size_t(i) * fmt_.size(), fmt_);
+        if (!f->have[b]) ++f->count;
+        f->have[b] = 1;
+        if (!last_have_[b] || !newer(last_tick_[b], tick)) {
+            const int32_t gap = int32_t(tick - last_tick_[b]);
+            if (last_have_[b] && gap <= HOLD_TICKS) last_gap_ = std::max(last_gap_, int(gap));
+            last_[b] = f->bones[b];
+            last_tick_[b] = tick;
+            last_have_[b] = 1;
+        }
+    }
+    if (!any_ || newer(tick, newest_)) newest_ = tick;
+    if (!any_ || newer(first_, tick)) first_ = tick;
+    any_ = true;
+    return true;
+}
+
+PoseBuffer::Frame* PoseBuffer::frame_for(uint32_t tick, int total, int show, uint8_t epoch, bool* too_old) {
+    *too_old = false;
+    Frame* f = nullptr;
+    for (auto& x : frames_)
+        if (x.used && x.tick == tick) f = &x;
+    if (!f) {
+        // Replace an unused slot or the oldest frame, unless this tick is older than all kept.
+        Frame* oldest = nullptr;
+        for (auto& x : frames_) {
+            if (!x.used) { oldest = &x; break; }
+            if (!oldest || newer(oldest->tick, x.tick)) oldest = &x;
+        }
+        if (oldest->used && newer(oldest->tick, tick)) {
+            *too_old = true;
+            return nullptr;
+        }
+        if (oldest->used && oldest->has_weights)  // keep its weights as the fallback of older display times
+            for (int m = 0; m < morphs_; ++m)
+                if (oldest->whave[size_t(m)] && (!held_w_have_[size_t(m)] || !newer(held_w_tick_[size_t(m)], oldest->tick))) {
+                    held_w_[size_t(m)] = oldest->weights[size_t(m)];
+                    held_w_tick_[size_t(m)] = oldest->tick;
+                    held_w_have_[size_t(m)] = 1;
+                }
+        f = oldest;
+        f->used = true;
+        f->tick = tick;
+        f->total = total;
+        f->show = show;
+        f->count = 0;
+        f->epoch = epoch;
+        f->has_root = false;
+        f->has_weights = false;
+        std::fill(f->have.begin(), f->have.end(), 0);
+        std::fill(f->whave.begin(), f->whave.end(), 0);
+    }
+    if (f->total != total || f->show != show || f->epoch != epoch) return nullptr;
+    return f;
+}
+
+bool PoseBuffer::add_morphs(uint32_t tick, int total, int show, uint8_t epoch, const uint8_t* block) {
+    if (show == 0) show = total;
+    if (!block || total < 1 || total > bones_ || show < total || show > bones_) return false;
+    const int n = block[0];
+    for (int i = 0; i < n; ++i)
+        if (block[1 + size_t(i) * MORPH_ENTRY_BYTES] >= morphs_) return false;
+    bool too_old = false;
+    Frame* f = frame_for(tick, total, show, epoch, &too_old);
+    if (too_old) return true;
+    if (!f) return false;
+    for (int i = 0; i < n; ++i) {
+        const uint8_t* e = block + 1 + size_t(i) * MORPH_ENTRY_BYTES;
+        f->weights[e[0]] = decode_morph_weight(int16_t(uint16_t(e[1] | (e[2] << 8))));
+        f->whave[e[0]] = 1;
+    }
+    f->has_weights = true;
+    return true;
+}
+
+float PoseBuffer::weight_as_of(const Frame& at, int m) const {
+    const Frame* best = nullptr;
+    for (const auto& f : frames_) {
+        if (!f.used || !f.has_weights || !f.whave[size_t(m)] || newer(f.tick, at.tick)) continue;
+        if (!best || newer(f.tick, best->tick)) best = &f;
+    }
+    if (best) return best->weights[size_t(m)];
+    return held_w_have_[size_t(m)] ? held_w_[size_t(m)] : 0.0f;
+}
+
+void PoseBuffer::weights_at(double d, std::span<float> out) const {
+    const void *pa, *pa0, *pc, *pc1;
+    neighbours(frames_, newest_, d, [](const Frame&) { return true; }, pa, pa0, pc, pc1);
+    const Frame *a = static_cast<const Frame*>(pa), *c = static_cast<const Frame*>(pc);
+    auto time = [&](const Frame* f) { return double(int32_t(f->tick - newest_)) + double(newest_); };
+    const int n = std::min(morphs_, int(out.size()));
+    for (int m = 0; m < n; ++m) {
+        if (a && c) {
+            const float u = float((d - time(a)) / (time(c) - time(a)));
+            const float wa = weight_as_of(*a, m), wc = weight_as_of(*c, m);
+            out[size_t(m)] = wa + (wc - wa) * u;
+        } else if (a || c) {
+            out[size_t(m)] = weight_as_of(a ? *a : *c, m);
+        } else {
+            out[size_t(m)] = held_w_have_[size_t(m)] ? held_w_[size_t(m)] : 0.0f;
+        }
+    }
+}
+
+int PoseBuffer::bones_at(double d) const {
+    const Frame* newest_before = nullptr;
+    const Frame* first_after = nullptr;
+    for (const auto& f : frames_) {
+        if (!f.used || f.count == 0) continue;
+        double t = double(int32_t(f.tick - newest_)) + double(newest_);
+        if (t <= d) {
+            if (!newest_before || newer(f.tick, newest_before->tick)) newest_before = &f;
+        } else if (!first_after || newer(first_after->tick, f.tick)) {
+            first_after = &f;
+        }
+    }
+    const Frame* f = newest_before ? newest_before : first_after;
+    if (!f) return 0;
+    // show >= total >= the bones this frame carries, all of which were received.
+    int have = 0;
+    while (have < f->show && last_have_[size_t(have)]) ++have;
+    return have;
 }
 
 bool PoseBuffer::pose(int b, double d, BonePose& out, double* held_at, double* anchor_at) const {

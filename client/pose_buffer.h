@@ -9,9 +9,13 @@
 // interpolated between frames of different epochs (a clip wrap, a teleport,
 // a spawn), the older side is held until the newer one's frame time. Frames
 // may carry the instance's root block (world placement), interpolated the
-// same way.
+// same way, and morph weights (a frame's morph block, sparse: a weight a frame
+// does not carry keeps the value of the newest earlier frame that did, the
+// server sending only the weights that changed). Weights are interpolated
+// linearly between the frames around the display time within one epoch.
 #pragma once
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "bone_codec.h"
@@ -24,7 +28,8 @@ public:
     static constexpr int kHistory = 48;  // frames kept per instance (>= HOLD_TICKS + the largest display delay)
 
     PoseBuffer() = default;
-    PoseBuffer(int bone_count, RecordFormat fmt);
+    // morph_count: the asset's morph targets (weights start at 0).
+    PoseBuffer(int bone_count, RecordFormat fmt, int morph_count = 0);
 
     // Decodes count records (fmt.size() bytes each) of bones first.. of the
     // frame at `tick` whose prefix has `total` bones, of which the server
@@ -33,6 +38,19 @@ public:
     // epoch: Chunk.epoch; root: the chunk's root block or nullptr.
     bool add_chunk(uint32_t tick, int first, int count, int total, const uint8_t* records, int show = 0,
                    uint8_t epoch = 0, const uint8_t* root = nullptr);
+
+    // Applies a chunk's morph block (proto/frame_reader.h: count byte, then
+    // entries) to the frame at `tick` (total, show, epoch as in add_chunk; the
+    // frame is created when the chunk carries no bone). Returns false (and
+    // changes nothing) when an index is not below morph_count() or the chunk is
+    // inconsistent. O(entries), no allocation.
+    bool add_morphs(uint32_t tick, int total, int show, uint8_t epoch, const uint8_t* block);
+    int morph_count() const { return morphs_; }
+    // Morph weights at display tick d (out.size() == morph_count()): per
+    // weight, its value at the frames around d (same epoch), lerped; held
+    // from the newest frame at or before d when none follows. 0 for weights
+    // never received. O(kHistory x (morph_count + kHistory)), no allocation.
+    void weights_at(double d, std::span<float> out) const;
 
     bool empty() const { return !any_; }
     uint32_t newest_tick() const { return newest_; }
@@ -85,7 +103,19 @@ private:
         RootPose root;
         std::vector<BonePose> bones;
         std::vector<uint8_t> have;
+        bool has_weights = false;       // carried a morph block
+        std::vector<float> weights;     // per morph target (valid where whave)
+        std::vector<uint8_t> whave;
     };
+    // The frame for `tick` (found or created, the oldest evicted); nullptr
+    // when it is older than every kept frame (*too_old) or inconsistent.
+    Frame* frame_for(uint32_t tick, int total, int show, uint8_t epoch, bool* too_old);
+    // Weight m as of frame f: the newest frame at or before f carrying it, else held_.
+    float weight_as_of(const Frame& f, int m) const;
+    int morphs_ = 0;
+    std::vector<float> held_w_;         // weights of evicted frames (newest per weight)
+    std::vector<uint32_t> held_w_tick_;
+    std::vector<uint8_t> held_w_have_;
     int bones_ = 0;
     RecordFormat fmt_;
     std::vector<Frame> frames_;

@@ -93,7 +93,8 @@ ClientReport run_client(const ClientOptions& opt) {
     };
     std::map<int, Acc> acc;
     std::vector<double> latencies;
-    std::vector<glm::vec3> shown, ref;
+    std::vector<glm::vec3> shown, ref, morphed, ref_morphed;
+    std::vector<float> ref_weights;
     std::vector<glm::dmat4> ref_mats;
     std::vector<Mat34> ref_pal;
 
@@ -202,7 +203,16 @@ ClientReport run_client(const ClientOptions& opt) {
                 if (!verify_now || c.clip.selection.clips.empty()) continue;
                 const Character& ch = c.asset->character;
                 shown.resize(ch.vertex_count());
-                skinning_job(ch, c.asset->skin, c.palette, shown).run();
+                {
+                    // glTF: morph targets on the bind positions (the streamed weights), then the skin.
+                    SkinningJob sj = skinning_job(ch, c.asset->skin, c.palette, shown);
+                    if (!ch.morphs.empty() && c.morph_weights.size() == ch.morphs.size()) {
+                        morphed.resize(ch.vertex_count());
+                        morph_positions(ch, c.morph_weights, morphed);
+                        sj.positions = morphed;
+                    }
+                    sj.run();
+                }
                 double clip_t;
                 RootPose ref_root;
                 if (c.publisher.published) {
@@ -218,7 +228,18 @@ ClientReport run_client(const ClientOptions& opt) {
                 sample_skinning_matrices(ch, c.clip.selection, clip_t, ref_mats);
                 for (size_t j = 0; j < ch.joint_count(); ++j) ref_pal[j] = Mat34::from_glm(ref_mats[j]);
                 ref.resize(ch.vertex_count());
-                skinning_job(ch, ref_pal, ref).run();
+                {
+                    // GUIDE.md §2 reference: the morph targets at the clip's weights, then the skin.
+                    SkinningJob rj = skinning_job(ch, ref_pal, ref);
+                    if (!ch.morphs.empty()) {
+                        ref_weights.resize(ch.morphs.size());
+                        sample_morph_weights(ch, c.clip.selection, clip_t, ref_weights);
+                        ref_morphed.resize(ch.vertex_count());
+                        morph_positions(ch, ref_weights, ref_morphed);
+                        rj.positions = ref_morphed;
+                    }
+                    rj.run();
+                }
                 const double scale = 100.0 / c.asset->diagonal;
                 double jump = 0;
                 if (a.prev_err.size() != shown.size()) a.prev_err.assign(shown.size(), glm::vec3(0.0f));
@@ -247,7 +268,7 @@ ClientReport run_client(const ClientOptions& opt) {
                 for (const RemoteCharacter& c : chars)
                     if (c.shown)
                         snap.characters.push_back({c.instance, &c.asset->character, &c.asset->skin, &c.asset->stream, c.palette,
-                                                   glm::vec3(c.root.position), c.bones});
+                                                   glm::vec3(c.root.position), c.bones, c.morph_weights});
                 if (!snap.characters.empty()) opt.on_snapshot(snap);
             }
             if (opt.verbose && display_count % size_t(std::max(1.0, opt.display_rate)) == 0) {

@@ -29,11 +29,13 @@ int frame_stream(const uint8_t* data, size_t size) {
     if (const wire::Frame* f = d->body_as_Frame()) {
         // The scene of fuzz/corpus/frame (make_frame_corpus.cpp): the default
         // character set, 3 Fox (24 bones) then a CesiumMan (19), 12-byte
-        // records; instance 4 a 19-bone asset with scaled (14-byte) records.
+        // records; instance 4 a 19-bone asset with scaled (14-byte) records;
+        // instance 5 tests/data/skinned_morph.gltf (3 bones, 4 morph targets,
+        // chunks with morph blocks).
         RecordFormat plain, scaled;
         scaled.scaled = true;
-        std::array<PoseBuffer, 5> buffers = {PoseBuffer(24, plain), PoseBuffer(24, plain), PoseBuffer(24, plain),
-                                             PoseBuffer(19, plain), PoseBuffer(19, scaled)};
+        std::array<PoseBuffer, 6> buffers = {PoseBuffer(24, plain), PoseBuffer(24, plain), PoseBuffer(24, plain),
+                                             PoseBuffer(19, plain), PoseBuffer(19, scaled), PoseBuffer(3, plain, 4)};
         auto record_size = [&](uint16_t i) { return i < buffers.size() ? (i == 4 ? scaled : plain).size() : 0; };
         int accepted = 0;
         uint8_t epoch = 0;
@@ -43,9 +45,10 @@ int frame_stream(const uint8_t* data, size_t size) {
             [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
                 accepted += buffers[i].add_chunk(f->tick(), first, count, show, rec, show, epoch, root);
             },
-            [&](const wire::Chunk& c, const uint8_t* r) {
+            [&](const wire::Chunk& c, const uint8_t* r, const uint8_t* morph) {
                 epoch = c.epoch();
                 root = r;
+                if (morph) accepted += buffers[c.instance()].add_morphs(f->tick(), c.show(), c.show(), c.epoch(), morph);
             });
         if (!ok) return 0;
         for (const PoseBuffer& b : buffers) {
@@ -55,6 +58,8 @@ int frame_stream(const uint8_t* data, size_t size) {
             for (int bone = 0; bone < b.bone_count(); ++bone) b.pose(bone, t - 0.5, p);
             (void)b.bones_at(t);
             (void)b.root(t - 0.5, rp);
+            std::array<float, 4> w;
+            b.weights_at(t - 0.5, std::span<float>(w.data(), size_t(b.morph_count())));
         }
         return accepted > 0;
     }

@@ -1,7 +1,8 @@
 // make_frame_corpus.cpp — writes the seed corpus of the frame-stream fuzz
 // target (fuzz/corpus/frame): real datagrams of the default character set
 // (progskin-server's scene without arguments) as the server packs them at
-// several budgets, and one Bind, BindAck, Ack, Challenge and ChallengeResponse.
+// several budgets, frames carrying morph blocks (tests/data/skinned_morph.gltf
+// as instance 5), and one Bind, BindAck, Ack, Challenge and ChallengeResponse.
 //
 //   build/fuzz/make_frame_corpus fuzz/corpus/frame
 #include <cstdio>
@@ -60,6 +61,38 @@ int main(int argc, char** argv) {
             if (t % 13 != 1) continue;  // ticks 1, 14, 27, 40: first frames and refreshes
             for (size_t i = 0; i < out.size(); ++i)
                 write(dir, "frame-" + std::to_string(budget) + "-t" + std::to_string(t) + "-" + std::to_string(i), out[i]);
+        }
+    }
+    {
+        // Morph blocks: tests/data/skinned_morph.gltf as instance 5 (the
+        // fuzz target's 3-bone, 4-target buffer; slots 0-4 added and removed).
+        std::vector<std::shared_ptr<ServerAsset>> morph = {
+            load_server_asset(std::string(PROGSKIN_SOURCE_DIR) + "/tests/data/skinned_morph.gltf")};
+        InstanceSpec talk;
+        for (size_t s = 0; s < morph[0]->selections.size(); ++s)
+            if (morph[0]->selections[s].clips.size() == 1 &&
+                morph[0]->character.clips[size_t(morph[0]->selections[s].clips[0])].name == "talk")
+                talk.selection = int(s);
+        FrameEncoder menc(morph, std::vector<InstanceSpec>(6, talk), 30.0f);
+        for (int i = 0; i < 5; ++i) menc.remove_instance(i);
+        std::vector<InstanceSpec> mspecs(6, talk);
+        std::vector<float> mimp = compute_importance(ViewSpec{}, mspecs, morph);
+        for (size_t budget : {size_t(150), size_t(20000)}) {
+            Scheduler sched;
+            DatagramPacker packer;
+            uint32_t seq = 0;
+            for (uint32_t t = 1; t <= 40; ++t) {
+                const EncodedFrame& f = menc.encode(t);
+                std::vector<Pick> picks;
+                sched.select(f, morph, mimp, budget, 30.0f, picks);
+                std::vector<std::vector<uint8_t>> out;
+                packer.pack(f, picks, seq, out);
+                sched.sent(picks, t);
+                if (t % 13 != 1) continue;
+                for (size_t i = 0; i < out.size(); ++i)
+                    write(dir, "frame-morph-" + std::to_string(budget) + "-t" + std::to_string(t) + "-" + std::to_string(i),
+                          out[i]);
+            }
         }
     }
     flatbuffers::FlatBufferBuilder fbb;

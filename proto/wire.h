@@ -29,6 +29,21 @@ inline constexpr int MAX_BONES = 255;                 // bones per character on 
 inline constexpr size_t CHALLENGE_NONCE = 16;          // Challenge.nonce bytes
 inline constexpr int HOLD_TICKS = 16;                 // a bone stays shown this many ticks after its newest frame
 inline constexpr uint8_t CHUNK_ROOT = 1, CHUNK_SCALED = 2;   // Chunk.flags
+inline constexpr uint8_t CHUNK_MORPH = 4;             // Chunk.flags: a morph block follows the root block
+inline constexpr int MAX_MORPHS = 255;                // morph targets streamed per character (uint8 index and count)
+inline constexpr size_t MORPH_ENTRY_BYTES = 3;        // morph block entry: uint8 index, int16 weight
+// Morph weight on the wire (docs/protocol.md "Morph block"): int16
+// little-endian = round(w * MORPH_WEIGHT_SCALE), so w in [-2, 2 - 1/16384]
+// with a step of 1/16384 (error <= 3.1e-5 of a unit weight). A weight that is
+// not finite or outside the range is refused (false), never clamped.
+inline constexpr float MORPH_WEIGHT_SCALE = 16384.0f;
+inline bool encode_morph_weight(float w, int16_t& out) {
+    if (!(w >= -2.0f && w <= 32767.0f / MORPH_WEIGHT_SCALE)) return false;  // NaN fails too
+    const float q = w * MORPH_WEIGHT_SCALE;
+    out = int16_t(q >= 0 ? q + 0.5f : q - 0.5f);
+    return true;
+}
+inline float decode_morph_weight(int16_t q) { return float(q) / MORPH_WEIGHT_SCALE; }
 inline constexpr size_t ROOT_BYTES = 26;              // root block (datagram.fbs Chunk)
 inline constexpr int MAX_SPAWNED = 16;                // characters one session may own
 inline constexpr size_t MAX_INSTANCES = 65535;        // instance ids are uint16 (0xFFFF unused)

@@ -2,6 +2,7 @@
 #include "datagram_packer.h"
 
 #include <algorithm>
+#include <array>
 #include <cassert>
 
 #include "error.h"
@@ -61,15 +62,39 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
         bone = next_bone();
         const bool root = (e.flags & CHUNK_ROOT) != 0;
         const size_t root_bytes = root ? ROOT_BYTES : 0;
-        while (bone >= 0) {
-            const size_t mb = mask_bytes(bone, show);
-            const size_t used = payload_.size() + (chunks_.size() + 1) * WireCost::kChunk + root_bytes + mb;
-            if (used + rs > room) {
+        // Morph weights of the group: in its first chunk (a chunk of their own,
+        // first = show - 1 and an empty mask, when no bone goes).
+        std::array<uint64_t, 4> morphs{};
+        for (size_t q = g; q < g_end; ++q)
+            for (size_t w = 0; w < morphs.size(); ++w) morphs[w] |= picks[q].morphs[w];
+        const std::span<const int32_t> weights = frame.morphs(instance);
+        for (size_t m = 0; m < 256; ++m)  // only weights the encoder has (and did not refuse) can go
+            if ((morphs[m / 64] >> (m % 64) & 1) && (m >= weights.size() || weights[m] == kNoWeight))
+                morphs[m / 64] &= ~(uint64_t(1) << (m % 64));
+        size_t morph_bytes = morph_block_bytes(morphs);
+        if (morph_bytes > 0 && bone < 0 && show < 1) morph_bytes = 0;  // no chunk can carry them (never picked so)
+        while (bone >= 0 || morph_bytes > 0) {
+            const int first = bone >= 0 ? bone : show - 1;
+            const size_t mb = mask_bytes(first, show);
+            const size_t used = payload_.size() + (chunks_.size() + 1) * WireCost::kChunk + root_bytes + morph_bytes + mb;
+            if (used + (bone >= 0 ? rs : 0) > room) {
                 flush(frame.tick, seq, out, wire);
                 continue;
             }
-            const int first = bone;
+            uint8_t flags = e.flags;
             if (root) payload_.insert(payload_.end(), e.root.begin(), e.root.end());
+            if (morph_bytes > 0) {
+                flags |= CHUNK_MORPH;
+                payload_.push_back(uint8_t((morph_bytes - 1) / MORPH_ENTRY_BYTES));
+                for (size_t m = 0; m < weights.size(); ++m)
+                    if (morphs[m / 64] >> (m % 64) & 1) {
+                        const uint16_t v = uint16_t(int16_t(weights[m]));
+                        payload_.push_back(uint8_t(m));
+                        payload_.push_back(uint8_t(v & 0xFF));
+                        payload_.push_back(uint8_t(v >> 8));
+                    }
+                morph_bytes = 0;
+            }
             const size_t mask_at = payload_.size();
             payload_.resize(mask_at + mb, 0);
             size_t fit = (room - used) / rs;
@@ -79,7 +104,7 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
                 --fit;
                 bone = next_bone();
             }
-            chunks_.emplace_back(uint16_t(instance), uint8_t(first), uint8_t(show), e.epoch, e.flags);
+            chunks_.emplace_back(uint16_t(instance), uint8_t(first), uint8_t(show), e.epoch, flags);
         }
         g = g_end;
     }

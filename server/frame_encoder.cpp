@@ -15,6 +15,8 @@ FrameEncoder::FrameEncoder(std::vector<std::shared_ptr<ServerAsset>> assets, std
     for (const auto& a : assets_) {
         stride_ = std::max(stride_, size_t(a->bone_count()) * size_t(a->format.size()));
         max_joints = std::max(max_joints, a->character.joint_count());
+        morph_stride_ = std::max(morph_stride_, std::min<size_t>(a->character.morphs.size(), MAX_MORPHS));
+        weights_.resize(std::max(weights_.size(), a->character.morphs.size()));
     }
     scratch_.resize(max_joints);
     std::vector<glm::dmat4> first(max_joints), last(max_joints);
@@ -200,6 +202,7 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
     if (frame_.instances.size() < slots_.size()) {
         frame_.instances.resize(slots_.size());
         frame_.bytes.resize(slots_.size() * stride_);
+        frame_.morph.resize(slots_.size() * morph_stride_, kNoWeight);
     }
     for (size_t i = 0; i < slots_.size(); ++i) {
         const Slot& slot = slots_[i];
@@ -215,6 +218,8 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         e.offset = i * stride_;
         e.generation = slot.generation;
         e.owner = s.owner;
+        e.morph_count = 0;
+        e.morph_offset = i * morph_stride_;
         uint8_t* out = frame_.bytes.data() + e.offset;
         e.model = slot.live || s.selection < 0 ? int(a.selections.size()) : s.selection;
         e.flags = uint8_t((a.format.scaled ? CHUNK_SCALED : 0) | (slot.has_root ? CHUNK_ROOT : 0));
@@ -250,6 +255,20 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
             const BonePose p = decompose(Mat34::from_glm(mats[size_t(a.skin.order[b])]));
             if (!bone_in_range(p, a.format)) ++stats_.poses_out_of_range;  // the box covers the clips: never expected
             encode_bone(p, a.format, out + size_t(b) * rs);
+        }
+        if (!a.character.morphs.empty()) {
+            sample_morph_weights(a.character, sel, t, std::span<float>(weights_.data(), a.character.morphs.size()));
+            e.morph_count = int(std::min<size_t>(a.character.morphs.size(), MAX_MORPHS));
+            int32_t* w = frame_.morph.data() + e.morph_offset;
+            for (int m = 0; m < e.morph_count; ++m) {
+                int16_t q;
+                if (encode_morph_weight(weights_[size_t(m)], q)) {
+                    w[m] = q;
+                } else {
+                    w[m] = kNoWeight;
+                    ++stats_.morphs_out_of_range;
+                }
+            }
         }
         if (seamless_[size_t(s.asset)][size_t(s.selection)]) loops = 0;  // the wrap is no discontinuity
         e.epoch = uint8_t(int64_t(slot.teleports) + loops);

@@ -13,6 +13,12 @@
 // chunks carry so that no client interpolates across it. The wrap of a
 // seamless loop (last pose = first pose) is no discontinuity and keeps it.
 //
+// Morph weights: per tick, a clip instance's weights (sample_morph_weights at
+// its clip time) quantised for the wire (wire.h encode_morph_weight); a
+// weight outside the wire range is refused (kNoWeight, counted), never
+// clamped. Live instances carry none (morph_count 0). At most MAX_MORPHS
+// targets per asset are streamed.
+//
 // Thread-safety: add_instance, remove_instance, push_pose, push_records and
 // set_root may be called from any thread; encode from one thread.
 #pragma once
@@ -43,18 +49,27 @@ struct EncodedInstance {
     uint64_t owner = 0;     // session that owns it (0: server)
     glm::dvec3 world{0.0};  // current world position (importance)
     std::array<uint8_t, ROOT_BYTES> root{};  // root block (when flags & CHUNK_ROOT)
+    int morph_count = 0;    // morph weights this tick (EncodedFrame::morph), 0: none
+    size_t morph_offset = 0;  // into EncodedFrame::morph
 };
+
+inline constexpr int32_t kNoWeight = INT32_MIN;  // EncodedFrame::morph: refused this tick (out of range)
 
 struct EncodedFrame {
     uint32_t tick = 0;
     std::vector<EncodedInstance> instances;  // one per slot
     std::vector<uint8_t> bytes;  // records of every slot, stride bytes each
+    std::vector<int32_t> morph;  // quantised morph weights (int16 values, or kNoWeight), morph stride per slot
+    std::span<const int32_t> morphs(int i) const {
+        return {morph.data() + instances[size_t(i)].morph_offset, size_t(instances[size_t(i)].morph_count)};
+    }
     const uint8_t* records(int i) const { return bytes.data() + instances[i].offset; }
 };
 
 struct EncoderStats {
     uint64_t poses_out_of_range = 0;  // live poses refused by the codec's range (never clamped)
     uint64_t stale_poses = 0;         // published records older than the newest (dropped)
+    uint64_t morphs_out_of_range = 0;  // morph weights outside the wire range (refused, never clamped)
 };
 
 class FrameEncoder {
@@ -125,6 +140,8 @@ private:
     std::vector<std::vector<uint8_t>> seamless_;
     EncodedFrame frame_;
     std::vector<glm::dmat4> scratch_;
+    size_t morph_stride_ = 0;       // weights per slot (the largest streamed morph count)
+    std::vector<float> weights_;    // sample_morph_weights scratch
     mutable std::mutex mutex_;      // slots_, free_, stats_
     std::vector<Slot> slots_;
     std::deque<int> free_;

@@ -258,6 +258,15 @@ void finish_server_asset(ServerAsset& a) {
     build_segments(a, frames);
 }
 
+// Morph targets: their importance (the scheduler's value of a weight) and a
+// warning for the targets past what the wire carries (uint8 index).
+static void prepare_morphs(ServerAsset& a, const std::string& path) {
+    a.morph_importance = morph_importance(a.character);
+    if (a.character.morphs.size() > size_t(MAX_MORPHS))
+        a.warnings.push_back(path + ": " + std::to_string(a.character.morphs.size()) + " morph targets; only the first " +
+                             std::to_string(MAX_MORPHS) + " are streamed (the others stay at weight 0)");
+}
+
 std::shared_ptr<ServerAsset> load_server_asset(const std::string& path) {
     auto a = std::make_shared<ServerAsset>();
     a->path = path;
@@ -273,10 +282,7 @@ std::shared_ptr<ServerAsset> load_server_asset(const std::string& path) {
     } else {
         a->skin = build_progressive_skin(a->character, sample_frames(a->character, a->selections, 30.0));
     }
-    if (!a->character.morphs.empty())
-        a->warnings.push_back(path + ": " + std::to_string(a->character.morphs.size()) +
-                              " morph targets are not streamed yet: clients show the mesh at its bind shape "
-                              "(their --verify error includes the morphs)");
+    prepare_morphs(*a, path);
     finish_server_asset(*a);
     return a;
 }
@@ -690,10 +696,7 @@ std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const Ass
         finish_server_asset(*a);
         save_cached_build(p, cache, *a);
     }
-    if (!a->character.morphs.empty())
-        a->warnings.push_back(p.path + ": " + std::to_string(a->character.morphs.size()) +
-                              " morph targets are not streamed yet: clients show the mesh at its bind shape "
-                              "(their --verify error includes the morphs)");
+    prepare_morphs(*a, p.path);
     return a;
 }
 

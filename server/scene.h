@@ -68,7 +68,10 @@ struct ServerAsset {
     };
     std::vector<Segment> segments;
     double bind_radius = 0;          // max |bind-space position|
-    // What the stream does not carry that the file has (e.g. morph targets),
+    // Per morph target: RMS vertex displacement per unit weight (error_metric.h
+    // morph_importance), the scheduler's value of sending a weight.
+    std::vector<double> morph_importance;
+    // What the stream does not carry that the file has (e.g. morph targets past MAX_MORPHS),
     // one line each, for the server to print on stderr.
     std::vector<std::string> warnings;
     double max_scale = 1;            // of the skinning matrices over the training frames

@@ -2,6 +2,7 @@
 #include "scheduler.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 
 #include "wire.h"
@@ -55,6 +56,43 @@ std::vector<float> compute_importance(const ViewSpec& view, const std::vector<In
     return imp;
 }
 
+size_t morph_block_bytes(const std::array<uint64_t, 4>& mask) {
+    size_t n = 0;
+    for (uint64_t w : mask) n += size_t(std::popcount(w));
+    return n ? 1 + n * MORPH_ENTRY_BYTES : 0;
+}
+
+void Scheduler::morph_item(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w) {
+    MorphItem& it = morph_[i];
+    it = MorphItem{};
+    const auto& e = frame.instances[i];
+    if (e.morph_count == 0) return;
+    State& st = state_[i];
+    const size_t n = size_t(e.morph_count);
+    if (st.morph_sent.size() != n) {
+        st.morph_sent.assign(n, kNoWeight);
+        st.morph_tick.assign(n, 0);
+        st.morph_pending.assign(n, kNoWeight);
+    }
+    const std::span<const int32_t> q = frame.morphs(int(i));
+    const double r2 = MORPH_REFRESH_WEIGHT * MORPH_REFRESH_WEIGHT;
+    double value = 0;
+    for (size_t m = 0; m < n; ++m) {
+        st.morph_pending[m] = kNoWeight;
+        if (q[m] == kNoWeight) continue;  // refused by the encoder this tick: nothing to send
+        const bool never = st.morph_sent[m] == kNoWeight;
+        const bool stale = never || int32_t(frame.tick - st.morph_tick[m]) >= MORPH_REFRESH_TICKS;
+        const double d = double(q[m] - (never ? 0 : st.morph_sent[m])) / double(MORPH_WEIGHT_SCALE);
+        if (d == 0 && !stale) continue;
+        const double imp = m < a.morph_importance.size() ? a.morph_importance[m] : 0.0;
+        value += imp * imp * (d * d + (stale ? r2 : 0.0));
+        it.mask[m / 64] |= uint64_t(1) << (m % 64);
+        st.morph_pending[m] = q[m];
+    }
+    it.value = w * value;
+    it.bytes = morph_block_bytes(it.mask);
+}
+
 static_assert(HOLD_TICKS < ServerAsset::kGapTable, "the gap and refresh tables cover every age below the hold");
 
 void Scheduler::reset(size_t n) {
@@ -67,6 +105,7 @@ void Scheduler::reset(size_t n) {
     header_.assign(n, 0);
     order_.assign(n, {});
     order_at_.assign(n, 0);
+    morph_.assign(n, {});
     heap_.clear();
     heap_.reserve(n * 2);
 }
@@ -85,6 +124,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         header_.resize(n, 0);
         order_.resize(n);
         order_at_.resize(n, 0);
+        morph_.resize(n);
     }
     for (size_t i = 0; i < n; ++i)
         if (generation_[i] != frame.instances[i].generation) {  // a new instance in this slot
@@ -96,18 +136,27 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
                (importance[a.instance] == importance[b.instance] && a.instance < b.instance);
     };
 
-    // Fast path: every bone of every (important) instance fits.
+    // Morph items (the weights that are due, scheduler.h), then the fast
+    // path: every bone and due weight of every (important) instance fits.
     size_t full = 0;
     for (size_t i = 0; i < n; ++i) {
         const auto& e = frame.instances[i];
+        morph_[i] = MorphItem{};
         if (!e.valid || importance[i] <= 0.0f) continue;
-        full += WireCost::header(e) + size_t(e.bone_count) * e.record_size;
+        const ServerAsset& a = *assets[size_t(e.asset)];
+        if (state_[i].bone_tick.size() != size_t(a.bone_count())) state_[i].bone_tick.assign(size_t(a.bone_count()), 0);
+        morph_item(i, frame, a, double(importance[i]) * double(importance[i]) * double(a.character.vertex_count()));
+        full += WireCost::header(e) + size_t(e.bone_count) * e.record_size + morph_[i].bytes;
     }
     if (full == 0) return 0;
     if (WireCost::wire(full) <= budget) {
         for (size_t i = 0; i < n; ++i) {
             const auto& e = frame.instances[i];
-            if (e.valid && importance[i] > 0.0f) out.push_back({int(i), e.bone_count, e.bone_count});
+            if (e.valid && importance[i] > 0.0f) {
+                out.push_back({int(i), e.bone_count, e.bone_count});
+                out.back().morphs = morph_[i].mask;
+                morph_[i].chosen = true;
+            }
         }
         std::sort(out.begin(), out.end(), by_importance);
         limited_ = false;
@@ -129,7 +178,6 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         chain_next_[i] = 0;
         header_[i] = WireCost::header(e);
         State& st = state_[i];
-        if (st.bone_tick.size() != size_t(a.bone_count())) st.bone_tick.assign(size_t(a.bone_count()), 0);
         // Squared error in screen units, summed over the instance's vertices
         // (the RMS of GUIDE.md §2 pools all vertices of all characters).
         const double w = double(importance[i]) * double(importance[i]) * double(a.character.vertex_count());
@@ -164,6 +212,9 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         // The unshown segments can only be shown in order: the upper concave
         // hull of their cumulative (bytes, value), offered one step at a time.
         offer_unpaid(int(i), stale);
+        // The morph item: on its own only once bone 0 was sent (its chunk needs show >= 1).
+        if (morph_[i].value > 0 && st.bone_tick[0] != 0)
+            heap_.push_back({morph_[i].value / double(morph_[i].bytes + header_[i]), int(i), 0, stale, false, false, true});
         auto& chain = chain_[i];
         chain.clear();
         size_t u = 0;
@@ -204,6 +255,14 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         if (!s.paid && paid_[inst]) continue;  // offered again at its records-only ratio
         const size_t header = paid_[inst] ? 0 : header_[inst];
         auto& items = items_[inst];
+        if (s.morph) {
+            MorphItem& mi = morph_[inst];
+            if (mi.chosen || WireCost::wire(payload + mi.bytes + header) > budget) continue;
+            payload += mi.bytes + header;
+            mi.chosen = true;
+            if (!paid_[inst]) pay(s.instance, s.age);
+            continue;
+        }
         if (s.chain) {
             const auto& chain = chain_[inst];
             const ChainPoint& p0 = chain[size_t(s.step - 1)];
@@ -250,12 +309,14 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     // Limited: something was left unsent (zero-value bones too, so that the
     // rate estimate keeps probing up to the full rate, where everything goes).
     limited_ = false;
-    for (size_t i = 0; i < n && !limited_; ++i)
+    for (size_t i = 0; i < n && !limited_; ++i) {
+        if (morph_[i].value > 0 && !morph_[i].chosen) limited_ = true;
         for (const SegItem& it : items_[i])
             if (!it.chosen) {
                 limited_ = true;
                 break;
             }
+    }
     // Picks: the chosen segments of each instance merged into ranges; show = the
     // prefix of segments shown from now on (chosen now or refreshed within the hold).
     for (size_t i = 0; i < n; ++i) {
@@ -271,6 +332,10 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
             if (out.size() > before && out.back().k == it.from) out.back().k = it.to;
             else out.push_back({int(i), it.to, 0, it.from});
         }
+        if (morph_[i].chosen && show > 0) {  // the morph block goes with the instance's first chunk
+            if (out.size() == before) out.push_back({int(i), 0, 0, 0});
+            out[before].morphs = morph_[i].mask;
+        }
         for (size_t x = before; x < out.size(); ++x) out[x].show = std::max(show, out.back().k);
     }
     std::stable_sort(out.begin(), out.end(), by_importance);
@@ -279,7 +344,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     for (size_t x = 0; x < out.size(); ++x) {
         const auto& e = frame.instances[size_t(out[x].instance)];
         if (x == 0 || out[x - 1].instance != out[x].instance) est += WireCost::header(e);
-        est += size_t(out[x].k - out[x].first) * size_t(e.record_size);
+        est += size_t(std::max(0, out[x].k - out[x].first)) * size_t(e.record_size) + morph_block_bytes(out[x].morphs);
     }
     return est ? WireCost::wire(est) : 0;
 }
@@ -320,6 +385,10 @@ void Scheduler::pay(int instance, uint32_t age) {
     });
     order_at_[i] = 0;
     offer_paid(instance, age);
+    if (morph_[i].value > 0 && !morph_[i].chosen) {
+        heap_.push_back({morph_[i].value / double(morph_[i].bytes), instance, 0, age, false, true, true});
+        std::push_heap(heap_.begin(), heap_.end());
+    }
     if (const int c = chain_next_[i]; c > 0) {
         heap_.push_back({step_ratio(chain_[i], c), instance, c, age, true, true});
         std::push_heap(heap_.begin(), heap_.end());
@@ -344,6 +413,11 @@ void Scheduler::sent(std::span<const Pick> picks, uint32_t tick) {
         State& s = state_[size_t(p.instance)];
         if (s.bone_tick.size() < size_t(p.k)) s.bone_tick.resize(size_t(p.k), 0);
         for (int b = std::max(0, p.first); b < p.k; ++b) s.bone_tick[size_t(b)] = tick;
+        for (size_t m = 0; m < s.morph_pending.size() && m < size_t(MAX_MORPHS); ++m)
+            if ((p.morphs[m / 64] >> (m % 64) & 1) && s.morph_pending[m] != kNoWeight) {
+                s.morph_sent[m] = s.morph_pending[m];
+                s.morph_tick[m] = tick;
+            }
     }
 }
 

@@ -26,10 +26,22 @@
 // for the first item of an instance in the tick; once an instance's header is
 // paid its remaining items are offered again at their records-only ratio.
 // Datagram overheads are charged by WireCost; equal ratios go to the instance
-// sent least recently. Cost: O(instances x segments + S log S) per
+// sent least recently.
+// Morph weights (FrameEncoder: quantised per tick) are one more item per
+// instance and tick: the weights that are due, sent together in the chunk's
+// morph block (1 + 3 bytes per weight). Weight m is due when its quantised
+// value differs from the one last sent to this client, or when it was last
+// sent MORPH_REFRESH_TICKS or more ago (or never: a lost datagram heals). The
+// item is worth importance^2 x vertices x sum over due m of
+// morph_importance_m^2 x (d_m^2 + [stale] r^2), d_m the change since last
+// sent, r = MORPH_REFRESH_WEIGHT: the squared vertex error the client's stale
+// weights cause per tick (cross terms between targets ignored). It is offered
+// once bone 0 was sent (a chunk needs show >= 1), with the header like a shown
+// segment, or at its bytes alone once the instance's header is paid. Cost: O(instances x segments + S log S) per
 // client and tick for S items offered; O(instances) when everything fits
 // (fast path). No allocation after warm-up.
 #pragma once
+#include <array>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -71,12 +83,20 @@ std::vector<float> compute_importance(const ViewSpec& view, const std::vector<In
 void compute_importance(const ViewSpec& view, const EncodedFrame& frame,
                         const std::vector<std::shared_ptr<ServerAsset>>& assets, uint64_t viewer, std::vector<float>& out);
 
+inline constexpr int MORPH_REFRESH_TICKS = 30;        // a weight is re-sent at least this often
+inline constexpr double MORPH_REFRESH_WEIGHT = 1.0 / 64;  // the refresh's nominal weight error
+
 struct Pick {
     int instance = 0;
-    int k = 0;      // bones first..k-1 sent this tick
+    int k = 0;      // bones first..k-1 sent this tick (k <= first: none, the pick carries only morph weights)
     int show = 0;   // bones the client shows from this tick on (>= k; 0: k)
     int first = 0;  // (an instance may have several picks with disjoint ranges in one tick)
+    std::array<uint64_t, 4> morphs{};  // bit m: morph weight m goes in the chunk's morph block
+    bool has_morphs() const { return (morphs[0] | morphs[1] | morphs[2] | morphs[3]) != 0; }
 };
+
+// Bytes of a morph block carrying the weights set in `mask` (0 when none).
+size_t morph_block_bytes(const std::array<uint64_t, 4>& mask);
 
 class Scheduler {
 public:
@@ -95,7 +115,18 @@ public:
 private:
     struct State {
         std::vector<uint32_t> bone_tick;  // per progressive bone, tick last sent (0: never)
+        std::vector<int32_t> morph_sent;  // per morph weight, quantised value last sent (kNoWeight: never)
+        std::vector<uint32_t> morph_tick; // tick it was sent
+        std::vector<int32_t> morph_pending;  // chosen by the last select (committed by sent)
     };
+    struct MorphItem {
+        double value = 0;   // importance-weighted squared error removed per tick
+        size_t bytes = 0;   // morph block
+        std::array<uint64_t, 4> mask{};
+        bool chosen = false;
+    };
+    // Fills morph_[i] (due weights, value, bytes) and State::morph_pending.
+    void morph_item(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w);
     struct Step {
         double ratio;
         int instance;
@@ -103,6 +134,7 @@ private:
         uint32_t age;  // ticks since the instance was last sent (ties go to the stalest)
         bool chain;    // a step of the unshown segments' hull
         bool paid;     // ratio without the chunk header (offered once the instance's header is paid)
+        bool morph = false;  // the instance's morph item (morph_)
         bool operator<(const Step& o) const { return ratio < o.ratio || (ratio == o.ratio && age < o.age); }
     };
     struct SegItem {
@@ -137,6 +169,7 @@ private:
     std::vector<size_t> header_;                    // per instance: WireCost::header of its bones
     std::vector<std::vector<int>> order_;           // per instance (once paid): shown items by value per byte
     std::vector<size_t> order_at_;                  // per instance: next in order_ to offer
+    std::vector<MorphItem> morph_;                  // per instance
     std::vector<Step> heap_;
     bool limited_ = false;
 };

@@ -1020,6 +1020,7 @@ ServerStats Server::stats() const {
     std::lock_guard lock(impl_->stats_mutex);
     ServerStats s = impl_->st;
     s.poses_out_of_range = es.poses_out_of_range;
+    s.morphs_out_of_range = es.morphs_out_of_range;
     return s;
 }
 

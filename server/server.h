@@ -65,6 +65,7 @@ struct ServerStats {
     uint64_t malformed_control = 0, asset_bytes_sent = 0;
     uint64_t poses_received = 0, poses_stale = 0, poses_rate_limited = 0;  // players' Pose datagrams
     uint64_t poses_out_of_range = 0;  // live poses refused by the codec's range (FrameEncoder)
+    uint64_t morphs_out_of_range = 0; // clip morph weights outside the wire range, refused (FrameEncoder)
     uint64_t challenges_sent = 0;  // return-routability challenges (answers to Binds from new addresses)
     uint64_t accept_errors = 0, backlog_closes = 0, handler_errors = 0;
     uint64_t tls_failures = 0;     // TLS handshakes that failed

@@ -36,10 +36,16 @@ struct FrameApplied {
 inline FrameApplied apply_frame(const wire::Frame& f, std::vector<std::unique_ptr<InstanceView>>& views) {
     FrameApplied r;
     auto record_size = [&](uint16_t i) { return i < views.size() ? views[i]->asset().format.size() : 0; };
-    r.read = read_frame(f, record_size, [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
-        if (!views[i]->buffer().add_chunk(f.tick(), first, count, show, rec, show)) ++r.refused;
-        r.record_bytes += size_t(count) * size_t(record_size(i));
-    });
+    r.read = read_frame(
+        f, record_size,
+        [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
+            if (!views[i]->buffer().add_chunk(f.tick(), first, count, show, rec, show)) ++r.refused;
+            r.record_bytes += size_t(count) * size_t(record_size(i));
+        },
+        [&](const wire::Chunk& c, const uint8_t*, const uint8_t* morph) {  // epochs ignored (0), as for the bones
+            if (morph && !views[c.instance()]->buffer().add_morphs(f.tick(), c.show(), c.show(), 0, morph))
+                ++r.refused;
+        });
     return r;
 }
 

@@ -3,6 +3,8 @@
 // refused before anything is applied.
 #include <gtest/gtest.h>
 
+#include <array>
+#include <cmath>
 #include <cstring>
 #include <map>
 #include <random>
@@ -213,4 +215,126 @@ TEST(NetFrame, PackerRoundTripsPicksOverSeveralDatagrams) {
         EXPECT_EQ(n, 1);
         EXPECT_TRUE(want.count(key)) << key.first << " " << key.second;
     }
+}
+
+namespace {
+// read_frame with on_chunk: the morph blocks handed over (count byte first).
+bool read_morphs(const std::vector<uint8_t>& d, std::vector<ChunkRun>& runs, std::vector<const uint8_t*>& blocks) {
+    runs.clear();
+    blocks.clear();
+    const wire::Datagram* g = verify_datagram(d);
+    if (!g || !g->body_as_Frame()) return false;
+    return read_frame(
+        *g->body_as_Frame(), [](uint16_t i) { return i < 3 ? 12 : 0; },
+        [&](uint16_t i, int first, int count, int show, const uint8_t*) { runs.push_back({i, first, count, show, 0}); },
+        [&](const wire::Chunk&, const uint8_t*, const uint8_t* morph) { blocks.push_back(morph); });
+}
+}  // namespace
+
+// The morph block (CHUNK_MORPH): after the root block, before the mask;
+// a chunk may carry weights and no bone; every malformed block is refused.
+TEST(NetFrame, ReadsAndChecksMorphBlocks) {
+    int16_t q = 0;
+    ASSERT_TRUE(encode_morph_weight(0.75f, q));
+    const uint8_t lo = uint8_t(uint16_t(q) & 0xFF), hi = uint8_t(uint16_t(q) >> 8);
+    // Instance 0: root block, morph block {1: 0.75, 4: 0.75}, bone 0 of show 2.
+    std::vector<uint8_t> pl(ROOT_BYTES, 0);
+    const std::vector<uint8_t> block = {2, 1, lo, hi, 4, lo, hi};
+    pl.insert(pl.end(), block.begin(), block.end());
+    pl.push_back(0b01);
+    pl.resize(pl.size() + 12, 3);
+    // Instance 1: weights only (first = show - 1, an empty mask).
+    const std::vector<uint8_t> only = {1, 0, lo, hi, 0b0};
+    std::vector<uint8_t> both = pl;
+    both.insert(both.end(), only.begin(), only.end());
+    std::vector<ChunkRun> runs;
+    std::vector<const uint8_t*> blocks;
+    ASSERT_TRUE(read_morphs(frame_datagram({ch(0, 0, 2, CHUNK_ROOT | CHUNK_MORPH), ch(1, 1, 2, CHUNK_MORPH)}, both), runs, blocks));
+    ASSERT_EQ(runs.size(), 1u);
+    EXPECT_EQ(runs[0].instance, 0);
+    ASSERT_EQ(blocks.size(), 2u);
+    ASSERT_NE(blocks[0], nullptr);
+    EXPECT_EQ(blocks[0][0], 2);
+    EXPECT_EQ(blocks[0][4], 4);
+    EXPECT_FLOAT_EQ(decode_morph_weight(int16_t(uint16_t(blocks[0][5] | blocks[0][6] << 8))), 0.75f);
+    ASSERT_NE(blocks[1], nullptr);
+    EXPECT_EQ(blocks[1][0], 1);
+
+    // Quantisation: 1/16384 steps over [-2, 2 - 1/16384]; outside refused, not clamped.
+    EXPECT_TRUE(encode_morph_weight(-2.0f, q));
+    EXPECT_EQ(q, -32768);
+    EXPECT_FALSE(encode_morph_weight(2.0f, q));
+    EXPECT_FALSE(encode_morph_weight(-2.001f, q));
+    EXPECT_FALSE(encode_morph_weight(std::nanf(""), q));
+    for (float w : {0.0f, 0.1234567f, 1.0f, -0.5f, 1.9999f}) {
+        ASSERT_TRUE(encode_morph_weight(w, q));
+        EXPECT_LE(std::fabs(decode_morph_weight(q) - w), 0.5f / 16384.0f + 1e-7f) << w;
+    }
+
+    std::vector<uint8_t> n0 = only;
+    n0[0] = 0;
+    n0.erase(n0.begin() + 1, n0.begin() + 4);
+    std::vector<uint8_t> not_increasing = {2, 3, lo, hi, 3, lo, hi, 0b0};
+    std::vector<uint8_t> past_payload = {3, 0, lo, hi, 1, lo, hi};
+    std::vector<uint8_t> no_flag = only;
+    std::vector<uint8_t> empty_no_morph = {0b0};
+    struct Case {
+        const char* what;
+        std::vector<wire::Chunk> chunks;
+        std::vector<uint8_t> payload;
+    };
+    const std::vector<Case> cases = {
+        {"morph count 0", {ch(0, 1, 2, CHUNK_MORPH)}, n0},
+        {"morph indices not increasing", {ch(0, 1, 2, CHUNK_MORPH)}, not_increasing},
+        {"morph block past the payload", {ch(0, 1, 2, CHUNK_MORPH)}, past_payload},
+        {"morph block without its flag", {ch(0, 1, 2)}, no_flag},
+        {"neither bone nor weight", {ch(0, 1, 2)}, empty_no_morph},
+        {"good chunk, then a bad morph block", {ch(0, 0, 2, CHUNK_ROOT | CHUNK_MORPH), ch(1, 1, 2, CHUNK_MORPH)},
+         [&] {
+             std::vector<uint8_t> x = pl;
+             x.insert(x.end(), not_increasing.begin(), not_increasing.end());
+             return x;
+         }()},
+    };
+    for (const Case& c : cases) {
+        EXPECT_FALSE(read_morphs(frame_datagram(c.chunks, c.payload), runs, blocks)) << c.what;
+        EXPECT_TRUE(runs.empty() && blocks.empty()) << c.what;
+    }
+}
+
+// The pose buffer keeps the last value of each weight (sparse blocks),
+// interpolates linearly between frames, refuses indices past the asset's
+// morph targets, and never interpolates across an epoch.
+TEST(NetFrame, PoseBufferMorphWeightsAreSparseAndInterpolated) {
+    PoseBuffer b(2, RecordFormat{}, 3);
+    auto block = [](std::vector<std::pair<int, float>> w) {
+        std::vector<uint8_t> out = {uint8_t(w.size())};
+        for (auto [m, v] : w) {
+            int16_t q = 0;
+            EXPECT_TRUE(encode_morph_weight(v, q));
+            out.push_back(uint8_t(m));
+            out.push_back(uint8_t(uint16_t(q) & 0xFF));
+            out.push_back(uint8_t(uint16_t(q) >> 8));
+        }
+        return out;
+    };
+    std::vector<uint8_t> rec(12, 0);
+    encode_bone(BonePose{}, RecordFormat{}, rec.data());
+    ASSERT_TRUE(b.add_chunk(10, 0, 1, 2, rec.data(), 2));
+    ASSERT_TRUE(b.add_morphs(10, 2, 2, 0, block({{0, 1.0f}, {2, 0.5f}}).data()));
+    ASSERT_TRUE(b.add_morphs(20, 2, 2, 0, block({{0, 0.0f}}).data()));  // weight 2 not carried: stays 0.5
+    EXPECT_FALSE(b.add_morphs(30, 2, 2, 0, block({{3, 1.0f}}).data()));  // only 3 targets
+    std::array<float, 3> w{};
+    b.weights_at(15, w);
+    EXPECT_NEAR(w[0], 0.5f, 1e-4f);
+    EXPECT_FLOAT_EQ(w[1], 0.0f);  // never received
+    EXPECT_NEAR(w[2], 0.5f, 1e-4f);
+    b.weights_at(25, w);  // held after the newest
+    EXPECT_NEAR(w[0], 0.0f, 1e-4f);
+    // A new epoch at tick 40: nothing interpolated from tick 20 to 40.
+    ASSERT_TRUE(b.add_morphs(40, 2, 2, 1, block({{0, 1.0f}}).data()));
+    b.weights_at(30, w);
+    EXPECT_NEAR(w[0], 0.0f, 1e-4f);
+    b.weights_at(40, w);
+    EXPECT_NEAR(w[0], 1.0f, 1e-4f);
 }
