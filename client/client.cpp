@@ -166,7 +166,11 @@ struct Client::Impl {
     // control channel
     std::vector<uint8_t> rx, rx_chunk = std::vector<uint8_t>(65536);
     bool reading = false;
-    std::deque<std::vector<uint8_t>> tx;
+    // Control output: messages queued while one batch is being written. Both
+    // buffers keep their capacity, so steady sending allocates nothing.
+    std::vector<uint8_t> tx_pending, tx_inflight;
+    std::vector<uint8_t> rx_body;             // one received control message body
+    flatbuffers::FlatBufferBuilder ctl_fbb{256};  // Stats, the one periodic control message
     bool writing = false;
 
     // session
@@ -259,22 +263,21 @@ struct Client::Impl {
     // ------------------------------------------------------------ control --
     void send(const flatbuffers::FlatBufferBuilder& b) {
         if (!tcp_connected || state == ClientState::Failed || state == ClientState::Closed) return;
-        std::vector<uint8_t> msg;
-        frame_control(b, msg);
-        tx.push_back(std::move(msg));
+        frame_control(b, tx_pending);  // appends
         write_next();
     }
     void write_next() {
-        if (writing || tx.empty()) return;
+        if (writing || tx_pending.empty()) return;
         writing = true;
+        std::swap(tx_pending, tx_inflight);
         auto done = [this](asio::error_code ec, size_t) {
             writing = false;
             if (ec) return fail("control channel: " + ec.message());
-            tx.pop_front();
+            tx_inflight.clear();
             write_next();
         };
-        if (tls) asio::async_write(*tls, asio::buffer(tx.front()), done);
-        else asio::async_write(tcp_sock, asio::buffer(tx.front()), done);
+        if (tls) asio::async_write(*tls, asio::buffer(tx_inflight), done);
+        else asio::async_write(tcp_sock, asio::buffer(tx_inflight), done);
     }
     void read_more() {
         if (reading) return;
@@ -376,7 +379,7 @@ struct Client::Impl {
     }
     void drain_control() {
         size_t at = 0;
-        std::vector<uint8_t> body;
+        std::vector<uint8_t>& body = rx_body;
         while (state != ClientState::Failed && state != ClientState::Closed) {
             uint32_t n = 0;
             if (!read_length({rx.data() + at, rx.size() - at}, n)) break;
@@ -817,6 +820,7 @@ struct Client::Impl {
         // bound 10 s after its Welcome, and a download may take longer
         // (frames of characters whose asset is not ready are skipped).
         if (!udp_sock.is_open()) {
+            st.per_second_bytes.reserve(3600);  // an hour of per-second rate bins without reallocating
             open_udp();
             if (state == ClientState::Failed) return;
             next_stats = now + 1.0;
@@ -850,7 +854,8 @@ struct Client::Impl {
             last_ack_sent = now;
         }
         if (now >= next_stats) {
-            flatbuffers::FlatBufferBuilder b;
+            flatbuffers::FlatBufferBuilder& b = ctl_fbb;
+            b.Clear();
             wire::StatsBuilder sb(b);
             const auto& bins = st.per_second_bytes;
             sb.add_rate_kbps(float(bins.size() >= 2 ? bins[bins.size() - 2] * 8 / 1000 : 0));
@@ -1026,7 +1031,7 @@ void Client::close(const std::string& reason) {
         frame_control(b, msg);
         asio::error_code ec;
         m.tcp_sock.non_blocking(true, ec);
-        if (m.tx.empty()) {
+        if (!m.writing && m.tx_pending.empty()) {
             if (m.tls) m.tls->write_some(asio::buffer(msg), ec);  // one TLS record; would_block: dropped
             else m.tcp_sock.write_some(asio::buffer(msg), ec);
         }
