@@ -4,6 +4,8 @@
 // client's --pin / --no-tls / --insecure.
 #include <gtest/gtest.h>
 
+#include "run_command.h"
+
 #include <array>
 #include <utility>
 #include <chrono>
@@ -20,23 +22,6 @@ namespace {
 
 std::string bin(const std::string& name) {
     return std::string(PROGSKIN_BIN_DIR) + (name == "progskin-client" ? "/client/" : "/server/") + name;
-}
-
-struct CmdResult {
-    int code = -1;
-    std::string out;
-};
-
-CmdResult run(const std::string& cmd) {
-    CmdResult r;
-    FILE* p = ::popen((cmd + " 2>&1").c_str(), "r");
-    if (!p) return r;
-    std::array<char, 4096> buf;
-    size_t n;
-    while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) r.out.append(buf.data(), n);
-    int st = ::pclose(p);
-    r.code = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-    return r;
 }
 
 bool built(const std::string& name) { return std::ifstream(bin(name)).good(); }
