@@ -239,6 +239,7 @@ struct Client::Impl {
     std::vector<Own> own;
     uint32_t next_request = 1;
     std::vector<uint8_t> pose_records;
+    std::vector<int16_t> pose_morphs;
     flatbuffers::FlatBufferBuilder fbb{1400};
 
     explicit Impl(ClientConfig c) : cfg(std::move(c)) {
@@ -930,7 +931,8 @@ struct Client::Impl {
     // TCP connected (and the TLS handshake and pin checked): Hello, then read.
     void on_channel_ready();
 
-    bool publish(int handle, const RootPose& root, std::span<const Mat34> skinning, bool teleport) {
+    bool publish(int handle, const RootPose& root, std::span<const Mat34> skinning, bool teleport,
+                 std::span<const float> morph_weights) {
         Own* o = find_own(handle);
         if (!o || o->instance < 0 || !bound || state != ClientState::Streaming) return false;
         const auto& a = assets[size_t(o->asset)];
@@ -946,6 +948,11 @@ struct Client::Impl {
             if (!bone_in_range(p, fmt)) ok = false;
             else encode_bone(p, fmt, pose_records.data() + size_t(b) * rs);
         }
+        if (!morph_weights.empty()) {
+            if (morph_weights.size() != std::min<size_t>(a->character.morphs.size(), MAX_MORPHS)) return false;
+            pose_morphs.resize(morph_weights.size());
+            for (size_t m = 0; ok && m < morph_weights.size(); ++m) ok = encode_morph_weight(morph_weights[m], pose_morphs[m]);
+        }
         if (!ok) {
             ++st.poses_refused;
             return false;
@@ -959,7 +966,9 @@ struct Client::Impl {
             fbb.Clear();
             auto rv = fbb.CreateVector(rb.data(), rb.size());
             auto rec = fbb.CreateVector(pose_records.data() + size_t(first) * rs, size_t(count) * rs);
-            auto p = wire::CreatePose(fbb, session, udp_token, uint16_t(o->instance), o->pose_seq, o->epoch, uint8_t(first), rv, rec);
+            flatbuffers::Offset<flatbuffers::Vector<int16_t>> mv;  // the weights go with the first bones
+            if (first == 0 && !morph_weights.empty()) mv = fbb.CreateVector(pose_morphs.data(), pose_morphs.size());
+            auto p = wire::CreatePose(fbb, session, udp_token, uint16_t(o->instance), o->pose_seq, o->epoch, uint8_t(first), rv, rec, mv);
             fbb.Finish(wire::CreateDatagram(fbb, 0, now_us32(), wire::DatagramBody::Pose, p.Union()), wire::DatagramIdentifier());
             send_datagram(fbb);
         }
@@ -1103,8 +1112,9 @@ int Client::spawn(const SpawnSpec& spec) {
     return o.handle;
 }
 
-bool Client::publish(int handle, const RootPose& root, std::span<const Mat34> skinning, bool teleport) {
-    return impl_->publish(handle, root, skinning, teleport);
+bool Client::publish(int handle, const RootPose& root, std::span<const Mat34> skinning, bool teleport,
+                     std::span<const float> morph_weights) {
+    return impl_->publish(handle, root, skinning, teleport, morph_weights);
 }
 
 void Client::despawn(int handle) {

@@ -188,7 +188,11 @@ public:
     // discontinuity. Returns false when the handle is not spawned yet, the
     // stream is not bound, or a value is outside the codec's range (counted
     // in stats().poses_refused; nothing is clamped).
-    bool publish(int handle, const RootPose& root, std::span<const Mat34> skinning, bool teleport = false);
+    // morph_weights (optional): every morph target's weight of the character
+    // (glTF order, at most 255), sent with the pose; empty: none (the last
+    // sent stay). A weight outside [-2, 2) refuses the pose like a matrix.
+    bool publish(int handle, const RootPose& root, std::span<const Mat34> skinning, bool teleport = false,
+                 std::span<const float> morph_weights = {});
     void despawn(int handle);
     int instance_of(int handle) const;  // -1 until Spawned
 

@@ -33,6 +33,7 @@ struct Published {
     uint64_t start_us = 0;
     std::vector<glm::dmat4> mats;
     std::vector<Mat34> skin;
+    std::vector<float> morphs;  // every target's weight (none when the character has no morphs)
 };
 
 int find_asset(const Client& c, const std::string& spec) {
@@ -144,6 +145,7 @@ ClientReport run_client(const ClientOptions& opt) {
                     p.handle = client.spawn(s);
                     p.mats.resize(a.character.joint_count());
                     p.skin.resize(a.character.joint_count());
+                    p.morphs.resize(a.character.morphs.size());
                     pubs.push_back(std::move(p));
                     ++k;
                 }
@@ -161,7 +163,9 @@ ClientReport run_client(const ClientOptions& opt) {
                 for (size_t j = 0; j < p.mats.size(); ++j) p.skin[j] = Mat34::from_glm(p.mats[j]);
                 RootPose root = walk_root(p.center, p.walk_radius, p.walk_speed, t);
                 root.source_us = t_us;
-                client.publish(p.handle, root, p.skin);
+                if (!p.morphs.empty()) sample_morph_weights(a.character, p.selection, p.selection.looped(t), p.morphs);
+                client.publish(p.handle, root, p.skin, false,
+                               std::span<const float>(p.morphs).first(std::min<size_t>(p.morphs.size(), MAX_MORPHS)));
             }
         }
         const auto chars = client.characters();

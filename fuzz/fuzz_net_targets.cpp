@@ -92,6 +92,8 @@ int frame_stream(const uint8_t* data, size_t size) {
         const RootPose r = decode_root(p->root()->data());
         sink = uint64_t(r.position.x) ^ r.source_us;
         for (size_t k = 0; k < p->records()->size() / 12; ++k) sink = record_valid(p->records()->data() + k * 12, RecordFormat{});
+        if (p->morphs())
+            for (int16_t w : *p->morphs()) sink = uint64_t(decode_morph_weight(w) * 16384.0f);
         return 1;
     }
     return 0;

@@ -121,7 +121,8 @@ int main(int argc, char** argv) {
         for (int b = 0; b < 24; ++b) encode_bone(BonePose{}, RecordFormat{}, rec.data() + b * 12);
         auto r = fbb.CreateVector(root);
         auto v = fbb.CreateVector(rec);
-        write(dir, "pose", finish(fbb, wire::DatagramBody::Pose, wire::CreatePose(fbb, 0x1234, 0x5678, 2, 17, 1, 0, r, v).Union()));
+        auto m = fbb.CreateVector(std::vector<int16_t>{0, 8192, 16384, -4096});
+        write(dir, "pose", finish(fbb, wire::DatagramBody::Pose, wire::CreatePose(fbb, 0x1234, 0x5678, 2, 17, 1, 0, r, v, m).Union()));
     }
     // Control messages of players' characters: fuzz/corpus/control (beside DIR).
     const std::filesystem::path cdir = dir.parent_path() / "control";

@@ -78,6 +78,7 @@ int FrameEncoder::add_instance(const InstanceSpec& s) {
     slot.live_epoch = 0;
     ++slot.teleports;  // a new occupant of the slot is a discontinuity
     slot.has_root = false;
+    slot.morphs.clear();
     return id;
 }
 
@@ -166,7 +167,7 @@ bool FrameEncoder::push_pose(int instance, std::span<const Mat34> skinning) {
 }
 
 bool FrameEncoder::push_records(int instance, uint32_t pose_seq, uint8_t epoch, int first, std::span<const uint8_t> records,
-                                std::span<const uint8_t, ROOT_BYTES> root) {
+                                std::span<const uint8_t, ROOT_BYTES> root, std::span<const int16_t> morphs) {
     std::lock_guard lock(mutex_);
     if (instance < 0 || size_t(instance) >= slots_.size() || !slots_[size_t(instance)].active) return false;
     Slot& slot = slots_[size_t(instance)];
@@ -178,6 +179,10 @@ bool FrameEncoder::push_records(int instance, uint32_t pose_seq, uint8_t epoch, 
     if (first < 0 || records.size() % rs != 0 || size_t(first) * rs + records.size() > slot.records.size()) return false;
     std::copy(records.begin(), records.end(), slot.records.begin() + long(size_t(first) * rs));
     std::copy(root.begin(), root.end(), slot.root.begin());
+    if (!morphs.empty()) {
+        if (morphs.size() != std::min<size_t>(assets_[slot.spec.asset]->character.morphs.size(), MAX_MORPHS)) return false;
+        slot.morphs.assign(morphs.begin(), morphs.end());  // capacity kept after the first
+    }
     slot.pose_seq = pose_seq;
     slot.live_epoch = epoch;
     slot.live = slot.has_pose = slot.has_root = true;
@@ -232,6 +237,10 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         if (slot.live) {
             if (!slot.has_pose) continue;
             std::copy(slot.records.begin(), slot.records.end(), out);
+            if (!slot.morphs.empty()) {
+                e.morph_count = int(slot.morphs.size());
+                std::copy(slot.morphs.begin(), slot.morphs.end(), frame_.morph.begin() + long(e.morph_offset));
+            }
             e.epoch = uint8_t(slot.teleports + slot.live_epoch);
             e.valid = true;
             continue;

@@ -16,7 +16,7 @@
 // Morph weights: per tick, a clip instance's weights (sample_morph_weights at
 // its clip time) quantised for the wire (wire.h encode_morph_weight); a
 // weight outside the wire range is refused (kNoWeight, counted), never
-// clamped. Live instances carry none (morph_count 0). At most MAX_MORPHS
+// clamped. Live instances carry the weights their publisher sent, if any. At most MAX_MORPHS
 // targets per asset are streamed.
 //
 // Thread-safety: add_instance, remove_instance, push_pose, push_records and
@@ -110,8 +110,10 @@ public:
     // first..first+n-1) and a root block; kept when pose_seq is newer than
     // the newest kept (else counted stale and dropped). The caller checked
     // ownership, sizes and ranges (server.cpp). Returns false when stale.
+    // morphs (optional, may be empty: the last ones stay): every morph
+    // weight of the character, quantised (wire.h encode_morph_weight).
     bool push_records(int instance, uint32_t pose_seq, uint8_t epoch, int first, std::span<const uint8_t> records,
-                      std::span<const uint8_t, ROOT_BYTES> root);
+                      std::span<const uint8_t, ROOT_BYTES> root, std::span<const int16_t> morphs = {});
     // Places an instance in the world; teleport: a discontinuity (new epoch).
     // Returns false when the root is outside the root block's range.
     bool set_root(int instance, const RootPose& root, bool teleport);
@@ -127,6 +129,7 @@ private:
         // live pose
         bool live = false, has_pose = false;
         std::vector<uint8_t> records;  // B records (progressive order)
+        std::vector<int16_t> morphs;   // published morph weights (quantised), empty: none
         uint32_t pose_seq = 0;
         uint8_t live_epoch = 0, teleports = 0;
         bool has_root = false;

@@ -825,6 +825,9 @@ struct Server::Impl {
             // components whose squares sum to at most 1) and a finite scale.
             for (size_t r = 0; r < p->records()->size() / rs; ++r)
                 if (!record_valid(p->records()->data() + r * rs, a.format)) return reject(true);
+            // Morph weights, when present: one per target (every int16 is a weight in [-2, 2)).
+            const size_t morphs = std::min<size_t>(a.character.morphs.size(), MAX_MORPHS);
+            if (p->morphs() && p->morphs()->size() != morphs) return reject(true);
             // Rate limit: a bucket of 2 s at twice the tick rate (poses beyond
             // it are dropped and counted, the newest wins anyway).
             const double now = now_seconds(), rate = 2.0 * cfg.tick_rate;
@@ -836,8 +839,10 @@ struct Server::Impl {
             }
             o->tokens -= 1.0;
             std::span<const uint8_t, ROOT_BYTES> root(p->root()->data(), ROOT_BYTES);
+            std::span<const int16_t> weights;
+            if (p->morphs()) weights = {p->morphs()->data(), p->morphs()->size()};
             if (encoder.push_records(o->instance, p->pose_seq(), p->epoch(), p->first(),
-                                     {p->records()->data(), p->records()->size()}, root))
+                                     {p->records()->data(), p->records()->size()}, root, weights))
                 with_stats([](ServerStats& st) { ++st.poses_received; });
             else
                 with_stats([](ServerStats& st) { ++st.poses_stale; });

@@ -237,3 +237,46 @@ TEST(NetMorph, OutOfRangeWeightsAreRefusedAndCounted) {
     EXPECT_GT(sent, 0u);
     EXPECT_EQ(enc.stats().morphs_out_of_range, refused_ticks);
 }
+
+// A player's character with morph targets: the publisher sends every weight
+// with its pose (Pose.morphs), the server streams them like a clip's, and an
+// observer (run_client --verify) displays the published face at a small
+// fraction of the error of ignoring the weights. (Measured 0.22 % RMS against
+// 0.013 % for the same clip played by the server: the publisher samples at
+// its own 30 Hz, not on the ticks, so some ticks repeat a pose and others skip
+// one, and the client's interpolation between such frames is coarser.)
+TEST(NetMorph, PublishedWeightsReachObservers) {
+    const ServerAsset& a = *morph_asset();
+    const double ignored = ignored_morph_rms_pct(a, talk_selection(a));
+    ServerConfig cfg;
+    cfg.bind_address = "127.0.0.1";
+    Server server(cfg, {morph_asset()}, {});  // catalogue only
+    std::thread t([&] { server.run(); });
+    auto options = [&](const std::string& name, double seconds) {
+        ClientOptions o;
+        o.host = "127.0.0.1";
+        o.port = server.tcp_port();
+        o.name = name;
+        o.duration = seconds;
+        o.cache_dir = RunningServer::cache_dir();
+        PublishOptions p;
+        p.asset = "0";
+        p.clip = "talk";
+        o.publish.push_back(p);
+        return o;
+    };
+    ClientReport pub, obs;
+    std::thread publisher([&] { pub = run_client(options("publisher", 5.0)); });
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    ClientOptions o = options("observer", 3.0);
+    o.verify = true;
+    obs = run_client(o);
+    publisher.join();
+    server.stop();
+    t.join();
+    std::printf("published skinned_morph talk: remote RMS %.4f %% max %.4f %% (ignoring the weights: RMS %.3f %%), %llu poses\n",
+                obs.remote_rms_pct, obs.remote_max_pct, ignored, (unsigned long long)pub.poses_sent);
+    ASSERT_EQ(obs.remote_characters, 1);
+    ASSERT_GE(obs.remote_rms_pct, 0.0);
+    EXPECT_LE(obs.remote_rms_pct, 0.1 * ignored);
+}
