@@ -27,10 +27,7 @@ void remap_skin_vertices(const Character& c, ProgressiveSkin& skin) {
     skin.weights = c.weights;
 }
 
-double ClipInfo::at(double u) const {
-    if (once) return selection.start + std::clamp(u, 0.0, std::max(0.0, double(selection.duration())));
-    return selection.looped(u);
-}
+double ClipInfo::at(double u) const { return selection.played(u, once); }
 
 void remap_skin_vertices(ClientAsset& a) {
     remap_skin_vertices(a.character, a.skin);

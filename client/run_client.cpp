@@ -77,7 +77,6 @@ ClientReport run_client(const ClientOptions& opt) {
 
     ClientReport rep;
     std::vector<Published> pubs;
-    bool spawned_all = false;
     size_t cap_index = 0;
     double t_stream = 0, end_time = 0, next_snapshot = 0, next_publish = 0;
     uint64_t display_count = 0;
@@ -110,13 +109,8 @@ ClientReport run_client(const ClientOptions& opt) {
                                                                   ? client.asset_names()[size_t(e.asset)]
                                                                   : std::string("a character")) +
                             ": " + e.text);
-            if (e.type == ClientEvent::Type::CharacterRemoved) {
-                // A character that leaves keeps its statistics under its id;
-                // a later one in the same id counts apart only if it differs.
-            }
         }
         // Spawn the --publish characters once the catalogue is ready.
-        if (!spawned_all && client.state() != ClientState::Connecting) spawned_all = true;
         if (pubs.empty() && !opt.publish.empty() && !client.asset_names().empty()) {
             bool ready = true;
             for (const auto& a : client.assets()) ready = ready && a != nullptr;
@@ -179,8 +173,7 @@ ClientReport run_client(const ClientOptions& opt) {
             end_time = now + opt.duration;
             next_snapshot = now;
         }
-        if (t_stream == 0 && now - t_start > opt.connect_timeout + (client.state() == ClientState::Connecting && !streaming ? 600.0 : 0.0) &&
-            streaming)
+        if (t_stream == 0 && streaming && now - t_start > opt.connect_timeout)
             throw Error("no frames received from the server's UDP port");
         if (t_stream == 0 && now - t_start > opt.connect_timeout + 600.0) throw Error("no frames received from the server");
         if (t_stream > 0 && now >= end_time) break;

@@ -236,6 +236,13 @@ double ClipSelection::looped(double t) const {
     return start + t;
 }
 
+double ClipSelection::played(double t, bool once, int64_t* loops) const {
+    const double dur = duration();
+    if (loops) *loops = !once && dur > 0 ? int64_t(std::floor(t / dur)) : 0;
+    if (once) return start + std::clamp(t, 0.0, std::max(0.0, dur));
+    return looped(t);
+}
+
 ClipSelection select_clips(const Character& c, const std::string& spec) {
     const std::string whole = trim(spec);
     if (whole == "all") {

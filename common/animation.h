@@ -24,6 +24,10 @@ struct ClipSelection {
     // Clip time of a selection played in a loop, t seconds after its start
     // (any t, also negative): start + t wrapped into [0, duration).
     double looped(double t) const;
+    // Clip time t seconds after its start, looped, or once: clamped to the
+    // selection and held at its end. loops (optional): how many times a
+    // looped selection wrapped (0 when played once).
+    double played(double t, bool once, int64_t* loops = nullptr) const;
 };
 
 // The selection of the given clips (indices into Character::clips, checked

@@ -137,12 +137,7 @@ double FrameEncoder::clip_time(int instance, double tick, int64_t* loops) const 
     const auto& s = slots_.at(size_t(instance)).spec;
     if (loops) *loops = 0;
     if (s.selection < 0) return 0.0;
-    const ClipSelection& sel = assets_[s.asset]->selections[s.selection];
-    const double u = s.time_offset + tick / tick_rate_ * s.speed;
-    const double dur = sel.duration();
-    if (s.once) return sel.start + std::clamp(u, 0.0, std::max(0.0, dur));
-    if (loops && dur > 0) *loops = int64_t(std::floor(u / dur));
-    return sel.looped(u);
+    return assets_[s.asset]->selections[s.selection].played(s.time_offset + tick / tick_rate_ * s.speed, s.once, loops);
 }
 
 bool FrameEncoder::push_pose(int instance, std::span<const Mat34> skinning) {
@@ -248,16 +243,8 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         const int J = int(a.character.joint_count());
         std::span<glm::dmat4> mats(scratch_.data(), size_t(J));
         const ClipSelection& sel = a.selections[size_t(s.selection)];
-        const double u = s.time_offset + double(tick) / tick_rate_ * s.speed;
-        const double dur = sel.duration();
         int64_t loops = 0;
-        double t;
-        if (s.once) {
-            t = sel.start + std::clamp(u, 0.0, std::max(0.0, dur));
-        } else {
-            if (dur > 0) loops = int64_t(std::floor(u / dur));
-            t = sel.looped(u);
-        }
+        const double t = sel.played(s.time_offset + double(tick) / tick_rate_ * s.speed, s.once, &loops);
         sample_skinning_matrices(a.character, sel, t, mats);
         const size_t rs = size_t(e.record_size);
         for (int b = 0; b < e.bone_count; ++b) {

@@ -639,35 +639,30 @@ struct Server::Impl {
         encoder.generations(generations);
         if (s->known.size() < generations.size()) s->known.resize(generations.size(), 0);
         std::vector<uint16_t> removed;
-        std::vector<int> added;
+        std::vector<std::pair<int, InstanceSpec>> added;  // id and spec, read once
         for (size_t i = 0; i < s->known.size(); ++i) {
             const uint32_t g = i < generations.size() ? generations[i] : 0;
             if (s->known[i] == g) continue;
             if (s->known[i] != 0) removed.push_back(uint16_t(i));
             s->known[i] = 0;
-            if (g == 0) continue;
             InstanceSpec sp;
-            if (!encoder.spec_if_active(int(i), sp) || sp.owner == s->id) continue;
+            if (g == 0 || !encoder.spec_if_active(int(i), sp) || sp.owner == s->id) continue;
             s->known[i] = g;
-            added.push_back(int(i));
+            added.emplace_back(int(i), std::move(sp));
         }
-        if (!removed.empty()) {
-            for (size_t at = 0; at < removed.size(); at += 16000) {
-                flatbuffers::FlatBufferBuilder fbb;
-                auto ids = fbb.CreateVector(removed.data() + at, std::min<size_t>(16000, removed.size() - at));
-                auto r = wire::CreateInstanceRemoved(fbb, ids);
-                fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::InstanceRemoved, r.Union()), wire::ControlIdentifier());
-                send(s, fbb);
-            }
+        for (size_t at = 0; at < removed.size(); at += 16000) {
+            flatbuffers::FlatBufferBuilder fbb;
+            auto ids = fbb.CreateVector(removed.data() + at, std::min<size_t>(16000, removed.size() - at));
+            auto r = wire::CreateInstanceRemoved(fbb, ids);
+            fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::InstanceRemoved, r.Union()), wire::ControlIdentifier());
+            send(s, fbb);
         }
         constexpr size_t kBatch = 128;  // an Instance table is under 200 bytes
         for (size_t at = 0; at < added.size(); at += kBatch) {
             flatbuffers::FlatBufferBuilder fbb(32768);
             std::vector<flatbuffers::Offset<wire::Instance>> is;
-            for (size_t k = at; k < std::min(added.size(), at + kBatch); ++k) {
-                InstanceSpec sp;
-                if (encoder.spec_if_active(added[k], sp)) is.push_back(instance_table(fbb, added[k], sp));
-            }
+            for (size_t k = at; k < std::min(added.size(), at + kBatch); ++k)
+                is.push_back(instance_table(fbb, added[k].first, added[k].second));
             auto v = fbb.CreateVector(is);
             auto m = wire::CreateInstanceAdded(fbb, v);
             fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::InstanceAdded, m.Union()), wire::ControlIdentifier());

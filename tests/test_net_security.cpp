@@ -711,13 +711,32 @@ TEST(NetSecurity, ConnectTokensAreCheckedWhenConfigured) {
     EXPECT_GE(s.server->stats().tokens_refused, 6u);
 }
 
+// A server configuration with the test-only certificate pair (tests/data/tls).
+static ServerConfig test_tls_config() {
+    ServerConfig cfg;
+    cfg.tls_cert_file = std::string(PROGSKIN_TEST_DATA) + "/tls/test_cert.pem";
+    cfg.tls_key_file = std::string(PROGSKIN_TEST_DATA) + "/tls/test_key.pem";
+    return cfg;
+}
+
+// One framed control message body read from a TLS stream (blocking);
+// false when its length is over the limit.
+static bool read_tls_message(asio::ssl::stream<tcp::socket>& tls, std::vector<uint8_t>& body) {
+    uint8_t len[4];
+    asio::read(tls, asio::buffer(len));
+    uint32_t n = 0;
+    read_length({len, 4}, n);
+    if (n > MAX_CONTROL_MESSAGE) return false;
+    body.resize(n);
+    asio::read(tls, asio::buffer(body));
+    return true;
+}
+
 // TLS on the control channel (off by default): a TLS client that verifies the
 // server's certificate gets its Welcome; a plain-TCP Hello fails the
 // handshake and only that connection is closed.
 TEST(NetSecurity, ControlChannelOverTlsWhenConfigured) {
-    ServerConfig cfg;
-    cfg.tls_cert_file = std::string(PROGSKIN_TEST_DATA) + "/tls/test_cert.pem";
-    cfg.tls_key_file = std::string(PROGSKIN_TEST_DATA) + "/tls/test_key.pem";
+    ServerConfig cfg = test_tls_config();
     RunningServer s({}, cfg);
     asio::io_context io;
     asio::ssl::context ctx(asio::ssl::context::tls_client);
@@ -728,13 +747,8 @@ TEST(NetSecurity, ControlChannelOverTlsWhenConfigured) {
     tls.next_layer().connect(tcp::endpoint(kLoopback, s.server->tcp_port()));
     tls.handshake(asio::ssl::stream_base::client);
     asio::write(tls, asio::buffer(hello_message("tls")));
-    uint8_t len[4];
-    asio::read(tls, asio::buffer(len));
-    uint32_t n = 0;
-    read_length({len, 4}, n);
-    ASSERT_LE(n, MAX_CONTROL_MESSAGE);
-    std::vector<uint8_t> body(n);
-    asio::read(tls, asio::buffer(body));
+    std::vector<uint8_t> body;
+    ASSERT_TRUE(read_tls_message(tls, body));
     const wire::Control* c = verify_control(body);
     ASSERT_TRUE(c);
     EXPECT_EQ(c->body_type(), wire::ControlBody::Welcome);
@@ -754,9 +768,7 @@ TEST(NetSecurity, ControlChannelOverTlsWhenConfigured) {
 // an unsealed Bind, a forged one and a replayed one get nothing.
 TEST(NetSecurity, SealedDatagramsWhenConfigured) {
     namespace c = progskin::net::crypto;
-    ServerConfig cfg;
-    cfg.tls_cert_file = std::string(PROGSKIN_TEST_DATA) + "/tls/test_cert.pem";
-    cfg.tls_key_file = std::string(PROGSKIN_TEST_DATA) + "/tls/test_key.pem";
+    ServerConfig cfg = test_tls_config();
     cfg.seal_datagrams = true;
     RunningServer s({}, cfg);
     asio::io_context io;
@@ -767,13 +779,8 @@ TEST(NetSecurity, SealedDatagramsWhenConfigured) {
     tls.next_layer().connect(tcp::endpoint(kLoopback, s.server->tcp_port()));
     tls.handshake(asio::ssl::stream_base::client);
     asio::write(tls, asio::buffer(hello_message("sealed")));
-    uint8_t len[4];
-    asio::read(tls, asio::buffer(len));
-    uint32_t n = 0;
-    read_length({len, 4}, n);
-    ASSERT_LE(n, MAX_CONTROL_MESSAGE);
-    std::vector<uint8_t> body(n);
-    asio::read(tls, asio::buffer(body));
+    std::vector<uint8_t> body;
+    ASSERT_TRUE(read_tls_message(tls, body));
     const wire::Control* ctl = verify_control(body);
     ASSERT_TRUE(ctl && ctl->body_type() == wire::ControlBody::Welcome);
     const wire::Welcome* w = ctl->body_as_Welcome();

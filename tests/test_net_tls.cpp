@@ -221,26 +221,34 @@ TEST(NetTls, InsecureAcceptsAnyCertificate) {
     EXPECT_EQ(drive(c, 5), ClientState::Streaming) << c.error();
 }
 
+// A client pinned to the test certificate whose datagrams go through `relay`.
+static ClientConfig pinned_via(const RunningServer& s, const Relay& relay) {
+    ClientConfig cfg = config(s);
+    cfg.pin_sha256 = certificate_sha256(kCert);
+    cfg.udp_via_host = "127.0.0.1";
+    cfg.udp_via_port = relay.port();
+    return cfg;
+}
+
+// Drives the client's game loop for `seconds`.
+static void update_for(Client& c, double seconds) {
+    const double end = now_seconds() + seconds;
+    while (now_seconds() < end) {
+        c.update(now_seconds());
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+}
+
 // Datagrams arriving from the stream's own address that are not sealed by
 // the server, forged (one byte changed) or replayed are dropped and
 // counted in stats().malformed; the stream goes on.
 TEST(NetTls, ForgedUnsealedAndReplayedDatagramsAreDropped) {
     RunningServer s({}, tls_config(true));
     Relay relay(s.server->udp_port());
-    ClientConfig cfg = config(s);
-    cfg.pin_sha256 = certificate_sha256(kCert);
-    cfg.udp_via_host = "127.0.0.1";
-    cfg.udp_via_port = relay.port();
-    Client c(cfg);
+    Client c(pinned_via(s, relay));
     c.connect("127.0.0.1", s.server->tcp_port());
     ASSERT_EQ(drive(c, 5), ClientState::Streaming) << c.error();
-    auto run_for = [&](double seconds) {
-        const double end = now_seconds() + seconds;
-        while (now_seconds() < end) {
-            c.update(now_seconds());
-            std::this_thread::sleep_for(std::chrono::milliseconds(5));
-        }
-    };
+    auto run_for = [&](double seconds) { update_for(c, seconds); };
     run_for(0.5);
     const ClientStats before = c.stats();
     ASSERT_GT(before.datagrams, 5u);
@@ -280,20 +288,10 @@ TEST(NetTls, ForgedUnsealedAndReplayedDatagramsAreDropped) {
 TEST(NetTls, SealedStreamSurvivesNatRebinding) {
     RunningServer s({}, tls_config(true));
     Relay relay(s.server->udp_port());
-    ClientConfig cfg = config(s);
-    cfg.pin_sha256 = certificate_sha256(kCert);
-    cfg.udp_via_host = "127.0.0.1";
-    cfg.udp_via_port = relay.port();
-    Client c(cfg);
+    Client c(pinned_via(s, relay));
     c.connect("127.0.0.1", s.server->tcp_port());
     ASSERT_EQ(drive(c, 5), ClientState::Streaming) << c.error();
-    auto run_for = [&](double seconds) {
-        const double end = now_seconds() + seconds;
-        while (now_seconds() < end) {
-            c.update(now_seconds());
-            std::this_thread::sleep_for(std::chrono::milliseconds(5));
-        }
-    };
+    auto run_for = [&](double seconds) { update_for(c, seconds); };
     run_for(0.5);
     relay.nat_change();
     const uint64_t at_change = c.stats().datagrams;
