@@ -35,28 +35,11 @@ if [[ ! -x $SERVER || ! -x $CLIENT ]]; then
   cmake --build "$BUILD" -j"$(nproc)" --target progskin-server progskin-client >/dev/null
 fi
 
-TMP=$(mktemp -d)
-PIDS=()
-cleanup() {
-  for p in "${PIDS[@]:-}"; do [[ -n $p ]] && kill "$p" 2>/dev/null || true; done
-  wait 2>/dev/null || true
-  rm -rf "$TMP"
-}
-trap cleanup EXIT INT TERM
-
-"$SERVER" --port 0 --tls-dir "$TMP/tls" --duration $((DURATION + 40)) >"$TMP/server.out" 2>"$TMP/server.err" &
-PIDS+=($!)
-PORT=""
-for _ in $(seq 1 200); do
-  PORT=$(grep -o 'TCP [0-9]*' "$TMP/server.out" 2>/dev/null | cut -d' ' -f2 || true)
-  [[ -n $PORT ]] && break
-  if ! kill -0 "${PIDS[0]}" 2>/dev/null; then cat "$TMP/server.err" >&2; echo "demo: server failed" >&2; exit 1; fi
-  sleep 0.1
-done
-[[ -n $PORT ]] || { echo "demo: server did not start" >&2; cat "$TMP/server.err" >&2; exit 1; }
+NAME=demo
+# shellcheck source=scripts/lib.sh
+source scripts/lib.sh
 # TLS (the server's default, a self-signed pair in $TMP/tls): the clients pin its fingerprint.
-PIN=$(sed -n 's/^progskin-server: TLS certificate sha256 //p' "$TMP/server.out")
-[[ -n $PIN ]] || { echo "demo: the server printed no certificate fingerprint" >&2; exit 1; }
+psk_start_server --duration $((DURATION + 40))
 
 # Fetch the assets once so the clients start together.
 "$CLIENT" --server 127.0.0.1:$PORT --pin "$PIN" --duration 0.2 --cache "$TMP/cache" >/dev/null

@@ -32,30 +32,15 @@ SERVER=$BUILD/server/progskin-server
 CLIENT=$BUILD/client/progskin-client
 [[ -x $SERVER && -x $CLIENT ]] || { echo "multiplayer.sh: build first (bash scripts/build.sh)" >&2; exit 1; }
 
-TMP=$(mktemp -d)
-PIDS=()
-cleanup() {
-  for p in "${PIDS[@]:-}"; do [[ -n $p ]] && kill "$p" 2>/dev/null || true; done
-  wait 2>/dev/null || true
-  rm -rf "$TMP"
-}
-trap cleanup EXIT INT TERM
+NAME=multiplayer.sh
+# shellcheck source=scripts/lib.sh
+source scripts/lib.sh
 
 printf "%10s %12s %8s %10s %10s %10s %10s\n" "cap kbit/s" "rate kbit/s" "remote" "RMS %diag" "max %diag" "p50 ms" "p99 ms"
 for cap in $CAPS; do
-  "$SERVER" --port 0 --tls-dir "$TMP/tls" --no-scene --duration $((DURATION + 30)) >"$TMP/server.out" 2>"$TMP/server.err" &
-  SPID=$!
-  PIDS+=($SPID)
-  PORT=""
-  for _ in $(seq 1 200); do
-    PORT=$(grep -o 'TCP [0-9]*' "$TMP/server.out" 2>/dev/null | cut -d' ' -f2 || true)
-    [[ -n $PORT ]] && break
-    kill -0 $SPID 2>/dev/null || { cat "$TMP/server.err" >&2; exit 1; }
-    sleep 0.1
-  done
   # TLS (the server's default, a self-signed pair in $TMP/tls): the clients pin its fingerprint.
-  PIN=$(sed -n 's/^progskin-server: TLS certificate sha256 //p' "$TMP/server.out")
-  [[ -n $PIN ]] || { echo "multiplayer.sh: the server printed no certificate fingerprint" >&2; exit 1; }
+  psk_start_server --no-scene --duration $((DURATION + 30))
+  SPID=$SERVER_PID
   "$CLIENT" --server 127.0.0.1:$PORT --pin "$PIN" --duration 0.2 --publish 0 --cache "$TMP/cache" >/dev/null 2>&1 || true
   OTHERS=()
   for i in $(seq 1 $((PLAYERS - 1))); do

@@ -36,14 +36,9 @@ for b in "$SERVER" "$CLIENT" "$NETEM"; do
   [[ -x $b ]] || { echo "soak.sh: $b missing (cmake --build $BUILD --target progskin-server progskin-client progskin-netem)" >&2; exit 2; }
 done
 
-TMP=$(mktemp -d)
-PIDS=()
-cleanup() {
-  for p in "${PIDS[@]:-}"; do [[ -n $p ]] && kill "$p" 2>/dev/null || true; done
-  wait 2>/dev/null || true
-  rm -rf "$TMP"
-}
-trap cleanup EXIT INT TERM
+NAME=soak.sh
+# shellcheck source=scripts/lib.sh
+source scripts/lib.sh
 
 wait_port() {  # file, pattern -> port
   local port=""
@@ -55,15 +50,9 @@ wait_port() {  # file, pattern -> port
   return 1
 }
 
-"$SERVER" --port 0 --tls-dir "$TMP/tls" --max-clients $((CLIENTS + 8)) >"$TMP/server.out" 2>"$TMP/server.err" &
-SERVER_PID=$!
-PIDS+=("$SERVER_PID")
-PORT=$(wait_port "$TMP/server.out" "TCP") || { echo "soak.sh: server did not start" >&2; cat "$TMP/server.err" >&2; exit 1; }
-UDP_PORT=$(grep -o 'UDP [0-9]*' "$TMP/server.out" | cut -d' ' -f2)
 # TLS and sealed datagrams (the server's defaults; netem relays sealed datagrams,
 # its duplicates are dropped as replays): the clients pin the certificate.
-PIN=$(sed -n 's/^progskin-server: TLS certificate sha256 //p' "$TMP/server.out")
-[[ -n $PIN ]] || { echo "soak.sh: the server printed no certificate fingerprint" >&2; exit 1; }
+psk_start_server --max-clients $((CLIENTS + 8))
 "$NETEM" --to 127.0.0.1:"$UDP_PORT" --listen 0 --loss 0.1 --reorder 0.05 --duplicate 0.02 --jitter-ms 5 \
   >"$TMP/netem.out" 2>"$TMP/netem.err" &
 NETEM_PID=$!
