@@ -14,8 +14,8 @@
 //                dropped first, plain copy-down), the largest k that fits
 //                every character every tick (k = 1 round-robin below that).
 // Error: displayed vertices vs the full-detail reference at the display time
-// (GUIDE.md §2), RMS and max over all characters and displayed ticks, % of
-// each character's rest diagonal. Rate: GUIDE.md (payload + 28 per datagram).
+// (docs/metrics.md §2), RMS and max over all characters and displayed ticks, % of
+// each character's rest diagonal. Rate: docs/metrics.md §3 (payload + 28 per datagram).
 //
 // usage: bench_net_rd [--asset FILE...] [--clip SPEC] [--crowd N] [benchmark flags]
 //   --asset: characters (default assets/Fox.glb assets/CesiumMan.glb; FILE#N

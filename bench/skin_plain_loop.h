@@ -7,7 +7,7 @@
 #include <cstddef>
 #include <cstdint>
 
-#include "math.h"
+#include "mat34.h"
 
 namespace progskin::bench {
 // nrm/out_n may be null (positions only).

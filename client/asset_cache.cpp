@@ -12,7 +12,7 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
-#include "error.h"
+#include "errors.h"
 #include "error_metric.h"
 #include "gltf_import.h"
 #include "wire.h"

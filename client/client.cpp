@@ -38,7 +38,7 @@
 
 #include "asset_cache.h"
 #include "crypto.h"
-#include "error.h"
+#include "errors.h"
 #include "frame_reader.h"
 #include "error_metric.h"
 #include "gltf_import.h"

@@ -136,7 +136,7 @@ struct SpawnSpec {
 struct ClientStats {
     double seconds = 0;            // since the first frame
     uint64_t datagrams = 0, malformed = 0, duplicates = 0, unknown_chunks = 0;
-    uint64_t wire_bytes = 0;       // GUIDE.md rate bytes received (payload + 28 per datagram)
+    uint64_t wire_bytes = 0;       // docs/metrics.md §3 rate bytes received (payload + 28 per datagram)
     double loss = 0;
     double rtt_ms = 0, estimate_kbps = 0;
     double delay_ms = 0;           // largest display delay used
@@ -218,7 +218,7 @@ RootPose walk_root(const glm::dvec3& center, double radius, double speed, double
 // ---------------------------------------------------------------------------
 // progskin-client's session: runs a Client for options.duration seconds and
 // reports what it received and displayed; in verification mode measures
-// the displayed vertices against the reference (GUIDE.md §2).
+// the displayed vertices against the reference (docs/metrics.md §2).
 
 // What the client displays at one moment, handed to ClientOptions::on_snapshot
 // (a renderer draws it: render/snapshot.h). Spans are valid during the call.

@@ -8,7 +8,7 @@
 
 #include "cli_args.h"
 #include "client.h"
-#include "error.h"
+#include "errors.h"
 #include "error_metric.h"
 #include "progressive_skin.h"
 #include "skinning.h"
@@ -25,7 +25,7 @@ static const char* kUsage =
     "\n"
     "  --server HOST:PORT  server control address (default 127.0.0.1:7777)\n"
     "  --udp-via HOST:PORT send the frame stream through a relay (progskin-netem)\n"
-    "  --max-kbps N        bandwidth cap in kbit/s, GUIDE.md rate (default: server maximum)\n"
+    "  --max-kbps N        bandwidth cap in kbit/s, docs/metrics.md §3 (default: server maximum)\n"
     "  --view SPEC         camera:X,Y,Z[,FOV_DEG[,HEIGHT_PX]]  or  weights:W0,W1,...\n"
     "                      (importance per instance; default: all characters alike)\n"
     "  --duration S        seconds of streaming (default 10)\n"

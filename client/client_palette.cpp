@@ -4,7 +4,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "error.h"
+#include "errors.h"
 #include "error_metric.h"
 #include "progressive_skin.h"
 #include "skinning.h"
@@ -141,7 +141,7 @@ void InstanceView::skin(std::vector<glm::vec3>& out) const {
 void InstanceView::reference(double clip_time, std::vector<glm::vec3>& out) const {
     const Character& c = asset_->character;
     out.resize(c.vertex_count());
-    if (!c.morphs.empty()) {  // GUIDE.md §2 reference: morph targets at the clip's weights, then the skin
+    if (!c.morphs.empty()) {  // docs/metrics.md §2 reference: morph targets at the clip's weights, then the skin
         reference_positions(c, sample_pose(c, clip_.selection, clip_time), 0, out);
         return;
     }

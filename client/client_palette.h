@@ -3,7 +3,7 @@
 // LodBlender needs, interpolated by the PoseBuffer; copy-down with corrections
 // for the rest, PaletteJob), skinned on the CPU (SkinningJob) when verifying,
 // and compared with the reference (the asset's clip evaluated at full detail
-// at the same clip time; GUIDE.md §2).
+// at the same clip time; docs/metrics.md §2).
 #pragma once
 #include <memory>
 #include <span>

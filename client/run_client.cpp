@@ -2,7 +2,7 @@
 // (client.h): connects, publishes the --publish characters (driven locally
 // by a clip, walking a circle), displays every remote character at
 // display_rate and, with --verify, measures what it displays against the
-// reference (GUIDE.md §2): server-driven clips at the clip time of the
+// reference (docs/metrics.md §2): server-driven clips at the clip time of the
 // displayed tick; published characters at the publisher's source time of
 // the displayed pose, in world space (root included).
 #include <algorithm>
@@ -16,7 +16,7 @@
 #include "client.h"
 #include "error_metric.h"
 #include "skinning.h"
-#include "error.h"
+#include "errors.h"
 #include "wire.h"
 
 namespace progskin::net {
@@ -226,7 +226,7 @@ ClientReport run_client(const ClientOptions& opt) {
                 for (size_t j = 0; j < ch.joint_count(); ++j) ref_pal[j] = Mat34::from_glm(ref_mats[j]);
                 ref.resize(ch.vertex_count());
                 {
-                    // GUIDE.md §2 reference: the morph targets at the clip's weights, then the skin.
+                    // docs/metrics.md §2 reference: the morph targets at the clip's weights, then the skin.
                     SkinningJob rj = skinning_job(ch, ref_pal, ref);
                     if (!ch.morphs.empty()) {
                         ref_weights.resize(ch.morphs.size());

@@ -13,7 +13,7 @@
 
 #include <glm/gtc/matrix_transform.hpp>
 
-#include "error.h"
+#include "errors.h"
 
 namespace progskin {
 namespace {

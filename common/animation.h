@@ -1,4 +1,4 @@
-// animation.h — clip selection and pose sampling (GUIDE.md §1).
+// animation.h — clip selection and pose sampling (docs/metrics.md §1).
 //
 // Pose at time t: each joint's global matrix G_j(t) from the node hierarchy
 // (non-joint ancestors included), skinning matrix M_j(t) = G_j(t) * IBM_j, and

@@ -1,4 +1,4 @@
-// character.h — one skinned character as imported from glTF (GUIDE.md §1).
+// character.h — one skinned character as imported from glTF (docs/metrics.md §1).
 //
 // A Character is plain data: the node hierarchy (every node of the file that is
 // an ancestor of a joint, a joint, or a skinned/rigid mesh node), the joints
@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "math.h"
+#include "mat34.h"
 
 namespace progskin {
 

@@ -1,4 +1,4 @@
-// error_metric.h — the one error metric of progskin (GUIDE.md §2).
+// error_metric.h — the one error metric of progskin (docs/metrics.md §2).
 //
 // e = Euclidean distance between a reconstructed and a reference vertex, both
 // world space. Reported as RMS over all vertices and frames and max, in model
@@ -45,7 +45,7 @@ void morph_positions(const Character& c, std::span<const float> weights, std::sp
 
 // Per morph target, the RMS over all of the character's vertices of its
 // position delta: the RMS vertex error (model units) that a unit of its weight
-// removes, i.e. how much sending its weight is worth (GUIDE.md §4).
+// removes, i.e. how much sending its weight is worth (docs/metrics.md §4).
 std::vector<double> morph_importance(const Character& c);
 
 // Reference vertices of frame f (full detail, original weights, morph targets

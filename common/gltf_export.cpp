@@ -14,7 +14,7 @@
 #include <nlohmann/json.hpp>
 #include <unistd.h>
 
-#include "error.h"
+#include "errors.h"
 #include "gltf_accessor.h"
 #include "gltf_import.h"
 

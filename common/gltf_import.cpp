@@ -28,7 +28,7 @@
 #include <glm/gtc/matrix_transform.hpp>
 #include <glm/gtx/matrix_decompose.hpp>
 
-#include "error.h"
+#include "errors.h"
 
 namespace progskin {
 namespace {

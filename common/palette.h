@@ -12,7 +12,7 @@
 #include <span>
 #include <vector>
 
-#include "math.h"
+#include "mat34.h"
 
 namespace progskin {
 

@@ -17,7 +17,7 @@
 #include <limits>
 #include <numeric>
 
-#include "error.h"
+#include "errors.h"
 #include "error_metric.h"
 #include "palette.h"
 #include "skinning.h"

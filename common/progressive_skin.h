@@ -18,7 +18,7 @@
 
 #include "animation.h"
 #include "character.h"
-#include "math.h"
+#include "mat34.h"
 #include "skinning.h"
 
 namespace progskin {
@@ -36,7 +36,7 @@ struct LodError {
     int bones = 0;  // k
     double rms = 0, max = 0, rms_pct = 0, max_pct = 0;
     double influences = 0;  // mean distinct non-zero influences per vertex at k
-    // Vertex-animation inputs only (GUIDE.md §2): 100 ||A - A'||_F / ||A - Abar||_F; < 0 when not measured.
+    // Vertex-animation inputs only (docs/metrics.md §2): 100 ||A - A'||_F / ||A - Abar||_F; < 0 when not measured.
     double distortion_pct = -1;
 };
 

@@ -18,7 +18,7 @@
 
 #include <glm/gtc/matrix_transform.hpp>
 
-#include "error.h"
+#include "errors.h"
 #include "error_metric.h"
 
 namespace progskin {

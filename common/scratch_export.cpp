@@ -9,7 +9,7 @@
 #include <limits>
 
 #include "animation.h"
-#include "error.h"
+#include "errors.h"
 #include "gltf_import.h"
 #include "gltf_export.h"
 #include "scratch_build.h"

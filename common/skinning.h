@@ -1,4 +1,4 @@
-// skinning.h — linear blend skinning on the CPU (GUIDE.md §1, glTF "Skins").
+// skinning.h — linear blend skinning on the CPU (docs/metrics.md §1, glTF "Skins").
 //
 // v' = sum_i w_i * palette[j_i] * v for the first max_influences slots of each
 // vertex, weights renormalised over the slots kept (a vertex whose kept weights
@@ -10,7 +10,7 @@
 #include <span>
 #include <vector>
 
-#include "math.h"
+#include "mat34.h"
 
 namespace progskin {
 

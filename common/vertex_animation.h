@@ -34,7 +34,7 @@ struct VertexAnimation {
     std::vector<glm::vec3> positions;  // frame-major: positions[f * vertex_count + v]
     std::vector<glm::vec3> normals;    // vertex_count rest normals, or empty
     std::vector<uint32_t> triangles;   // 3 indices per triangle (may be empty)
-    // Bounding-box diagonal the error is reported against (GUIDE.md §2): a
+    // Bounding-box diagonal the error is reported against (docs/metrics.md §2): a
     // skinned input's rest pose; otherwise frame 0 (the skinning-decomposition
     // convention); 0 = compute from frame 0.
     double diagonal = 0;

@@ -8,7 +8,7 @@
 #include <string>
 
 #include "animation.h"
-#include "error.h"
+#include "errors.h"
 #include "gltf_import.h"
 
 namespace progskin::fuzz {

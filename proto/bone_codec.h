@@ -1,6 +1,6 @@
 // bone_codec.h — the quantised bone record of the frame stream.
 //
-// A bone's skinning matrix M = G * InverseBind (model space, GUIDE.md §1) is
+// A bone's skinning matrix M = G * InverseBind (model space, docs/metrics.md §1) is
 // sent as a record of 12 bytes (14 when the asset is `scaled`):
 //   bytes 0..5   rotation, "smallest three": 2-bit index of the largest
 //                quaternion component (made positive), then the other three
@@ -18,7 +18,7 @@
 #include <cstdint>
 #include <span>
 
-#include "math.h"
+#include "mat34.h"
 
 namespace progskin::net {
 

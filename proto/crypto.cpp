@@ -6,7 +6,7 @@
 #include <chrono>
 #include <cstring>
 
-#include "error.h"
+#include "errors.h"
 
 namespace progskin::net::crypto {
 

@@ -1,11 +1,11 @@
 // view.h — a client's view of the scene (control.fbs View), decoded: what
 // both the client (which sends it) and the server's scheduler (which weighs
-// characters by it, GUIDE.md §4) share.
+// characters by it, docs/metrics.md §4) share.
 #pragma once
 #include <utility>
 #include <vector>
 
-#include "math.h"
+#include "mat34.h"
 
 namespace progskin::net {
 

@@ -4,7 +4,7 @@
 #include <cmath>
 #include <cstdio>
 
-#include "error.h"
+#include "errors.h"
 #include "error_metric.h"
 #include "progressive_skin.h"
 #include "skinning.h"
@@ -65,7 +65,7 @@ Image render_lod_figure(Renderer& r, const Character& c, const ProgressiveSkin& 
     if (pw < 16 || ph < 16) throw Error("render: image too small for " + std::to_string(n) + " panels");
 
     const std::vector<Mat34> joints = joint_matrices_at(c, o.clip, o.time);
-    // Reference (GUIDE.md §2): the original character, full detail.
+    // Reference (docs/metrics.md §2): the original character, full detail.
     FrameSet one;
     one.joint_count = int(c.joint_count());
     one.times = {o.time};

@@ -1,7 +1,7 @@
 // figure.h — the LOD figure (the paper's Figure 1 for any character): one
 // frame of a clip rendered with k = 1, 2, 4, ... bones beside the full rig,
 // one panel per LOD, each labelled with its bone count and the error of that
-// frame against the full-detail reference (GUIDE.md §2: RMS and max distance
+// frame against the full-detail reference (docs/metrics.md §2: RMS and max distance
 // in % of the rest bounding-box diagonal). Skinning runs in the vertex shader
 // from the palette PaletteJob builds (copy-down with corrections); the CPU
 // skins the same palette only to measure the error and frame the camera.

@@ -14,7 +14,7 @@
 
 #include "animation.h"
 #include "cli_args.h"
-#include "error.h"
+#include "errors.h"
 #include "figure.h"
 #include "gltf_export.h"
 #include "image.h"

@@ -20,8 +20,8 @@
 #include <vector>
 
 #include "image.h"
-#include "math.h"
-#include "scene.h"
+#include "mat34.h"
+#include "mesh_data.h"
 
 namespace progskin::render {
 

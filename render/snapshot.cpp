@@ -6,7 +6,7 @@
 
 #include "image.h"
 #include "renderer.h"
-#include "scene.h"
+#include "mesh_data.h"
 #include "progressive_skin.h"
 #include "skinning.h"
 

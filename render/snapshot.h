@@ -16,7 +16,7 @@
 #include <vector>
 
 #include "character.h"
-#include "math.h"
+#include "mat34.h"
 #include "progressive_skin.h"
 
 namespace progskin::render {

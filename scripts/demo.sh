@@ -3,7 +3,7 @@
 # set (assets/Fox.glb: Survey, Walk, Run; assets/CesiumMan.glb) and one
 # progskin-client per bandwidth cap on loopback, all at once, each verifying
 # what it displays against the reference. Prints the rate-distortion table:
-# cap -> measured rate (GUIDE.md: UDP payload + 28 bytes per datagram), bones
+# cap -> measured rate (docs/metrics.md §3: UDP payload + 28 bytes per datagram), bones
 # per character, RMS and max error in % of the rest-pose diagonal.
 #
 #   scripts/demo.sh [--duration S] [--caps "16 32 64 ..."] [--build DIR]
@@ -69,6 +69,6 @@ for cap in $CAPS; do
 done
 echo
 echo "Rate = UDP payload + 28 bytes per datagram (docs/protocol.md); error = displayed vertices vs the"
-echo "full-detail reference at the display time (GUIDE.md §2). More: docs/performance.md, docs/protocol.md,"
+echo "full-detail reference at the display time (docs/metrics.md §2). More: docs/performance.md, docs/protocol.md,"
 echo "progskin-client --help (--view, --report json), progskin-netem --help (slow links)."
 exit $status

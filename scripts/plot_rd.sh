@@ -14,7 +14,7 @@
 #    "fixed k=4"), max_pct, bones_mean and cap_kbps are optional. Lines
 #    starting with # are ignored.
 # Rate is what the client measured (UDP payload + 28 bytes per datagram, in
-# kbit/s); errors are % of the rest bounding-box diagonal (GUIDE.md §2).
+# kbit/s); errors are % of the rest bounding-box diagonal (docs/metrics.md §2).
 # Left panel: RMS error against rate; right panel: max error (when present).
 set -euo pipefail
 TITLE="rate-distortion: displayed error against measured rate"

@@ -5,7 +5,7 @@
 #include <array>
 #include <cassert>
 
-#include "error.h"
+#include "errors.h"
 #include "frame_reader.h"
 #include "wire.h"
 

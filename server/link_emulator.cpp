@@ -12,7 +12,7 @@
 #include <random>
 #include <vector>
 
-#include "error.h"
+#include "errors.h"
 
 namespace progskin::net {
 

@@ -25,7 +25,7 @@
 namespace progskin::net {
 
 struct LinkConfig {
-    double rate_kbps = 0;     // 0 = unlimited (GUIDE.md wire bytes: payload + 28)
+    double rate_kbps = 0;     // 0 = unlimited (docs/metrics.md §3 wire bytes: payload + 28)
     double delay_ms = 0;
     double jitter_ms = 0;
     double loss = 0;          // probability per datagram

@@ -1,4 +1,4 @@
-// rate_controller.h — one client's sending rate: a cap (kbit/s, GUIDE.md rate)
+// rate_controller.h — one client's sending rate: a cap (kbit/s, docs/metrics.md §3)
 // and an estimate that adapts to measured loss and delay (multiplicative back
 // off, to at most 95% of the rate the client acknowledged, on loss > 20% or on
 // RTT growing 25 ms / 50% above its minimum, then hold for two

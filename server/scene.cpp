@@ -9,7 +9,7 @@
 #include <fstream>
 #include <unistd.h>
 
-#include "error.h"
+#include "errors.h"
 #include "error_metric.h"
 #include "gltf_export.h"
 #include "gltf_import.h"

@@ -179,7 +179,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         header_[i] = WireCost::header(e);
         State& st = state_[i];
         // Squared error in screen units, summed over the instance's vertices
-        // (the RMS of GUIDE.md §2 pools all vertices of all characters).
+        // (the RMS of docs/metrics.md §2 pools all vertices of all characters).
         const double w = double(importance[i]) * double(importance[i]) * double(a.character.vertex_count());
         const uint32_t stale = st.bone_tick[0] != 0 ? frame.tick - st.bone_tick[0] : UINT32_MAX;
         bool shown = true;

@@ -1,5 +1,5 @@
 // scheduler.h — per client and tick, how many bones of which instances to send
-// (GUIDE.md §4): the step that removes the most importance-weighted error per
+// (docs/metrics.md §4): the step that removes the most importance-weighted error per
 // wire byte goes first, until the client's byte budget for the tick is spent.
 //
 // Cost model (docs/protocol.md "Scheduling"). The client shows the bones the
@@ -52,7 +52,7 @@
 
 namespace progskin::net {
 
-// Wire bytes (GUIDE.md rate: UDP payload + 28 per datagram) of a frame stream
+// Wire bytes (docs/metrics.md §3: UDP payload + 28 per datagram) of a frame stream
 // carrying `payload` bytes of chunk headers and records in one tick.
 struct WireCost {
     static constexpr size_t kFrameOverhead = 88;  // Datagram + Frame FlatBuffer tables (datagram_packer.cpp checks)

@@ -30,7 +30,7 @@
 
 #include "crypto.h"
 #include "datagram_packer.h"
-#include "error.h"
+#include "errors.h"
 #include "frame_encoder.h"
 #include "rate_controller.h"
 #include "scheduler.h"

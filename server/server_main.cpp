@@ -15,7 +15,7 @@
 #include <vector>
 
 #include "cli_args.h"
-#include "error.h"
+#include "errors.h"
 #include "server.h"
 #include "tls_identity.h"
 #include "wire.h"

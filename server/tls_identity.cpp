@@ -13,7 +13,7 @@
 #include <memory>
 
 #include "crypto.h"
-#include "error.h"
+#include "errors.h"
 
 namespace progskin::net {
 

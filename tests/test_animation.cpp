@@ -6,7 +6,7 @@
 #include <glm/gtc/matrix_transform.hpp>
 
 #include "animation.h"
-#include "error.h"
+#include "errors.h"
 
 using namespace progskin;
 

@@ -7,7 +7,7 @@
 #include <string>
 
 #include "animation.h"
-#include "error.h"
+#include "errors.h"
 #include "gltf_import.h"
 
 using namespace progskin;

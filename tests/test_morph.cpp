@@ -17,7 +17,7 @@
 #include <glm/gtc/quaternion.hpp>
 
 #include "animation.h"
-#include "error.h"
+#include "errors.h"
 #include "error_metric.h"
 #include "gltf_import.h"
 #include "progressive_skin.h"

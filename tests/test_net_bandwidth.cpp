@@ -1,5 +1,5 @@
 // test_net_bandwidth.cpp — bandwidth-limited playback on loopback: the
-// measured rate (GUIDE.md) never above the cap by more than 5% in any one
+// measured rate (docs/metrics.md §3) never above the cap by more than 5% in any one
 // second, error non-increasing as the cap grows, closer characters get at
 // least as many bones, the adaptive estimate backs off on a slow link, and
 // loss + reordering + duplication (link_emulator.h) cause no harm.

@@ -11,7 +11,7 @@
 #include <set>
 
 #include "crypto.h"
-#include "error.h"
+#include "errors.h"
 
 using namespace progskin::net::crypto;
 

@@ -6,7 +6,7 @@
 
 #include <filesystem>
 
-#include "error.h"
+#include "errors.h"
 #include "error_metric.h"
 #include "gltf_export.h"
 #include "net_test_support.h"

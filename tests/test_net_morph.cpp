@@ -3,7 +3,7 @@
 // animating the weights) served by an in-process Server over real loopback
 // sockets to run_client --verify, which measures the displayed (morphed,
 // skinned) mesh against the reference (morph targets at the clip's weights,
-// then the skin; GUIDE.md §2).
+// then the skin; docs/metrics.md §2).
 #include <gtest/gtest.h>
 
 #include <bit>

@@ -157,7 +157,7 @@ TEST(NetPipeline, SwitchingBonesBlendsWithoutPops) {
     EXPECT_LT(soft, hard * 0.5);
 }
 
-// GUIDE.md §4: within every tick, of two instances of the same asset playing
+// docs/metrics.md §4: within every tick, of two instances of the same asset playing
 // the same clip, the more important one is never shown fewer bones.
 // Deterministic (no sockets, no timing).
 TEST(NetPipeline, MoreImportantInstancesGetAtLeastAsManyBonesEveryTick) {

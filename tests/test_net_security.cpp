@@ -24,7 +24,7 @@
 
 #include "asset_cache.h"
 #include "crypto.h"
-#include "error.h"
+#include "errors.h"
 #include "net_test_support.h"
 #include "wire.h"
 

@@ -15,7 +15,7 @@
 #include <mutex>
 
 #include "crypto.h"
-#include "error.h"
+#include "errors.h"
 #include "net_test_support.h"
 #include "tls_identity.h"
 #include "wire.h"

@@ -3,7 +3,7 @@
 // error spike. The server flags every wrap with a new epoch (datagram.fbs
 // Chunk.epoch), so the client never interpolates from the last frame to the
 // first; a once-played clip holds its last frame. Measured with the error
-// metric (GUIDE.md §2) on every displayed frame of an embedded Client, at
+// metric (docs/metrics.md §2) on every displayed frame of an embedded Client, at
 // unlimited rate: the largest error over the frames within 3 ticks of the
 // wrap against the largest elsewhere.
 #include <gtest/gtest.h>

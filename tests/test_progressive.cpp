@@ -7,7 +7,7 @@
 #include <numeric>
 
 #include "animation.h"
-#include "error.h"
+#include "errors.h"
 #include "error_metric.h"
 #include "gltf_export.h"
 #include "gltf_import.h"

@@ -19,7 +19,7 @@ TEST(Render, NotBuilt) { GTEST_SKIP() << "render/ not built (EGL, OpenGL or stb 
 #include "image.h"
 #include "progressive_skin.h"
 #include "renderer.h"
-#include "scene.h"
+#include "mesh_data.h"
 #include "snapshot.h"
 
 using namespace progskin;

@@ -13,7 +13,7 @@
 #include <glm/gtc/matrix_transform.hpp>
 #include <glm/gtc/quaternion.hpp>
 
-#include "error.h"
+#include "errors.h"
 #include "gltf_export.h"
 #include "progressive_skin.h"
 #include "scratch_build.h"

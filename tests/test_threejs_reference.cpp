@@ -43,7 +43,7 @@ std::vector<glm::dvec3> skin(const Character& c, const Mat34* m, std::span<const
 }
 
 // Diagonal of the bounding box of the vertices skinned at rest pose, morph targets at
-// their default weights (GUIDE.md §2).
+// their default weights (docs/metrics.md §2).
 double rest_diagonal_of(const Character& c) {
     const FrameSet rest = sample_frames(c, {ClipSelection{}}, 30.0);
     glm::dvec3 lo(1e300), hi(-1e300);

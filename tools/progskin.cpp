@@ -16,7 +16,7 @@
 
 #include "animation.h"
 #include "cli_args.h"
-#include "error.h"
+#include "errors.h"
 #include "error_metric.h"
 #include "gltf_export.h"
 #include "gltf_import.h"
@@ -268,7 +268,7 @@ int cmd_build(int argc, char** argv) {
                      a.positional[0].c_str(), c.morphs.size());
     const ProgressiveSkin s = build_with_progress(c, frames, st, !a.has("--plain-copy"), quiet);
     json extra = server_tables(c, s, a.positional[0]);
-    // What the error table was measured on (GUIDE.md §2: a table is only comparable with its frames).
+    // What the error table was measured on (docs/metrics.md §2: a table is only comparable with its frames).
     extra["fps"] = fps;
     extra["clips"] = a.get("--clip", "auto");
     extra["training"] = json::array();

@@ -7,7 +7,7 @@
 #include <string>
 #include <vector>
 
-#include "math.h"
+#include "mat34.h"
 #include "vertex_animation.h"
 
 namespace probe {

@@ -1,4 +1,4 @@
-// scene.h — what the renderer draws, built from progskin's core data.
+// mesh_data.h — what the renderer draws, built from progskin's core data.
 //
 // MeshData is the vertex stream of one character ready for upload: bind-space
 // positions and normals, optional UVs, triangles grouped by material, and the
@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "character.h"
-#include "math.h"
+#include "mat34.h"
 #include "progressive_skin.h"
 
 namespace progskin::render {

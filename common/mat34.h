@@ -1,4 +1,4 @@
-// math.h — small value types shared by the offline and runtime code.
+// mat34.h — small value types shared by the offline and runtime code.
 //
 // Mat34 is the runtime bone-matrix format: a 3x4 affine matrix stored row-major
 // (m[r*4+c]); the implicit fourth row is (0,0,0,1). It is what the palette holds,

@@ -1,4 +1,4 @@
-// error.h — the one exception type of progskin. Messages name the file (or
+// errors.h — the one exception type of progskin. Messages name the file (or
 // packet, or argument) and what is wrong with it; tools print them on stderr
 // and exit non-zero.
 #pragma once

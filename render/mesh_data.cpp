@@ -1,4 +1,4 @@
-#include "scene.h"
+#include "mesh_data.h"
 
 #include <tiny_gltf.h>
 
