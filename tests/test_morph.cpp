@@ -21,8 +21,10 @@
 #include "error_metric.h"
 #include "gltf_import.h"
 #include "progressive_skin.h"
+#include "thresholds.h"
 
 using namespace progskin;
+using namespace progskin::thresholds;
 
 namespace {
 
@@ -152,8 +154,8 @@ TEST(Morph, ErrorTableMeasuredOnTheMorphedMesh) {
     ASSERT_EQ(t.size(), s.error.size());
     for (size_t k = 0; k < t.size(); ++k) EXPECT_DOUBLE_EQ(s.error[k].rms, t[k].rms) << k;
     // All bones: the LOD is the reference (morphs included), to float rounding.
-    EXPECT_LT(s.error.back().max_pct, 1e-4);
-    EXPECT_GT(s.error.front().rms_pct, 0.1);  // one bone: the nod is lost
+    EXPECT_LT(s.error.back().max_pct, kLosslessMorphFixturePct);
+    EXPECT_GT(s.error.front().rms_pct, kOneBoneMinRmsPct);  // one bone: the nod is lost
     // The LOD keeps the morph weights: at full detail it moves with the morphs.
     std::vector<glm::vec3> ref(c.vertex_count()), lod(c.vertex_count()), bare(c.vertex_count());
     const size_t f = 12;

@@ -11,10 +11,12 @@
 
 #include "link_emulator.h"
 #include "net_test_support.h"
+#include "thresholds.h"
 
 using namespace progskin;
 using namespace progskin::net;
 using namespace progskin::net::testing;
+using namespace progskin::thresholds;
 
 TEST(NetBandwidth, CapsFrom16kTo2MRespectedAndErrorFallsWithRate) {
     // 24 instances: the full rate is about 1.8 Mbit/s, so every cap limits.
@@ -39,16 +41,16 @@ TEST(NetBandwidth, CapsFrom16kTo2MRespectedAndErrorFallsWithRate) {
         EXPECT_GT(r[i].rate_kbps, caps[i] * 0.6) << "cap " << caps[i] << " poorly used";
         EXPECT_EQ(r[i].characters, 24);
         // Non-increasing within 5 % while the cap limits the error; once the
-        // previous cap already reached the floor where every bone goes (under
-        // 0.1 %: interpolation between ticks at the display times of five
-        // verifying clients and a server sharing two cores, which moves with
-        // the load: 1000 and 2000 kbit/s alone gave 0.045 and 0.042 %), the
-        // next stays on it.
+        // previous cap already reached the floor where every bone goes
+        // (kStreamFloorRmsPct: interpolation between ticks at the display
+        // times of five verifying clients and a server sharing two cores, which
+        // moves with the load: 1000 and 2000 kbit/s alone gave 0.045 and
+        // 0.042 %), the next stays on it.
         if (i > 0) {
-            if (r[i - 1].rms_pct > 0.1)
+            if (r[i - 1].rms_pct > kStreamFloorRmsPct)
                 EXPECT_LE(r[i].rms_pct, r[i - 1].rms_pct * 1.05 + 0.002) << "cap " << caps[i];
             else
-                EXPECT_LE(r[i].rms_pct, 0.1) << "cap " << caps[i];
+                EXPECT_LE(r[i].rms_pct, kStreamFloorRmsPct) << "cap " << caps[i];
         }
     }
 }
@@ -112,7 +114,7 @@ TEST(NetBandwidth, LossReorderingAndDuplicationDoNoHarm) {
     EXPECT_GT(r.duplicates, 0u);
     EXPECT_EQ(r.malformed, 0u);
     for (double k : r.per_second_kbps) EXPECT_GT(k, 50.0);  // the stream keeps flowing every second
-    EXPECT_LT(r.rms_pct, 0.5);
+    EXPECT_LT(r.rms_pct, kLossyLinkRmsPct);
 }
 
 TEST(NetBandwidth, EstimateBacksOffOnASlowLink) {

@@ -9,9 +9,11 @@
 #include "scene.h"
 #include "progressive_skin.h"
 #include "skinning.h"
+#include "thresholds.h"
 
 using namespace progskin;
 using namespace progskin::net;
+using namespace progskin::thresholds;
 
 TEST(NetCodec, QuaternionRoundTripWithinBound) {
     std::mt19937 rng(7);
@@ -81,7 +83,7 @@ static void measure(const std::string& file) {
                 "(bound %.5f%% of diagonal)\n",
                 file.c_str(), a->format.size(), d.rms_pct, d.max_pct, q.rms_pct, q.max_pct, 100.0 * bound / rest_diagonal(c));
     EXPECT_LE(q.max, bound);
-    EXPECT_LT(q.max_pct, 0.05);
+    EXPECT_LT(q.max_pct, kQuantisationMaxPct);
 }
 
 TEST(NetCodec, FoxQuantisationErrorWithinBound) { measure("Fox.glb"); }

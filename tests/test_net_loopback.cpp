@@ -11,10 +11,12 @@
 #include "gltf_export.h"
 #include "net_test_support.h"
 #include "wire.h"
+#include "thresholds.h"
 
 using namespace progskin;
 using namespace progskin::net;
 using namespace progskin::net::testing;
+using namespace progskin::thresholds;
 
 TEST(NetLoopback, HandshakeDownloadsAssetsThenUsesCache) {
     RunningServer s;
@@ -63,7 +65,7 @@ TEST(NetLoopback, InterpolatedDisplayStaysClose) {
     o.verify = true;
     o.display_rate = 60;
     ClientReport r = run_client(o);
-    EXPECT_LT(r.rms_pct, 0.2);  // slerp between 30 Hz ticks
+    EXPECT_LT(r.rms_pct, kInterpolatedRmsPct);  // interpolation between 30 Hz ticks
 }
 
 TEST(NetLoopback, ProtocolVersionMismatchIsRefusedClearly) {
@@ -162,5 +164,5 @@ TEST(NetLoopback, ServesAProgressiveGltfWithoutRebuilding) {
     th.join();
     EXPECT_EQ(r.characters, 1);
     EXPECT_EQ(r.bones_min, a->bone_count());
-    EXPECT_LT(r.max_pct, 0.02);
+    EXPECT_LT(r.max_pct, kSnappedFoxMaxPct);
 }

@@ -18,10 +18,12 @@
 #include "scheduler.h"
 #include "server.h"
 #include "wire.h"
+#include "thresholds.h"
 
 using namespace progskin;
 using namespace progskin::net;
 using namespace progskin::net::testing;
+using namespace progskin::thresholds;
 
 namespace {
 
@@ -99,12 +101,12 @@ TEST(NetMorph, FixtureAnimatesWeights) {
     ASSERT_EQ(a.morph_importance.size(), 4u);
     for (double v : a.morph_importance) EXPECT_GT(v, 0.0);
     ASSERT_GE(talk_selection(a), 0);
-    EXPECT_GT(ignored_morph_rms_pct(a, talk_selection(a)), 0.5);  // ignoring the weights is visible
+    EXPECT_GT(ignored_morph_rms_pct(a, talk_selection(a)), kMorphIgnoredMinRmsPct);  // ignoring the weights is visible
 }
 
 // Unlimited rate: every weight that changes goes every tick; the displayed
 // mesh matches the reference within the codec's and interpolation's error,
-// at most 10 % of the error of ignoring the weights.
+// at most kMorphStreamedFraction of the error of ignoring the weights.
 TEST(NetMorph, StreamedWeightsMatchTheReference) {
     const ServerAsset& a = *morph_asset();
     const double ignored = ignored_morph_rms_pct(a, talk_selection(a));
@@ -116,8 +118,8 @@ TEST(NetMorph, StreamedWeightsMatchTheReference) {
                 r.rate_kbps, ir.rms_pct, ir.max_pct, ignored);
     ASSERT_GT(ir.frames, 30u);
     EXPECT_EQ(r.malformed, 0u);
-    EXPECT_LE(ir.rms_pct, 0.1 * ignored);
-    EXPECT_LT(ir.rms_pct, 0.05);
+    EXPECT_LE(ir.rms_pct, kMorphStreamedFraction * ignored);
+    EXPECT_LT(ir.rms_pct, kStreamRmsPctUnlimited);
 }
 
 // A low cap: bones and weights compete by value per byte; the weights still
@@ -133,7 +135,7 @@ TEST(NetMorph, WeightsStillGoAtALowCap) {
                 r.rate_kbps, ir.rms_pct, ir.max_pct, ignored);
     ASSERT_GT(ir.frames, 30u);
     EXPECT_LE(r.rate_kbps, 12 * 1.05);
-    EXPECT_LE(ir.rms_pct, 0.25 * ignored);
+    EXPECT_LE(ir.rms_pct, kMorphLowCapFraction * ignored);
 }
 
 // Offline (encoder, scheduler, packer, reader): the weights that travel are
@@ -278,5 +280,5 @@ TEST(NetMorph, PublishedWeightsReachObservers) {
                 obs.remote_rms_pct, obs.remote_max_pct, ignored, (unsigned long long)pub.poses_sent);
     ASSERT_EQ(obs.remote_characters, 1);
     ASSERT_GE(obs.remote_rms_pct, 0.0);
-    EXPECT_LE(obs.remote_rms_pct, 0.1 * ignored);
+    EXPECT_LE(obs.remote_rms_pct, kMorphStreamedFraction * ignored);
 }

@@ -13,12 +13,14 @@
 #include "scheduler.h"
 #include "wire.h"
 #include "net_test_support.h"
+#include "thresholds.h"
 
 using namespace progskin;
 using namespace progskin::net;
 using progskin::net::testing::apply_frame;
 using progskin::net::testing::FrameApplied;
 using progskin::net::testing::client_asset;
+using namespace progskin::thresholds;
 
 namespace {
 
@@ -90,7 +92,7 @@ TEST(NetPipeline, FullBudgetShowsOnlyQuantisationError) {
         p.tick(t, 1 << 20, imp);
         for (int i = 0; i < int(p.specs.size()); ++i) {
             auto [rms, max] = p.error(i, t);
-            EXPECT_LT(max, 0.05) << "instance " << i << " tick " << t;
+            EXPECT_LT(max, kQuantisationMaxPct) << "instance " << i << " tick " << t;
             EXPECT_EQ(p.views[i]->target_bones(), p.assets[p.specs[i].asset]->bone_count());
         }
     }
@@ -119,7 +121,7 @@ TEST(NetPipeline, DelayedDisplayInterpolatesBetweenTicks) {
         if (t < 5) continue;
         for (int i = 0; i < int(p.specs.size()); ++i) worst_on_tick = std::max(worst_on_tick, p.error(i, t - 3).second);
     }
-    EXPECT_LT(worst_on_tick, 0.05);
+    EXPECT_LT(worst_on_tick, kQuantisationMaxPct);
 }
 
 // Switching k back and forth: with blending, no vertex's error changes by

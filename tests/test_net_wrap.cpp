@@ -14,11 +14,13 @@
 #include "animation.h"
 #include "net_test_support.h"
 #include "wire.h"
+#include "thresholds.h"
 
 using namespace progskin;
 using namespace progskin::net;
 using progskin::net::testing::default_assets;
 using progskin::net::testing::RunningServer;
+using namespace progskin::thresholds;
 
 namespace {
 
@@ -112,7 +114,7 @@ TEST(NetWrap, LoopingClipShowsNoSpikeAtItsWrap) {
                     a.name.c_str(), dur, e.near, e.near_frames, e.elsewhere, e.frames - e.near_frames);
         ASSERT_GT(e.near_frames, 3) << a.name;
         ASSERT_GT(e.frames - e.near_frames, 30) << a.name;
-        EXPECT_LE(e.near, 1.5 * e.elsewhere + 0.05) << a.name;
+        EXPECT_LE(e.near, kWrapSpikeFactor * e.elsewhere + kWrapSpikeSlackPct) << a.name;
     }
 }
 
@@ -127,7 +129,7 @@ TEST(NetWrap, CutLoopShowsNoSpikeAtItsWrap) {
     std::printf("%s cut to %.2f s: max %% diagonal within 3 ticks of a wrap %.4f (%d frames), elsewhere %.4f (%d frames)\n",
                 a.name.c_str(), dur, e.near, e.near_frames, e.elsewhere, e.frames - e.near_frames);
     ASSERT_GT(e.near_frames, 3);
-    EXPECT_LE(e.near, 1.5 * e.elsewhere + 0.05);
+    EXPECT_LE(e.near, kWrapSpikeFactor * e.elsewhere + kWrapSpikeSlackPct);
 }
 
 TEST(NetWrap, OnceClipHoldsItsLastFrame) {
@@ -137,5 +139,5 @@ TEST(NetWrap, OnceClipHoldsItsLastFrame) {
     std::printf("%s once: max %% diagonal within 3 ticks of the end %.4f (%d frames), elsewhere %.4f (%d frames)\n", a.name.c_str(),
                 e.near, e.near_frames, e.elsewhere, e.frames - e.near_frames);
     ASSERT_GT(e.near_frames, 3);
-    EXPECT_LE(e.near, 1.5 * e.elsewhere + 0.05);
+    EXPECT_LE(e.near, kWrapSpikeFactor * e.elsewhere + kWrapSpikeSlackPct);
 }

@@ -13,8 +13,10 @@
 #include "gltf_import.h"
 #include "progressive_skin.h"
 #include "synthetic.h"
+#include "thresholds.h"
 
 using namespace progskin;
+using namespace progskin::thresholds;
 
 namespace {
 
@@ -50,7 +52,7 @@ void expect_valid_structure(const ProgressiveSkin& s, int B) {
 // Non-increasing up to float rounding (1e-7 of the diagonal).
 void expect_non_increasing(const std::vector<LodError>& t, const char* what) {
     for (size_t k = 1; k < t.size(); ++k)
-        EXPECT_LE(t[k].rms_pct, t[k - 1].rms_pct + 1e-5) << what << ": rms rises from k=" << k << " to " << k + 1;
+        EXPECT_LE(t[k].rms_pct, t[k - 1].rms_pct + kTableRoundingPct) << what << ": rms rises from k=" << k << " to " << k + 1;
 }
 
 struct AssetCase {
@@ -70,8 +72,8 @@ TEST(Collapse, SyntheticTreeStructureAndExactAtFullDetail) {
         const ProgressiveSkin s = build(c, f, st);
         expect_valid_structure(s, int(c.joint_count()));
         expect_non_increasing(s.error, strategy_name(st));
-        EXPECT_LE(s.error.back().max_pct, 1e-3) << "all bones must reproduce the original (1e-5 of the diagonal)";
-        EXPECT_GT(s.error.front().rms_pct, 0.1) << "one bone cannot follow a wiggling tree";
+        EXPECT_LE(s.error.back().max_pct, kLosslessPct) << "all bones must reproduce the original (1e-5 of the diagonal)";
+        EXPECT_GT(s.error.front().rms_pct, kOneBoneMinRmsPct) << "one bone cannot follow a wiggling tree";
     }
 }
 
@@ -165,7 +167,7 @@ TEST_P(CollapseOnAsset, StrategiesBeatLeafPruneAndReproduceOriginal) {
         const ProgressiveSkin s = build(c, f, st);
         expect_valid_structure(s, B);
         expect_non_increasing(s.error, strategy_name(st));
-        EXPECT_LE(s.error.back().max_pct, 1e-3);  // <= 1e-5 of the diagonal
+        EXPECT_LE(s.error.back().max_pct, kLosslessPct);
         if (B > 2) {
             EXPECT_LT(mean_rms_pct(s.error), mean_rms_pct(naive.error));
         }
@@ -218,13 +220,13 @@ TEST(ProgressiveGltf, RoundTripKeepsSkinAndFullDetailPose) {
             reference_positions(c2, f2, fr, r2);
             ErrorAccumulator acc(diag);
             acc.add(r1, r2);
-            EXPECT_LE(acc.stats().max_pct, 1e-3) << "frame " << fr;
+            EXPECT_LE(acc.stats().max_pct, kLosslessPct) << "frame " << fr;
             for (int k : {1, 2, s.bone_count() / 2 + 1}) {
                 lod_positions(c, s, f, fr, k, r1);
                 lod_positions(c2, back.skin, f2, fr, k, r2);
                 ErrorAccumulator a2(diag);
                 a2.add(r1, r2);
-                EXPECT_LE(a2.stats().max_pct, 1e-3) << "frame " << fr << " k " << k;
+                EXPECT_LE(a2.stats().max_pct, kLosslessPct) << "frame " << fr << " k " << k;
             }
         }
         fs::remove(out);

@@ -18,8 +18,10 @@
 #include "progressive_skin.h"
 #include "scratch_build.h"
 #include "vertex_animation.h"
+#include "thresholds.h"
 
 using namespace progskin;
+using namespace progskin::thresholds;
 
 namespace {
 
@@ -182,7 +184,7 @@ TEST(Scratch, DegenerateInputs) {
         a.positions.resize(a.vertex_count);
         const ScratchResult r = build_from_vertices(a, {});
         ASSERT_GE(r.skin.bone_count(), 1);
-        EXPECT_LT(r.skin.error.back().rms_pct, 1e-3);
+        EXPECT_LT(r.skin.error.back().rms_pct, kLosslessPct);
     }
     // Static mesh.
     {
@@ -191,7 +193,7 @@ TEST(Scratch, DegenerateInputs) {
             for (size_t v = 0; v < a.vertex_count; ++v) a.positions[f * a.vertex_count + v] = a.positions[v];
         const ScratchResult r = build_from_vertices(a, {});
         EXPECT_EQ(r.skin.bone_count(), 1);
-        EXPECT_LT(r.skin.error.back().rms_pct, 1e-3);
+        EXPECT_LT(r.skin.error.back().rms_pct, kLosslessPct);
         EXPECT_LT(r.skin.error.back().distortion_pct, 0);  // undefined: nothing moves
     }
     // Collinear and coincident vertices.
@@ -206,7 +208,7 @@ TEST(Scratch, DegenerateInputs) {
         const ScratchResult r = build_from_vertices(a, o);
         ASSERT_GE(r.skin.bone_count(), 1);
         expect_non_increasing(r.skin.error);
-        EXPECT_LT(r.skin.error.back().rms_pct, 1e-3);
+        EXPECT_LT(r.skin.error.back().rms_pct, kLosslessPct);
     }
     // Single vertex.
     {
@@ -335,7 +337,7 @@ TEST(Scratch, SkinnedAssetsAsVertices) {
         EXPECT_LT(r.skin.error.back().rms_pct, r.skin.error.front().rms_pct);
         if (c.original > 0) {
             ASSERT_GE(r.skin.bone_count(), c.original);
-            EXPECT_LT(r.skin.error[size_t(c.original - 1)].rms_pct, 0.1);
+            EXPECT_LT(r.skin.error[size_t(c.original - 1)].rms_pct, kScratchAtOriginalBonesRmsPct);
         }
         expect_round_trip(r, an, std::string(c.file) + ".glb");
     }
