@@ -162,9 +162,6 @@ public:
     // -------------------------------------------- tuning (benchmarks) --
     RateController& rate() { return rate_; }
     void set_view(ViewSpec v) { view_ = std::move(v); }
-    // Off: no feedback is expected (no acks): the tick neither re-evaluates
-    // the estimate nor records sends for loss (detached streams).
-    void set_adaptive(bool on) { adaptive_ = on; }
     // Picks within a budget instead of the scheduler (bench_net_rd's
     // baselines); the scheduler is then neither asked nor told.
     using Selector = std::function<void(const EncodedFrame& frame, size_t budget, std::vector<Pick>& out)>;
@@ -227,6 +224,8 @@ private:
     std::unique_ptr<crypto::Opener> opener_;
     uint32_t seq_ = 0;
     RateController rate_;
+    // Off (detached streams): no feedback is expected (no acks), so the tick
+    // neither re-evaluates the estimate nor records sends for loss.
     bool adaptive_ = true;
     Scheduler scheduler_;
     Selector selector_;

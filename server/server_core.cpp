@@ -97,11 +97,6 @@ std::shared_ptr<ClientStream> ServerCore::open(const PeerAddress& remote, double
 
 void ServerCore::erase(uint64_t id) { sessions_.erase(id); }
 
-ClientStream* ServerCore::find(uint64_t id) {
-    auto it = sessions_.find(id);
-    return it == sessions_.end() ? nullptr : it->second.stream.get();
-}
-
 int ServerCore::welcomed_sessions() const {
     int n = 0;
     for (const auto& [id, e] : sessions_)

@@ -46,8 +46,6 @@ public:
     // (no handshake spent on it), else a Refuse, Closing.
     std::shared_ptr<ClientStream> open(const PeerAddress& remote, double now);
     void erase(uint64_t id);  // the shell, once the connection is closed
-    ClientStream* find(uint64_t id);
-    size_t session_count() const { return sessions_.size(); }
     int welcomed_sessions() const;  // Welcomed or Streaming (max_clients)
     // Hello.token against the configured access token or connect-token key:
     // an empty string, or why it is refused; `who` gets "client N " for a

@@ -282,3 +282,38 @@ TEST(ClientStream, NoHelloWithinHelloTimeoutClosesAndAClosingPeerThatDoesNotRead
                                        " (not read)");
     EXPECT_EQ(core.stats().refused, 1u);
 }
+
+TEST(ClientStream, InstancesNotYetAnnouncedOrOwnGetNoImportance) {
+    ServerCore core(ServerConfig{}, default_assets(), default_instances(default_assets()));
+    const size_t n = default_instances(default_assets()).size();
+    auto client = ClientStream::detached(core, 7, 1000);  // every instance announced
+    InstanceSpec own = default_instances(default_assets())[0];
+    own.owner = 7;
+    const int mine = core.add_instance(own);
+    const int npc = core.add_instance(default_instances(default_assets())[1]);
+    DatagramCollector sink;
+    uint32_t tick = 0;
+    auto sent_to_client = [&](int instance) {
+        for (const Pick& p : client->picks())
+            if (p.instance == instance) return true;
+        return false;
+    };
+    client->send_frame(core.encoder().encode(++tick), 1 << 20, sink);
+    ASSERT_EQ(client->importance().size(), n + 2);
+    for (size_t i = 0; i < n; ++i) EXPECT_GT(client->importance()[i], 0.0f) << i;
+    EXPECT_EQ(client->importance()[size_t(npc)], 0.0f);  // not announced yet: not streamed
+    EXPECT_FALSE(sent_to_client(npc));
+    EXPECT_TRUE(sent_to_client(0));
+    client->sync_instances();  // InstanceAdded for the NPC only (never its own)
+    ASSERT_EQ(client->output().size(), 1u);
+    const std::vector<uint8_t>& m = client->output()[0];
+    const wire::Control* c = verify_control(std::span(m).subspan(4));
+    ASSERT_TRUE(c && c->body_type() == wire::ControlBody::InstanceAdded);
+    ASSERT_EQ(c->body_as_InstanceAdded()->instances()->size(), 1u);
+    EXPECT_EQ(c->body_as_InstanceAdded()->instances()->Get(0)->id(), npc);
+    client->send_frame(core.encoder().encode(++tick), 1 << 20, sink);
+    EXPECT_GT(client->importance()[size_t(npc)], 0.0f);
+    EXPECT_TRUE(sent_to_client(npc));
+    EXPECT_EQ(client->importance()[size_t(mine)], 0.0f);
+    EXPECT_FALSE(sent_to_client(mine));
+}
