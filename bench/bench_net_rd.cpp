@@ -32,12 +32,10 @@
 #include <string>
 
 #include "client_palette.h"
-#include "datagram_packer.h"
+#include "client_stream.h"
 #include "error_metric.h"
-#include "frame_encoder.h"
-#include "rate_controller.h"
 #include "scene.h"
-#include "scheduler.h"
+#include "server_core.h"
 #include "wire.h"
 #include "../tests/net_test_support.h"
 
@@ -110,18 +108,46 @@ struct Result {
 
 // max_delay: the display delay in ticks at most (18 = 600 ms; 3 = 100 ms for
 // the equal-latency table).
+// The baselines' picks (Method::AllBones, Method::LeafLod): round-robin,
+// fixed k per character (leaf_k for the leaf LOD), every morph weight, as
+// many characters as fit the budget; `rr` is the next character's turn.
+void baseline_picks(Method m, const Assets& assets, const std::vector<InstanceSpec>& specs, int leaf_k, const EncodedFrame& f,
+                    size_t budget, size_t& rr, std::vector<Pick>& picks) {
+    picks.clear();
+    const size_t n = specs.size();
+    size_t payload = 0;
+    for (size_t c = 0; c < n; ++c) {
+        size_t i = (rr + c) % n;
+        const auto& a = *assets[specs[i].asset];
+        int k = m == Method::AllBones ? a.bone_count() : std::min(leaf_k, a.bone_count());
+        // Baselines send every morph weight with the bones (no sparse scheduling).
+        std::array<uint64_t, 4> morphs{};
+        const auto q = f.morphs(int(i));
+        for (size_t w = 0; w < q.size(); ++w)
+            if (q[w] != kNoWeight) morphs[w / 64] |= uint64_t(1) << (w % 64);
+        size_t b = WireCost::header(a.bone_count()) + size_t(k) * a.format.size() + morph_block_bytes(morphs);
+        if (WireCost::wire(payload + b) > budget) break;
+        payload += b;
+        picks.push_back({int(i), k});
+        picks.back().morphs = morphs;
+    }
+    rr = (rr + picks.size()) % n;
+}
+
+// max_delay: the display delay in ticks at most (18 = 600 ms; 3 = 100 ms for
+// the equal-latency table).
 Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbps, int ticks, int warm, int max_delay = 18) {
     const Assets& assets = m == Method::LeafLod ? leaf_assets() : progressive_assets();
-    FrameEncoder enc(assets, specs, 30.0f);
+    // The server's session core without sockets: the same tick (importance,
+    // selection or a baseline's picks, packing, rate), at a fixed rate.
+    ServerCore core(ServerConfig{}, assets, specs);
+    auto client = ClientStream::detached(core, 1, cap_kbps);
     // The all-bones baseline needs room for one whole character per datagram;
     // every method gets that bucket depth (the same pacing for all).
     double min_depth = 0;
     for (const auto& a : progressive_assets())
         min_depth = std::max(min_depth, double(WireCost::wire(WireCost::header(a->bone_count()) + size_t(a->bone_count()) * a->format.size())));
-    RateController rate(cap_kbps, cap_kbps, min_depth);
-    Scheduler sched;
-    DatagramPacker packer;
-    std::vector<float> imp = compute_importance(ViewSpec{}, specs, assets);
+    client->rate() = RateController(cap_kbps, cap_kbps, min_depth);
     const size_t n = specs.size();
     // Static LOD: the largest k with every character every tick within the rate.
     int leaf_k = 1;
@@ -141,6 +167,11 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
             }
         }
     }
+    size_t rr = 0;
+    if (m != Method::Progressive)
+        client->set_selector([&](const EncodedFrame& f, size_t budget, std::vector<Pick>& picks) {
+            baseline_picks(m, assets, specs, leaf_k, f, budget, rr, picks);
+        });
     std::vector<std::vector<std::vector<uint8_t>>> log(size_t(ticks) + 1);
     // The display delay covers, as the client's does (client.cpp), the largest
     // gap after warm-up between updates of an instance and between refreshes
@@ -149,43 +180,15 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
     std::vector<int> instance_tick(n, 0);
     for (size_t i = 0; i < n; ++i) bone_tick[i].assign(size_t(assets[size_t(specs[i].asset)]->bone_count()), 0);
     int gap = 1;
-    size_t rr = 0, wire_total = 0;
-    std::vector<Pick> picks;
+    size_t wire_total = 0;
+    DatagramCollector sink;
     for (int t = 1; t <= ticks; ++t) {
-        const EncodedFrame& f = enc.encode(uint32_t(t));
-        rate.refill(1.0 / 30.0);
-        size_t budget = rate.budget();
-        picks.clear();
-        if (budget) {
-            if (m == Method::Progressive) {
-                sched.select(f, assets, imp, budget, 30.0f, picks);
-            } else {
-                // Round-robin, fixed k per character, as many as fit.
-                size_t payload = 0;
-                for (size_t c = 0; c < n; ++c) {
-                    size_t i = (rr + c) % n;
-                    const auto& a = *assets[specs[i].asset];
-                    int k = m == Method::AllBones ? a.bone_count() : std::min(leaf_k, a.bone_count());
-                    // Baselines send every morph weight with the bones (no sparse scheduling).
-                    std::array<uint64_t, 4> morphs{};
-                    const auto q = f.morphs(int(i));
-                    for (size_t w = 0; w < q.size(); ++w)
-                        if (q[w] != kNoWeight) morphs[w / 64] |= uint64_t(1) << (w % 64);
-                    size_t b = WireCost::header(a.bone_count()) + size_t(k) * a.format.size() + morph_block_bytes(morphs);
-                    if (WireCost::wire(payload + b) > budget) break;
-                    payload += b;
-                    picks.push_back({int(i), k});
-                    picks.back().morphs = morphs;
-                }
-                rr = (rr + picks.size()) % n;
-            }
-        }
-        uint32_t seq = 0;
-        size_t w = packer.pack(f, picks, seq, log[size_t(t)]);
-        rate.spend(w);
-        if (m == Method::Progressive) sched.sent(picks, uint32_t(t));
-        if (t > warm) wire_total += w;
-        for (const Pick& p : picks) {
+        const EncodedFrame& f = core.encoder().encode(uint32_t(t));
+        sink.sent.clear();
+        const TickResult r = client->tick(f, t / 30.0, 1.0 / 30.0, sink);
+        for (auto& d : sink.sent) log[size_t(t)].push_back(std::move(d.bytes));
+        if (t > warm) wire_total += r.wire_bytes;
+        for (const Pick& p : client->picks()) {
             int& last_update = instance_tick[size_t(p.instance)];
             if (t > warm && last_update > 0) gap = std::max(gap, t - last_update);
             last_update = t;

@@ -1,10 +1,12 @@
 // bench_net_server.cpp — server tick cost per client and per character.
 //
-// BM_ClientTick: the per-client part of a tick (scheduler selection under the
-// client's byte budget + packing datagrams by copying pre-encoded records),
-// for 100 characters, at several caps. BM_ServerTick200x100: one whole tick
-// of 200 clients x 100 characters without sockets (encode once + 200 x
-// select/pack). BM_Loopback200Clients: a real Server on loopback with 200
+// BM_ClientTick: the per-client part of a tick (ClientStream::tick: the
+// importance of each character from the client's view, scheduler selection
+// under the client's byte budget, packing datagrams by copying pre-encoded
+// records; a detached stream: fixed rate, unsealed, nothing sent), for 100
+// characters, at several caps. BM_ServerTick200x100: one whole tick of 200
+// clients x 100 characters without sockets (encode once + 200 x
+// ClientStream::tick). BM_Loopback200Clients: a real Server on loopback with 200
 // lightweight clients (Hello, UDP Bind, Acks; no display) for 5 s: mean tick
 // time, the server thread's CPU time per client, and the datagrams, bytes
 // and rate each client received; its 4th argument 1 runs every session over
@@ -22,12 +24,11 @@
 #include "crypto.h"
 #include "tls_identity.h"
 
-#include "datagram_packer.h"
+#include "client_stream.h"
 #include "frame_encoder.h"
-#include "rate_controller.h"
 #include "scene.h"
-#include "scheduler.h"
 #include "server.h"
+#include "server_core.h"
 #include "wire.h"
 
 using namespace progskin;
@@ -39,36 +40,29 @@ static std::vector<std::shared_ptr<ServerAsset>>& assets() {
     return a;
 }
 
+// A sink that drops what it is given: the ticks' cost without sockets.
+struct NoSockets final : DatagramSink {
+    void send(std::span<const uint8_t>, const PeerAddress&) override {}
+};
+
 static void BM_ClientTick(benchmark::State& st) {
     const int n = 100;
     const double kbps = double(st.range(0));
-    auto specs = crowd_layout(assets(), n);
-    FrameEncoder enc(assets(), specs, 30.0f);
+    ServerCore core(ServerConfig{}, assets(), crowd_layout(assets(), n));
+    auto client = ClientStream::detached(core, 1, kbps);
     ViewSpec view;
     view.has_camera = true;
-    std::vector<float> imp = compute_importance(view, specs, assets());
-    Scheduler sched;
-    DatagramPacker packer;
-    RateController rate(kbps, kbps);
-    std::vector<Pick> picks;
-    std::vector<std::vector<uint8_t>> out;
-    uint32_t tick = 0, seq = 0;
+    client->set_view(view);
+    NoSockets sink;
+    uint32_t tick = 0;
     size_t bytes = 0, dgrams = 0;
     for (auto _ : st) {
         st.PauseTiming();
-        const EncodedFrame& f = enc.encode(++tick);
-        out.clear();
+        const EncodedFrame& f = core.encoder().encode(++tick);
         st.ResumeTiming();
-        rate.refill(1.0 / 30.0);
-        size_t budget = rate.budget();
-        if (budget) {
-            sched.select(f, assets(), imp, budget, 30.0f, picks);
-            size_t w = packer.pack(f, picks, seq, out);
-            rate.spend(w);
-            sched.sent(picks, tick);
-            bytes += w;
-            dgrams += out.size();
-        }
+        const TickResult r = client->tick(f, tick / 30.0, 1.0 / 30.0, sink);
+        bytes += r.wire_bytes;
+        dgrams += r.datagrams;
     }
     st.counters["kbps_sent"] = benchmark::Counter(double(bytes) * 8 / 1000 / (double(st.iterations()) / 30.0));
     st.counters["datagrams_per_tick"] = double(dgrams) / double(st.iterations());
@@ -80,33 +74,22 @@ static void BM_ServerTick200x100(benchmark::State& st) {
     const int n = 100, clients = 200;
     const double kbps = double(st.range(0));
     auto specs = crowd_layout(assets(), n);
-    FrameEncoder enc(assets(), specs, 30.0f);
-    std::vector<Scheduler> sched(clients);
-    std::vector<RateController> rate(clients, RateController(kbps, kbps));
-    std::vector<std::vector<float>> imp;
+    ServerCore core(ServerConfig{}, assets(), specs);
+    std::vector<std::unique_ptr<ClientStream>> client;
     for (int c = 0; c < clients; ++c) {
+        client.push_back(ClientStream::detached(core, uint64_t(c + 1), kbps));
         ViewSpec v;
         v.has_camera = true;
         v.camera = specs[size_t(c) % specs.size()].position + glm::vec3(0, 0, 300);
-        imp.push_back(compute_importance(v, specs, assets()));
+        client.back()->set_view(v);
     }
-    DatagramPacker packer;
-    std::vector<Pick> picks;
-    std::vector<std::vector<uint8_t>> out;
-    uint32_t tick = 0, seq = 0;
+    NoSockets sink;
+    uint32_t tick = 0;
     double busy = 0;
     for (auto _ : st) {
         const double t0 = now_seconds();
-        const EncodedFrame& f = enc.encode(++tick);
-        for (int c = 0; c < clients; ++c) {
-            rate[c].refill(1.0 / 30.0);
-            size_t budget = rate[c].budget();
-            if (!budget) continue;
-            out.clear();
-            sched[c].select(f, assets(), imp[c], budget, 30.0f, picks);
-            rate[c].spend(packer.pack(f, picks, seq, out));
-            sched[c].sent(picks, tick);
-        }
+        const EncodedFrame& f = core.encoder().encode(++tick);
+        for (auto& c : client) c->tick(f, tick / 30.0, 1.0 / 30.0, sink);
         busy += now_seconds() - t0;
     }
     st.counters["core_load_at_30Hz"] = busy / double(st.iterations()) * 30.0;
@@ -143,7 +126,8 @@ static void BM_PublishingPlayers(benchmark::State& st) {
         s.owner = uint64_t(p + 1);
         specs.push_back(s);
     }
-    FrameEncoder enc(assets(), specs, 30.0f);
+    ServerCore core(ServerConfig{}, assets(), specs);
+    FrameEncoder& enc = core.encoder();
     // Each player's pose source: its asset's clip, sampled as a publisher does.
     std::vector<std::vector<std::vector<uint8_t>>> poses(2);  // per asset, 30 frames of records
     for (int a = 0; a < 2; ++a) {
@@ -159,18 +143,21 @@ static void BM_PublishingPlayers(benchmark::State& st) {
         }
     }
     std::vector<glm::dvec3> where(static_cast<size_t>(players));
+    std::vector<std::unique_ptr<ClientStream>> client;  // player p's session (id p + 1: never sent its own)
     for (int p = 0; p < players; ++p) {
         const double ang = 2.399963 * p, r = views ? 1000.0 * std::sqrt((p + 0.5) / players) : 0.0;
         where[size_t(p)] = glm::dvec3(r * std::cos(ang), 0.0, r * std::sin(ang));
+        client.push_back(ClientStream::detached(core, uint64_t(p + 1), kbps));
+        ViewSpec v;
+        if (views) {
+            v.has_camera = true;
+            v.camera = glm::vec3(where[size_t(p)]);
+        }
+        client.back()->set_view(v);
     }
-    std::vector<Scheduler> sched(static_cast<size_t>(players));
-    std::vector<RateController> rate(size_t(players), RateController(kbps, kbps));
-    std::vector<float> imp;
-    DatagramPacker packer;
-    std::vector<Pick> picks;
-    std::vector<std::vector<uint8_t>> out;
+    NoSockets sink;
     std::array<uint8_t, ROOT_BYTES> root{};
-    uint32_t tick = 0, seq = 0;
+    uint32_t tick = 0;
     double busy = 0, sent = 0;
     for (auto _ : st) {
         const double t0 = thread_seconds();
@@ -186,23 +173,7 @@ static void BM_PublishingPlayers(benchmark::State& st) {
             if (ok) enc.push_records(p, tick, 0, 0, rec, root);
         }
         const EncodedFrame& f = enc.encode(tick);
-        for (int p = 0; p < players; ++p) {
-            ViewSpec v;
-            if (views) {
-                v.has_camera = true;
-                v.camera = glm::vec3(where[size_t(p)]);
-            }
-            compute_importance(v, f, assets(), uint64_t(p + 1), imp);
-            rate[size_t(p)].refill(1.0 / 30.0);
-            const size_t budget = rate[size_t(p)].budget();
-            if (!budget) continue;
-            out.clear();
-            sched[size_t(p)].select(f, assets(), imp, budget, 30.0f, picks);
-            const size_t w = packer.pack(f, picks, seq, out);
-            rate[size_t(p)].spend(w);
-            sched[size_t(p)].sent(picks, tick);
-            sent += double(w);
-        }
+        for (auto& c : client) sent += double(c->tick(f, tick / 30.0, 1.0 / 30.0, sink).wire_bytes);
         busy += thread_seconds() - t0;
     }
     const double load = busy / double(st.iterations()) * 30.0;

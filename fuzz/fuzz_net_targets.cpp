@@ -3,7 +3,7 @@
 
 #include "bone_codec.h"
 #include "client.h"
-#include "server.h"
+#include "control_messages.h"
 #include "crypto.h"
 #include "frame_reader.h"
 #include "fuzz_targets.h"

@@ -10,10 +10,9 @@
 #include <fstream>
 #include <string>
 
-#include "datagram_packer.h"
-#include "frame_encoder.h"
+#include "client_stream.h"
 #include "scene.h"
-#include "scheduler.h"
+#include "server_core.h"
 #include "wire.h"
 
 using namespace progskin;
@@ -28,6 +27,23 @@ static std::vector<uint8_t> finish(flatbuffers::FlatBufferBuilder& fbb, wire::Da
     return {fbb.GetBufferPointer(), fbb.GetBufferPointer() + fbb.GetSize()};
 }
 
+// 40 ticks of a detached ClientStream per budget (bytes per tick); the
+// datagrams of ticks 1, 14, 27 and 40 (first frames and refreshes) are written
+// as PREFIX<budget>-t<tick>-<i>.
+static void write_frames(ServerCore& core, std::initializer_list<size_t> budgets, const std::filesystem::path& dir,
+                         const std::string& prefix) {
+    for (size_t budget : budgets) {
+        auto client = ClientStream::detached(core, 1, 1000);
+        for (uint32_t t = 1; t <= 40; ++t) {
+            DatagramCollector sink;
+            client->send_frame(core.encoder().encode(t), budget, sink);
+            if (t % 13 != 1) continue;
+            for (size_t i = 0; i < sink.sent.size(); ++i)
+                write(dir, prefix + std::to_string(budget) + "-t" + std::to_string(t) + "-" + std::to_string(i), sink.sent[i].bytes);
+        }
+    }
+}
+
 int main(int argc, char** argv) {
     if (argc != 2 || std::string(argv[1]) == "--help") {
         std::fprintf(stderr, "usage: make_frame_corpus DIR\nWrites the frame-stream fuzz seeds into DIR.\n");
@@ -37,32 +53,16 @@ int main(int argc, char** argv) {
     std::filesystem::create_directories(dir);
     std::vector<std::shared_ptr<ServerAsset>> assets = {load_server_asset(std::string(PROGSKIN_ASSETS) + "/Fox.glb"),
                                                         load_server_asset(std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb")};
-    auto specs = default_instances(assets);
-    FrameEncoder enc(assets, specs, 30.0f);
+    // The server's session core without sockets: each budget's datagrams are
+    // a ClientStream's (importance, selection, packing) at that budget per tick.
+    ServerCore core(ServerConfig{}, assets, default_instances(assets));
     // Instance 1 placed in the world: its chunks carry a root block.
     RootPose placed;
     placed.position = {1234.5, 0.25, -9876.125};
     placed.rotation = glm::angleAxis(0.7f, glm::vec3(0, 1, 0));
     placed.source_us = 123456789;
-    enc.set_root(1, placed, false);
-    std::vector<float> imp = compute_importance(ViewSpec{}, specs, assets);
-    const size_t budgets[] = {200, 500, 1100, 20000};
-    for (size_t budget : budgets) {
-        Scheduler sched;
-        DatagramPacker packer;
-        uint32_t seq = 0;
-        for (uint32_t t = 1; t <= 40; ++t) {
-            const EncodedFrame& f = enc.encode(t);
-            std::vector<Pick> picks;
-            sched.select(f, assets, imp, budget, 30.0f, picks);
-            std::vector<std::vector<uint8_t>> out;
-            packer.pack(f, picks, seq, out);
-            sched.sent(picks, t);
-            if (t % 13 != 1) continue;  // ticks 1, 14, 27, 40: first frames and refreshes
-            for (size_t i = 0; i < out.size(); ++i)
-                write(dir, "frame-" + std::to_string(budget) + "-t" + std::to_string(t) + "-" + std::to_string(i), out[i]);
-        }
-    }
+    core.encoder().set_root(1, placed, false);
+    write_frames(core, {200, 500, 1100, 20000}, dir, "frame-");
     {
         // Morph blocks: tests/data/skinned_morph.gltf as instance 5 (the
         // fuzz target's 3-bone, 4-target buffer; slots 0-4 added and removed).
@@ -73,27 +73,9 @@ int main(int argc, char** argv) {
             if (morph[0]->selections[s].clips.size() == 1 &&
                 morph[0]->character.clips[size_t(morph[0]->selections[s].clips[0])].name == "talk")
                 talk.selection = int(s);
-        FrameEncoder menc(morph, std::vector<InstanceSpec>(6, talk), 30.0f);
-        for (int i = 0; i < 5; ++i) menc.remove_instance(i);
-        std::vector<InstanceSpec> mspecs(6, talk);
-        std::vector<float> mimp = compute_importance(ViewSpec{}, mspecs, morph);
-        for (size_t budget : {size_t(150), size_t(20000)}) {
-            Scheduler sched;
-            DatagramPacker packer;
-            uint32_t seq = 0;
-            for (uint32_t t = 1; t <= 40; ++t) {
-                const EncodedFrame& f = menc.encode(t);
-                std::vector<Pick> picks;
-                sched.select(f, morph, mimp, budget, 30.0f, picks);
-                std::vector<std::vector<uint8_t>> out;
-                packer.pack(f, picks, seq, out);
-                sched.sent(picks, t);
-                if (t % 13 != 1) continue;
-                for (size_t i = 0; i < out.size(); ++i)
-                    write(dir, "frame-morph-" + std::to_string(budget) + "-t" + std::to_string(t) + "-" + std::to_string(i),
-                          out[i]);
-            }
-        }
+        ServerCore mcore(ServerConfig{}, morph, std::vector<InstanceSpec>(6, talk));
+        for (int i = 0; i < 5; ++i) mcore.remove_instance(i);
+        write_frames(mcore, {150, 20000}, dir, "frame-morph-");
     }
     flatbuffers::FlatBufferBuilder fbb;
     std::vector<uint8_t> pad(64, 0);

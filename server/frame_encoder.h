@@ -109,7 +109,7 @@ public:
     // A player's pose, already as records (progressive order, bones
     // first..first+n-1) and a root block; kept when pose_seq is newer than
     // the newest kept (else counted stale and dropped). The caller checked
-    // ownership, sizes and ranges (server.cpp). Returns false when stale.
+    // ownership, sizes and ranges (client_stream.cpp on_pose). Returns false when stale.
     // morphs (optional, may be empty: the last ones stay): every morph
     // weight of the character, quantised (wire.h encode_morph_weight).
     bool push_records(int instance, uint32_t pose_seq, uint8_t epoch, int first, std::span<const uint8_t> records,

@@ -110,11 +110,11 @@ void Scheduler::reset(size_t n) {
     heap_.reserve(n * 2);
 }
 
-size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
-                         std::span<const float> importance, size_t budget, float tick_rate, std::vector<Pick>& out) {
-    out.clear();
+// Slots added since the last tick: grow, keeping every other instance's
+// state; a new instance in a slot (its generation changed): a fresh state.
+void Scheduler::track_slots(const EncodedFrame& frame) {
     const size_t n = frame.instances.size();
-    if (state_.size() != n) {  // slots added: grow, keeping every other instance's state
+    if (state_.size() != n) {
         state_.resize(n);
         generation_.resize(n, 0);
         items_.resize(n);
@@ -127,19 +127,18 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         morph_.resize(n);
     }
     for (size_t i = 0; i < n; ++i)
-        if (generation_[i] != frame.instances[i].generation) {  // a new instance in this slot
+        if (generation_[i] != frame.instances[i].generation) {
             generation_[i] = frame.instances[i].generation;
             state_[i] = State{};
         }
-    auto by_importance = [&](const Pick& a, const Pick& b) {
-        return importance[a.instance] > importance[b.instance] ||
-               (importance[a.instance] == importance[b.instance] && a.instance < b.instance);
-    };
+}
 
-    // Morph items (the weights that are due, scheduler.h), then the fast
-    // path: every bone and due weight of every (important) instance fits.
+// The morph item of every important instance (morph_item); returns the
+// payload of everything: every bone and due weight of those instances.
+size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
+                              std::span<const float> importance) {
     size_t full = 0;
-    for (size_t i = 0; i < n; ++i) {
+    for (size_t i = 0; i < frame.instances.size(); ++i) {
         const auto& e = frame.instances[i];
         morph_[i] = MorphItem{};
         if (!e.valid || importance[i] <= 0.0f) continue;
@@ -148,102 +147,118 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         morph_item(i, frame, a, double(importance[i]) * double(importance[i]) * double(a.character.vertex_count()));
         full += WireCost::header(e) + size_t(e.bone_count) * e.record_size + morph_[i].bytes;
     }
-    if (full == 0) return 0;
-    if (WireCost::wire(full) <= budget) {
-        for (size_t i = 0; i < n; ++i) {
-            const auto& e = frame.instances[i];
-            if (e.valid && importance[i] > 0.0f) {
-                out.push_back({int(i), e.bone_count, e.bone_count});
-                out.back().morphs = morph_[i].mask;
-                morph_[i].chosen = true;
-            }
-        }
-        std::sort(out.begin(), out.end(), by_importance);
-        limited_ = false;
-        return WireCost::wire(full);
-    }
+    return full;
+}
 
-    // Per instance and segment: value and bytes (scheduler.h). Shown segments
-    // (a prefix) are refresh items on their own; the segments after them can
-    // only be shown in order, so they are offered as the steps of their hull.
+// The fast path: every bone and due weight of every important instance.
+void Scheduler::pick_everything(const EncodedFrame& frame, std::span<const float> importance, std::vector<Pick>& out) {
+    for (size_t i = 0; i < frame.instances.size(); ++i) {
+        const auto& e = frame.instances[i];
+        if (e.valid && importance[i] > 0.0f) {
+            out.push_back({int(i), e.bone_count, e.bone_count});
+            out.back().morphs = morph_[i].mask;
+            morph_[i].chosen = true;
+        }
+    }
+}
+
+// Instance i's segments as items: value and bytes (scheduler.h). Shown
+// segments (a prefix) are refresh items on their own; the ones after them
+// are offered as the steps of their hull (offer_chain).
+void Scheduler::segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30) {
+    auto& items = items_[i];
+    const auto& e = frame.instances[i];
+    const State& st = state_[i];
+    bool shown = true;
+    for (size_t q = 0; q < a.segments.size(); ++q) {
+        const ServerAsset::Segment& seg = a.segments[q];
+        const int m = std::clamp(e.model, 0, int(seg.gap.size()) - 1);
+        const size_t b = size_t(seg.to - seg.from) * size_t(e.record_size);
+        // Shown: bone 0 once received (the client never drops it), every
+        // further bone up to here refreshed within the hold.
+        for (int x = seg.from; x < seg.to && shown; ++x) {
+            const uint32_t t = st.bone_tick[size_t(x)];
+            if (t == 0 || (x > 0 && int32_t(frame.tick - t) >= HOLD_TICKS)) shown = false;
+        }
+        double v;
+        if (shown) {
+            const int32_t age = std::max(1, int32_t(frame.tick - st.bone_tick[size_t(seg.to - 1)]));
+            const double g = double(age) * to30;
+            if (g == double(age) && age < ServerAsset::kGapTable) v = seg.refresh[size_t(m)][size_t(age)];
+            else v = g * (g + 1.0) * (seg.gap_at(m, g + 1.0) - seg.gap_at(m, g));
+            // Last tick of the hold: without a refresh the segment is dropped,
+            // so refreshing it is worth at least showing it.
+            if (q > 0 && age >= HOLD_TICKS - 1) v = std::max(v, seg.show_value[size_t(m)]);
+        } else {
+            // Not shown: worth its collapse error over the refresh period that
+            // makes showing it most worthwhile (scene.h show_value).
+            v = seg.show_value[size_t(m)];
+        }
+        items.push_back({w * v, b, seg.from, seg.to, shown, false, false});
+    }
+}
+
+// The unshown segments of instance i can only be shown in order: the upper
+// concave hull of their cumulative (bytes, value), its first step offered.
+void Scheduler::offer_chain(size_t i, uint32_t age) {
+    const auto& items = items_[i];
+    auto& chain = chain_[i];
+    chain.clear();
+    size_t u = 0;
+    while (u < items.size() && items[u].shown) ++u;
+    if (u == items.size()) return;
+    chain.push_back({int(u), 0, 0.0});
+    size_t cb = 0;
+    double cv = 0;
+    for (size_t q = u; q < items.size(); ++q) {
+        cb += items[q].bytes;
+        cv += items[q].value;
+        const ChainPoint pt{int(q + 1), cb, cv};
+        while (chain.size() >= 2) {
+            const ChainPoint& p0 = chain[chain.size() - 2];
+            const ChainPoint& p1 = chain.back();
+            const double cross =
+                double(p1.bytes - p0.bytes) * (pt.value - p0.value) - double(pt.bytes - p0.bytes) * (p1.value - p0.value);
+            if (cross >= 0) chain.pop_back();
+            else break;
+        }
+        chain.push_back(pt);
+    }
+    if (chain.size() >= 2 && chain[1].value > 0) {
+        heap_.push_back({chain[1].value / double(chain[1].bytes + header_[i]), int(i), 1, age, true, false});
+        chain_next_[i] = 1;
+    }
+}
+
+// Every important instance's items offered to the heap (before any header is paid).
+void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
+                            std::span<const float> importance, float tick_rate) {
     const double to30 = 30.0 / std::max(1.0f, tick_rate);
     heap_.clear();
-    for (size_t i = 0; i < n; ++i) {
-        auto& items = items_[i];
-        items.clear();
+    for (size_t i = 0; i < frame.instances.size(); ++i) {
+        items_[i].clear();
         const auto& e = frame.instances[i];
         if (!e.valid || importance[i] <= 0.0f) continue;
         const ServerAsset& a = *assets[size_t(e.asset)];
         paid_[i] = 0;
         chain_next_[i] = 0;
         header_[i] = WireCost::header(e);
-        State& st = state_[i];
+        const State& st = state_[i];
         // Squared error in screen units, summed over the instance's vertices
         // (the RMS of docs/metrics.md §2 pools all vertices of all characters).
         const double w = double(importance[i]) * double(importance[i]) * double(a.character.vertex_count());
         const uint32_t stale = st.bone_tick[0] != 0 ? frame.tick - st.bone_tick[0] : UINT32_MAX;
-        bool shown = true;
-        for (size_t q = 0; q < a.segments.size(); ++q) {
-            const ServerAsset::Segment& seg = a.segments[q];
-            const int m = std::clamp(e.model, 0, int(seg.gap.size()) - 1);
-            const size_t b = size_t(seg.to - seg.from) * size_t(e.record_size);
-            // Shown: bone 0 once received (the client never drops it), every
-            // further bone up to here refreshed within the hold.
-            for (int x = seg.from; x < seg.to && shown; ++x) {
-                const uint32_t t = st.bone_tick[size_t(x)];
-                if (t == 0 || (x > 0 && int32_t(frame.tick - t) >= HOLD_TICKS)) shown = false;
-            }
-            double v;
-            if (shown) {
-                const int32_t age = std::max(1, int32_t(frame.tick - st.bone_tick[size_t(seg.to - 1)]));
-                const double g = double(age) * to30;
-                if (g == double(age) && age < ServerAsset::kGapTable) v = seg.refresh[size_t(m)][size_t(age)];
-                else v = g * (g + 1.0) * (seg.gap_at(m, g + 1.0) - seg.gap_at(m, g));
-                // Last tick of the hold: without a refresh the segment is dropped,
-                // so refreshing it is worth at least showing it.
-                if (q > 0 && age >= HOLD_TICKS - 1) v = std::max(v, seg.show_value[size_t(m)]);
-            } else {
-                // Not shown: worth its collapse error over the refresh period that
-                // makes showing it most worthwhile (scene.h show_value).
-                v = seg.show_value[size_t(m)];
-            }
-            items.push_back({w * v, b, seg.from, seg.to, shown, false, false});
-        }
-        // The unshown segments can only be shown in order: the upper concave
-        // hull of their cumulative (bytes, value), offered one step at a time.
+        segment_items(i, frame, a, w, to30);
         offer_unpaid(int(i), stale);
         // The morph item: on its own only once bone 0 was sent (its chunk needs show >= 1).
         if (morph_[i].value > 0 && st.bone_tick[0] != 0)
             heap_.push_back({morph_[i].value / double(morph_[i].bytes + header_[i]), int(i), 0, stale, false, false, true});
-        auto& chain = chain_[i];
-        chain.clear();
-        size_t u = 0;
-        while (u < items.size() && items[u].shown) ++u;
-        if (u < items.size()) {
-            chain.push_back({int(u), 0, 0.0});
-            size_t cb = 0;
-            double cv = 0;
-            for (size_t q = u; q < items.size(); ++q) {
-                cb += items[q].bytes;
-                cv += items[q].value;
-                const ChainPoint pt{int(q + 1), cb, cv};
-                while (chain.size() >= 2) {
-                    const ChainPoint& p0 = chain[chain.size() - 2];
-                    const ChainPoint& p1 = chain.back();
-                    const double cross = double(p1.bytes - p0.bytes) * (pt.value - p0.value) -
-                                         double(pt.bytes - p0.bytes) * (p1.value - p0.value);
-                    if (cross >= 0) chain.pop_back();
-                    else break;
-                }
-                chain.push_back(pt);
-            }
-            if (chain.size() >= 2 && chain[1].value > 0) {
-                heap_.push_back({chain[1].value / double(chain[1].bytes + header_[i]), int(i), 1, stale, true, false});
-                chain_next_[i] = 1;
-            }
-        }
+        offer_chain(i, stale);
     }
-    // Greedy over the items by value per byte.
+}
+
+// Greedy over the items by value per byte, within `budget` wire bytes.
+void Scheduler::take_greedily(size_t budget) {
     std::make_heap(heap_.begin(), heap_.end());
     size_t payload = 0;
     while (!heap_.empty()) {
@@ -254,72 +269,80 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         const size_t inst = size_t(s.instance);
         if (!s.paid && paid_[inst]) continue;  // offered again at its records-only ratio
         const size_t header = paid_[inst] ? 0 : header_[inst];
-        auto& items = items_[inst];
-        if (s.morph) {
-            MorphItem& mi = morph_[inst];
-            if (mi.chosen || WireCost::wire(payload + mi.bytes + header) > budget) continue;
-            payload += mi.bytes + header;
-            mi.chosen = true;
-            if (!paid_[inst]) pay(s.instance, s.age);
-            continue;
-        }
-        if (s.chain) {
-            const auto& chain = chain_[inst];
-            const ChainPoint& p0 = chain[size_t(s.step - 1)];
-            const ChainPoint& p1 = chain[size_t(s.step)];
-            const size_t bytes = p1.bytes - p0.bytes + header;
-            if (WireCost::wire(payload + bytes) > budget) {
-                chain_next_[inst] = 0;
-                continue;
-            }
-            payload += bytes;
-            for (int q = p0.end; q < p1.end; ++q) items[size_t(q)].chosen = true;
-            chain_next_[inst] = 0;
-            if (!paid_[inst]) pay(s.instance, s.age);
-            if (size_t(s.step) + 1 < chain.size()) {
-                const double r = step_ratio(chain, s.step + 1);
-                if (r > 0) {
-                    heap_.push_back({r, s.instance, s.step + 1, s.age, true, true});
-                    std::push_heap(heap_.begin(), heap_.end());
-                    chain_next_[inst] = s.step + 1;
-                }
-            }
-            continue;
-        }
-        SegItem& it = items[size_t(s.step)];
-        if (it.chosen) {
-            if (s.paid) offer_paid(s.instance, s.age);
-            continue;
-        }
-        const size_t bytes = it.bytes + header;
-        if (WireCost::wire(payload + bytes) > budget) {  // a smaller item may still fit
-            if (s.paid) {
-                offer_paid(s.instance, s.age);
-            } else {
-                it.tried = true;
-                offer_unpaid(s.instance, s.age);
-            }
-            continue;
-        }
-        payload += bytes;
-        it.chosen = true;
-        if (!paid_[inst]) pay(s.instance, s.age);
-        else offer_paid(s.instance, s.age);
+        if (s.morph) take_morph(s, header, budget, payload);
+        else if (s.chain) take_chain_step(s, header, budget, payload);
+        else take_segment(s, header, budget, payload);
     }
-    // Limited: something was left unsent (zero-value bones too, so that the
-    // rate estimate keeps probing up to the full rate, where everything goes).
-    limited_ = false;
-    for (size_t i = 0; i < n && !limited_; ++i) {
-        if (morph_[i].value > 0 && !morph_[i].chosen) limited_ = true;
+}
+
+void Scheduler::take_morph(const Step& s, size_t header, size_t budget, size_t& payload) {
+    const size_t inst = size_t(s.instance);
+    MorphItem& mi = morph_[inst];
+    if (mi.chosen || WireCost::wire(payload + mi.bytes + header) > budget) return;
+    payload += mi.bytes + header;
+    mi.chosen = true;
+    if (!paid_[inst]) pay(s.instance, s.age);
+}
+
+void Scheduler::take_chain_step(const Step& s, size_t header, size_t budget, size_t& payload) {
+    const size_t inst = size_t(s.instance);
+    const auto& chain = chain_[inst];
+    const ChainPoint& p0 = chain[size_t(s.step - 1)];
+    const ChainPoint& p1 = chain[size_t(s.step)];
+    const size_t bytes = p1.bytes - p0.bytes + header;
+    chain_next_[inst] = 0;
+    if (WireCost::wire(payload + bytes) > budget) return;
+    payload += bytes;
+    for (int q = p0.end; q < p1.end; ++q) items_[inst][size_t(q)].chosen = true;
+    if (!paid_[inst]) pay(s.instance, s.age);
+    if (size_t(s.step) + 1 < chain.size()) {
+        const double r = step_ratio(chain, s.step + 1);
+        if (r > 0) {
+            heap_.push_back({r, s.instance, s.step + 1, s.age, true, true});
+            std::push_heap(heap_.begin(), heap_.end());
+            chain_next_[inst] = s.step + 1;
+        }
+    }
+}
+
+void Scheduler::take_segment(const Step& s, size_t header, size_t budget, size_t& payload) {
+    const size_t inst = size_t(s.instance);
+    SegItem& it = items_[inst][size_t(s.step)];
+    if (it.chosen) {
+        if (s.paid) offer_paid(s.instance, s.age);
+        return;
+    }
+    const size_t bytes = it.bytes + header;
+    if (WireCost::wire(payload + bytes) > budget) {  // a smaller item may still fit
+        if (s.paid) {
+            offer_paid(s.instance, s.age);
+        } else {
+            it.tried = true;
+            offer_unpaid(s.instance, s.age);
+        }
+        return;
+    }
+    payload += bytes;
+    it.chosen = true;
+    if (!paid_[inst]) pay(s.instance, s.age);
+    else offer_paid(s.instance, s.age);
+}
+
+// Something was left unsent (zero-value bones too, so that the rate
+// estimate keeps probing up to the full rate, where everything goes).
+bool Scheduler::left_something() const {
+    for (size_t i = 0; i < items_.size(); ++i) {
+        if (morph_[i].value > 0 && !morph_[i].chosen) return true;
         for (const SegItem& it : items_[i])
-            if (!it.chosen) {
-                limited_ = true;
-                break;
-            }
+            if (!it.chosen) return true;
     }
-    // Picks: the chosen segments of each instance merged into ranges; show = the
-    // prefix of segments shown from now on (chosen now or refreshed within the hold).
-    for (size_t i = 0; i < n; ++i) {
+    return false;
+}
+
+// Picks: the chosen segments of each instance merged into ranges; show = the
+// prefix of segments shown from now on (chosen now or refreshed within the hold).
+void Scheduler::chosen_picks(std::vector<Pick>& out) const {
+    for (size_t i = 0; i < items_.size(); ++i) {
         const auto& items = items_[i];
         int show = 0;
         for (const SegItem& it : items) {
@@ -338,15 +361,44 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         }
         for (size_t x = before; x < out.size(); ++x) out[x].show = std::max(show, out.back().k);
     }
-    std::stable_sort(out.begin(), out.end(), by_importance);
-    // Estimated bytes: one chunk header per instance (its ranges are adjacent).
+}
+
+// Estimated wire bytes of picks sorted by instance: one chunk header per
+// instance (its ranges are adjacent).
+size_t Scheduler::estimate(const EncodedFrame& frame, std::span<const Pick> picks) {
     size_t est = 0;
-    for (size_t x = 0; x < out.size(); ++x) {
-        const auto& e = frame.instances[size_t(out[x].instance)];
-        if (x == 0 || out[x - 1].instance != out[x].instance) est += WireCost::header(e);
-        est += size_t(std::max(0, out[x].k - out[x].first)) * size_t(e.record_size) + morph_block_bytes(out[x].morphs);
+    for (size_t x = 0; x < picks.size(); ++x) {
+        const auto& e = frame.instances[size_t(picks[x].instance)];
+        if (x == 0 || picks[x - 1].instance != picks[x].instance) est += WireCost::header(e);
+        est += size_t(std::max(0, picks[x].k - picks[x].first)) * size_t(e.record_size) + morph_block_bytes(picks[x].morphs);
     }
     return est ? WireCost::wire(est) : 0;
+}
+
+size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
+                         std::span<const float> importance, size_t budget, float tick_rate, std::vector<Pick>& out) {
+    out.clear();
+    track_slots(frame);
+    auto by_importance = [&](const Pick& a, const Pick& b) {
+        return importance[a.instance] > importance[b.instance] ||
+               (importance[a.instance] == importance[b.instance] && a.instance < b.instance);
+    };
+    // Morph items (the weights that are due, scheduler.h), then the fast
+    // path: every bone and due weight of every (important) instance fits.
+    const size_t full = morph_items(frame, assets, importance);
+    if (full == 0) return 0;
+    if (WireCost::wire(full) <= budget) {
+        pick_everything(frame, importance, out);
+        std::sort(out.begin(), out.end(), by_importance);
+        limited_ = false;
+        return WireCost::wire(full);
+    }
+    offer_items(frame, assets, importance, tick_rate);
+    take_greedily(budget);
+    limited_ = left_something();
+    chosen_picks(out);
+    std::stable_sort(out.begin(), out.end(), by_importance);
+    return estimate(frame, out);
 }
 
 double Scheduler::step_ratio(const std::vector<ChainPoint>& chain, int c) {

@@ -150,6 +150,23 @@ private:
     // per (records + header) (offer_unpaid); once paid (pay): its shown items
     // in order of value per record byte, the next offered when one is taken
     // or does not fit (offer_paid), and its chain step at the records-only ratio.
+    // The steps of select: slots tracked, morph items (and the fast path's
+    // payload), the items offered, the greedy loop, the picks.
+    void track_slots(const EncodedFrame& frame);
+    size_t morph_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
+                       std::span<const float> importance);
+    void pick_everything(const EncodedFrame& frame, std::span<const float> importance, std::vector<Pick>& out);
+    void offer_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
+                     std::span<const float> importance, float tick_rate);
+    void segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30);
+    void offer_chain(size_t i, uint32_t age);
+    void take_greedily(size_t budget);
+    void take_morph(const Step& s, size_t header, size_t budget, size_t& payload);
+    void take_chain_step(const Step& s, size_t header, size_t budget, size_t& payload);
+    void take_segment(const Step& s, size_t header, size_t budget, size_t& payload);
+    bool left_something() const;
+    void chosen_picks(std::vector<Pick>& out) const;
+    static size_t estimate(const EncodedFrame& frame, std::span<const Pick> picks);
     void offer_unpaid(int instance, uint32_t age);
     void pay(int instance, uint32_t age);
     void offer_paid(int instance, uint32_t age);

@@ -13,7 +13,8 @@
 //   s.remove_instance(npc);
 //   s.stop(); t.join();
 // Players' characters arrive from their clients (control Spawn, datagram
-// Pose) and go away with their session.
+// Pose) and go away with their session. The sessions themselves are
+// socket-free cores (server_core.h, client_stream.h) this class drives.
 #pragma once
 #include <atomic>
 #include <cstdint>
@@ -23,7 +24,6 @@
 #include <vector>
 
 #include "scene.h"
-#include "wire.h"
 
 namespace progskin::net {
 
@@ -72,13 +72,6 @@ struct ServerStats {
     uint64_t tokens_refused = 0;   // connect tokens invalid, expired, for another server or replayed
     double tick_seconds = 0;      // total time spent in ticks
 };
-
-// Reads a player's Spawn (control.fbs) against the catalogue into an
-// instance owned by `owner` (live poses, the announced clips and walk).
-// Returns an empty string, or why it is refused (an unknown asset or clip, a
-// value not finite, a position outside the world). O(clips).
-std::string read_spawn(const wire::Spawn& m, const std::vector<std::shared_ptr<ServerAsset>>& assets, uint64_t owner,
-                       InstanceSpec& out);
 
 class Server {
 public:

@@ -70,9 +70,9 @@ static void on_signal(int) {
     if (g_server) g_server->stop();
 }
 
-int main(int argc, char** argv) {
+// The command line (see kUsage).
+struct Options {
     ServerConfig cfg;
-    cfg.port = 7777;
     std::vector<std::string> asset_paths;
     AssetOptions asset_options;
     int crowd = 0;
@@ -80,6 +80,12 @@ int main(int argc, char** argv) {
     bool no_scene = false, once = false;
     bool no_tls = false, seal = true, seal_asked = false;
     std::string tls_dir;
+};
+
+// Reads argv into `o`. Returns -1 to go on, else the exit code (0: --help, 2: bad arguments).
+static int parse_options(int argc, char** argv, Options& o) {
+    o.cfg.port = 7777;
+    ServerConfig& cfg = o.cfg;
     auto need = [&](int& i) -> const char* {
         if (i + 1 >= argc) {
             std::fprintf(stderr, "progskin-server: %s needs a value\n%s", argv[i], kUsage);
@@ -97,21 +103,21 @@ int main(int argc, char** argv) {
             else if (a == "--udp-port") cfg.udp_port = cli::to_port(a, need(i));
             else if (a == "--bind") cfg.bind_address = need(i);
             else if (a == "--asset") {
-                asset_paths.push_back(need(i));
-                while (i + 1 < argc && argv[i + 1][0] != '-') asset_paths.push_back(argv[++i]);  // --asset A B C
+                o.asset_paths.push_back(need(i));
+                while (i + 1 < argc && argv[i + 1][0] != '-') o.asset_paths.push_back(argv[++i]);  // --asset A B C
             }
-            else if (a == "--from-vertices") asset_options.from_vertices = true;
-            else if (a == "--bones") asset_options.scratch_bones = cli::to_int(a, need(i));
-            else if (a == "--cache") asset_options.cache_dir = need(i);
-            else if (a == "--crowd") crowd = cli::to_int(a, need(i));
-            else if (a == "--no-scene") no_scene = true;
+            else if (a == "--from-vertices") o.asset_options.from_vertices = true;
+            else if (a == "--bones") o.asset_options.scratch_bones = cli::to_int(a, need(i));
+            else if (a == "--cache") o.asset_options.cache_dir = need(i);
+            else if (a == "--crowd") o.crowd = cli::to_int(a, need(i));
+            else if (a == "--no-scene") o.no_scene = true;
             else if (a == "--play") {
                 const std::string v = need(i);
                 if (v != "loop" && v != "once") {
                     std::fprintf(stderr, "progskin-server: --play takes loop or once, not %s\n%s", v.c_str(), kUsage);
                     return 2;
                 }
-                once = v == "once";
+                o.once = v == "once";
             }
             else if (a == "--tick-rate") cfg.tick_rate = float(cli::to_number(a, need(i)));
             else if (a == "--max-clients") cfg.max_clients = cli::to_int(a, need(i));
@@ -121,11 +127,11 @@ int main(int argc, char** argv) {
             else if (a == "--public-address") cfg.public_address = need(i);
             else if (a == "--tls-cert") cfg.tls_cert_file = need(i);
             else if (a == "--tls-key") cfg.tls_key_file = need(i);
-            else if (a == "--seal-datagrams") seal = seal_asked = true;
-            else if (a == "--no-seal-datagrams") seal = false;
-            else if (a == "--no-tls") no_tls = true;
-            else if (a == "--tls-dir") tls_dir = need(i);
-            else if (a == "--duration") duration = cli::to_number(a, need(i));
+            else if (a == "--seal-datagrams") o.seal = o.seal_asked = true;
+            else if (a == "--no-seal-datagrams") o.seal = false;
+            else if (a == "--no-tls") o.no_tls = true;
+            else if (a == "--tls-dir") o.tls_dir = need(i);
+            else if (a == "--duration") o.duration = cli::to_number(a, need(i));
             else if (a == "--verbose") cfg.verbose = true;
             else {
                 std::fprintf(stderr, "progskin-server: unknown argument %s\n%s", a.c_str(), kUsage);
@@ -136,12 +142,18 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "progskin-server: %s\n%s", e.what(), kUsage);
         return 2;
     }
-    if (!(cfg.tick_rate > 0 && cfg.tick_rate <= 240) || crowd < 0 || cfg.max_clients < 1 || cfg.max_kbps <= 0 ||
-        asset_options.scratch_bones < 1 || asset_options.scratch_bones > MAX_BONES) {
+    return -1;
+}
+
+// Ranges and combinations parse_options cannot see alone; 2 when wrong, else -1.
+static int check_options(const Options& o) {
+    const ServerConfig& cfg = o.cfg;
+    if (!(cfg.tick_rate > 0 && cfg.tick_rate <= 240) || o.crowd < 0 || cfg.max_clients < 1 || cfg.max_kbps <= 0 ||
+        o.asset_options.scratch_bones < 1 || o.asset_options.scratch_bones > MAX_BONES) {
         std::fprintf(stderr, "progskin-server: argument out of range\n%s", kUsage);
         return 2;
     }
-    if (no_tls && (!cfg.tls_cert_file.empty() || !cfg.tls_key_file.empty() || seal_asked || !tls_dir.empty())) {
+    if (o.no_tls && (!cfg.tls_cert_file.empty() || !cfg.tls_key_file.empty() || o.seal_asked || !o.tls_dir.empty())) {
         std::fprintf(stderr, "progskin-server: --no-tls excludes --tls-cert, --tls-key, --tls-dir and --seal-datagrams\n%s", kUsage);
         return 2;
     }
@@ -149,94 +161,125 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "progskin-server: --tls-cert and --tls-key go together\n%s", kUsage);
         return 2;
     }
+    return -1;
+}
+
+// TLS unless --no-tls: the given pair, or the self-signed one (generated
+// once); sets the configuration's files and sealing and returns the lines
+// printed with the listening line. Throws on failure.
+static std::string setup_tls(Options& o) {
+    ServerConfig& cfg = o.cfg;
+    if (o.no_tls) return {};
+    std::string tls_line;
+    if (cfg.tls_cert_file.empty()) {
+        const TlsIdentity id = ensure_self_signed(o.tls_dir.empty() ? default_tls_dir() : o.tls_dir);
+        cfg.tls_cert_file = id.cert_path;
+        cfg.tls_key_file = id.key_path;
+        tls_line = "progskin-server: TLS certificate sha256 " + id.sha256_hex + "\nprogskin-server: TLS certificate " +
+                   id.cert_path + ", key " + id.key_path + (id.created ? " (generated)" : " (reused)") + "\n";
+    } else {
+        tls_line = "progskin-server: TLS certificate sha256 " + certificate_sha256(cfg.tls_cert_file) +
+                   "\nprogskin-server: TLS certificate " + cfg.tls_cert_file + ", key " + cfg.tls_key_file + "\n";
+    }
+    cfg.seal_datagrams = o.seal;
+    return tls_line;
+}
+
+// Checks every asset file first (cheap), so that one bad file is reported at
+// once, together with every other problem, before minutes of building; then
+// builds them, logging each. False (problems printed) when any file is bad.
+static bool load_assets(Options& o, const char* argv0, std::vector<std::shared_ptr<ServerAsset>>& assets) {
+    if (o.asset_paths.empty()) {
+        std::string exe = argv0;
+        auto slash = exe.rfind('/');
+        o.asset_paths = default_asset_paths(slash == std::string::npos ? "." : exe.substr(0, slash));
+    }
+    std::vector<PendingAsset> pending;
+    const std::vector<std::string> problems = check_server_assets(o.asset_paths, o.asset_options, pending);
+    if (!problems.empty()) {
+        for (const std::string& p : problems) std::fprintf(stderr, "progskin-server: error: %s\n", p.c_str());
+        std::fprintf(stderr, "progskin-server: %zu problem%s in the assets; nothing was built\n", problems.size(),
+                     problems.size() == 1 ? "" : "s");
+        return false;
+    }
+    for (const auto& p : pending) {
+        std::fprintf(stderr, "progskin-server: loading %s%s%s\n", p.path.c_str(),
+                     p.characters_in_file > 1 ? (" character " + std::to_string(p.character)).c_str() : "",
+                     p.from_vertices ? " (building a skin from its vertex animation)" : "");
+        assets.push_back(build_server_asset(p, o.asset_options));
+        const auto& a = *assets.back();
+        std::fprintf(stderr, "progskin-server:   %s: %d bones, %zu vertices, %zu clip groups, id %s, %zu bytes\n",
+                     a.name.c_str(), a.bone_count(), a.character.vertex_count(), a.selections.size(),
+                     hex64(a.id).c_str(), a.bytes.size());
+        for (const std::string& w : a.warnings) std::fprintf(stderr, "progskin-server: warning: %s\n", w.c_str());
+    }
+    return true;
+}
+
+// Serves until SIGINT/SIGTERM (on_signal, installed by the caller before it
+// announces the server) or `duration` seconds (0: no limit).
+static void serve(Server& server, double duration) {
+    std::thread stopper;
+    std::atomic<bool> done{false};
+    if (duration > 0) {
+        stopper = std::thread([&server, &done, duration] {
+            auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(duration);
+            while (!done && std::chrono::steady_clock::now() < end)
+                std::this_thread::sleep_for(std::chrono::milliseconds(20));
+            server.stop();
+        });
+    }
+    server.run();
+    done = true;
+    if (stopper.joinable()) stopper.join();
+    g_server = nullptr;
+}
+
+static void report(const ServerStats& st) {
+    std::fprintf(stderr,
+                 "progskin-server: %llu sessions, %llu datagrams sent, %llu malformed + %llu rejected datagrams, "
+                 "%llu poses received (%llu stale, %llu over the rate limit, %llu out of range), mean tick %.3f ms\n",
+                 (unsigned long long)st.sessions_total, (unsigned long long)st.datagrams_sent,
+                 (unsigned long long)st.malformed_datagrams, (unsigned long long)st.rejected_datagrams,
+                 (unsigned long long)st.poses_received, (unsigned long long)st.poses_stale,
+                 (unsigned long long)st.poses_rate_limited, (unsigned long long)st.poses_out_of_range,
+                 st.ticks ? 1000.0 * st.tick_seconds / double(st.ticks) : 0.0);
+}
+
+int main(int argc, char** argv) {
+    Options o;
+    if (int rc = parse_options(argc, argv, o); rc >= 0) return rc;
+    if (int rc = check_options(o); rc >= 0) return rc;
     std::string tls_line;  // printed with the listening line
     try {
-        if (!no_tls) {
-            if (cfg.tls_cert_file.empty()) {
-                const TlsIdentity id = ensure_self_signed(tls_dir.empty() ? default_tls_dir() : tls_dir);
-                cfg.tls_cert_file = id.cert_path;
-                cfg.tls_key_file = id.key_path;
-                tls_line = "progskin-server: TLS certificate sha256 " + id.sha256_hex + "\nprogskin-server: TLS certificate " +
-                           id.cert_path + ", key " + id.key_path + (id.created ? " (generated)" : " (reused)") + "\n";
-            } else {
-                tls_line = "progskin-server: TLS certificate sha256 " + certificate_sha256(cfg.tls_cert_file) +
-                           "\nprogskin-server: TLS certificate " + cfg.tls_cert_file + ", key " + cfg.tls_key_file + "\n";
-            }
-            cfg.seal_datagrams = seal;
-        }
+        tls_line = setup_tls(o);
     } catch (const std::exception& e) {
         std::fprintf(stderr, "progskin-server: TLS: %s\n", e.what());
         return 1;
     }
     try {
-        if (asset_paths.empty()) {
-            std::string exe = argv[0];
-            auto slash = exe.rfind('/');
-            asset_paths = default_asset_paths(slash == std::string::npos ? "." : exe.substr(0, slash));
-        }
-        // Check every file first (cheap), so that one bad file is reported at once,
-        // together with every other problem, before minutes of building.
-        std::vector<PendingAsset> pending;
-        const std::vector<std::string> problems = check_server_assets(asset_paths, asset_options, pending);
-        if (!problems.empty()) {
-            for (const std::string& p : problems) std::fprintf(stderr, "progskin-server: error: %s\n", p.c_str());
-            std::fprintf(stderr, "progskin-server: %zu problem%s in the assets; nothing was built\n", problems.size(),
-                         problems.size() == 1 ? "" : "s");
-            return 1;
-        }
         std::vector<std::shared_ptr<ServerAsset>> assets;
-        for (const auto& p : pending) {
-            std::fprintf(stderr, "progskin-server: loading %s%s%s\n", p.path.c_str(),
-                         p.characters_in_file > 1 ? (" character " + std::to_string(p.character)).c_str() : "",
-                         p.from_vertices ? " (building a skin from its vertex animation)" : "");
-            assets.push_back(build_server_asset(p, asset_options));
-            const auto& a = *assets.back();
-            std::fprintf(stderr, "progskin-server:   %s: %d bones, %zu vertices, %zu clip groups, id %s, %zu bytes\n",
-                         a.name.c_str(), a.bone_count(), a.character.vertex_count(), a.selections.size(),
-                         hex64(a.id).c_str(), a.bytes.size());
-            for (const std::string& w : a.warnings) std::fprintf(stderr, "progskin-server: warning: %s\n", w.c_str());
-        }
+        if (!load_assets(o, argv[0], assets)) return 1;
         std::vector<InstanceSpec> instances;
-        if (no_scene) {
+        if (o.no_scene) {
             // players bring the characters
-        } else if (crowd > 0) {
-            instances = crowd_layout(assets, crowd);
+        } else if (o.crowd > 0) {
+            instances = crowd_layout(assets, o.crowd);
         } else {
             instances = default_instances(assets);
         }
-        for (auto& s : instances) s.once = once;
-        Server server(cfg, assets, instances);
+        for (auto& s : instances) s.once = o.once;
+        Server server(o.cfg, assets, instances);
         g_server = &server;
         std::signal(SIGINT, on_signal);
         std::signal(SIGTERM, on_signal);
         std::fputs(tls_line.c_str(), stdout);
         std::printf("progskin-server: listening on TCP %u, UDP %u, %zu instances, %.0f Hz%s\n", server.tcp_port(),
-                    server.udp_port(), instances.size(), double(cfg.tick_rate),
-                    no_tls ? ", plain TCP (no TLS)" : cfg.seal_datagrams ? ", TLS, sealed datagrams" : ", TLS");
+                    server.udp_port(), instances.size(), double(o.cfg.tick_rate),
+                    o.no_tls ? ", plain TCP (no TLS)" : o.cfg.seal_datagrams ? ", TLS, sealed datagrams" : ", TLS");
         std::fflush(stdout);
-        std::thread stopper;
-        std::atomic<bool> done{false};
-        if (duration > 0) {
-            stopper = std::thread([&server, &done, duration] {
-                auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(duration);
-                while (!done && std::chrono::steady_clock::now() < end)
-                    std::this_thread::sleep_for(std::chrono::milliseconds(20));
-                server.stop();
-            });
-        }
-        server.run();
-        done = true;
-        if (stopper.joinable()) stopper.join();
-        g_server = nullptr;
-        ServerStats st = server.stats();
-        std::fprintf(stderr,
-                     "progskin-server: %llu sessions, %llu datagrams sent, %llu malformed + %llu rejected datagrams, "
-                     "%llu poses received (%llu stale, %llu over the rate limit, %llu out of range), mean tick %.3f ms\n",
-                     (unsigned long long)st.sessions_total, (unsigned long long)st.datagrams_sent,
-                     (unsigned long long)st.malformed_datagrams, (unsigned long long)st.rejected_datagrams,
-                     (unsigned long long)st.poses_received, (unsigned long long)st.poses_stale,
-                     (unsigned long long)st.poses_rate_limited, (unsigned long long)st.poses_out_of_range,
-                     st.ticks ? 1000.0 * st.tick_seconds / double(st.ticks) : 0.0);
+        serve(server, o.duration);
+        report(server.stats());
         return 0;
     } catch (const std::exception& e) {
         std::fprintf(stderr, "progskin-server: %s\n", e.what());

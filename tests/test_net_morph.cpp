@@ -10,13 +10,13 @@
 #include <thread>
 
 #include "animation.h"
-#include "datagram_packer.h"
+#include "client_stream.h"
 #include "error_metric.h"
 #include "frame_encoder.h"
 #include "frame_reader.h"
 #include "net_test_support.h"
-#include "scheduler.h"
 #include "server.h"
+#include "server_core.h"
 #include "wire.h"
 #include "thresholds.h"
 
@@ -138,30 +138,26 @@ TEST(NetMorph, WeightsStillGoAtALowCap) {
     EXPECT_LE(ir.rms_pct, kMorphLowCapFraction * ignored);
 }
 
-// Offline (encoder, scheduler, packer, reader): the weights that travel are
+// Offline (the server's session core without sockets: encoder, scheduler,
+// packer; the client's reader): the weights that travel are
 // the encoder's, sparse (a weight that did not change is not re-sent before
 // its refresh), and a tight budget picks them by value per byte.
 TEST(NetMorph, SchedulerSendsChangedWeightsOnly) {
     const std::vector<std::shared_ptr<ServerAsset>> assets = {morph_asset()};
     InstanceSpec spec;
     spec.selection = talk_selection(*assets[0]);
-    FrameEncoder enc(assets, {spec}, 30.0f);
-    const std::vector<float> imp = compute_importance(ViewSpec{}, {spec}, assets);
-    Scheduler sched;
-    DatagramPacker packer;
-    uint32_t seq = 0;
+    ServerCore core(ServerConfig{}, assets, {spec});  // the server's session core, without sockets
+    auto client = ClientStream::detached(core, 1, 1000);
+    FrameEncoder& enc = core.encoder();
     size_t weights_sent = 0, ticks = 0;
     const size_t n = assets[0]->character.morphs.size();
     std::vector<float> shown(n, 0.0f);
     for (uint32_t t = 1; t <= 90; ++t) {
         const EncodedFrame& f = enc.encode(t);
-        std::vector<Pick> picks;
-        sched.select(f, assets, imp, 1 << 20, 30.0f, picks);
-        std::vector<std::vector<uint8_t>> out;
-        packer.pack(f, picks, seq, out);
-        sched.sent(picks, t);
-        for (const auto& d : out) {
-            const wire::Frame* fr = verify_datagram(d)->body_as_Frame();
+        DatagramCollector out;
+        client->send_frame(f, 1 << 20, out);
+        for (const auto& d : out.sent) {
+            const wire::Frame* fr = verify_datagram(d.bytes)->body_as_Frame();
             ASSERT_TRUE(read_frame(
                 *fr, [](uint16_t) { return 12; }, [](uint16_t, int, int, int, const uint8_t*) {},
                 [&](const wire::Chunk&, const uint8_t*, const uint8_t* m) {
@@ -200,30 +196,25 @@ TEST(NetMorph, OutOfRangeWeightsAreRefusedAndCounted) {
     const std::vector<std::shared_ptr<ServerAsset>> assets = {scaled};
     InstanceSpec spec;
     spec.selection = sel;
-    FrameEncoder enc(assets, {spec}, 30.0f);
-    const std::vector<float> imp = compute_importance(ViewSpec{}, {spec}, assets);
-    Scheduler sched;
-    DatagramPacker packer;
-    uint32_t seq = 0;
+    ServerCore core(ServerConfig{}, assets, {spec});
+    auto client = ClientStream::detached(core, 1, 1000);
+    FrameEncoder& enc = core.encoder();
     size_t refused_ticks = 0, sent = 0;
     std::vector<float> exact(scaled->character.morphs.size());
     for (uint32_t t = 1; t <= 60; ++t) {
         const EncodedFrame& f = enc.encode(t);
         const auto q = f.morphs(0);
-        std::vector<Pick> picks;
-        sched.select(f, assets, imp, 1 << 20, 30.0f, picks);
-        std::vector<std::vector<uint8_t>> out;
-        packer.pack(f, picks, seq, out);
-        sched.sent(picks, t);
+        DatagramCollector out;
+        client->send_frame(f, 1 << 20, out);
         sample_morph_weights(scaled->character, scaled->selections[size_t(sel)], enc.clip_time(0, t), exact);
         for (size_t m = 0; m < q.size(); ++m) {
             const bool in_range = exact[m] >= -2.0f && exact[m] < 2.0f;
             EXPECT_EQ(q[m] == kNoWeight, !in_range) << "tick " << t << " weight " << m << " = " << exact[m];
             if (!in_range) ++refused_ticks;
         }
-        for (const auto& d : out)
+        for (const auto& d : out.sent)
             ASSERT_TRUE(read_frame(
-                *verify_datagram(d)->body_as_Frame(), [](uint16_t) { return 12; },
+                *verify_datagram(d.bytes)->body_as_Frame(), [](uint16_t) { return 12; },
                 [](uint16_t, int, int, int, const uint8_t*) {},
                 [&](const wire::Chunk&, const uint8_t*, const uint8_t* m) {
                     if (!m) return;

@@ -1,0 +1,520 @@
+// client_stream.cpp — see client_stream.h.
+#include "client_stream.h"
+
+#include <arpa/inet.h>
+#include <net/if.h>
+
+#include <algorithm>
+#include <cstdio>
+
+#include <sodium.h>
+
+#include "control_messages.h"
+#include "errors.h"
+#include "server_core.h"
+
+namespace progskin::net {
+
+namespace {
+
+bool equal_u64(uint64_t a, uint64_t b) { return sodium_memcmp(&a, &b, sizeof a) == 0; }
+
+constexpr double LINGER_SECONDS = 1.0;     // Closing: time to write the last message
+constexpr double CHALLENGE_SECONDS = 5.0;  // a Challenge's nonce is valid this long
+
+}  // namespace
+
+// ------------------------------------------------------------ PeerAddress --
+
+std::string PeerAddress::ip_string() const {
+    char text[INET6_ADDRSTRLEN + IF_NAMESIZE + 2] = {};
+    if (!v6) {
+        ::inet_ntop(AF_INET, ip.data(), text, sizeof text);
+        return text;
+    }
+    ::inet_ntop(AF_INET6, ip.data(), text, INET6_ADDRSTRLEN);
+    std::string s = text;
+    if (scope != 0) {  // as asio: the interface name of a link-local address, else the number
+        const bool link_local = (ip[0] == 0xfe && (ip[1] & 0xc0) == 0x80) || (ip[0] == 0xff && (ip[1] & 0x0f) == 0x02);
+        char name[IF_NAMESIZE + 1] = {};
+        s += '%';
+        s += link_local && ::if_indextoname(scope, name) ? std::string(name) : std::to_string(scope);
+    }
+    return s;
+}
+
+PeerAddress PeerAddress::v4(uint32_t host_order_ip, uint16_t port) {
+    PeerAddress a;
+    for (int i = 0; i < 4; ++i) a.ip[size_t(i)] = uint8_t(host_order_ip >> (24 - 8 * i));
+    a.port = port;
+    return a;
+}
+
+// ---------------------------------------------------------------- session --
+
+ClientStream::ClientStream(ServerCore& core, uint64_t id, uint64_t token, double now)
+    : core_(core), id_(id), token_(token), opened_(now), last_heard_(now),
+      rate_(core.config().max_kbps, std::min(core.config().initial_kbps, core.config().max_kbps)) {}
+
+ClientStream::~ClientStream() = default;
+
+std::unique_ptr<ClientStream> ClientStream::detached(ServerCore& core, uint64_t id, double kbps) {
+    auto s = std::make_unique<ClientStream>(core, id, 0, 0.0);
+    s->state_ = SessionState::Streaming;
+    s->rate_ = RateController(kbps, kbps);
+    s->adaptive_ = false;
+    s->sync_instances();
+    s->out_.clear();
+    s->queued_ = 0;
+    return s;
+}
+
+void ClientStream::log(const std::string& s) const { core_.log(s); }
+
+void ClientStream::close(const std::string& why) {
+    if (state_ == SessionState::Closed) return;
+    state_ = SessionState::Closed;
+    despawn_all();
+    close_reason_ = why;
+    log("session " + hex64(id_) + " (" + name_ + ") closed: " + why);
+}
+
+void ClientStream::despawn_all() {
+    for (const auto& o : owned_) core_.remove_instance(o.instance);
+    owned_.clear();
+}
+
+// Queues one control message. A peer that does not read what it asked for
+// is closed once max_queued_bytes are waiting.
+void ClientStream::send(const flatbuffers::FlatBufferBuilder& fbb) {
+    if (!is_open()) return;
+    std::vector<uint8_t> msg;
+    frame_control(fbb, msg);
+    const size_t limit = core_.config().max_queued_bytes;
+    if (queued_ + msg.size() > limit) {  // slow reader
+        core_.count([](ServerStats& st) { ++st.backlog_closes; });
+        close("control backlog over " + std::to_string(limit) + " bytes");
+        return;
+    }
+    queued_ += msg.size();
+    out_.push_back(std::move(msg));
+}
+
+// Sends a last message (Refuse or Goodbye) and closes once it is written,
+// or after LINGER_SECONDS if the peer does not read it.
+void ClientStream::finish(const flatbuffers::FlatBufferBuilder& last, const std::string& why, double now) {
+    if (!is_open()) return;
+    send(last);
+    if (state_ == SessionState::Closed) return;
+    state_ = SessionState::Closing;
+    despawn_all();  // its characters leave with it
+    close_reason_ = why;
+    close_deadline_ = now + LINGER_SECONDS;
+    if (out_.empty()) close(why);
+}
+
+void ClientStream::on_written() {
+    if (out_.empty()) return;
+    queued_ -= out_.front().size();
+    out_.pop_front();
+    if (out_.empty() && state_ == SessionState::Closing) close(close_reason_);
+}
+
+void ClientStream::refuse(const std::string& reason, double now) {
+    core_.count([](ServerStats& st) { ++st.refused; });
+    flatbuffers::FlatBufferBuilder fbb;
+    build_refuse(fbb, reason);
+    log("refused: " + reason);
+    finish(fbb, "refused: " + reason, now);
+}
+
+bool ClientStream::malformed(const std::string& why) {
+    core_.count([](ServerStats& st) { ++st.malformed_control; });
+    close(why);
+    return false;
+}
+
+// ------------------------------------------------------------- control in --
+
+bool ClientStream::accept_length(uint32_t n) {
+    if (n >= 8 && n <= MAX_CONTROL_MESSAGE) return true;
+    return malformed("bad control length " + std::to_string(n));
+}
+
+bool ClientStream::on_control(std::span<const uint8_t> body, double now) {
+    const wire::Control* c = verify_control(body);
+    if (!c) return malformed("malformed control message");
+    // Control messages never extend a session's life: only Acks from the
+    // bound address do (on_ack), so a TCP-only peer cannot hold a slot.
+    const bool hello = c->body_type() == wire::ControlBody::Hello;
+    if (c->body_type() != wire::ControlBody::Goodbye && hello != (state_ == SessionState::AwaitHello))
+        return malformed("unexpected control message in this state");
+    switch (c->body_type()) {
+        case wire::ControlBody::Hello: return on_hello(*c->body_as_Hello(), now);
+        case wire::ControlBody::AssetRequest: return on_asset_request(*c->body_as_AssetRequest());
+        case wire::ControlBody::View: return on_view(*c->body_as_View());
+        case wire::ControlBody::Stats: return on_stats();
+        case wire::ControlBody::Spawn: on_spawn(*c->body_as_Spawn(), now); return true;
+        case wire::ControlBody::Despawn: return on_despawn(*c->body_as_Despawn());
+        case wire::ControlBody::Goodbye: close("goodbye"); return false;
+        default: return malformed("unexpected control message in this state");
+    }
+}
+
+// Why a Hello is refused (empty: welcome); a connect token names the client.
+std::string ClientStream::check_hello(const wire::Hello& h) {
+    if (h.version() != PROTOCOL_VERSION)
+        return "protocol version " + std::to_string(h.version()) + " not supported; this server speaks version " +
+               std::to_string(PROTOCOL_VERSION);
+    if ((h.client_name() && h.client_name()->size() > MAX_NAME) || (h.token() && h.token()->size() > MAX_TOKEN))
+        return "client name or token too long";
+    std::string who;
+    if (std::string why = core_.check_token(h.token(), who); !why.empty()) return why;
+    name_ += who;
+    const int max_clients = core_.config().max_clients;
+    if (core_.welcomed_sessions() >= max_clients) return "server full (" + std::to_string(max_clients) + " clients)";
+    return {};
+}
+
+bool ClientStream::on_hello(const wire::Hello& h, double now) {
+    if (std::string why = check_hello(h); !why.empty()) {
+        refuse(why, now);
+        return false;
+    }
+    const ServerConfig& cfg = core_.config();
+    name_ += h.client_name() ? h.client_name()->str() : "";
+    const double cap = h.max_kbps() ? std::min(double(h.max_kbps()), cfg.max_kbps) : cfg.max_kbps;
+    rate_ = RateController(cap, std::min(cap, cfg.initial_kbps));
+    scheduler_.reset(0);
+    if (cfg.seal_datagrams) {
+        tx_key_ = crypto::random_key();
+        rx_key_ = crypto::random_key();
+        sealer_ = std::make_unique<crypto::Sealer>(tx_key_);
+        opener_ = std::make_unique<crypto::Opener>(rx_key_);
+    }
+    if (!send_welcome(cap, now)) return false;
+    if (state_ == SessionState::Closed) return false;
+    state_ = SessionState::Welcomed;
+    welcomed_ = last_heard_ = now;
+    log("session " + hex64(id_) + " (" + name_ + ") welcomed, cap " + std::to_string(int(cap)) + " kbit/s");
+    return true;
+}
+
+bool ClientStream::send_welcome(double cap, double now) {
+    flatbuffers::FlatBufferBuilder fbb(16384);
+    build_welcome(fbb, core_.assets(), id_, token_, core_.udp_port(), core_.config().tick_rate, cap, sealer_ ? &tx_key_ : nullptr,
+                  sealer_ ? &rx_key_ : nullptr);
+    if (fbb.GetSize() > MAX_CONTROL_MESSAGE) {  // the catalogue alone (instances travel apart)
+        refuse("Welcome would be " + std::to_string(fbb.GetSize()) + " bytes, over the " + std::to_string(MAX_CONTROL_MESSAGE) +
+                   "-byte control message limit (too many assets)",
+               now);
+        return false;
+    }
+    send(fbb);
+    sync_instances();
+    return true;
+}
+
+bool ClientStream::on_asset_request(const wire::AssetRequest& r) {
+    const ServerAsset* a = nullptr;
+    for (const auto& x : core_.assets())
+        if (x->id == r.asset_id()) a = x.get();
+    if (!a || r.offset() >= a->bytes.size() || r.length() == 0 || r.length() > MAX_ASSET_CHUNK)
+        return malformed("bad asset request");
+    const size_t n = std::min<size_t>(r.length(), a->bytes.size() - r.offset());
+    asset_bytes_ += double(n);
+    if (asset_bytes_ > core_.config().asset_bytes_factor * core_.total_asset_bytes() + MAX_ASSET_CHUNK) {
+        close("asset download limit");
+        return false;
+    }
+    flatbuffers::FlatBufferBuilder fbb(n + 128);
+    build_asset_chunk(fbb, *a, r.offset(), n);
+    core_.count([n](ServerStats& st) { st.asset_bytes_sent += n; });
+    send(fbb);
+    return true;
+}
+
+bool ClientStream::on_view(const wire::View& v) {
+    view_ = read_view(v);
+    if (v.max_kbps()) rate_.set_cap(std::min(double(v.max_kbps()), core_.config().max_kbps));
+    return true;
+}
+
+bool ClientStream::on_stats() {
+    flatbuffers::FlatBufferBuilder fbb;
+    build_stats(fbb, rate_.target_kbps(), rate_.loss(), rate_.rtt_ms(), seq_);
+    send(fbb);
+    return true;
+}
+
+void ClientStream::spawned(uint32_t request, bool ok, int instance, const std::string& reason) {
+    flatbuffers::FlatBufferBuilder fbb;
+    build_spawned(fbb, request, ok, instance, reason);
+    send(fbb);
+    if (!ok) log("session " + hex64(id_) + " spawn refused: " + reason);
+}
+
+void ClientStream::on_spawn(const wire::Spawn& m, double now) {
+    if (owned_.size() >= size_t(MAX_SPAWNED))
+        return spawned(m.request(), false, 0, "this session owns " + std::to_string(MAX_SPAWNED) + " characters already");
+    InstanceSpec sp;
+    const std::string why = read_spawn(m, core_.assets(), id_, sp);
+    if (!why.empty()) return spawned(m.request(), false, 0, why);
+    int id;
+    try {
+        id = core_.add_instance(sp);
+    } catch (const Error& e) {
+        return spawned(m.request(), false, 0, e.what());
+    }
+    owned_.push_back({id, 0.0, now});
+    log("session " + hex64(id_) + " spawned " + core_.assets()[size_t(sp.asset)]->name + " as instance " + std::to_string(id));
+    spawned(m.request(), true, id, "");
+}
+
+bool ClientStream::on_despawn(const wire::Despawn& m) {
+    const int id = m.instance();
+    auto it = std::find_if(owned_.begin(), owned_.end(), [&](const Owned& o) { return o.instance == id; });
+    if (it == owned_.end()) return malformed("despawn of an instance this session does not own");
+    core_.remove_instance(id);
+    owned_.erase(it);
+    log("session " + hex64(id_) + " despawned instance " + std::to_string(id));
+    return true;
+}
+
+void ClientStream::sync_instances() {
+    const uint64_t version = core_.instances_version();
+    if (instances_seen_ == version || state_ == SessionState::Closed) return;
+    instances_seen_ = version;
+    std::vector<uint32_t>& generations = core_.generations();
+    core_.encoder().generations(generations);
+    if (known_.size() < generations.size()) known_.resize(generations.size(), 0);
+    std::vector<uint16_t> removed;
+    std::vector<std::pair<int, InstanceSpec>> added;  // id and spec, read once
+    for (size_t i = 0; i < known_.size(); ++i) {
+        const uint32_t g = i < generations.size() ? generations[i] : 0;
+        if (known_[i] == g) continue;
+        if (known_[i] != 0) removed.push_back(uint16_t(i));
+        known_[i] = 0;
+        InstanceSpec sp;
+        if (g == 0 || !core_.encoder().spec_if_active(int(i), sp) || sp.owner == id_) continue;
+        known_[i] = g;
+        added.emplace_back(int(i), std::move(sp));
+    }
+    for (size_t at = 0; at < removed.size(); at += 16000) {
+        flatbuffers::FlatBufferBuilder fbb;
+        build_instances_removed(fbb, std::span(removed).subspan(at, std::min<size_t>(16000, removed.size() - at)));
+        send(fbb);
+    }
+    constexpr size_t kBatch = 128;  // an Instance table is under 200 bytes
+    for (size_t at = 0; at < added.size(); at += kBatch) {
+        flatbuffers::FlatBufferBuilder fbb(32768);
+        build_instances_added(fbb, core_.assets(), std::span(added).subspan(at, std::min(kBatch, added.size() - at)));
+        send(fbb);
+    }
+}
+
+// -------------------------------------------------------------- datagrams --
+
+bool ClientStream::accepts(uint64_t token) const { return equal_u64(token_, token) && welcomed(); }
+
+bool ClientStream::open_sealed(std::span<const uint8_t> wire, std::vector<uint8_t>& plain) {
+    uint64_t seq = 0;
+    return opener_ && crypto::open_datagram(*opener_, id_, PROTOCOL_VERSION, wire, plain, seq) == crypto::OpenResult::ok;
+}
+
+size_t ClientStream::send_datagram(std::span<const uint8_t> plain, const PeerAddress& to, DatagramSink& out) {
+    if (!sealer_) {
+        out.send(plain, to);
+        return plain.size();
+    }
+    std::vector<uint8_t>& sealed = core_.sealed();
+    crypto::seal_datagram(*sealer_, id_, PROTOCOL_VERSION, plain, sealed);
+    out.send(sealed, to);
+    return sealed.size();
+}
+
+// Sends `fbb` to the datagram's source only if it is smaller than what came
+// from there (never amplifies toward an unproven address; sealing adds the
+// same 32 bytes to both).
+void ClientStream::answer(const flatbuffers::FlatBufferBuilder& fbb, size_t size, const PeerAddress& from, bool unverified,
+                          DatagramSink& out) {
+    if (fbb.GetSize() >= size) return;
+    const size_t sent = send_datagram({fbb.GetBufferPointer(), fbb.GetSize()}, from, out);
+    if (unverified) core_.count([&](ServerStats& st) { st.unverified_bytes_out += sent; });
+}
+
+void ClientStream::bind_ack(size_t size, const PeerAddress& from, DatagramSink& out) {
+    flatbuffers::FlatBufferBuilder fbb(64);
+    auto ba = wire::CreateBindAck(fbb, id_);
+    fbb.Finish(wire::CreateDatagram(fbb, seq_, now_us32(), wire::DatagramBody::BindAck, ba.Union()), wire::DatagramIdentifier());
+    answer(fbb, size, from, false, out);
+}
+
+DatagramVerdict ClientStream::on_datagram(const wire::Datagram& d, size_t size, const PeerAddress& from, double now,
+                                          DatagramSink& out) {
+    switch (d.body_type()) {
+        case wire::DatagramBody::Bind: return on_bind(size, from, now, out);
+        case wire::DatagramBody::ChallengeResponse:
+            return on_challenge_response(*d.body_as_ChallengeResponse(), size, from, now, out);
+        case wire::DatagramBody::Ack: return on_ack(*d.body_as_Ack(), from, now);
+        case wire::DatagramBody::Pose: return on_pose(*d.body_as_Pose(), from, now);
+        default: return DatagramVerdict::rejected;  // Frame / BindAck / Challenge are server -> client only
+    }
+}
+
+DatagramVerdict ClientStream::on_bind(size_t size, const PeerAddress& from, double now, DatagramSink& out) {
+    if (bound_ && peer_ == from) {  // already proven
+        bind_ack(size, from, out);
+        return DatagramVerdict::accepted;
+    }
+    // A new address: only a Challenge goes there until its nonce comes
+    // back from it. The same nonce is repeated for repeated Binds.
+    if (challenge_peer_ != from || now - challenge_sent_ > CHALLENGE_SECONDS) {
+        randombytes_buf(challenge_nonce_.data(), challenge_nonce_.size());
+        challenge_peer_ = from;
+        challenge_sent_ = now;
+    }
+    flatbuffers::FlatBufferBuilder fbb(96);
+    auto nv = fbb.CreateVector(challenge_nonce_.data(), challenge_nonce_.size());
+    auto ch = wire::CreateChallenge(fbb, id_, nv);
+    fbb.Finish(wire::CreateDatagram(fbb, seq_, now_us32(), wire::DatagramBody::Challenge, ch.Union()), wire::DatagramIdentifier());
+    core_.count([](ServerStats& st) { ++st.challenges_sent; });
+    answer(fbb, size, from, true, out);
+    return DatagramVerdict::accepted;
+}
+
+DatagramVerdict ClientStream::on_challenge_response(const wire::ChallengeResponse& r, size_t size, const PeerAddress& from,
+                                                    double now, DatagramSink& out) {
+    if (!r.nonce() || r.nonce()->size() != CHALLENGE_NONCE || challenge_peer_ != from || now - challenge_sent_ > CHALLENGE_SECONDS ||
+        sodium_memcmp(r.nonce()->data(), challenge_nonce_.data(), CHALLENGE_NONCE) != 0)
+        return DatagramVerdict::rejected;
+    const bool moved = bound_ && peer_ != from;
+    peer_ = from;
+    bound_ = true;
+    last_heard_ = now;
+    challenge_sent_ = -1e300;  // one use
+    if (state_ == SessionState::Welcomed) state_ = SessionState::Streaming;
+    log("session " + hex64(id_) + (moved ? " moved to " : " bound to ") + from.to_string());
+    bind_ack(size, from, out);
+    return DatagramVerdict::accepted;
+}
+
+DatagramVerdict ClientStream::on_ack(const wire::Ack& a, const PeerAddress& from, double now) {
+    if (!bound_ || peer_ != from) return DatagramVerdict::rejected;  // counts only from the bound address
+    last_heard_ = now;
+    rate_.on_ack(a.ack(), a.ack_bits(), a.echo_time_us(), a.hold_us(), now_us32());
+    return DatagramVerdict::accepted;
+}
+
+DatagramVerdict ClientStream::on_pose(const wire::Pose& p, const PeerAddress& from, double now) {
+    if (!bound_ || peer_ != from || state_ != SessionState::Streaming) return DatagramVerdict::rejected;
+    auto o = std::find_if(owned_.begin(), owned_.end(), [&](const Owned& x) { return x.instance == p.instance(); });
+    if (o == owned_.end()) return DatagramVerdict::rejected;  // not this session's character (or despawned)
+    const ServerAsset& a = *core_.assets()[size_t(core_.encoder().spec(o->instance).asset)];
+    const size_t rs = size_t(a.format.size());
+    if (!p.root() || p.root()->size() != ROOT_BYTES || !p.records() || p.records()->size() == 0 || p.records()->size() % rs != 0 ||
+        p.first() + p.records()->size() / rs > size_t(a.bone_count()))
+        return DatagramVerdict::malformed;
+    // Every record must decode to a finite unit rotation (smallest-three
+    // components whose squares sum to at most 1) and a finite scale.
+    for (size_t r = 0; r < p.records()->size() / rs; ++r)
+        if (!record_valid(p.records()->data() + r * rs, a.format)) return DatagramVerdict::malformed;
+    // Morph weights, when present: one per target (every int16 is a weight in [-2, 2)).
+    const size_t morphs = std::min<size_t>(a.character.morphs.size(), MAX_MORPHS);
+    if (p.morphs() && p.morphs()->size() != morphs) return DatagramVerdict::malformed;
+    // Rate limit: a bucket of 2 s at twice the tick rate (poses beyond it
+    // are dropped and counted, the newest wins anyway).
+    const double rate = 2.0 * core_.config().tick_rate;
+    o->tokens = std::min(2.0 * rate, o->tokens + (now - o->refilled) * rate);
+    o->refilled = now;
+    if (o->tokens < 1.0) {
+        core_.count([](ServerStats& st) { ++st.poses_rate_limited; });
+        return DatagramVerdict::accepted;
+    }
+    o->tokens -= 1.0;
+    std::span<const uint8_t, ROOT_BYTES> root(p.root()->data(), ROOT_BYTES);
+    std::span<const int16_t> weights;
+    if (p.morphs()) weights = {p.morphs()->data(), p.morphs()->size()};
+    if (core_.encoder().push_records(o->instance, p.pose_seq(), p.epoch(), p.first(), {p.records()->data(), p.records()->size()},
+                                     root, weights))
+        core_.count([](ServerStats& st) { ++st.poses_received; });
+    else
+        core_.count([](ServerStats& st) { ++st.poses_stale; });
+    return DatagramVerdict::accepted;
+}
+
+// ------------------------------------------------------------------- tick --
+
+void ClientStream::update_importance(const EncodedFrame& frame) {
+    // At every instance's current world position; none for instances this
+    // client was not told about (yet) or owns.
+    compute_importance(view_, frame, core_.assets(), id_, importance_);
+    for (size_t i = 0; i < importance_.size(); ++i)
+        if (i >= known_.size() || known_[i] != frame.instances[i].generation) importance_[i] = 0.0f;
+}
+
+TickResult ClientStream::tick(const EncodedFrame& frame, double now, double dt, DatagramSink& out) {
+    rate_.refill(dt);
+    if (adaptive_) rate_.update(now);
+    const size_t budget = rate_.budget();
+    if (!budget) {
+        picks_.clear();
+        return {};
+    }
+    return send_frame(frame, budget, out);
+}
+
+TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, DatagramSink& out) {
+    update_importance(frame);
+    if (selector_) {
+        selector_(frame, budget, picks_);
+    } else {
+        scheduler_.select(frame, core_.assets(), importance_, budget, core_.config().tick_rate, picks_);
+        if (scheduler_.limited()) rate_.mark_limited();
+    }
+    if (picks_.empty()) return {};
+    std::vector<std::vector<uint8_t>>& dgrams = core_.datagrams();
+    dgrams.clear();
+    const uint32_t first_seq = seq_;
+    size_t wire = core_.packer().pack(frame, picks_, seq_, dgrams);
+    for (size_t i = 0; i < dgrams.size(); ++i) {
+        const size_t sent = send_datagram(dgrams[i], peer_, out);
+        if (adaptive_) rate_.on_sent(first_seq + uint32_t(i), now_us32(), sent + UDP_IP_OVERHEAD);
+        wire += sent - dgrams[i].size();  // the seal's 32 bytes count against the rate
+    }
+    rate_.spend(wire);
+    if (!selector_) scheduler_.sent(picks_, frame.tick);
+    return {dgrams.size(), wire};
+}
+
+bool ClientStream::expired(double now) const {
+    const ServerConfig& cfg = core_.config();
+    switch (state_) {
+        case SessionState::Closing: return now > close_deadline_;
+        case SessionState::AwaitHello: return now - opened_ > cfg.hello_timeout;
+        // Unbound: client_timeout after Welcome, whatever arrives over TCP.
+        case SessionState::Welcomed: return now - welcomed_ > cfg.client_timeout;
+        // Streaming: client_timeout after the newest Ack from the bound address.
+        case SessionState::Streaming: return now - last_heard_ > cfg.client_timeout;
+        case SessionState::Closed: return false;
+    }
+    return false;
+}
+
+bool ClientStream::expire(double now) {
+    switch (state_) {
+        case SessionState::Closed: return false;
+        case SessionState::Closing:  // the peer did not read its last message in time
+            close(close_reason_ + " (not read)");
+            return false;
+        case SessionState::AwaitHello: close("timeout"); return true;
+        case SessionState::Welcomed:
+        case SessionState::Streaming: break;
+    }
+    flatbuffers::FlatBufferBuilder fbb;  // queued like any message: a peer that does not read cannot stall the tick
+    build_goodbye(fbb, state_ == SessionState::Welcomed ? "timeout: UDP address not bound" : "timeout: no acks");
+    finish(fbb, "timeout", now);
+    return true;
+}
+
+}  // namespace progskin::net

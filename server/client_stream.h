@@ -1,0 +1,240 @@
+// client_stream.h — one client's session on the server, without sockets (the
+// netcode.io / yojimbo shape): server.cpp owns the TCP connection and the UDP
+// socket and drives one ClientStream per connection through ServerCore
+// (server_core.h); tests and benchmarks drive it with no socket at all.
+//
+// Session state machine (docs/protocol.md "Session state machine"):
+//   AwaitHello --Hello ok--> Welcomed --Bind, Challenge, ChallengeResponse
+//       from the same address--> Streaming
+//   Streaming --Bind from a new address, Challenge, ChallengeResponse--> Streaming (moved)
+//   any --Goodbye / TCP close / error / output backlog--> Closed
+//   AwaitHello --no Hello in hello_timeout--> Closed
+//   Welcomed --not bound client_timeout after Welcome (TCP traffic or not)--> Goodbye, Closing
+//   Streaming --no Ack from the bound address in client_timeout--> Goodbye, Closing
+//   AwaitHello --bad version or token, server full, Welcome too large--> Refuse, Closing
+//   Closing --queued output written, or 1 s--> Closed
+// With TLS (ServerConfig::tls_cert_file) the handshake is the shell's and runs
+// under hello_timeout like the rest of AwaitHello; with seal_datagrams, every
+// datagram both ways is sealed with keys sent in the Welcome.
+//
+// In: control message bodies (on_control), the datagrams ServerCore routes to
+// this session (on_datagram: Bind, ChallengeResponse, Ack, Pose), the tick
+// (tick: importance, Scheduler::select, DatagramPacker::pack, seal, rate
+// accounting) and the time (expired, expire).
+// Out: control messages, framed, queued for the shell to write (output(),
+// on_written(); at most ServerConfig::max_queued_bytes waiting, more closes
+// the session), datagrams through a DatagramSink, and the state: Closed
+// means the shell closes the connection (close_reason() says why).
+// Whole-server things (catalogue, instances, counters, the other sessions)
+// go through ServerCore. Single-threaded, like the shell's io_context.
+#pragma once
+#include <array>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "crypto.h"
+#include "frame_encoder.h"
+#include "rate_controller.h"
+#include "scheduler.h"
+#include "wire.h"
+
+namespace progskin::net {
+
+class ServerCore;
+
+// A UDP or TCP peer as the core sees it: comparable, printable, no socket type.
+struct PeerAddress {
+    std::array<uint8_t, 16> ip{};  // IPv4: the first 4 bytes
+    uint32_t scope = 0;            // IPv6 scope id (link-local addresses)
+    uint16_t port = 0;
+    bool v6 = false;
+    bool operator==(const PeerAddress&) const = default;
+    bool same_ip(const PeerAddress& o) const { return ip == o.ip && scope == o.scope && v6 == o.v6; }
+    std::string ip_string() const;  // as asio writes the address ("127.0.0.1", "::1", "fe80::1%eth0")
+    std::string to_string() const { return ip_string() + ":" + std::to_string(port); }
+    static PeerAddress v4(uint32_t host_order_ip, uint16_t port);
+};
+
+// Where a core's datagrams go (the shell: its UDP socket).
+class DatagramSink {
+public:
+    virtual void send(std::span<const uint8_t> datagram, const PeerAddress& to) = 0;
+
+protected:
+    ~DatagramSink() = default;
+};
+
+// A sink that keeps what it is given (tests, tools).
+class DatagramCollector final : public DatagramSink {
+public:
+    struct Sent {
+        std::vector<uint8_t> bytes;
+        PeerAddress to;
+    };
+    std::vector<Sent> sent;
+    void send(std::span<const uint8_t> datagram, const PeerAddress& to) override { sent.push_back({{datagram.begin(), datagram.end()}, to}); }
+};
+
+enum class SessionState { AwaitHello, Welcomed, Streaming, Closing, Closed };
+
+// What became of a datagram routed to a session (ServerCore counts it).
+enum class DatagramVerdict { accepted, rejected, malformed };
+
+struct TickResult {
+    size_t datagrams = 0;
+    size_t wire_bytes = 0;  // payload + UDP_IP_OVERHEAD per datagram, seal included
+};
+
+class ClientStream {
+public:
+    // A session in AwaitHello, opened at `now` (ServerCore::open).
+    ClientStream(ServerCore& core, uint64_t id, uint64_t token, double now);
+    ~ClientStream();
+    ClientStream(const ClientStream&) = delete;
+    ClientStream& operator=(const ClientStream&) = delete;
+
+    // A session with no connection (benchmarks, tests, tools): Streaming at
+    // once at a fixed kbps (set rate() to change), every instance of the core
+    // announced (the InstanceAdded messages dropped), datagrams unsealed, to
+    // PeerAddress{}. Not in the core's session table: the caller ticks it.
+    static std::unique_ptr<ClientStream> detached(ServerCore& core, uint64_t id, double kbps);
+
+    uint64_t id() const { return id_; }
+    uint64_t token() const { return token_; }
+    const std::string& name() const { return name_; }
+    SessionState state() const { return state_; }
+    bool is_open() const { return state_ != SessionState::Closed && state_ != SessionState::Closing; }
+    bool welcomed() const { return state_ == SessionState::Welcomed || state_ == SessionState::Streaming; }
+    const std::string& close_reason() const { return close_reason_; }
+    bool bound() const { return bound_; }
+    const PeerAddress& peer() const { return peer_; }
+    uint32_t seq() const { return seq_; }
+
+    // ------------------------------------------------------ control in --
+    // A control message's length prefix: false (counted malformed, closed) when out of range.
+    bool accept_length(uint32_t n);
+    // One control message body. Returns whether to read the next one.
+    bool on_control(std::span<const uint8_t> body, double now);
+    // Refuse (counted) then Closing; the shell's own refusals too.
+    void refuse(const std::string& reason, double now);
+    // Closed at once (its characters despawned, logged); no-op when Closed.
+    void close(const std::string& why);
+
+    // ----------------------------------------------------- control out --
+    // Framed messages waiting to be written, oldest first.
+    const std::deque<std::vector<uint8_t>>& output() const { return out_; }
+    // The oldest was written; Closing with nothing left: Closed.
+    void on_written();
+    // Tells the client about instances added and removed since it last heard
+    // (never its own), in messages that fit the control limit.
+    void sync_instances();
+
+    // ------------------------------------------------------- datagrams --
+    // The token matches (constant time) and the session is Welcomed or Streaming.
+    bool accepts(uint64_t token) const;
+    // Opens a sealed datagram with this session's key; false when it does not
+    // seal, or the datagram is forged, replayed or unsealed.
+    bool open_sealed(std::span<const uint8_t> wire, std::vector<uint8_t>& plain);
+    // A verified datagram for this session (ServerCore::on_datagram checked
+    // the id and token): Bind -> Challenge (or BindAck from the bound address),
+    // ChallengeResponse -> bound, Ack -> rate, Pose -> the owned character.
+    // `size`: its bytes (opened); an answer goes to `from` only when smaller.
+    DatagramVerdict on_datagram(const wire::Datagram& d, size_t size, const PeerAddress& from, double now, DatagramSink& out);
+
+    // ------------------------------------------------------------ tick --
+    // One tick of a Streaming session: the rate (refill by dt, re-evaluated
+    // at now when adaptive), then send_frame within its budget.
+    TickResult tick(const EncodedFrame& frame, double now, double dt, DatagramSink& out);
+    // Importance (the view; 0 for instances not announced or own), the
+    // selection within `budget` wire bytes, packing, sealing, to peer();
+    // spends the rate and tells the scheduler.
+    TickResult send_frame(const EncodedFrame& frame, size_t budget, DatagramSink& out);
+    // A timeout is due at `now` (hello, bind, acks) or Closing ran out of time.
+    bool expired(double now) const;
+    // Acts on expired(): Goodbye and Closing, or Closed. True when it counts as a timeout.
+    bool expire(double now);
+
+    // -------------------------------------------- tuning (benchmarks) --
+    RateController& rate() { return rate_; }
+    void set_view(ViewSpec v) { view_ = std::move(v); }
+    // Picks within a budget instead of the scheduler (bench_net_rd's
+    // baselines); the scheduler is then neither asked nor told.
+    using Selector = std::function<void(const EncodedFrame& frame, size_t budget, std::vector<Pick>& out)>;
+    void set_selector(Selector s) { selector_ = std::move(s); }
+    const std::vector<Pick>& picks() const { return picks_; }  // the last tick's
+    const std::vector<float>& importance() const { return importance_; }
+
+private:
+    struct Owned {
+        int instance = 0;
+        double tokens = 0, refilled = 0;  // pose rate limit (token bucket)
+    };
+    void send(const flatbuffers::FlatBufferBuilder& fbb);
+    void finish(const flatbuffers::FlatBufferBuilder& last, const std::string& why, double now);
+    void despawn_all();
+    void log(const std::string& s) const;
+    // Control messages (on_control); each returns whether to read on.
+    bool on_hello(const wire::Hello& h, double now);
+    std::string check_hello(const wire::Hello& h);
+    bool send_welcome(double cap, double now);
+    bool on_asset_request(const wire::AssetRequest& r);
+    bool on_view(const wire::View& v);
+    bool on_stats();
+    void on_spawn(const wire::Spawn& m, double now);
+    void spawned(uint32_t request, bool ok, int instance, const std::string& reason);
+    bool on_despawn(const wire::Despawn& m);
+    bool malformed(const std::string& why);
+    // Datagrams (on_datagram).
+    DatagramVerdict on_bind(size_t size, const PeerAddress& from, double now, DatagramSink& out);
+    DatagramVerdict on_challenge_response(const wire::ChallengeResponse& r, size_t size, const PeerAddress& from, double now,
+                                          DatagramSink& out);
+    DatagramVerdict on_ack(const wire::Ack& a, const PeerAddress& from, double now);
+    DatagramVerdict on_pose(const wire::Pose& p, const PeerAddress& from, double now);
+    void bind_ack(size_t size, const PeerAddress& from, DatagramSink& out);
+    void answer(const flatbuffers::FlatBufferBuilder& fbb, size_t size, const PeerAddress& from, bool unverified, DatagramSink& out);
+    // Sends one datagram to `to`, sealed when the session seals; returns the bytes sent.
+    size_t send_datagram(std::span<const uint8_t> plain, const PeerAddress& to, DatagramSink& out);
+    void update_importance(const EncodedFrame& frame);
+
+    ServerCore& core_;
+    uint64_t id_ = 0, token_ = 0;
+    SessionState state_ = SessionState::AwaitHello;
+    std::string name_;
+    std::string close_reason_;
+    double opened_ = 0, welcomed_ = 0, last_heard_ = 0;  // last_heard: newest Ack from the bound address
+    double close_deadline_ = 0;
+    std::deque<std::vector<uint8_t>> out_;
+    size_t queued_ = 0;
+    double asset_bytes_ = 0;
+    // UDP: the proven address, and (return routability) the address a Bind
+    // came from with the nonce sent there.
+    PeerAddress peer_;
+    bool bound_ = false;
+    PeerAddress challenge_peer_;
+    std::array<uint8_t, CHALLENGE_NONCE> challenge_nonce_{};
+    double challenge_sent_ = -1e300;
+    // seal_datagrams: server -> client and client -> server keys (sent in the Welcome).
+    crypto::Key tx_key_{}, rx_key_{};
+    std::unique_ptr<crypto::Sealer> sealer_;
+    std::unique_ptr<crypto::Opener> opener_;
+    uint32_t seq_ = 0;
+    RateController rate_;
+    // Off (detached streams): no feedback is expected (no acks), so the tick
+    // neither re-evaluates the estimate nor records sends for loss.
+    bool adaptive_ = true;
+    Scheduler scheduler_;
+    Selector selector_;
+    ViewSpec view_;
+    std::vector<float> importance_;
+    std::vector<Pick> picks_;
+    std::vector<uint32_t> known_;    // per instance slot: generation announced to this client (0: none)
+    uint64_t instances_seen_ = ~0ull;  // ServerCore::instances_version last synced
+    std::vector<Owned> owned_;       // characters this session spawned
+};
+
+}  // namespace progskin::net

@@ -1,0 +1,211 @@
+// server_core.cpp — see server_core.h.
+#include "server_core.h"
+
+#include <algorithm>
+#include <cstdio>
+
+#include <sodium.h>
+
+#include "errors.h"
+
+namespace progskin::net {
+
+namespace {
+
+// 64 bits from the operating system's cryptographic generator (libsodium).
+uint64_t random_u64() {
+    uint64_t v = 0;
+    while (v == 0) randombytes_buf(&v, sizeof v);
+    return v;
+}
+
+// Constant-time comparison of two strings of any lengths: compares their
+// BLAKE2b digests, so neither the content nor the length leaks through timing.
+bool equal_secret(const std::string& a, const std::string& b) {
+    unsigned char ha[32], hb[32];
+    crypto_generichash(ha, sizeof ha, reinterpret_cast<const unsigned char*>(a.data()), a.size(), nullptr, 0);
+    crypto_generichash(hb, sizeof hb, reinterpret_cast<const unsigned char*>(b.data()), b.size(), nullptr, 0);
+    return sodium_memcmp(ha, hb, sizeof ha) == 0;
+}
+
+}  // namespace
+
+ServerCore::ServerCore(ServerConfig c, ServerAssets a, std::vector<InstanceSpec> instances)
+    : cfg_(std::move(c)), assets_(a), encoder_(a, std::move(instances), cfg_.tick_rate) {
+    if (!(cfg_.tick_rate > 0 && cfg_.tick_rate <= 240)) throw Error("tick rate must be in (0, 240]");
+    if (assets_.empty()) throw Error("server: no assets");
+    if (sodium_init() < 0) throw Error("server: libsodium could not be initialised");
+    if (cfg_.tls_cert_file.empty() != cfg_.tls_key_file.empty())
+        throw Error("server: TLS needs both a certificate and a private key file");
+    if (cfg_.seal_datagrams && !tls()) throw Error("server: sealed datagrams need TLS (their keys travel in the Welcome)");
+    if (!cfg_.token_public_key.empty() && !cfg_.token.empty())
+        throw Error("server: an access token and connect tokens both travel in Hello.token; configure one");
+    if (!cfg_.token_public_key.empty()) {
+        if (!crypto::from_hex(cfg_.token_public_key, token_key_))
+            throw Error("server: the connect token public key must be 64 hex digits");
+        connect_tokens_ = true;
+    }
+    for (const auto& x : assets_) total_asset_bytes_ += double(x->bytes.size());
+}
+
+void ServerCore::log(const std::string& s) const {
+    if (cfg_.verbose) std::fprintf(stderr, "progskin-server: %s\n", s.c_str());
+}
+
+ServerStats ServerCore::stats() const {
+    const EncoderStats es = encoder_.stats();
+    std::lock_guard lock(stats_mutex_);
+    ServerStats s = stats_;
+    s.poses_out_of_range = es.poses_out_of_range;
+    s.morphs_out_of_range = es.morphs_out_of_range;
+    return s;
+}
+
+int ServerCore::add_instance(const InstanceSpec& spec) {
+    const int id = encoder_.add_instance(spec);
+    ++instances_version_;
+    return id;
+}
+
+void ServerCore::remove_instance(int id) {
+    encoder_.remove_instance(id);
+    ++instances_version_;
+}
+
+// --------------------------------------------------------------- sessions --
+
+std::shared_ptr<ClientStream> ServerCore::open(const PeerAddress& remote, double now) {
+    uint64_t id;
+    do id = random_u64();
+    while (sessions_.count(id));
+    auto s = std::make_shared<ClientStream>(*this, id, random_u64(), now);
+    int same = 0;
+    for (auto& [other, e] : sessions_)
+        if (e.stream->is_open() && e.remote.same_ip(remote)) ++same;
+    sessions_[id] = {s, remote};
+    count([](ServerStats& st) { ++st.sessions_total; });
+    if (cfg_.max_per_address > 0 && same >= cfg_.max_per_address) {
+        if (tls()) {  // no handshake spent on it: closed without a message
+            count([](ServerStats& st) { ++st.refused; });
+            s->close("too many connections from " + remote.ip_string());
+        } else {
+            s->refuse("too many connections from " + remote.ip_string() + " (" + std::to_string(cfg_.max_per_address) + ")", now);
+        }
+    }
+    return s;
+}
+
+void ServerCore::erase(uint64_t id) { sessions_.erase(id); }
+
+int ServerCore::welcomed_sessions() const {
+    int n = 0;
+    for (const auto& [id, e] : sessions_)
+        if (e.stream->welcomed()) ++n;
+    return n;
+}
+
+std::string ServerCore::check_token(const flatbuffers::String* token, std::string& who) {
+    if (!cfg_.token.empty() && (!token || !equal_secret(token->str(), cfg_.token))) return "bad or missing access token";
+    if (!connect_tokens_) return {};
+    crypto::ConnectToken ct;
+    const uint64_t now_unix = crypto::unix_now();
+    std::string why = token ? crypto::verify_connect_token(token->str(), token_key_, now_unix, cfg_.public_address, ct)
+                            : std::string("missing connect token");
+    if (why.empty() && !token_replays_.first_use(ct, now_unix)) why = "connect token already used";
+    if (!why.empty()) {
+        count([](ServerStats& st) { ++st.tokens_refused; });
+        return why;
+    }
+    who = "client " + std::to_string(ct.client_id) + " ";
+    return {};
+}
+
+// -------------------------------------------------------------- datagrams --
+
+// The session a client -> server datagram names, when its token matches and
+// it is Welcomed or Streaming (and, sealed, the session whose key opened it).
+ClientStream* ServerCore::route(const wire::Datagram& d, ClientStream* sealed_by) {
+    uint64_t id = 0, token = 0;
+    switch (d.body_type()) {
+        case wire::DatagramBody::Bind: id = d.body_as_Bind()->session_id(), token = d.body_as_Bind()->token(); break;
+        case wire::DatagramBody::ChallengeResponse:
+            id = d.body_as_ChallengeResponse()->session_id(), token = d.body_as_ChallengeResponse()->token();
+            break;
+        case wire::DatagramBody::Ack: id = d.body_as_Ack()->session_id(), token = d.body_as_Ack()->token(); break;
+        case wire::DatagramBody::Pose: id = d.body_as_Pose()->session_id(), token = d.body_as_Pose()->token(); break;
+        default: return nullptr;  // Frame / BindAck / Challenge are server -> client only
+    }
+    auto it = sessions_.find(id);
+    if (it == sessions_.end() || !it->second.stream->accepts(token)) return nullptr;
+    ClientStream* s = it->second.stream.get();
+    return sealed_by && s != sealed_by ? nullptr : s;  // sealed under another session's key
+}
+
+void ServerCore::on_datagram(std::span<const uint8_t> bytes, const PeerAddress& from, double now, DatagramSink& out) {
+    count([](ServerStats& st) { ++st.datagrams_received; });
+    const size_t n = bytes.size();
+    auto reject = [&](bool malformed) {
+        count([&](ServerStats& st) {
+            if (malformed) ++st.malformed_datagrams;
+            else ++st.rejected_datagrams;
+            st.unverified_bytes_in += n;
+        });
+    };
+    ClientStream* sealed_by = nullptr;  // seal_datagrams: the session whose key opened it
+    if (cfg_.seal_datagrams) {
+        auto it = sessions_.find(crypto::sealed_session_id(bytes));
+        if (it == sessions_.end() || !it->second.stream->open_sealed(bytes, opened_))
+            return reject(false);  // forged, replayed, or unsealed
+        sealed_by = it->second.stream.get();
+        bytes = opened_;
+    }
+    const wire::Datagram* d = verify_datagram(bytes);
+    if (!d) return reject(true);
+    ClientStream* s = route(*d, sealed_by);
+    if (!s) return reject(false);
+    const DatagramVerdict v = s->on_datagram(*d, bytes.size(), from, now, out);
+    if (v != DatagramVerdict::accepted) reject(v == DatagramVerdict::malformed);
+}
+
+// ------------------------------------------------------------------- tick --
+
+void ServerCore::tick(double now, DatagramSink& out) {
+    const double t0 = now_seconds();
+    const double dt = last_tick_time_ > 0 ? std::min(0.25, now - last_tick_time_) : 1.0 / cfg_.tick_rate;
+    last_tick_time_ = now;
+    ++tick_;
+    bool any = false;
+    for (auto& [id, e] : sessions_) {
+        if (e.stream->state() == SessionState::Streaming) any = true;
+        if (e.stream->welcomed()) e.stream->sync_instances();
+    }
+    const EncodedFrame* frame = any ? &encoder_.encode(tick_) : nullptr;
+    uint64_t dg = 0, bytes = 0, timeouts = 0;
+    std::vector<std::shared_ptr<ClientStream>> drop;
+    for (auto& [id, e] : sessions_) {
+        if (e.stream->expired(now)) {
+            drop.push_back(e.stream);
+            continue;
+        }
+        if (e.stream->state() != SessionState::Streaming || !frame) continue;
+        const TickResult r = e.stream->tick(*frame, now, dt, out);
+        dg += r.datagrams;
+        bytes += r.wire_bytes;
+    }
+    for (auto& s : drop)
+        if (s->expire(now)) ++timeouts;
+    const double t1 = now_seconds();
+    count([&](ServerStats& st) {
+        ++st.ticks;
+        st.datagrams_sent += dg;
+        st.wire_bytes_sent += bytes;
+        st.timeouts += timeouts;
+        st.tick_seconds += t1 - t0;
+        uint64_t active = 0;
+        for (auto& [id, e] : sessions_)
+            if (e.stream->is_open()) ++active;
+        st.sessions_active = active;
+    });
+}
+
+}  // namespace progskin::net
