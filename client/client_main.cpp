@@ -7,7 +7,7 @@
 #include <string>
 
 #include "cli_args.h"
-#include "client.h"
+#include "run_client.h"
 #include "errors.h"
 #include "error_metric.h"
 #include "progressive_skin.h"

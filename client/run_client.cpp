@@ -13,7 +13,7 @@
 #include <thread>
 
 #include "animation.h"
-#include "client.h"
+#include "run_client.h"
 #include "error_metric.h"
 #include "skinning.h"
 #include "errors.h"
