@@ -8,9 +8,9 @@
 //   TCP connected (TLS) ---------------->  on_transport_connected()         -> Handshaking
 //   channel ready (certificate checked) ->  on_channel_ready()              Hello -> AwaitWelcome
 //   bytes read from the channel -------->  on_control_bytes(bytes, now)    Welcome -> Binding; ...
-//   datagram received (unsealed here) -->  on_datagram(bytes, from_server, arrival)
-//   update(now) ------------------------>  update(now, source)             timeouts, View, Bind,
-//                                                                           datagrams, Acks, Stats, display
+//   update(now) ------------------------>  update(now, source)             timeouts, View, Bind, then
+//   datagrams received, as sent ------->    on_datagram(bytes, from_server, arrival) for each
+//                                           (source->next; the session unseals), Acks, Stats, display
 //   writes Outbox::control, sends Outbox's datagrams  <--  (appended by every call above)
 //
 // One phase enum (SessionPhase) replaces the client's loose flags; the
