@@ -12,6 +12,7 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
+#include "client_palette.h"
 #include "errors.h"
 #include "error_metric.h"
 #include "gltf_import.h"
@@ -25,6 +26,26 @@ std::vector<uint8_t> read_file(const std::string& p) {
     std::ifstream f(p, std::ios::binary);
     if (!f) return {};
     return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
+}
+
+std::string cached_asset_path(const std::string& dir, const std::string& name, uint64_t id) {
+    std::string ext = fs::path(name).extension().string();
+    if (ext != ".glb" && ext != ".gltf") ext = ".glb";
+    return (fs::path(dir) / (hex64(id) + ext)).string();
+}
+
+std::string write_cached_asset(const std::string& path, std::span<const uint8_t> bytes, const void* writer) {
+    fs::path tmp = path;
+    tmp += ".part" + std::to_string(::getpid()) + "-" + std::to_string(reinterpret_cast<uintptr_t>(writer));
+    {
+        std::ofstream f(tmp, std::ios::binary);
+        f.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
+        if (!f) return "cannot write " + tmp.string();
+    }
+    std::error_code ec;
+    fs::rename(tmp, path, ec);
+    if (ec) return "cannot write " + path + ": " + ec.message();
+    return {};
 }
 
 std::string default_cache_dir() {

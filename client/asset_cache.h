@@ -7,11 +7,11 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
-#include "client.h"
-#include "client_palette.h"
+#include "client_asset.h"
 #include "wire.h"
 
 namespace progskin::net {
@@ -22,6 +22,16 @@ inline constexpr uint64_t MAX_ASSET_BYTES = uint64_t(256) << 20;
 
 // $XDG_CACHE_HOME/progskin, else ~/.cache/progskin, else /tmp/progskin-cache.
 std::string default_cache_dir();
+
+// The cache file of an asset: DIR/<hex64(id)><extension of name: .glb or
+// .gltf; .glb for any other>.
+std::string cached_asset_path(const std::string& dir, const std::string& name, uint64_t id);
+
+// Writes `bytes` to `path` whole: into a temporary name unique to this
+// process and `writer` (several clients may fill the same cache at once),
+// then renamed, so that the file appears complete. Returns an empty string,
+// or what failed.
+std::string write_cached_asset(const std::string& path, std::span<const uint8_t> bytes, const void* writer);
 
 // The whole file at `path` (empty when it cannot be read).
 std::vector<uint8_t> read_file(const std::string& path);

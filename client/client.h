@@ -1,4 +1,5 @@
-// client.h — the embeddable streaming client (docs/protocol.md).
+// client.h — the embeddable streaming client (docs/protocol.md), the header a
+// game includes (installed; it names no wire, FlatBuffers or socket type).
 //
 // A game creates one progskin::net::Client, calls connect() once and then
 // update(now) once per frame from its own loop. The client starts no threads
@@ -20,6 +21,12 @@
 //   }
 //   c.close();
 //
+// Inside, a Client is a shell around the protocol core ClientSession
+// (client/session.h: the state machine, control messages, assets,
+// instances, acks, display clock; no socket): the Client owns the
+// io_context, the TCP socket with its TLS stream and certificate check, and
+// the UDP socket, and moves bytes between them and the session.
+//
 // Ownership: every pointer and span a Client returns is owned by it.
 // characters() and each RemoteCharacter::palette / morph_weights are valid until the next
 // update() or close(); RemoteCharacter::asset (a ClientAsset: character,
@@ -35,10 +42,9 @@
 
 #include "bone_codec.h"
 #include "character.h"
-#include "client_palette.h"
+#include "client_asset.h"
 #include "progressive_skin.h"
 #include "view.h"
-#include "wire.h"
 
 namespace progskin::net {
 
@@ -72,12 +78,31 @@ struct ClientConfig {
     std::function<void(const std::string&, uint64_t, uint64_t)> on_download;
 };
 
+// Monotonic seconds: the clock of update(now) (also declared in proto/wire.h).
+double now_seconds();
+
 enum class ClientState {
     Idle,        // before connect()
     Connecting,  // TCP, Hello, Welcome, asset downloads, UDP bind
     Streaming,   // bound: frames arrive, characters are displayed
     Closed,      // close() or the server's Goodbye
-    Failed,      // refused, unreachable, timed out, bad data, stream lost: see error()
+    Failed,      // refused, unreachable, timed out, bad data, stream lost: see fail_reason(), error()
+};
+
+// Why a client is Failed (Client::fail_reason; the text is Client::error()).
+enum class FailReason {
+    None,           // not failed
+    Config,         // TLS with nothing to trust the certificate by, a malformed pin, an unreadable CA file
+    Unreachable,    // the server's address cannot be resolved or connected to
+    TlsHandshake,   // the TLS handshake failed
+    TlsUntrusted,   // the server's certificate is not trusted (CA chain, host name, pin)
+    Timeout,        // connecting, the Welcome, a download or the UDP bind took longer than connect_timeout
+    Refused,        // the server's Refuse (version, token, full)
+    BadServerData,  // a malformed, unexpected or inconsistent message, asset or key from the server
+    ChannelLost,    // the control connection closed or failed
+    SessionEnded,   // the server's Goodbye
+    StreamLost,     // no datagram for stream_timeout while characters exist
+    LocalIo,        // the asset cache cannot be written
 };
 
 // What a publisher announced about a character (control.fbs Instance): the
@@ -167,6 +192,7 @@ public:
 
     ClientState state() const;
     const std::string& error() const;  // why the state is Failed
+    FailReason fail_reason() const;    // None unless Failed
     std::span<const ClientEvent> events() const;  // raised by the last update()
     std::span<const RemoteCharacter> characters() const;  // every remote character, by instance id
     const RemoteCharacter* character(int instance) const;  // nullptr when unknown
@@ -201,126 +227,10 @@ private:
     std::unique_ptr<Impl> impl_;
 };
 
-// Reads an announced instance (control.fbs Instance) of a catalogue of
-// `catalogue_size` assets into `out` (instance, clip, placement, publisher;
-// asset and palette unset). Returns an empty string, or what is wrong (an
-// unknown asset, a negative clip index, a value not finite, a rotation that
-// is not a unit quaternion). Clip indices are checked against the asset
-// once it is loaded. O(clips), allocates the clip list.
-std::string read_instance(const wire::Instance& in, size_t catalogue_size, RemoteCharacter& out);
-
 // The world placement of a character walking a circle of `radius` around
 // `center` at `speed` units/s, t seconds after it started (facing along the
 // circle). radius 0: standing at center. Both publishers and observers
 // (--verify reference) use it.
 RootPose walk_root(const glm::dvec3& center, double radius, double speed, double t);
-
-// ---------------------------------------------------------------------------
-// progskin-client's session: runs a Client for options.duration seconds and
-// reports what it received and displayed; in verification mode measures
-// the displayed vertices against the reference (docs/metrics.md §2).
-
-// What the client displays at one moment, handed to ClientOptions::on_snapshot
-// (a renderer draws it: render/snapshot.h). Spans are valid during the call.
-struct DisplayedCharacter {
-    int instance = 0;
-    const Character* character = nullptr;
-    const ProgressiveSkin* skin = nullptr;
-    const SkinStream* stream = nullptr;  // skin's vertex stream for skin_stream
-    std::span<const Mat34> palette;  // B matrices in progressive order (copy-down and blending applied)
-    glm::vec3 position{0.0f};        // world placement
-    int bones = 0;                   // bones displayed (the LOD target)
-    std::span<const float> morph_weights;  // displayed morph weights (apply before skinning), empty without targets
-};
-struct DisplaySnapshot {
-    double seconds = 0;    // since streaming began
-    double rate_kbps = 0;  // over the last full second
-    std::vector<DisplayedCharacter> characters;
-};
-
-struct PublishOptions {
-    std::string asset;             // the catalogue's file name, or its index
-    std::string clip;              // a clip name/index/list/"all" (select_clips); empty: every clip together
-    double walk = 0;               // radius in bounding-box diagonals (0: standing)
-};
-
-struct ClientOptions {
-    std::string host = "127.0.0.1";
-    uint16_t port = 7777;
-    std::string udp_via_host;
-    uint16_t udp_via_port = 0;
-    std::string name = "progskin-client";
-    std::string token;
-    double max_kbps = 0;
-    ViewSpec view;
-    bool send_view = false;
-    double duration = 10;          // seconds of streaming
-    double delay_ms = 100;
-    double max_delay_ms = 600;
-    double display_rate = 30;      // displayed frames per second
-    bool verify = false;           // measure displayed vertices against the reference
-    double warmup = 1.0;           // seconds of display not counted in bones/error statistics
-    int verify_every = 1;
-    bool snap_to_ticks = false;
-    int blend_frames = 8;
-    std::string cache_dir;
-    uint16_t protocol_version = 0;
-    double connect_timeout = 10;
-    bool tls = false;              // ClientConfig::tls, ca_file, pin_sha256, insecure
-    std::string ca_file;
-    std::string pin_sha256;
-    bool insecure = false;
-    bool verbose = false;
-    std::vector<std::pair<double, double>> cap_schedule;  // (seconds since streaming began, kbit/s): tests
-    double snapshot_every = 0;
-    std::function<void(const DisplaySnapshot&)> on_snapshot;
-    std::function<void(const std::string&, uint64_t, uint64_t)> on_download;
-    std::vector<PublishOptions> publish;  // characters to spawn and publish (--publish)
-    double publish_rate = 30;      // poses per second per published character
-};
-
-struct InstanceReport {
-    int instance = 0;
-    std::string asset;
-    double bones_mean = 0;
-    int bones_min = 0, bones_max = 0;
-    double rms_pct = 0, max_pct = 0;
-    double max_jump_pct = 0;  // largest change of a vertex's error between displayed frames
-    uint64_t frames = 0;      // displayed frames with a pose
-    bool published = false;   // a player's character
-};
-
-struct ClientReport {
-    double seconds = 0;
-    double rate_kbps = 0;
-    double rate_max_kbps = 0;
-    std::vector<double> per_second_kbps;
-    uint64_t datagrams = 0, malformed = 0, duplicates = 0;
-    double loss = 0;
-    int characters = 0;        // instances with at least one frame received
-    double bones_mean = 0, bones_min = 0, bones_max = 0;
-    double rms_pct = -1, max_pct = -1;  // -1: not verified
-    double max_jump_pct = 0;
-    double rtt_ms = 0, estimate_kbps = 0;
-    double delay_ms = 0;
-    uint64_t asset_bytes_downloaded = 0;
-    int assets_cached = 0;
-    double download_seconds = 0;  // from connecting until every asset was ready (cache or download)
-    std::vector<InstanceReport> instances;
-    // Remote published characters (--verify): error against what their
-    // publisher displays at the same world time, and latency from the
-    // publisher's send to this display (same clock: loopback).
-    int remote_characters = 0;
-    double remote_rms_pct = -1, remote_max_pct = -1;
-    double latency_ms_p50 = -1, latency_ms_p99 = -1;
-    int published = 0;         // characters this client published
-    uint64_t poses_sent = 0;
-};
-
-// Runs a session for options.duration seconds. Throws Error (refusal,
-// timeout, bad server data, lost stream) with a message for the user.
-ClientReport run_client(const ClientOptions& options);
-std::string report_json(const ClientReport& r);
-std::string report_text(const ClientReport& r);
 
 }  // namespace progskin::net

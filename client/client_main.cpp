@@ -7,7 +7,7 @@
 #include <string>
 
 #include "cli_args.h"
-#include "client.h"
+#include "run_client.h"
 #include "errors.h"
 #include "error_metric.h"
 #include "progressive_skin.h"
@@ -77,157 +77,198 @@ static std::vector<float> floats(const std::string& s) {
     return v;
 }
 
-int main(int argc, char** argv) {
+namespace {
+
+// The command line: the session's options, the report format, the snapshot folder.
+struct Args {
     ClientOptions opt;
-    opt.tls = true;  // the program's default (ClientOptions/ClientConfig default to plain)
     std::string report = "text";
     std::string snapshot_dir = "snapshots";
-    try {
-        for (int i = 1; i < argc; ++i) {
-            std::string a = argv[i];
-            auto val = [&]() -> std::string {
-                if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-                return argv[++i];
-            };
-            if (a == "--help" || a == "-h") {
-                std::fputs(kUsage, stdout);
-                return 0;
-            } else if (a == "--server") {
-                const cli::HostPort hp = cli::host_port(a, val());
-                opt.host = hp.host;
-                opt.port = hp.port;
-            } else if (a == "--udp-via") {
-                const cli::HostPort hp = cli::host_port(a, val());
-                opt.udp_via_host = hp.host;
-                opt.udp_via_port = hp.port;
-            } else if (a == "--max-kbps") opt.max_kbps = cli::to_number(a, val());
-            else if (a == "--view") {
-                std::string v = val();
-                if (v.rfind("camera:", 0) == 0) {
-                    auto f = floats(v.substr(7));
-                    if (f.size() < 3) throw std::invalid_argument("--view camera:X,Y,Z[,FOV_DEG[,HEIGHT_PX]]");
-                    opt.view.camera = {f[0], f[1], f[2]};
-                    opt.view.has_camera = true;
-                    if (f.size() > 3) opt.view.fov_y = f[3] * float(M_PI / 180.0);
-                    if (f.size() > 4) opt.view.viewport_height = f[4];
-                } else if (v.rfind("weights:", 0) == 0) {
-                    auto f = floats(v.substr(8));
-                    for (size_t k = 0; k < f.size(); ++k) opt.view.weights.emplace_back(int(k), f[k]);
-                } else {
-                    throw std::invalid_argument("--view camera:... or weights:...");
-                }
-                opt.send_view = true;
-            } else if (a == "--publish") {
-                PublishOptions p;
-                p.asset = val();
-                opt.publish.push_back(p);
-            } else if (a == "--clip" || a == "--walk") {
-                if (opt.publish.empty()) throw std::invalid_argument(a + " applies to a --publish before it");
-                if (a == "--clip") opt.publish.back().clip = val();
-                else opt.publish.back().walk = cli::to_number(a, val());
-                if (!(opt.publish.back().walk >= 0)) throw std::invalid_argument("--walk must be >= 0");
-            } else if (a == "--publish-rate") opt.publish_rate = cli::to_number(a, val());
-            else if (a == "--duration") opt.duration = cli::to_number(a, val());
-            else if (a == "--delay-ms") opt.delay_ms = cli::to_number(a, val());
-            else if (a == "--max-delay-ms") opt.max_delay_ms = cli::to_number(a, val());
-            else if (a == "--display-rate") opt.display_rate = cli::to_number(a, val());
-            else if (a == "--blend-frames") opt.blend_frames = cli::to_int(a, val());
-            else if (a == "--verify") opt.verify = true;
-            else if (a == "--warmup") opt.warmup = cli::to_number(a, val());
-            else if (a == "--verify-every") opt.verify_every = cli::to_int(a, val());
-            else if (a == "--snap-to-ticks") opt.snap_to_ticks = true;
-            else if (a == "--report") {
-                report = val();
-                if (report != "json" && report != "text") throw std::invalid_argument("--report json|text");
-            } else if (a == "--cache") opt.cache_dir = val();
-            else if (a == "--tls") opt.tls = true;
-            else if (a == "--no-tls") opt.tls = false;
-            else if (a == "--ca") opt.ca_file = val();
-            else if (a == "--pin") opt.pin_sha256 = val();
-            else if (a == "--insecure") opt.insecure = true;
-            else if (a == "--name") opt.name = val();
-            else if (a == "--token") opt.token = val();
-            else if (a == "--protocol-version") opt.protocol_version = cli::to_u16(a, val());
-            else if (a == "--verbose") opt.verbose = true;
-            else if (a == "--snapshot-every") opt.snapshot_every = cli::to_number(a, val());
-            else if (a == "--snapshot-dir") snapshot_dir = val();
-            else throw std::invalid_argument("unknown argument " + a);
-        }
-        if (!opt.tls && (!opt.ca_file.empty() || !opt.pin_sha256.empty() || opt.insecure))
-            throw std::invalid_argument("--ca, --pin and --insecure need TLS (not --no-tls)");
-        if (opt.tls && opt.ca_file.empty() && opt.pin_sha256.empty() && !opt.insecure)
-            throw std::invalid_argument("TLS (the default) needs --pin SHA256HEX (printed by progskin-server), --ca FILE, "
-                                        "or --insecure (development only); --no-tls for a plain server");
-        if (opt.snapshot_every < 0) throw std::invalid_argument("--snapshot-every must be positive");
+};
+
+// --view camera:X,Y,Z[,FOV_DEG[,HEIGHT_PX]] or weights:W0,W1,...
+void parse_view(const std::string& v, ViewSpec& view) {
+    if (v.rfind("camera:", 0) == 0) {
+        auto f = floats(v.substr(7));
+        if (f.size() < 3) throw std::invalid_argument("--view camera:X,Y,Z[,FOV_DEG[,HEIGHT_PX]]");
+        view.camera = {f[0], f[1], f[2]};
+        view.has_camera = true;
+        if (f.size() > 3) view.fov_y = f[3] * float(M_PI / 180.0);
+        if (f.size() > 4) view.viewport_height = f[4];
+    } else if (v.rfind("weights:", 0) == 0) {
+        auto f = floats(v.substr(8));
+        for (size_t k = 0; k < f.size(); ++k) view.weights.emplace_back(int(k), f[k]);
+    } else {
+        throw std::invalid_argument("--view camera:... or weights:...");
+    }
+}
+
+// The options that name where to connect and what to publish; false when
+// `a` is none of them. val() takes the option's value.
+template <class Value>
+bool parse_session_option(const std::string& a, Value&& val, ClientOptions& opt) {
+    if (a == "--server") {
+        const cli::HostPort hp = cli::host_port(a, val());
+        opt.host = hp.host;
+        opt.port = hp.port;
+    } else if (a == "--udp-via") {
+        const cli::HostPort hp = cli::host_port(a, val());
+        opt.udp_via_host = hp.host;
+        opt.udp_via_port = hp.port;
+    } else if (a == "--max-kbps") opt.max_kbps = cli::to_number(a, val());
+    else if (a == "--view") {
+        parse_view(val(), opt.view);
+        opt.send_view = true;
+    } else if (a == "--publish") {
+        PublishOptions p;
+        p.asset = val();
+        opt.publish.push_back(p);
+    } else if (a == "--clip" || a == "--walk") {
+        if (opt.publish.empty()) throw std::invalid_argument(a + " applies to a --publish before it");
+        if (a == "--clip") opt.publish.back().clip = val();
+        else opt.publish.back().walk = cli::to_number(a, val());
+        if (!(opt.publish.back().walk >= 0)) throw std::invalid_argument("--walk must be >= 0");
+    } else if (a == "--publish-rate") opt.publish_rate = cli::to_number(a, val());
+    else if (a == "--tls") opt.tls = true;
+    else if (a == "--no-tls") opt.tls = false;
+    else if (a == "--ca") opt.ca_file = val();
+    else if (a == "--pin") opt.pin_sha256 = val();
+    else if (a == "--insecure") opt.insecure = true;
+    else if (a == "--name") opt.name = val();
+    else if (a == "--token") opt.token = val();
+    else if (a == "--protocol-version") opt.protocol_version = cli::to_u16(a, val());
+    else return false;
+    return true;
+}
+
+// The options of the display, the measurements and the output.
+template <class Value>
+bool parse_display_option(const std::string& a, Value&& val, Args& args) {
+    ClientOptions& opt = args.opt;
+    if (a == "--duration") opt.duration = cli::to_number(a, val());
+    else if (a == "--delay-ms") opt.delay_ms = cli::to_number(a, val());
+    else if (a == "--max-delay-ms") opt.max_delay_ms = cli::to_number(a, val());
+    else if (a == "--display-rate") opt.display_rate = cli::to_number(a, val());
+    else if (a == "--blend-frames") opt.blend_frames = cli::to_int(a, val());
+    else if (a == "--verify") opt.verify = true;
+    else if (a == "--warmup") opt.warmup = cli::to_number(a, val());
+    else if (a == "--verify-every") opt.verify_every = cli::to_int(a, val());
+    else if (a == "--snap-to-ticks") opt.snap_to_ticks = true;
+    else if (a == "--report") {
+        args.report = val();
+        if (args.report != "json" && args.report != "text") throw std::invalid_argument("--report json|text");
+    } else if (a == "--cache") opt.cache_dir = val();
+    else if (a == "--verbose") opt.verbose = true;
+    else if (a == "--snapshot-every") opt.snapshot_every = cli::to_number(a, val());
+    else if (a == "--snapshot-dir") args.snapshot_dir = val();
+    else return false;
+    return true;
+}
+
+// Throws std::invalid_argument for a combination or value out of range.
+void check_args(const ClientOptions& opt) {
+    if (!opt.tls && (!opt.ca_file.empty() || !opt.pin_sha256.empty() || opt.insecure))
+        throw std::invalid_argument("--ca, --pin and --insecure need TLS (not --no-tls)");
+    if (opt.tls && opt.ca_file.empty() && opt.pin_sha256.empty() && !opt.insecure)
+        throw std::invalid_argument("TLS (the default) needs --pin SHA256HEX (printed by progskin-server), --ca FILE, "
+                                    "or --insecure (development only); --no-tls for a plain server");
+    if (opt.snapshot_every < 0) throw std::invalid_argument("--snapshot-every must be positive");
 #ifndef PROGSKIN_HAVE_RENDER
-        if (opt.snapshot_every > 0) throw std::invalid_argument("--snapshot-every: this build has no renderer (render/)");
+    if (opt.snapshot_every > 0) throw std::invalid_argument("--snapshot-every: this build has no renderer (render/)");
 #endif
-        if (!(opt.duration > 0) || !(opt.display_rate > 0) || opt.max_kbps < 0 || opt.blend_frames < 1 || opt.verify_every < 1 ||
-            !(opt.publish_rate > 0 && opt.publish_rate <= 240))
-            throw std::invalid_argument("argument out of range");
-    } catch (const std::exception& e) {
-        std::fprintf(stderr, "progskin-client: %s\n%s", e.what(), kUsage);
-        return 2;
-    }
-#ifdef PROGSKIN_HAVE_RENDER
-    int snapshots = 0;
-    if (opt.snapshot_every > 0) {
-        std::error_code ec;
-        std::filesystem::create_directories(snapshot_dir, ec);
-        opt.on_snapshot = [&](const DisplaySnapshot& s) {
-            std::vector<render::SnapshotCharacter> chars;
-            std::vector<std::vector<glm::vec3>> morphed(s.characters.size());  // per snapshot, not per frame
-            for (size_t i = 0; i < s.characters.size(); ++i) {
-                const DisplayedCharacter& d = s.characters[i];
-                render::SnapshotCharacter c;
-                c.character = d.character;
-                c.skin = d.skin;
-                c.stream = d.stream;
-                c.palette = d.palette;
-                if (!d.morph_weights.empty() && d.morph_weights.size() == d.character->morphs.size()) {
-                    // Morph targets before skinning: CPU-skinned positions instead of the palette.
-                    std::vector<glm::vec3> bind(d.character->vertex_count());
-                    morph_positions(*d.character, d.morph_weights, bind);
-                    morphed[i].resize(bind.size());
-                    SkinningJob job = skinning_job(*d.character, *d.skin, d.palette, morphed[i]);
-                    job.positions = bind;
-                    job.normals = {};
-                    job.out_normals = {};
-                    if (job.validate()) {
-                        job.run();
-                        c.positions = morphed[i];
-                        c.palette = {};
-                    }
-                }
-                Mat34 place = Mat34::identity();
-                place.m[3] = d.position.x, place.m[7] = d.position.y, place.m[11] = d.position.z;
-                c.placement = place;
-                c.bones_received = d.bones;
-                c.label = "#" + std::to_string(d.instance);
-                chars.push_back(c);
-            }
-            render::SnapshotOptions so;
-            char title[160];
-            std::snprintf(title, sizeof title, "progskin-client  t = %.1f s  %.1f kbit/s", s.seconds, s.rate_kbps);
-            so.title = title;
-            char name[64];
-            std::snprintf(name, sizeof name, "/snapshot_%04d.png", snapshots);
-            std::string err;
-            if (render::render_snapshot(chars, snapshot_dir + name, so, &err)) {
-                ++snapshots;
-                if (opt.verbose) std::fprintf(stderr, "progskin-client: wrote %s%s\n", snapshot_dir.c_str(), name);
-            } else {
-                std::fprintf(stderr, "progskin-client: snapshot failed: %s\n", err.c_str());
-            }
+    if (!(opt.duration > 0) || !(opt.display_rate > 0) || opt.max_kbps < 0 || opt.blend_frames < 1 || opt.verify_every < 1 ||
+        !(opt.publish_rate > 0 && opt.publish_rate <= 240))
+        throw std::invalid_argument("argument out of range");
+}
+
+// Parses the command line into args; true for --help (printed). Throws
+// std::invalid_argument for a bad argument.
+bool parse_args(int argc, char** argv, Args& args) {
+    args.opt.tls = true;  // the program's default (ClientOptions/ClientConfig default to plain)
+    for (int i = 1; i < argc; ++i) {
+        const std::string a = argv[i];
+        auto val = [&]() -> std::string {
+            if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
+            return argv[++i];
         };
+        if (a == "--help" || a == "-h") {
+            std::fputs(kUsage, stdout);
+            return true;
+        }
+        if (!parse_session_option(a, val, args.opt) && !parse_display_option(a, val, args))
+            throw std::invalid_argument("unknown argument " + a);
     }
+    check_args(args.opt);
+    return false;
+}
+
+#ifdef PROGSKIN_HAVE_RENDER
+// --snapshot-every: each DisplaySnapshot rendered to DIR/snapshot_NNNN.png.
+struct SnapshotWriter {
+    std::string dir;
+    bool verbose = false;
+    int written = 0;
+
+    void write(const DisplaySnapshot& s) {
+        std::vector<render::SnapshotCharacter> chars;
+        std::vector<std::vector<glm::vec3>> morphed(s.characters.size());  // per snapshot, not per frame
+        for (size_t i = 0; i < s.characters.size(); ++i) chars.push_back(character(s.characters[i], morphed[i]));
+        render::SnapshotOptions so;
+        char title[160];
+        std::snprintf(title, sizeof title, "progskin-client  t = %.1f s  %.1f kbit/s", s.seconds, s.rate_kbps);
+        so.title = title;
+        char name[64];
+        std::snprintf(name, sizeof name, "/snapshot_%04d.png", written);
+        std::string err;
+        if (render::render_snapshot(chars, dir + name, so, &err)) {
+            ++written;
+            if (verbose) std::fprintf(stderr, "progskin-client: wrote %s%s\n", dir.c_str(), name);
+        } else {
+            std::fprintf(stderr, "progskin-client: snapshot failed: %s\n", err.c_str());
+        }
+    }
+
+    // One displayed character as the renderer takes it; `morphed` holds its
+    // CPU-skinned positions when it has morph targets.
+    static render::SnapshotCharacter character(const DisplayedCharacter& d, std::vector<glm::vec3>& morphed) {
+        render::SnapshotCharacter c;
+        c.character = d.character;
+        c.skin = d.skin;
+        c.stream = d.stream;
+        c.palette = d.palette;
+        if (!d.morph_weights.empty() && d.morph_weights.size() == d.character->morphs.size()) {
+            // Morph targets before skinning: CPU-skinned positions instead of the palette.
+            std::vector<glm::vec3> bind(d.character->vertex_count());
+            morph_positions(*d.character, d.morph_weights, bind);
+            morphed.resize(bind.size());
+            SkinningJob job = skinning_job(*d.character, *d.skin, d.palette, morphed);
+            job.positions = bind;
+            job.normals = {};
+            job.out_normals = {};
+            if (job.validate()) {
+                job.run();
+                c.positions = morphed;
+                c.palette = {};
+            }
+        }
+        Mat34 place = Mat34::identity();
+        place.m[3] = d.position.x, place.m[7] = d.position.y, place.m[11] = d.position.z;
+        c.placement = place;
+        c.bones_received = d.bones;
+        c.label = "#" + std::to_string(d.instance);
+        return c;
+    }
+};
 #endif
-    // Download progress on stderr, at most once a second per asset (and when
-    // it completes, if it took a line before): a slow link can take minutes.
+
+// Download progress on stderr, at most once a second per asset (and when
+// it completes, if it took a line before): a slow link can take minutes.
+struct DownloadProgress {
     std::chrono::steady_clock::time_point last_line{};
     std::string last_name;
     bool printed = false;
-    opt.on_download = [&](const std::string& name, uint64_t got, uint64_t size) {
+
+    void update(const std::string& name, uint64_t got, uint64_t size) {
         const auto now = std::chrono::steady_clock::now();
         if (name != last_name) {
             last_name = name;
@@ -240,12 +281,35 @@ int main(int argc, char** argv) {
             last_line = now;
             printed = true;
         }
-    };
+    }
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    Args args;
+    try {
+        if (parse_args(argc, argv, args)) return 0;
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "progskin-client: %s\n%s", e.what(), kUsage);
+        return 2;
+    }
+    ClientOptions& opt = args.opt;
+#ifdef PROGSKIN_HAVE_RENDER
+    SnapshotWriter snapshots{args.snapshot_dir, opt.verbose};
+    if (opt.snapshot_every > 0) {
+        std::error_code ec;
+        std::filesystem::create_directories(args.snapshot_dir, ec);
+        opt.on_snapshot = [&snapshots](const DisplaySnapshot& s) { snapshots.write(s); };
+    }
+#endif
+    DownloadProgress progress;
+    opt.on_download = [&progress](const std::string& name, uint64_t got, uint64_t size) { progress.update(name, got, size); };
     if (opt.tls && opt.insecure)
         std::fprintf(stderr, "progskin-client: --insecure: the server's certificate is not verified\n");
     try {
         ClientReport r = run_client(opt);
-        if (report == "json") std::printf("%s\n", report_json(r).c_str());
+        if (args.report == "json") std::printf("%s\n", report_json(r).c_str());
         else std::fputs(report_text(r).c_str(), stdout);
         return 0;
     } catch (const std::exception& e) {

@@ -3,7 +3,8 @@
 // LodBlender needs, interpolated by the PoseBuffer; copy-down with corrections
 // for the rest, PaletteJob), skinned on the CPU (SkinningJob) when verifying,
 // and compared with the reference (the asset's clip evaluated at full detail
-// at the same clip time; docs/metrics.md §2).
+// at the same clip time; docs/metrics.md §2). Internal to the client library
+// (ClientAsset and ClipInfo, which games see, are in client_asset.h).
 #pragma once
 #include <memory>
 #include <span>
@@ -13,38 +14,18 @@
 #include "animation.h"
 #include "bone_codec.h"
 #include "character.h"
+#include "client_asset.h"
 #include "palette.h"
 #include "pose_buffer.h"
 #include "progressive_skin.h"
 
 namespace progskin::net {
 
-// An asset as the client holds it: the character imported from the
-// downloaded file and the progressive skin described in Welcome.
-struct ClientAsset {
-    uint64_t id = 0;
-    std::string name, path;
-    Character character;
-    ProgressiveSkin skin;   // order, parents, corrections, error; joints/weights in progressive indices
-    RecordFormat format;
-    double diagonal = 1;    // rest_diagonal(character)
-    SkinStream stream;      // skin's vertex stream for skin_stream (positions, U16 weights)
-};
-
 // Fills skin.joints/weights from the character's vertex stream remapped to
 // progressive indices (skin.order must be set). Throws Error on a bad order.
 void remap_skin_vertices(const Character& c, ProgressiveSkin& skin);
 // The same for an asset (its character and skin), then builds asset.stream.
 void remap_skin_vertices(ClientAsset& asset);
-
-struct ClipInfo {
-    ClipSelection selection;  // empty clips: live poses (no reference)
-    float time_offset = 0, speed = 1;
-    bool once = false;        // plays once and holds the last frame (else loops)
-    // Clip time of the selection u seconds after its start (looped, or held).
-    double at(double u) const;
-    double clip_time(double tick, double tick_rate) const;
-};
 
 class InstanceView {
 public:

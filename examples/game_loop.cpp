@@ -16,8 +16,7 @@
 #include <thread>
 
 #include "animation.h"
-#include "client.h"
-#include "wire.h"
+#include "client.h"  // everything a game needs (now_seconds too)
 
 using namespace progskin;
 using namespace progskin::net;

@@ -2,12 +2,12 @@
 #include <array>
 
 #include "bone_codec.h"
-#include "client.h"
 #include "control_messages.h"
 #include "crypto.h"
-#include "frame_reader.h"
 #include "fuzz_targets.h"
 #include "pose_buffer.h"
+#include "server.h"
+#include "session.h"
 #include "wire.h"
 
 namespace progskin::fuzz {
@@ -36,21 +36,11 @@ int frame_stream(const uint8_t* data, size_t size) {
         scaled.scaled = true;
         std::array<PoseBuffer, 6> buffers = {PoseBuffer(24, plain), PoseBuffer(24, plain), PoseBuffer(24, plain),
                                              PoseBuffer(19, plain), PoseBuffer(19, scaled), PoseBuffer(3, plain, 4)};
-        auto record_size = [&](uint16_t i) { return i < buffers.size() ? (i == 4 ? scaled : plain).size() : 0; };
-        int accepted = 0;
-        uint8_t epoch = 0;
-        const uint8_t* root = nullptr;
-        const bool ok = read_frame(
-            *f, record_size,
-            [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
-                accepted += buffers[i].add_chunk(f->tick(), first, count, show, rec, show, epoch, root);
-            },
-            [&](const wire::Chunk& c, const uint8_t* r, const uint8_t* morph) {
-                epoch = c.epoch();
-                root = r;
-                if (morph) accepted += buffers[c.instance()].add_morphs(f->tick(), c.show(), c.show(), c.epoch(), morph);
-            });
-        if (!ok) return 0;
+        std::array<PoseTarget, 6> targets;
+        for (size_t i = 0; i < buffers.size(); ++i) targets[i] = {&buffers[i], (i == 4 ? scaled : plain).size()};
+        // The client's frame application (client/session.h), epochs and roots included.
+        const FrameApplied applied = apply_frame(*f, targets);
+        if (!applied.read) return 0;
         for (const PoseBuffer& b : buffers) {
             BonePose p;
             RootPose rp;
@@ -61,7 +51,7 @@ int frame_stream(const uint8_t* data, size_t size) {
             std::array<float, 4> w;
             b.weights_at(t - 0.5, std::span<float>(w.data(), size_t(b.morph_count())));
         }
-        return accepted > 0;
+        return applied.applied > 0;
     }
     // Ack, Bind, BindAck, Challenge, ChallengeResponse: verified tables, every field read.
     [[maybe_unused]] static volatile uint64_t sink;

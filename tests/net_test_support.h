@@ -8,12 +8,12 @@
 #include <thread>
 #include <vector>
 
-#include "client.h"
 #include "client_palette.h"
 #include "error_metric.h"
-#include "frame_reader.h"
+#include "run_client.h"
 #include "scene.h"
 #include "server.h"
+#include "session.h"
 
 namespace progskin::net::testing {
 
@@ -24,29 +24,13 @@ inline std::vector<std::shared_ptr<ServerAsset>>& default_assets() {
     return a;
 }
 
-// What the client does with one Frame, without the network: every run of
-// bones into its instance's pose buffer (proto/frame_reader.h). read: the
-// frame passed read_frame; refused: runs the pose buffer refused;
-// record_bytes: the records applied.
-struct FrameApplied {
-    bool read = false;
-    int refused = 0;
-    size_t record_bytes = 0;
-};
+// What the client does with one Frame, without the network: the session's
+// apply_frame (client/session.h) into the views' pose buffers, instance i
+// being views[i].
 inline FrameApplied apply_frame(const wire::Frame& f, std::vector<std::unique_ptr<InstanceView>>& views) {
-    FrameApplied r;
-    auto record_size = [&](uint16_t i) { return i < views.size() ? views[i]->asset().format.size() : 0; };
-    r.read = read_frame(
-        f, record_size,
-        [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
-            if (!views[i]->buffer().add_chunk(f.tick(), first, count, show, rec, show)) ++r.refused;
-            r.record_bytes += size_t(count) * size_t(record_size(i));
-        },
-        [&](const wire::Chunk& c, const uint8_t*, const uint8_t* morph) {  // epochs ignored (0), as for the bones
-            if (morph && !views[c.instance()]->buffer().add_morphs(f.tick(), c.show(), c.show(), 0, morph))
-                ++r.refused;
-        });
-    return r;
+    std::vector<PoseTarget> targets;
+    for (auto& v : views) targets.push_back({&v->buffer(), v->asset().format.size()});
+    return net::apply_frame(f, targets);
 }
 
 // What a client holds after downloading a server asset (without the network).

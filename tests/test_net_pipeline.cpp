@@ -18,7 +18,7 @@
 using namespace progskin;
 using namespace progskin::net;
 using progskin::net::testing::apply_frame;
-using progskin::net::testing::FrameApplied;
+using progskin::net::FrameApplied;
 using progskin::net::testing::client_asset;
 using namespace progskin::thresholds;
 
