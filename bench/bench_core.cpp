@@ -11,6 +11,7 @@
 #include "animation.h"
 #include "gltf_import.h"
 #include "palette.h"
+#include "collapse.h"
 #include "progressive_skin.h"
 #include "skinning.h"
 #include "../tests/synthetic.h"

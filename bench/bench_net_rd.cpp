@@ -33,6 +33,7 @@
 
 #include "client_palette.h"
 #include "client_stream.h"
+#include "collapse.h"
 #include "error_metric.h"
 #include "scene.h"
 #include "server_core.h"

@@ -17,6 +17,7 @@
 #include "animation.h"
 #include "gltf_import.h"
 #include "palette.h"
+#include "collapse.h"
 #include "progressive_skin.h"
 #include "skin_plain_loop.h"
 #include "skinning.h"

@@ -207,10 +207,9 @@ bool PoseBuffer::pose(int b, double d, BonePose& out, double* held_at, double* a
                 *c1 = static_cast<const Frame*>(pc1);
     auto time = [&](const Frame* f) { return double(int32_t(f->tick - newest_)) + double(newest_); };
     if (a && c) {
-        if (a0 && c1)
-            out = interpolate_cubic(a0->bones[b], a->bones[b], c->bones[b], c1->bones[b], time(a0), time(a), time(c), time(c1), d);
-        else
-            out = interpolate(a->bones[b], c->bones[b], float((d - time(a)) / (time(c) - time(a))));
+        const bool outer = a0 && c1;  // the stream's interpolation policy (pose.h)
+        out = interpolate_between(outer ? &a0->bones[b] : nullptr, a->bones[b], c->bones[b], outer ? &c1->bones[b] : nullptr,
+                                  outer ? time(a0) : 0.0, time(a), time(c), outer ? time(c1) : 0.0, d);
         return true;
     }
     if (a && boundary_) {

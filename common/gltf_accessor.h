@@ -5,8 +5,11 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json_fwd.hpp>
+
 namespace tinygltf {
 class Model;
+class Value;
 }
 
 namespace progskin::gltf {
@@ -22,5 +25,9 @@ void load_model(const std::string& path, tinygltf::Model& model);
 // accessor type's component count. Throws Error("<path>: <what> ...").
 std::vector<double> read_accessor(const std::string& path, const tinygltf::Model& model, int index, int components,
                                   const std::string& what);
+
+// An extension or extras value as JSON (objects, arrays, strings, booleans,
+// numbers; anything else null).
+nlohmann::json value_json(const tinygltf::Value& v);
 
 }  // namespace progskin::gltf

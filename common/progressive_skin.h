@@ -1,5 +1,8 @@
-// progressive_skin.h — a progressive skin and its generation by collapsing an
-// existing skin (docs/algorithms.md).
+// progressive_skin.h — a progressive skin (docs/algorithms.md): the data a
+// runtime needs (order, progressive parents, corrections, the vertex stream in
+// progressive bone indices), its error table, and the LOD reconstruction.
+// Building one is offline: offline/collapse.h (from a skin) and
+// offline/scratch_build.h (from vertex animation).
 //
 // Bones are renumbered 0..B-1 so that any prefix 0..k-1 is closed under the
 // progressive parent (parent[b] < b). An inactive bone b stands in as
@@ -7,11 +10,10 @@
 // each step the active bone whose collapse adds the least squared vertex error
 // (over all vertices and training frames, against the full-detail reference) is
 // collapsed into its target and becomes the last active bone; its correction is
-// the least-squares fit (Eigen) that best stands in for it, or identity for
-// plain copy-down.
+// the least-squares fit that best stands in for it, or identity for plain
+// copy-down.
 #pragma once
 #include <cstdint>
-#include <functional>
 #include <span>
 #include <string>
 #include <vector>
@@ -55,16 +57,6 @@ struct ProgressiveSkin {
 
     int bone_count() const { return int(order.size()); }
 };
-
-struct BuildOptions {
-    Strategy strategy = Strategy::Reorder;
-    bool fit_corrections = true;  // false: plain copy-down (C = identity)
-    // Progress callback: (step, total); may be empty.
-    std::function<void(int, int)> progress;
-};
-
-ProgressiveSkin build_progressive_skin(const Character& c, const FrameSet& frames,
-                                       const BuildOptions& options = {});
 
 // The error table evaluated independently of the build: for every k, the
 // palette (palette.h) and skinning (skinning.h) against the reference. With

@@ -15,8 +15,8 @@
 #include <string>
 #include <thread>
 
-#include "animation.h"
-#include "client.h"  // everything a game needs (now_seconds too)
+#include <progskin/animation.h>
+#include <progskin/client.h>  // everything a game needs (now_seconds too)
 
 using namespace progskin;
 using namespace progskin::net;

@@ -22,69 +22,6 @@ float dequant(uint32_t q, float lo, float hi, float steps) { return lo + (hi - l
 
 }  // namespace
 
-BonePose decompose(const Mat34& m) {
-    glm::vec3 c0{m.m[0], m.m[4], m.m[8]}, c1{m.m[1], m.m[5], m.m[9]}, c2{m.m[2], m.m[6], m.m[10]};
-    float det = glm::dot(c0, glm::cross(c1, c2));
-    float s = std::cbrt(std::fabs(det));
-    if (!(s > 1e-12f)) s = 1.0f;
-    glm::mat3 r(c0 / s, c1 / s, c2 / s);
-    BonePose p;
-    p.r = glm::normalize(glm::quat_cast(r));
-    p.t = {m.m[3], m.m[7], m.m[11]};
-    p.s = s;
-    return p;
-}
-
-Mat34 compose(const BonePose& p) {
-    glm::mat3 r = glm::mat3_cast(p.r) * p.s;
-    Mat34 m;
-    for (int row = 0; row < 3; ++row) {
-        for (int c = 0; c < 3; ++c) m.m[row * 4 + c] = r[c][row];
-        m.m[row * 4 + 3] = p.t[row];
-    }
-    return m;
-}
-
-BonePose inverse(const BonePose& p) {
-    BonePose q;
-    q.r = glm::conjugate(p.r);
-    q.s = p.s != 0.0f ? 1.0f / p.s : 1.0f;
-    q.t = -(q.r * p.t) * q.s;
-    return q;
-}
-
-BonePose interpolate_cubic(const BonePose& p0, const BonePose& a, const BonePose& b, const BonePose& p3, double t0,
-                           double ta, double tb, double t3, double t) {
-    const double h = tb - ta;
-    if (!(h > 0) || !(ta > t0) || !(t3 > tb)) return interpolate(a, b, float(h > 0 ? (t - ta) / h : 0.0));
-    const double u = (t - ta) / h, u2 = u * u, u3 = u2 * u;
-    const float h00 = float(2 * u3 - 3 * u2 + 1), h10 = float((u3 - 2 * u2 + u) * h), h01 = float(-2 * u3 + 3 * u2),
-                h11 = float((u3 - u2) * h);
-    const float ia = float(1.0 / (tb - t0)), ib = float(1.0 / (t3 - ta));
-    // Quaternion components, on a's hemisphere.
-    auto comp = [&](const glm::quat& q) {
-        const glm::vec4 v(q.x, q.y, q.z, q.w);
-        return glm::dot(a.r, q) < 0.0f ? -v : v;
-    };
-    const glm::vec4 q0 = comp(p0.r), qa = comp(a.r), qb = comp(b.r), q3 = comp(p3.r);
-    const glm::vec4 q = h00 * qa + h10 * (qb - q0) * ia + h01 * qb + h11 * (q3 - qa) * ib;
-    BonePose p;
-    p.r = glm::normalize(glm::quat(q.w, q.x, q.y, q.z));
-    p.t = h00 * a.t + h10 * (b.t - p0.t) * ia + h01 * b.t + h11 * (p3.t - a.t) * ib;
-    p.s = h00 * a.s + h10 * (b.s - p0.s) * ia + h01 * b.s + h11 * (p3.s - a.s) * ib;
-    return p;
-}
-
-BonePose interpolate(const BonePose& a, const BonePose& b, float t) {
-    BonePose p;
-    glm::quat qb = b.r;
-    if (glm::dot(a.r, qb) < 0.0f) qb = -qb;
-    p.r = glm::normalize(glm::slerp(a.r, qb, t));
-    p.t = a.t + (b.t - a.t) * t;
-    p.s = a.s + (b.s - a.s) * t;
-    return p;
-}
-
 namespace {
 void encode_rotation(const glm::quat& r, uint8_t* out) {
     float q[4] = {r.x, r.y, r.z, r.w};

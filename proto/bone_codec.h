@@ -19,6 +19,7 @@
 #include <span>
 
 #include "mat34.h"
+#include "pose.h"  // BonePose, compose/decompose, interpolation
 
 namespace progskin::net {
 
@@ -28,27 +29,6 @@ struct RecordFormat {
     static constexpr int kPlainSize = 12, kScaledSize = 14;  // record bytes
     int size() const { return scaled ? kScaledSize : kPlainSize; }
 };
-
-// Decoded bone: rotation (unit quaternion), translation, uniform scale.
-struct BonePose {
-    glm::quat r{1, 0, 0, 0};
-    glm::vec3 t{0.0f};
-    float s = 1.0f;
-};
-
-BonePose decompose(const Mat34& m);
-Mat34 compose(const BonePose& p);
-// The inverse transform (rotation, translation, uniform scale).
-BonePose inverse(const BonePose& p);
-// Cubic (Hermite) interpolation between a (time ta) and b (tb) at time t,
-// tangents by finite differences over the neighbours p0 (t0 < ta) and p3
-// (t3 > tb): for translation, scale and the quaternion's components (aligned
-// to a's hemisphere, then normalised). Exact for poses moving along a cubic.
-BonePose interpolate_cubic(const BonePose& p0, const BonePose& a, const BonePose& b, const BonePose& p3, double t0,
-                           double ta, double tb, double t3, double t);
-// Interpolation between two poses of a bone: slerp (shortest path) for the
-// rotation, lerp for translation and scale.
-BonePose interpolate(const BonePose& a, const BonePose& b, float t);
 
 // Writes fmt.size() bytes. O(1), no allocation.
 void encode_bone(const BonePose& p, const RecordFormat& fmt, uint8_t* out);

@@ -15,6 +15,7 @@
 
 #include "control_generated.h"
 #include "datagram_generated.h"
+#include "pose.h"  // kHoldTicks
 
 namespace progskin::net {
 
@@ -27,7 +28,7 @@ inline constexpr size_t MAX_NAME = 64;                // Hello.client_name
 inline constexpr size_t MAX_TOKEN = 256;              // Hello.token
 inline constexpr int MAX_BONES = 255;                 // bones per character on the wire
 inline constexpr size_t CHALLENGE_NONCE = 16;          // Challenge.nonce bytes
-inline constexpr int HOLD_TICKS = 16;                 // a bone stays shown this many ticks after its newest frame
+inline constexpr int HOLD_TICKS = kHoldTicks;                // a bone stays shown this many ticks after its newest frame
 inline constexpr uint8_t CHUNK_ROOT = 1, CHUNK_SCALED = 2;   // Chunk.flags
 inline constexpr uint8_t CHUNK_MORPH = 4;             // Chunk.flags: a morph block follows the root block
 inline constexpr int MAX_MORPHS = 255;                // morph targets streamed per character (uint8 index and count)

@@ -14,6 +14,7 @@
 
 #include "animation.h"
 #include "cli_args.h"
+#include "collapse.h"
 #include "errors.h"
 #include "figure.h"
 #include "gltf_export.h"

@@ -9,10 +9,15 @@
 #include <fstream>
 #include <unistd.h>
 
+#include <nlohmann/json.hpp>
+
+#include "collapse.h"
+#include "cost_tables.h"
 #include "errors.h"
 #include "error_metric.h"
 #include "gltf_export.h"
 #include "gltf_import.h"
+#include "progressive_asset.h"
 #include "progressive_skin.h"
 #include "scratch_build.h"
 #include "skinning.h"
@@ -23,239 +28,29 @@ namespace progskin::net {
 
 namespace fs = std::filesystem;
 
+// The wire record format of an asset's bones: its tables' translation box.
+static RecordFormat record_format(const AssetTables& t) {
+    RecordFormat f;
+    f.t_min = t.t_min;
+    f.t_max = t.t_max;
+    f.scaled = t.scaled;
+    return f;
+}
+
 static std::vector<uint8_t> read_file(const std::string& path) {
     std::ifstream f(path, std::ios::binary);
     if (!f) throw Error(path + ": cannot open");
     return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
 }
 
-std::vector<HullStep> error_hull(const std::vector<double>& err) {
-    // Points (k, e(k)) for k = 1..B; lower convex hull from k = 1 (monotone chain).
-    std::vector<HullStep> steps;
-    const int B = int(err.size());
-    if (B <= 1) return steps;
-    std::vector<int> h;  // hull vertex ks
-    auto e = [&](int k) { return err[size_t(k - 1)]; };
-    for (int k = 1; k <= B; ++k) {
-        while (h.size() >= 2) {
-            int a = h[h.size() - 2], b = h.back();
-            // b is above segment a-k (or on it): drop it
-            double cross = (b - a) * (e(k) - e(a)) - (k - a) * (e(b) - e(a));
-            if (cross <= 0) h.pop_back();
-            else break;
-        }
-        h.push_back(k);
-    }
-    for (size_t i = 1; i < h.size(); ++i)
-        steps.push_back({h[i - 1], h[i], std::max(0.0, e(h[i - 1]) - e(h[i]))});
-    return steps;
-}
-
-double ServerAsset::Segment::gap_at(int model, double g) const {
-    const auto& t = gap[size_t(model)];
-    const int last = kGapTable - 1;
-    if (g <= 1) return 0;
-    if (g >= last) return t[last] * (g / last) * (g / last);
-    const int i = int(g);
-    return t[size_t(i)] + (t[size_t(i + 1)] - t[size_t(i)]) * (g - i);
-}
-
-// Segments of the scheduler's cost model (scene.h): the hull of e(k)^2; per
-// segment and clip selection, the collapse error over the selection's frames
-// and the interpolation error over gaps of 2..16 frames, sampled at a quarter,
-// half and three quarters of the gap from up to 24 start frames per selection.
-static void build_segments(ServerAsset& a, const FrameSet& frames) {
-    const Character& c = a.character;
-    const ProgressiveSkin& s = a.skin;
-    const size_t M = a.selections.size() + 1;  // models: selections, then all
-    std::vector<double> mse;
-    for (const auto& e : s.error) mse.push_back(e.rms * e.rms);
-    std::vector<std::vector<double>> sel_mse(M);
-    for (size_t m = 0; m + 1 < M; ++m)
-        for (const auto& e : evaluate_error_table(c, s, sample_frames(c, {a.selections[m]}, 30.0))) sel_mse[m].push_back(e.rms * e.rms);
-    sel_mse[M - 1] = mse;
-    a.segments.clear();
-    ServerAsset::Segment root;
-    root.from = 0;
-    root.to = 1;
-    for (size_t m = 0; m < M; ++m) {
-        const double e1 = sel_mse[m].empty() ? 0.0 : std::sqrt(sel_mse[m][0]);
-        root.collapse.push_back((a.diagonal + e1) * (a.diagonal + e1));
-    }
-    a.segments.push_back(root);
-    for (const HullStep& h : error_hull(mse)) {
-        ServerAsset::Segment seg;
-        seg.from = h.from;
-        seg.to = h.to;
-        for (size_t m = 0; m < M; ++m)
-            seg.collapse.push_back(sel_mse[m].size() >= size_t(h.to)
-                                       ? std::max(0.0, sel_mse[m][size_t(h.from - 1)] - sel_mse[m][size_t(h.to - 1)])
-                                       : h.gain);
-        a.segments.push_back(seg);
-    }
-    const size_t S = a.segments.size(), V = c.vertex_count(), J = c.joint_count();
-    for (auto& seg : a.segments) seg.gap.assign(M, {});
-    std::vector<int> seg_of_joint(J, 0);
-    for (size_t g = 0; g < S; ++g)
-        for (int b = a.segments[g].from; b < a.segments[g].to; ++b) seg_of_joint[size_t(s.order[size_t(b)])] = int(g);
-
-    const int I = c.influences;
-    std::vector<Mat34> diff(J);
-    std::vector<BonePose> p0(J), pa(J), pb(J), p3(J);  // the frames around an interval, per joint
-    std::vector<double> sum(S * M), samples(M), all(M);
-    std::vector<size_t> sel_frames(M - 1, 0);
-    for (int x : frames.selection_of_frame)
-        if (x >= 0 && size_t(x) + 1 < M) ++sel_frames[size_t(x)];
-    for (int g = 2; g < ServerAsset::kGapTable; ++g) {
-        std::fill(sum.begin(), sum.end(), 0.0);
-        std::fill(samples.begin(), samples.end(), 0.0);
-        std::fill(all.begin(), all.end(), 0.0);
-        for (size_t f = 0; f + size_t(g) < frames.frame_count(); ++f) {
-            const int sel = frames.selection_of_frame[f];
-            if (sel < 0 || size_t(sel) + 1 >= M || sel != frames.selection_of_frame[f + size_t(g)]) continue;
-            if (f % std::max<size_t>(1, sel_frames[size_t(sel)] / 24) != 0) continue;
-            // What the client does: cubic over the neighbours f - g and f + 2g
-            // when they exist (same clip), else slerp/lerp.
-            const bool cubic = f >= size_t(g) && f + 2 * size_t(g) < frames.frame_count() &&
-                               frames.selection_of_frame[f - size_t(g)] == sel &&
-                               frames.selection_of_frame[f + 2 * size_t(g)] == sel;
-            for (size_t j = 0; j < J; ++j) {
-                pa[j] = decompose(frames.frame(f)[j]);
-                pb[j] = decompose(frames.frame(f + size_t(g))[j]);
-                if (cubic) {
-                    p0[j] = decompose(frames.frame(f - size_t(g))[j]);
-                    p3[j] = decompose(frames.frame(f + 2 * size_t(g))[j]);
-                }
-            }
-            int prev_h = 0;
-            for (int q = 1; q <= 3; ++q) {
-                const int h = std::clamp(int(std::lround(g * q / 4.0)), 1, g - 1);
-                if (h == prev_h) continue;
-                prev_h = h;
-                const float alpha = float(h) / float(g);
-                for (size_t j = 0; j < J; ++j) {
-                    const Mat34 mm = compose(cubic ? interpolate_cubic(p0[j], pa[j], pb[j], p3[j], -double(g), 0.0, double(g),
-                                                                       2.0 * g, double(h))
-                                                   : interpolate(pa[j], pb[j], alpha));
-                    for (int x = 0; x < 12; ++x) diff[j].m[x] = mm.m[x] - frames.frame(f + size_t(h))[j].m[x];
-                }
-                double* out = sum.data() + size_t(sel) * S;
-                for (size_t v = 0; v < V; ++v) {
-                    const glm::vec3 p = c.positions[v];
-                    glm::vec3 err[8];
-                    int segs[8], n = 0;
-                    for (int k = 0; k < I && k < 8; ++k) {
-                        const float w = c.weights[v * size_t(I) + size_t(k)];
-                        if (w == 0.0f) continue;
-                        const int j = c.joints[v * size_t(I) + size_t(k)];
-                        const float* d = diff[size_t(j)].m;
-                        glm::vec3 e{d[0] * p.x + d[1] * p.y + d[2] * p.z + d[3], d[4] * p.x + d[5] * p.y + d[6] * p.z + d[7],
-                                    d[8] * p.x + d[9] * p.y + d[10] * p.z + d[11]};
-                        int at = 0;
-                        while (at < n && segs[at] != seg_of_joint[size_t(j)]) ++at;
-                        if (at == n) {
-                            segs[n] = seg_of_joint[size_t(j)];
-                            err[n++] = glm::vec3(0.0f);
-                        }
-                        err[at] += w * e;
-                    }
-                    glm::vec3 total(0.0f);
-                    for (int k = 0; k < n; ++k) {
-                        out[size_t(segs[k])] += double(glm::dot(err[k], err[k]));
-                        total += err[k];
-                    }
-                    all[size_t(sel)] += double(glm::dot(total, total));
-                }
-                samples[size_t(sel)] += double(V);
-            }
-        }
-        for (size_t m = 0; m + 1 < M; ++m) {
-            samples[M - 1] += samples[m];
-            all[M - 1] += all[m];
-            for (size_t q = 0; q < S; ++q) sum[(M - 1) * S + q] += sum[m * S + q];
-        }
-        for (size_t m = 0; m < M; ++m) {
-            // Errors of bones that move together add up: scale the segments'
-            // errors so that they sum to the error of all bones interpolated.
-            double parts = 0;
-            for (size_t q = 0; q < S; ++q) parts += sum[m * S + q];
-            const double k = parts > 0 ? all[m] / parts : 1.0;
-            for (size_t q = 0; q < S; ++q) sum[m * S + q] *= k;
-        }
-        for (size_t m = 0; m < M; ++m)
-            for (size_t q = 0; q < S; ++q) {
-                // Clips shorter than the gap: grow from the previous gap as g^2.
-                auto& t = a.segments[q].gap[m];
-                t[size_t(g)] = samples[m] > 0 ? sum[m * S + q] / samples[m] * double(g - 1) / double(g)
-                                              : t[size_t(g - 1)] * double(g * g) / double((g - 1) * (g - 1));
-            }
-    }
-    for (auto& seg : a.segments) {
-        seg.refresh.assign(M, {});
-        seg.show_value.assign(M, 0.0);
-        for (size_t m = 0; m < M; ++m) {
-            for (int x = 1; x < ServerAsset::kGapTable; ++x)
-                seg.refresh[m][size_t(x)] = x * (x + 1.0) * (seg.gap_at(int(m), x + 1.0) - seg.gap_at(int(m), x));
-            for (int p = 1; p < HOLD_TICKS; ++p)
-                seg.show_value[m] = std::max(seg.show_value[m], p * (seg.collapse[m] - seg.gap[m][size_t(p)]));
-        }
-    }
-}
-
 void finish_server_asset(ServerAsset& a) {
-    const Character& c = a.character;
     const ProgressiveSkin& s = a.skin;
     if (s.bone_count() < 1 || s.bone_count() > MAX_BONES)
         throw Error(a.path + ": " + std::to_string(s.bone_count()) + " bones (1.." + std::to_string(MAX_BONES) + " streamable)");
-    a.diagonal = s.diagonal > 0 ? s.diagonal : rest_diagonal(c);
-    if (!(a.diagonal > 0)) a.diagonal = 1;
-    a.bind_radius = 0;
-    for (const auto& p : c.positions) a.bind_radius = std::max(a.bind_radius, double(glm::length(p)));
-
-    if (a.selections.empty()) a.selections = default_training_set(c);
+    if (a.selections.empty()) a.selections = default_training_set(a.character);
     if (a.selections.empty()) a.selections.push_back(ClipSelection{});
-    FrameSet frames = sample_frames(c, a.selections, 30.0);
-
-    // Translation box and scale range of the skinning matrices.
-    glm::vec3 lo(1e30f), hi(-1e30f);
-    bool scaled = false;
-    a.max_scale = 1;
-    for (size_t f = 0; f < frames.frame_count(); ++f) {
-        const Mat34* m = frames.frame(f);
-        for (int j = 0; j < frames.joint_count; ++j) {
-            glm::vec3 t{m[j].m[3], m[j].m[7], m[j].m[11]};
-            lo = glm::min(lo, t);
-            hi = glm::max(hi, t);
-            BonePose p = decompose(m[j]);
-            if (std::fabs(p.s - 1.0f) > 1e-4f) scaled = true;
-            a.max_scale = std::max(a.max_scale, double(p.s));
-        }
-    }
-    glm::vec3 ext = hi - lo;
-    glm::vec3 margin = ext * 0.25f + glm::vec3(float(0.05 * a.diagonal));
-    a.format.t_min = lo - margin;
-    a.format.t_max = hi + margin;
-    a.format.scaled = scaled;
-
-    // RMS vertex motion per second between consecutive frames of one selection.
-    std::vector<glm::vec3> p0(c.vertex_count()), p1(c.vertex_count());
-    double sum = 0, n = 0;
-    for (size_t f = 0; f + 1 < frames.frame_count(); ++f) {
-        if (frames.selection_of_frame[f] != frames.selection_of_frame[f + 1]) continue;
-        reference_positions(c, frames, f, p0);
-        reference_positions(c, frames, f + 1, p1);
-        double dt = frames.times[f + 1] - frames.times[f];
-        if (!(dt > 0)) continue;
-        for (size_t v = 0; v < p0.size(); ++v) {
-            double d = glm::length(p1[v] - p0[v]) / dt;
-            sum += d * d;
-        }
-        n += double(p0.size());
-        if (n > 2e6) break;  // enough for an estimate
-    }
-    a.motion = n > 0 ? std::sqrt(sum / n) : 0.0;
-
-    build_segments(a, frames);
+    static_cast<AssetTables&>(a) = compute_asset_tables(a.character, s, a.selections);
+    a.format = record_format(a);
 }
 
 // Morph targets: their importance (the scheduler's value of a weight) and a
@@ -289,130 +84,18 @@ std::shared_ptr<ServerAsset> load_server_asset(const std::string& path) {
 
 namespace {
 
-// x to 7 significant digits: the tables are a cost model, and the shortest
-// decimal of the rounded value takes half the bytes of a full double.
-double round7(double x) {
-    if (x == 0 || !std::isfinite(x)) return x;
-    char buf[32];
-    std::snprintf(buf, sizeof buf, "%.7g", x);
-    return std::strtod(buf, nullptr);
-}
-
-nlohmann::json vec3_json(const glm::vec3& v) { return nlohmann::json::array({v.x, v.y, v.z}); }
-
-nlohmann::json numbers_json(const double* x, size_t n) {
-    nlohmann::json a = nlohmann::json::array();
-    for (size_t i = 0; i < n; ++i) a.push_back(round7(x[i]));
-    return a;
-}
-
-template <size_t N>
-nlohmann::json rows_json(const std::vector<std::array<double, N>>& rows) {
-    nlohmann::json a = nlohmann::json::array();
-    for (const auto& r : rows) a.push_back(numbers_json(r.data(), N));
-    return a;
-}
-
-// Reads a JSON array of numbers of exactly n entries into out; false otherwise.
-bool read_numbers(const nlohmann::json& j, size_t n, double* out) {
-    if (!j.is_array() || j.size() != n) return false;
-    for (size_t i = 0; i < n; ++i) {
-        if (!j[i].is_number()) return false;
-        out[i] = j[i].get<double>();
-        if (!std::isfinite(out[i])) return false;
-    }
+// The stored tables of a (asset_tables_json) into a; false, a unchanged, when they do not fit.
+bool read_server_tables(const nlohmann::json& j, ServerAsset& a, std::string* why = nullptr) {
+    AssetTables t;
+    if (!read_asset_tables(j, a.bone_count(), a.selections.size(), t, why)) return false;
+    static_cast<AssetTables&>(a) = std::move(t);
+    a.format = record_format(a);
     return true;
 }
+
+nlohmann::json server_tables_json(const ServerAsset& a) { return asset_tables_json(a, a.bone_count(), a.selections.size()); }
 
 }  // namespace
-
-nlohmann::json server_tables_json(const ServerAsset& a) {
-    nlohmann::json j;
-    j["version"] = kServerTablesVersion;
-    j["fps"] = 30;
-    j["hold_ticks"] = HOLD_TICKS;  // constants the tables were computed with
-    j["gap_table"] = ServerAsset::kGapTable;
-    j["selections"] = a.selections.size();
-    j["bones"] = a.bone_count();
-    j["diagonal"] = a.diagonal;
-    j["motion"] = a.motion;
-    j["bind_radius"] = a.bind_radius;
-    j["max_scale"] = a.max_scale;
-    j["format"] = {{"t_min", vec3_json(a.format.t_min)}, {"t_max", vec3_json(a.format.t_max)}, {"scaled", a.format.scaled}};
-    j["segments"] = nlohmann::json::array();
-    for (const ServerAsset::Segment& s : a.segments)
-        j["segments"].push_back({{"from", s.from},
-                                 {"to", s.to},
-                                 {"collapse", numbers_json(s.collapse.data(), s.collapse.size())},
-                                 {"gap", rows_json(s.gap)},
-                                 {"refresh", rows_json(s.refresh)},
-                                 {"show_value", numbers_json(s.show_value.data(), s.show_value.size())}});
-    return j;
-}
-
-bool read_server_tables(const nlohmann::json& j, ServerAsset& a, std::string* why) {
-    auto no = [&](const std::string& w) {
-        if (why) *why = w;
-        return false;
-    };
-    if (!j.is_object()) return no("no stored server tables");
-    if (j.value("version", 0) != kServerTablesVersion)
-        return no("stored server tables are version " + std::to_string(j.value("version", 0)) + ", this server uses " +
-                  std::to_string(kServerTablesVersion));
-    const size_t M = a.selections.size() + 1;
-    if (j.value("bones", -1) != a.bone_count() || j.value("selections", size_t(0)) != a.selections.size() ||
-        j.value("fps", 0) != 30)
-        return no("stored server tables do not match the character (bones, clip groups or fps)");
-    if (j.value("hold_ticks", -1) != HOLD_TICKS || j.value("gap_table", -1) != ServerAsset::kGapTable)
-        return no("stored server tables were computed with another HOLD_TICKS or gap table size");
-    ServerAsset t;  // parsed into a scratch copy: `a` changes only when everything reads
-    double v[3];
-    t.diagonal = j.value("diagonal", 0.0);
-    t.motion = j.value("motion", -1.0);
-    t.bind_radius = j.value("bind_radius", -1.0);
-    t.max_scale = j.value("max_scale", 0.0);
-    if (!(t.diagonal > 0) || !(t.motion >= 0) || !(t.bind_radius >= 0) || !(t.max_scale > 0))
-        return no("stored server tables have a bad diagonal, motion, bind radius or scale");
-    const nlohmann::json& f = j.contains("format") ? j["format"] : nlohmann::json();
-    if (!f.is_object() || !read_numbers(f.value("t_min", nlohmann::json()), 3, v)) return no("bad stored format");
-    t.format.t_min = glm::vec3(float(v[0]), float(v[1]), float(v[2]));
-    if (!read_numbers(f.value("t_max", nlohmann::json()), 3, v)) return no("bad stored format");
-    t.format.t_max = glm::vec3(float(v[0]), float(v[1]), float(v[2]));
-    t.format.scaled = f.value("scaled", false);
-    const nlohmann::json& segs = j.contains("segments") ? j["segments"] : nlohmann::json();
-    if (!segs.is_array() || segs.empty()) return no("no stored segments");
-    int expect_from = 0;
-    for (const nlohmann::json& sj : segs) {
-        ServerAsset::Segment s;
-        s.from = sj.value("from", -1);
-        s.to = sj.value("to", -1);
-        if (s.from != expect_from || s.to <= s.from || s.to > a.bone_count()) return no("stored segments do not tile the bones");
-        expect_from = s.to;
-        s.collapse.resize(M);
-        s.show_value.resize(M);
-        s.gap.resize(M);
-        s.refresh.resize(M);
-        if (!read_numbers(sj.value("collapse", nlohmann::json()), M, s.collapse.data()) ||
-            !read_numbers(sj.value("show_value", nlohmann::json()), M, s.show_value.data()))
-            return no("bad stored segment values");
-        const nlohmann::json gap = sj.value("gap", nlohmann::json()), refresh = sj.value("refresh", nlohmann::json());
-        if (!gap.is_array() || gap.size() != M || !refresh.is_array() || refresh.size() != M)
-            return no("bad stored segment tables");
-        for (size_t m = 0; m < M; ++m)
-            if (!read_numbers(gap[m], ServerAsset::kGapTable, s.gap[m].data()) ||
-                !read_numbers(refresh[m], ServerAsset::kGapTable, s.refresh[m].data()))
-                return no("bad stored segment tables");
-        t.segments.push_back(std::move(s));
-    }
-    if (expect_from != a.bone_count()) return no("stored segments do not cover every bone");
-    a.diagonal = t.diagonal;
-    a.motion = t.motion;
-    a.bind_radius = t.bind_radius;
-    a.max_scale = t.max_scale;
-    a.format = t.format;
-    a.segments = std::move(t.segments);
-    return true;
-}
 
 std::string server_cache_dir() {
     if (const char* x = std::getenv("XDG_CACHE_HOME"); x && *x) return std::string(x) + "/progskin";
@@ -531,7 +214,7 @@ void check_one(const std::string& arg, const AssetOptions& o, std::vector<Pendin
             continue;
         }
         try {
-            p.progressive = read_progressive_extension(path, chars[size_t(i)], p.skin, &p.extension);
+            p.progressive = read_progressive_extension(path, chars[size_t(i)], p.skin, &p.extension_json);
         } catch (const std::exception& e) {
             problems.push_back(e.what());
             continue;
@@ -569,8 +252,10 @@ bool load_cached_build(const PendingAsset& p, const std::string& cache, ServerAs
     try {
         Character cached = import_character(path, p.character);
         ProgressiveSkin skin;
-        nlohmann::json ext;
-        if (!read_progressive_extension(path, cached, skin, &ext) || !ext.contains("server")) return false;
+        std::string ext_text;
+        if (!read_progressive_extension(path, cached, skin, &ext_text)) return false;
+        const nlohmann::json ext = nlohmann::json::parse(ext_text, nullptr, false);
+        if (!ext.is_object() || !ext.contains("server")) return false;
         const Character& c = a.character;
         if (cached.joint_count() != c.joint_count() || cached.vertex_count() != c.vertex_count()) return false;
         // Cached joint b (progressive order) is the file's joint with the same node and inverse bind matrix.
@@ -672,7 +357,8 @@ std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const Ass
     if (a->selections.empty()) a->selections.push_back(ClipSelection{});
     std::string why;
     if (a->progressive_file) {
-        const nlohmann::json* tables = p.extension.contains("server") ? &p.extension["server"] : nullptr;
+        const nlohmann::json ext = nlohmann::json::parse(p.extension_json, nullptr, false);
+        const nlohmann::json* tables = ext.is_object() && ext.contains("server") ? &ext["server"] : nullptr;
         if (!p.from_vertices && !(tables && read_server_tables(*tables, *a, &why))) {
             a->warnings.push_back(p.path + ": " + (why.empty() ? "no stored server tables" : why) +
                                   ": computed at start (rebuild the file with progskin build to store them)");

@@ -5,25 +5,18 @@
 #include <array>
 #include <cstdint>
 #include <memory>
-#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
 #include "animation.h"
 #include "bone_codec.h"
 #include "character.h"
+#include "cost_model.h"
 #include "progressive_skin.h"
 
 namespace progskin::net {
 
-// One step of a lower convex hull of an error table: going from `from`
-// bones to `to` bones removes `gain` of error.
-struct HullStep {
-    int from = 0, to = 0;
-    double gain = 0;
-};
-
-struct ServerAsset {
+struct ServerAsset : AssetTables {
     std::string path, name;          // file and its base name
     std::vector<uint8_t> bytes;      // the file as clients download it
     uint64_t id = 0;                 // content_hash(bytes)
@@ -31,50 +24,17 @@ struct ServerAsset {
     Character character;
     ProgressiveSkin skin;
     std::vector<ClipSelection> selections;  // independently played clip groups
-    RecordFormat format;
-    double diagonal = 1;
-    double motion = 0;               // RMS vertex motion per second (model units/s)
-    // The scheduler's cost model (scheduler.h), per segment of the skin:
-    // segment 0 is bone 0, segment s >= 1 the bones [from, to) of one step of
-    // the lower convex hull of the squared error table e(k)^2. Each table has
-    // one entry per clip selection (what an instance plays) and a last one
-    // over all of them (live poses).
-    // These tables are stored in progressive files and the server's cache
-    // (server_tables_json): whoever changes what they hold or how
-    // finish_server_asset computes them must bump kServerTablesVersion, so
-    // that stale stored tables are recomputed instead of read.
-    static constexpr int kGapTable = 17;
-    struct Segment {
-        int from = 0, to = 1;
-        // Squared RMS error (model units^2) the segment removes when shown:
-        // e(from)^2 - e(to)^2 over the selection's frames (segment 0:
-        // (diagonal + e(1))^2, nothing shown).
-        std::vector<double> collapse;
-        // gap[m][g]: mean squared vertex error (model units^2) over an
-        // interpolation interval of g frames at 30 Hz when only this segment's
-        // bones are interpolated between frames g apart as the client does
-        // (cubic over the neighbours g before and after, pose_buffer.h) and every
-        // other bone is exact; gap[m][0] = gap[m][1] = 0. Beyond the table it
-        // grows as g^2 (a linear drift).
-        std::vector<std::array<double, kGapTable>> gap;
-        double gap_at(int model, double g) const;
-        // refresh[m][a] = a (a + 1) (G(a + 1) - G(a)) for a = 1..kGapTable-1,
-        // the value of a refresh at age a at 30 Hz (scheduler.h); [0] unused.
-        std::vector<std::array<double, kGapTable>> refresh;
-        // show_value[m] = max over p < HOLD_TICKS of p (C - G(p)): showing the
-        // segment, refreshed every p ticks, saves C - G(p) per tick for the
-        // bytes of one refresh every p ticks (scheduler.h).
-        std::vector<double> show_value;
-    };
-    std::vector<Segment> segments;
-    double bind_radius = 0;          // max |bind-space position|
+    RecordFormat format;             // the wire record of its bones (from the tables' translation box)
+    // diagonal, motion, bind_radius, max_scale, the translation box and the
+    // scheduler's cost model (segments, per clip selection and one for live
+    // poses): AssetTables (cost_model.h), computed by finish_server_asset or
+    // read from the file's stored tables.
     // Per morph target: RMS vertex displacement per unit weight (error_metric.h
     // morph_importance), the scheduler's value of sending a weight.
     std::vector<double> morph_importance;
     // What the stream does not carry that the file has (e.g. morph targets past MAX_MORPHS),
     // one line each, for the server to print on stderr.
     std::vector<std::string> warnings;
-    double max_scale = 1;            // of the skinning matrices over the training frames
     int bone_count() const { return skin.bone_count(); }
 };
 
@@ -104,7 +64,7 @@ struct PendingAsset {
     Character imported;           // the imported character (empty when from_vertices)
     ProgressiveSkin skin;         // read from the file's extension when progressive
     bool progressive = false;
-    nlohmann::json extension;     // the file's extension object (its "server" tables, if any)
+    std::string extension_json;   // the file's extension object as stored (its "server" tables, if any)
 };
 
 // Checks every --asset argument (FILE: every character of the file; FILE#N:
@@ -126,24 +86,12 @@ std::vector<std::string> check_server_assets(const std::vector<std::string>& arg
 // (options.from_vertices) is built into <cache>/<content hash>-scratch<bones>.glb
 // once, its tables kept beside it. Throws Error.
 std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const AssetOptions& options);
-// Builds the derived fields (format, hull, motion...) of an asset whose
-// character and skin are set; used by load_server_asset and by tests.
+// Sets the derived fields of an asset whose character and skin are set: its
+// clip selections when none (default_training_set), its tables
+// (offline/cost_tables.h compute_asset_tables) and record format. Throws
+// Error when the bone count cannot be streamed. Used by load_server_asset,
+// build_server_asset and tests.
 void finish_server_asset(ServerAsset& a);
-// What finish_server_asset derives (diagonal, format, motion, bind_radius,
-// max_scale and the segment tables), as JSON: `progskin build` stores it in
-// the PROGSKIN_progressive_skin extension under "server", and the server's
-// cache of plain files keeps it, so that loading builds nothing. Versioned
-// (kServerTablesVersion): tables of another version are not used.
-inline constexpr int kServerTablesVersion = 1;
-nlohmann::json server_tables_json(const ServerAsset& a);
-// Sets those fields of `a` (character, skin and selections already set) from
-// server_tables_json output. Returns false, leaving `a` as it was and saying
-// why in *why, when the JSON is absent, of another version, or does not fit
-// the asset (bone count, selections, segment layout); throws nothing.
-bool read_server_tables(const nlohmann::json& j, ServerAsset& a, std::string* why = nullptr);
-
-// The lower convex hull of the points (k, e[k - 1]), k = 1..B, as steps.
-std::vector<HullStep> error_hull(const std::vector<double>& e);
 
 struct InstanceSpec {
     int asset = 0;              // index into the server's asset list

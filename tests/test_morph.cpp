@@ -20,6 +20,7 @@
 #include "errors.h"
 #include "error_metric.h"
 #include "gltf_import.h"
+#include "collapse.h"
 #include "progressive_skin.h"
 #include "thresholds.h"
 

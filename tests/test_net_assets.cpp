@@ -3,6 +3,7 @@
 // listed, files without a skin pointed at `progskin build --from-vertices` or
 // built with --from-vertices, every character of a file served (FILE#N one).
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "run_command.h"
 
@@ -176,7 +177,7 @@ TEST(ServerAssets, ProgressiveFileTablesAreReadNotBuilt) {
     ASSERT_TRUE(check_server_assets({file}, o, pending).empty());
     ASSERT_EQ(pending.size(), 1u);
     ASSERT_TRUE(pending[0].progressive);
-    ASSERT_TRUE(pending[0].extension.contains("server"));
+    ASSERT_TRUE(nlohmann::json::parse(pending[0].extension_json).contains("server"));
     const auto start = std::chrono::steady_clock::now();
     const auto stored = build_server_asset(pending[0], o);
     const double read_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -189,7 +190,9 @@ TEST(ServerAssets, ProgressiveFileTablesAreReadNotBuilt) {
     EXPECT_LT(read_s, build_s);
     // Tables of another version are not used: computed, with a warning.
     PendingAsset old = pending[0];
-    old.extension["server"]["version"] = kServerTablesVersion + 1;
+    nlohmann::json ext = nlohmann::json::parse(old.extension_json);
+    ext["server"]["version"] = kServerTablesVersion + 1;
+    old.extension_json = ext.dump();
     const auto rebuilt = build_server_asset(old, o);
     ASSERT_FALSE(rebuilt->warnings.empty());
     EXPECT_NE(rebuilt->warnings.front().find("version"), std::string::npos) << rebuilt->warnings.front();

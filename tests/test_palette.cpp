@@ -15,6 +15,7 @@
 #include "error_metric.h"
 #include "gltf_import.h"
 #include "palette.h"
+#include "collapse.h"
 #include "progressive_skin.h"
 
 using namespace progskin;

@@ -11,6 +11,7 @@
 #include "error_metric.h"
 #include "gltf_export.h"
 #include "gltf_import.h"
+#include "collapse.h"
 #include "progressive_skin.h"
 #include "synthetic.h"
 #include "thresholds.h"

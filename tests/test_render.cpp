@@ -17,6 +17,7 @@ TEST(Render, NotBuilt) { GTEST_SKIP() << "render/ not built (EGL, OpenGL or stb 
 #include "figure.h"
 #include "gltf_import.h"
 #include "image.h"
+#include "collapse.h"
 #include "progressive_skin.h"
 #include "renderer.h"
 #include "mesh_data.h"

@@ -18,9 +18,12 @@
 #include "cli_args.h"
 #include "errors.h"
 #include "error_metric.h"
+#include "collapse.h"
+#include "cost_tables.h"
 #include "gltf_export.h"
 #include "gltf_import.h"
 #include "plot.h"
+#include "progressive_asset.h"
 #include "progressive_skin.h"
 #ifdef PROGSKIN_HAVE_NET
 #include "crypto.h"
@@ -35,10 +38,6 @@ using progskin::cli::parse;
 using progskin::cli::to_int;
 using progskin::cli::to_number;
 using progskin::cli::UsageError;
-
-#ifdef PROGSKIN_HAVE_NET
-#include "scene.h"
-#endif
 
 #ifdef PROGSKIN_HAVE_RENDER
 int render_command(int argc, char** argv);  // render/render_command.cpp
@@ -158,25 +157,14 @@ ProgressiveSkin build_with_progress(const Character& c, const FrameSet& frames, 
     return build_progressive_skin(c, frames, opt);
 }
 
-// The server's tables of a built skin (server/scene.h), stored in the
-// extension so that progskin-server reads instead of computing them; null
-// when progskin is built without the streaming library.
-json server_tables(const Character& c, const ProgressiveSkin& s, const std::string& path) {
-#ifdef PROGSKIN_HAVE_NET
-    net::ServerAsset a;
-    a.path = path;
-    a.character = c;
-    a.skin = s;
-    a.selections = default_training_set(c);
-    if (a.selections.empty()) a.selections.push_back(ClipSelection{});
-    net::finish_server_asset(a);
+// The server's tables of a built skin (offline/cost_tables.h), stored in the
+// extension so that progskin-server reads instead of computing them.
+json server_tables(const Character& c, const ProgressiveSkin& s) {
+    std::vector<ClipSelection> selections = default_training_set(c);
+    if (selections.empty()) selections.push_back(ClipSelection{});
     json extra;
-    extra["server"] = net::server_tables_json(a);
+    extra["server"] = asset_tables_json(compute_asset_tables(c, s, selections), s.bone_count(), selections.size());
     return extra;
-#else
-    (void)c, (void)s, (void)path;
-    return json::object();
-#endif
 }
 
 int character_arg(const Args& a) { return a.has("--character") ? to_int("--character", a.get("--character")) : 0; }
@@ -267,7 +255,7 @@ int cmd_build(int argc, char** argv) {
                      "the skinning error on the morphed mesh\n",
                      a.positional[0].c_str(), c.morphs.size());
     const ProgressiveSkin s = build_with_progress(c, frames, st, !a.has("--plain-copy"), quiet);
-    json extra = server_tables(c, s, a.positional[0]);
+    json extra = server_tables(c, s);
     // What the error table was measured on (docs/metrics.md §2: a table is only comparable with its frames).
     extra["fps"] = fps;
     extra["clips"] = a.get("--clip", "auto");
@@ -313,8 +301,9 @@ int cmd_inspect(int argc, char** argv) {
                               {"morph_targets", all[i].morphs.size()}});
     ProgressiveAsset asset;
     asset.character = std::move(all[size_t(index)]);
-    json ext;
-    asset.progressive = read_progressive_extension(a.positional[0], asset.character, asset.skin, &ext);
+    std::string ext_text;
+    asset.progressive = read_progressive_extension(a.positional[0], asset.character, asset.skin, &ext_text);
+    const json ext = asset.progressive ? json::parse(ext_text, nullptr, false) : json();
     const Character& c = asset.character;
     // One diagonal: the one the table's percentages use (a progressive file's
     // stored diagonal; for --from-vertices outputs that of the vertex animation).

@@ -7,6 +7,8 @@
 // vertex outstanding squared error E[v] = sum_f |a_vf - R_vf|^2.
 #include "scratch_build.h"
 
+#include "collapse.h"
+
 #include <Eigen/Dense>
 #include <Eigen/SVD>
 #include <algorithm>

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "character.h"
+#include "progressive_asset.h"
 #include "progressive_skin.h"
 
 namespace tinygltf {
@@ -22,11 +23,6 @@ class Model;
 
 namespace progskin {
 
-struct ProgressiveAsset {
-    Character character;
-    ProgressiveSkin skin;
-    bool progressive = false;  // false: a plain glTF (skin not yet built)
-};
 
 // Writes `skin` of `c` (imported from c.source) to out_path (.glb binary, or
 // .gltf with embedded buffers). The file is written to a temporary name and
@@ -64,21 +60,11 @@ void add_missing_bounds(tinygltf::Model& m, const std::string& path);
 int append_accessor(tinygltf::Model& m, const void* data, size_t bytes, int component, int type, size_t count,
                     int target, bool normalized = false);
 
-// Reads a file; when it carries PROGSKIN_progressive_skin, the skin is read
-// from it (joints already in progressive order), else progressive = false.
-ProgressiveAsset load_progressive(const std::string& path, int character_index = 0);
-
 // Writes a copy of the glTF at `path` (as .glb, buffers merged, images kept as
 // they are) in which the skins `first` come first, in that order, followed by
 // the others in file order, with every node.skin and skin extension moved
 // along: import_gltf of the copy lists the character of those skins as
 // character 0 (what a client that imports character 0 needs). Throws Error.
 void write_with_skins_first(const std::string& path, const std::vector<int>& first, const std::string& out_path);
-
-// Decodes the extension of an already imported character (character joints in
-// file order must be the progressive order). Used by load_progressive.
-// raw (optional) receives the whole extension object as stored.
-bool read_progressive_extension(const std::string& path, const Character& c, ProgressiveSkin& out,
-                                nlohmann::json* raw = nullptr);
 
 }  // namespace progskin

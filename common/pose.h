@@ -1,0 +1,50 @@
+// pose.h — a bone's pose (rotation, translation, uniform scale), its matrix
+// form and interpolation in time: the one place pose math lives. The wire
+// codec (proto/bone_codec.h) quantises these poses; the client's pose buffer
+// and the server's cost tables interpolate them with the same policy
+// (interpolate_between), so what the cost model predicts is what a client shows.
+//
+// Every function is O(1), allocation-free and pure.
+#pragma once
+#include "mat34.h"
+
+namespace progskin {
+
+// A bone stays shown this many ticks after its newest received frame; the
+// wire's HOLD_TICKS (proto/wire.h) and the cost tables' hold (cost_model.h).
+inline constexpr int kHoldTicks = 16;
+
+// A bone's skinning matrix M (docs/metrics.md §1) as rotation (unit
+// quaternion), translation and uniform scale.
+struct BonePose {
+    glm::quat r{1, 0, 0, 0};
+    glm::vec3 t{0.0f};
+    float s = 1.0f;
+};
+
+// M's rotation, translation and uniform scale (the cube root of |det|);
+// non-uniform scale and shear are not representable (dropped).
+BonePose decompose(const Mat34& m);
+Mat34 compose(const BonePose& p);
+// The inverse transform (rotation, translation, uniform scale).
+BonePose inverse(const BonePose& p);
+
+// Interpolation between two poses of a bone: slerp (shortest path) for the
+// rotation, lerp for translation and scale.
+BonePose interpolate(const BonePose& a, const BonePose& b, float t);
+// Cubic (Hermite) interpolation between a (time ta) and b (tb) at time t,
+// tangents by finite differences over the neighbours p0 (t0 < ta) and p3
+// (t3 > tb): for translation, scale and the quaternion's components (aligned
+// to a's hemisphere, then normalised). Exact for poses moving along a cubic.
+// Falls back to interpolate() when the times are not increasing.
+BonePose interpolate_cubic(const BonePose& p0, const BonePose& a, const BonePose& b, const BonePose& p3, double t0,
+                           double ta, double tb, double t3, double t);
+
+// The interpolation policy of the stream (docs/algorithms.md): between two
+// received samples a (time ta) and b (tb), cubic when both outer neighbours
+// (p0 before a, p3 after b, of the same clip or epoch) are known, else
+// slerp/lerp. p0 and p3 may be null.
+BonePose interpolate_between(const BonePose* p0, const BonePose& a, const BonePose& b, const BonePose* p3, double t0,
+                             double ta, double tb, double t3, double t);
+
+}  // namespace progskin
