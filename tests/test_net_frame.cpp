@@ -302,39 +302,3 @@ TEST(NetFrame, ReadsAndChecksMorphBlocks) {
     }
 }
 
-// The pose buffer keeps the last value of each weight (sparse blocks),
-// interpolates linearly between frames, refuses indices past the asset's
-// morph targets, and never interpolates across an epoch.
-TEST(NetFrame, PoseBufferMorphWeightsAreSparseAndInterpolated) {
-    PoseBuffer b(2, RecordFormat{}, 3);
-    auto block = [](std::vector<std::pair<int, float>> w) {
-        std::vector<uint8_t> out = {uint8_t(w.size())};
-        for (auto [m, v] : w) {
-            int16_t q = 0;
-            EXPECT_TRUE(encode_morph_weight(v, q));
-            out.push_back(uint8_t(m));
-            out.push_back(uint8_t(uint16_t(q) & 0xFF));
-            out.push_back(uint8_t(uint16_t(q) >> 8));
-        }
-        return out;
-    };
-    std::vector<uint8_t> rec(12, 0);
-    encode_bone(BonePose{}, RecordFormat{}, rec.data());
-    ASSERT_TRUE(b.add_chunk(10, 0, 1, 2, rec.data(), 2));
-    ASSERT_TRUE(b.add_morphs(10, 2, 2, 0, block({{0, 1.0f}, {2, 0.5f}}).data()));
-    ASSERT_TRUE(b.add_morphs(20, 2, 2, 0, block({{0, 0.0f}}).data()));  // weight 2 not carried: stays 0.5
-    EXPECT_FALSE(b.add_morphs(30, 2, 2, 0, block({{3, 1.0f}}).data()));  // only 3 targets
-    std::array<float, 3> w{};
-    b.weights_at(15, w);
-    EXPECT_NEAR(w[0], 0.5f, 1e-4f);
-    EXPECT_FLOAT_EQ(w[1], 0.0f);  // never received
-    EXPECT_NEAR(w[2], 0.5f, 1e-4f);
-    b.weights_at(25, w);  // held after the newest
-    EXPECT_NEAR(w[0], 0.0f, 1e-4f);
-    // A new epoch at tick 40: nothing interpolated from tick 20 to 40.
-    ASSERT_TRUE(b.add_morphs(40, 2, 2, 1, block({{0, 1.0f}}).data()));
-    b.weights_at(30, w);
-    EXPECT_NEAR(w[0], 0.0f, 1e-4f);
-    b.weights_at(40, w);
-    EXPECT_NEAR(w[0], 1.0f, 1e-4f);
-}

@@ -276,10 +276,13 @@ TEST(PoseBuffer, RootInterpolatesWithinAnEpoch) {
 TEST(PoseBuffer, MorphWeightsLerpWithinAnEpoch) {
     PoseBuffer pb(2, kFmt, 3);
     ASSERT_EQ(pb.morph_count(), 3);
+    std::array<float, 3> w{};
+    ASSERT_TRUE(pb.add_morphs(8, 2, 2, 0, morph_block({{0, 0.5f}}).data()));
+    pb.weights_at(8.0, w);
+    EXPECT_FLOAT_EQ(w[1], 0.0f) << "a weight never received is 0";
     ASSERT_TRUE(pb.add_morphs(10, 2, 2, 0, morph_block({{0, 0.0f}, {1, 1.0f}, {2, -0.5f}}).data()));
     ASSERT_TRUE(pb.add_morphs(14, 2, 2, 0, morph_block({{0, 1.0f}}).data()));
     EXPECT_FALSE(pb.add_morphs(15, 2, 2, 0, morph_block({{3, 1.0f}}).data()));
-    std::array<float, 3> w{};
     pb.weights_at(11.0, w);
     EXPECT_NEAR(w[0], 0.25f, 1e-4f);
     EXPECT_NEAR(w[1], 1.0f, 1e-4f);  // not carried at 14: kept
