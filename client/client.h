@@ -17,7 +17,7 @@
 //       for (const ClientEvent& e : c.events()) ...   // added, removed, spawned, lost
 //       c.publish(me, root, skinning_matrices);  // my pose, joint order, relative to root
 //       for (const RemoteCharacter& rc : c.characters())   // morph_weights: before skinning
-//           draw(rc.asset->character, rc.world, rc.palette, rc.morph_weights);
+//           draw(rc.asset->character, rc.root, rc.palette, rc.morph_weights);
 //   }
 //   c.close();
 //

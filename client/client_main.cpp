@@ -2,6 +2,7 @@
 // for a while and reports what it received and displayed (client.h).
 #include <cmath>
 #include <chrono>
+#include <cctype>
 #include <cstdio>
 #include <filesystem>
 #include <string>
@@ -176,9 +177,25 @@ void check_args(const ClientOptions& opt) {
 #ifndef PROGSKIN_HAVE_RENDER
     if (opt.snapshot_every > 0) throw std::invalid_argument("--snapshot-every: this build has no renderer (render/)");
 #endif
-    if (!(opt.duration > 0) || !(opt.display_rate > 0) || opt.max_kbps < 0 || opt.blend_frames < 1 || opt.verify_every < 1 ||
-        !(opt.publish_rate > 0 && opt.publish_rate <= 240))
-        throw std::invalid_argument("argument out of range");
+    if (!opt.pin_sha256.empty()) {
+        int hex = 0;
+        for (char ch : opt.pin_sha256)
+            if (std::isxdigit(static_cast<unsigned char>(ch))) ++hex;
+            else if (ch != ':') hex = -1000;
+        if (hex != 64)
+            throw std::invalid_argument("--pin: '" + opt.pin_sha256 + "' is not a SHA-256 fingerprint (64 hex digits, "
+                                        "colons allowed; progskin-server prints it)");
+    }
+    auto range = [](bool ok, const char* what) {
+        if (!ok) throw std::invalid_argument(what);
+    };
+    range(opt.duration > 0, "--duration must be > 0 seconds");
+    range(opt.display_rate > 0, "--display-rate must be > 0");
+    range(opt.max_kbps >= 0, "--max-kbps must be >= 0 (0: the server's maximum)");
+    range(opt.max_kbps == 0 || opt.max_kbps >= 1, "--max-kbps: the wire carries whole kbit/s; give 0 (the server's maximum) or >= 1");
+    range(opt.blend_frames >= 1, "--blend-frames must be >= 1");
+    range(opt.verify_every >= 1, "--verify-every must be >= 1");
+    range(opt.publish_rate > 0 && opt.publish_rate <= 240, "--publish-rate must be in (0, 240] Hz");
 }
 
 // Parses the command line into args; true for --help (printed). Throws
@@ -291,7 +308,7 @@ int main(int argc, char** argv) {
     try {
         if (parse_args(argc, argv, args)) return 0;
     } catch (const std::exception& e) {
-        std::fprintf(stderr, "progskin-client: %s\n%s", e.what(), kUsage);
+        std::fprintf(stderr, "progskin-client: %s (see progskin-client --help)\n", e.what());
         return 2;
     }
     ClientOptions& opt = args.opt;

@@ -76,6 +76,9 @@ TEST(NetCli, HelpAndExitCodes) {
         {"progskin-server --no-tls --seal-datagrams", "--no-tls"},
         {"progskin-server --tls-cert only.pem", "--tls-key"},
         {"progskin-client --no-tls --pin 00", "--pin"},
+        {"progskin-client --pin abc --server 127.0.0.1:1", "--pin"},          // malformed: an argument error
+        {"progskin-client --insecure --max-kbps -5 --server 127.0.0.1:1", "--max-kbps"},
+        {"progskin-client --insecure --max-kbps 0.5 --server 127.0.0.1:1", "--max-kbps"},  // not silently unlimited
         {"progskin-netem --to 127.0.0.1:7777 --loss 2", "--loss"},
         {"progskin-netem --to 127.0.0.1:7777 --seed 1.5", "--seed"},
     };

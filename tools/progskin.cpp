@@ -380,8 +380,8 @@ int cmd_inspect(int argc, char** argv) {
     std::printf("\n");
     for (const std::string& n : c.notes) std::printf("  note: %s\n", n.c_str());
     if (!c.morphs.empty()) {
-        std::printf("  morph targets: %zu (evaluated before skinning in pose and the error tables; the server does "
-                    "not stream their weights yet)\n",
+        std::printf("  morph targets: %zu (evaluated before skinning in pose and the error tables; the server "
+                    "streams their weights)\n",
                     c.morphs.size());
         for (size_t m = 0; m < c.morphs.size(); ++m)
             std::printf("    \"%s\" node %d target %d: default weight %g, %zu vertices, importance %.4g (RMS units "
