@@ -74,7 +74,8 @@ TEST(NetCApiAlloc, UpdateAllocatesNothingOnceSteady) {
             if (psk_client_character(c, i, &ch) == PSK_OK) shown += ch.shown;
         }
         counting = false;
-        ASSERT_EQ(p, PSK_OK) << psk_last_error();
+        // Not bound yet while settling (PSK_NOT_READY); sent every frame once steady.
+        ASSERT_TRUE(p == PSK_OK || (!measuring && p == PSK_NOT_READY)) << psk_status_name(p) << ": " << psk_last_error();
     };
     const double t0 = psk_now();
     while (psk_now() - t0 < 3.0) {  // connect, download, spawn, settle
