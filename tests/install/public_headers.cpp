@@ -20,6 +20,7 @@
 #include <progskin/pose.h>
 #include <progskin/progressive_asset.h>
 #include <progskin/progressive_skin.h>
+#include <progskin/progskin.h>  // the C API, from C++
 #include <progskin/scene.h>
 #include <progskin/server.h>
 #include <progskin/skinning.h>
