@@ -162,6 +162,7 @@ size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::
                               std::span<const float> importance) {
     size_t full = 0;
     current_.assign(frame.instances.size(), 0);
+    std::fill(group_full_.begin(), group_full_.end(), 0);
     for (size_t i = 0; i < frame.instances.size(); ++i) {
         const auto& e = frame.instances[i];
         morph_[i] = MorphItem{};
@@ -171,7 +172,12 @@ size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::
         morph_item(i, frame, a, double(importance[i]) * double(importance[i]) * double(a.character.vertex_count()));
         current_[i] = up_to_date(i, frame);
         if (current_[i]) continue;  // nothing to send (the fast path and the greedy skip it)
-        full += WireCost::header(e) + size_t(e.bone_count) * e.record_size + morph_[i].bytes;
+        const size_t bytes = WireCost::header(e) + size_t(e.bone_count) * e.record_size + morph_[i].bytes;
+        full += bytes;
+        if (const uint32_t g = group_of(i); g > 0) {
+            if (group_full_.size() <= g) group_full_.resize(size_t(g) + 1, 0);
+            group_full_[g] += bytes;
+        }
     }
     return full;
 }
@@ -188,10 +194,11 @@ bool Scheduler::up_to_date(size_t i, const EncodedFrame& frame) const {
 }
 
 // The fast path: every bone and due weight of every important instance.
-void Scheduler::pick_everything(const EncodedFrame& frame, std::span<const float> importance, std::vector<Pick>& out) {
+void Scheduler::pick_everything(const EncodedFrame& frame, std::span<const float> importance, bool except_over_share,
+                                std::vector<Pick>& out) {
     for (size_t i = 0; i < frame.instances.size(); ++i) {
         const auto& e = frame.instances[i];
-        if (e.valid && importance[i] > 0.0f && !current_[i]) {
+        if (e.valid && importance[i] > 0.0f && !current_[i] && !(except_over_share && over_share(i))) {
             out.push_back({int(i), e.bone_count, e.bone_count});
             out.back().morphs = morph_[i].mask;
             morph_[i].chosen = true;
@@ -281,13 +288,13 @@ void Scheduler::offer_chain(size_t i, uint32_t age) {
 
 // Every important instance's items offered to the heap (before any header is paid).
 void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
-                            std::span<const float> importance, float tick_rate) {
+                            std::span<const float> importance, float tick_rate, bool only_over_share) {
     const double to30 = 30.0 / std::max(1.0f, tick_rate);
     heap_.clear();
     for (size_t i = 0; i < frame.instances.size(); ++i) {
         items_[i].clear();
         const auto& e = frame.instances[i];
-        if (!e.valid || importance[i] <= 0.0f || current_[i]) continue;
+        if (!e.valid || importance[i] <= 0.0f || current_[i] || (only_over_share && !over_share(i))) continue;
         const ServerAsset& a = *assets[size_t(e.asset)];
         paid_[i] = 0;
         chain_next_[i] = 0;
@@ -307,9 +314,8 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
 }
 
 // Greedy over the items by value per byte, within `budget` wire bytes.
-void Scheduler::take_greedily(size_t budget) {
+void Scheduler::take_greedily(size_t budget, size_t payload) {
     std::make_heap(heap_.begin(), heap_.end());
-    size_t payload = 0;
     while (!heap_.empty()) {
         if (WireCost::wire(payload + RecordFormat::kPlainSize) > budget) break;  // not even the smallest record fits
         std::pop_heap(heap_.begin(), heap_.end());
@@ -336,22 +342,6 @@ bool Scheduler::share_allows(size_t inst, size_t bytes) {
     }
     group_spent_[g] += bytes;
     return true;
-}
-
-// Every group's whole payload (the fast path's) within its share.
-bool Scheduler::shares_fit(const EncodedFrame& frame, std::span<const float> importance) {
-    if (!share_bytes_) return true;
-    bool fit = true;
-    for (size_t i = 0; i < frame.instances.size() && fit; ++i) {
-        const auto& e = frame.instances[i];
-        const uint32_t g = group_of(i);
-        if (g == 0 || !e.valid || importance[i] <= 0.0f) continue;
-        if (group_spent_.size() <= g) group_spent_.resize(size_t(g) + 1, 0);
-        group_spent_[g] += WireCost::header(e) + size_t(e.bone_count) * e.record_size + morph_[i].bytes;
-        fit = group_spent_[g] <= share_bytes_;
-    }
-    std::fill(group_spent_.begin(), group_spent_.end(), 0);
-    return fit;
 }
 
 void Scheduler::take_morph(const Step& s, size_t header, size_t budget, size_t& payload) {
@@ -466,21 +456,36 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     // Morph items (the weights that are due, scheduler.h), then the fast
     // path: every bone and due weight of every (important) instance fits.
     const size_t full = morph_items(frame, assets, importance);
-    if (full == 0) {
-        limited_ = false;
-        return 0;
-    }
+    limited_ = false;
+    if (full == 0) return 0;
     share_left_.assign(frame.instances.size(), 0);
-    group_spent_.assign(group_spent_.size(), 0);
-    if (WireCost::wire(full) <= budget && shares_fit(frame, importance)) {
-        pick_everything(frame, importance, out);
+    std::fill(group_spent_.begin(), group_spent_.end(), 0);
+    // What the shares let through: a group's payload beyond its share never goes.
+    size_t free_payload = full, shared = 0;
+    bool over = false;
+    for (size_t g = 1; g < group_full_.size(); ++g)
+        if (group_full_[g] > share_bytes_) {
+            over = true;
+            free_payload -= group_full_[g];
+            shared += share_bytes_;
+        }
+    if (!over && WireCost::wire(full) <= budget) {
+        pick_everything(frame, importance, false, out);
         std::sort(out.begin(), out.end(), by_importance);
-        limited_ = false;
         return WireCost::wire(full);
     }
-    offer_items(frame, assets, importance, tick_rate);
-    take_greedily(budget);
-    limited_ = left_something();
+    if (over && WireCost::wire(free_payload + shared) <= budget) {
+        // All but what the shares hold back fits: everything of the other
+        // instances, and the greedy within their shares for the groups over
+        // them. Not limited (the rate does not grow for what a share holds).
+        pick_everything(frame, importance, true, out);
+        offer_items(frame, assets, importance, tick_rate, true);
+        take_greedily(budget, free_payload);
+    } else {
+        offer_items(frame, assets, importance, tick_rate, false);
+        take_greedily(budget, 0);
+        limited_ = left_something();
+    }
     chosen_picks(out);
     std::stable_sort(out.begin(), out.end(), by_importance);
     return estimate(frame, out);

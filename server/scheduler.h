@@ -168,12 +168,15 @@ private:
     bool up_to_date(size_t i, const EncodedFrame& frame) const;
     size_t morph_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                        std::span<const float> importance);
-    void pick_everything(const EncodedFrame& frame, std::span<const float> importance, std::vector<Pick>& out);
+    // except_over_share: not the instances of groups over their share.
+    void pick_everything(const EncodedFrame& frame, std::span<const float> importance, bool except_over_share,
+                         std::vector<Pick>& out);
+    // only_over_share: the instances of groups over their share only.
     void offer_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
-                     std::span<const float> importance, float tick_rate);
+                     std::span<const float> importance, float tick_rate, bool only_over_share);
     void segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30);
     void offer_chain(size_t i, uint32_t age);
-    void take_greedily(size_t budget);
+    void take_greedily(size_t budget, size_t payload);  // payload: already taken
     void take_morph(const Step& s, size_t header, size_t budget, size_t& payload);
     void take_chain_step(const Step& s, size_t header, size_t budget, size_t& payload);
     void take_segment(const Step& s, size_t header, size_t budget, size_t& payload);
@@ -207,7 +210,11 @@ private:
     // instance, whether an item was left for its group's share.
     uint32_t group_of(size_t i) const { return share_bytes_ && i < group_.size() ? group_[i] : 0; }
     bool share_allows(size_t inst, size_t bytes);  // takes `bytes` from the group's share, or marks the instance
-    bool shares_fit(const EncodedFrame& frame, std::span<const float> importance);  // group_spent_ as scratch
+    bool over_share(size_t i) const {
+        const uint32_t g = group_of(i);
+        return g > 0 && g < group_full_.size() && group_full_[g] > share_bytes_;
+    }
+    std::vector<size_t> group_full_;  // per group: the payload of all its instances' due content this tick
     std::span<const uint32_t> group_;
     size_t share_bytes_ = 0;
     std::vector<size_t> group_spent_;
