@@ -336,7 +336,7 @@ bool Scheduler::share_allows(size_t inst, size_t bytes) {
     const uint32_t g = group_of(inst);
     if (g == 0) return true;
     if (group_spent_.size() <= g) group_spent_.resize(size_t(g) + 1, 0);
-    if (group_spent_[g] + bytes > share_bytes_) {
+    if (group_spent_[g] + bytes > share_now_) {
         share_left_[inst] = 1;
         return false;
     }
@@ -460,14 +460,24 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     if (full == 0) return 0;
     share_left_.assign(frame.instances.size(), 0);
     std::fill(group_spent_.begin(), group_spent_.end(), 0);
+    // The share this tick: the configured one, and no more than an equal part
+    // of the budget among the owners with something to send (the server's
+    // own characters count as one): a fair share of this client's stream.
+    size_t owners = 0, grouped = 0;
+    for (size_t g = 1; g < group_full_.size(); ++g) {
+        owners += group_full_[g] > 0;
+        grouped += group_full_[g];
+    }
+    owners += full > grouped;
+    share_now_ = owners ? std::min(share_bytes_, budget / owners) : share_bytes_;
     // What the shares let through: a group's payload beyond its share never goes.
     size_t free_payload = full, shared = 0;
     bool over = false;
     for (size_t g = 1; g < group_full_.size(); ++g)
-        if (group_full_[g] > share_bytes_) {
+        if (group_full_[g] > share_now_) {
             over = true;
             free_payload -= group_full_[g];
-            shared += share_bytes_;
+            shared += share_now_;
         }
     if (!over && WireCost::wire(full) <= budget) {
         pick_everything(frame, importance, false, out);

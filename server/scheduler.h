@@ -109,10 +109,13 @@ public:
     // Records that `picks` went out at `tick`.
     void sent(std::span<const Pick> picks, uint32_t tick);
     // Fair share for the next selects: the characters of one owner (group[i]
-    // > 0, the same number for one owning session; 0 or beyond the span: the
-    // server's own, no limit) take at most share_bytes of payload per tick
-    // (0: no limit). What a share leaves unsent does not count as limited()
-    // (the rate does not probe up for it). The span must outlive the selects.
+    // > 0, the same number for one owner; 0 or beyond the span: the server's
+    // own, no limit) take at most share_bytes of payload per tick, and at most
+    // budget / n where n counts the owners with something to send this tick
+    // (the server's own characters as one): no owner takes more than an equal
+    // part of a client's stream (0: no share at all). What a share leaves
+    // unsent does not count as limited() (the rate does not probe up for it).
+    // The span must outlive the selects.
     void set_shares(std::span<const uint32_t> group, size_t share_bytes) {
         group_ = group;
         share_bytes_ = share_bytes;
@@ -212,11 +215,12 @@ private:
     bool share_allows(size_t inst, size_t bytes);  // takes `bytes` from the group's share, or marks the instance
     bool over_share(size_t i) const {
         const uint32_t g = group_of(i);
-        return g > 0 && g < group_full_.size() && group_full_[g] > share_bytes_;
+        return g > 0 && g < group_full_.size() && group_full_[g] > share_now_;
     }
     std::vector<size_t> group_full_;  // per group: the payload of all its instances' due content this tick
     std::span<const uint32_t> group_;
     size_t share_bytes_ = 0;
+    size_t share_now_ = 0;  // this tick's: share_bytes_, at most budget / owners with content
     std::vector<size_t> group_spent_;
     std::vector<uint8_t> share_left_;
 };
