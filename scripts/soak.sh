@@ -10,8 +10,12 @@
 # exit code, mean rate against its cap and longest gap between frames, the
 # server's refusals by reason and what the attacker did.
 #
-#   scripts/soak.sh [--minutes M | --seconds S] [--clients N] [--cap KBPS] [--no-attack] [--build DIR]
+#   scripts/soak.sh [--minutes M | --seconds S] [--clients N] [--cap KBPS] [--no-attack]
+#                   [--attack-args "ARGS"] [--server-args "ARGS"] [--build DIR]
 #
+# --attack-args overrides arguments of the attacker mix (progskin-attack --help),
+# --server-args adds progskin-server arguments (e.g. --crowd 1000): one case
+# of docs/performance.md "Hardening" at a time.
 # Exit status: 0 when every honest client exited 0, the server survived and
 # its memory grew less than 5 %; 1 otherwise. Stops every process it started.
 set -euo pipefail
@@ -21,16 +25,20 @@ MINUTES=10
 CLIENTS=30
 CAP=256
 ATTACK=1
+ATTACK_ARGS=""
+SERVER_ARGS=""
 RUN_SECONDS=""
 while (($#)); do
   case "$1" in
     --minutes) MINUTES=$2; shift 2;;
     --seconds) RUN_SECONDS=$2; shift 2;;
     --no-attack) ATTACK=0; shift;;
+    --attack-args) ATTACK_ARGS=$2; shift 2;;
+    --server-args) SERVER_ARGS=$2; shift 2;;
     --clients) CLIENTS=$2; shift 2;;
     --cap) CAP=$2; shift 2;;
     --build) BUILD=$2; shift 2;;
-    -h|--help) sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
+    -h|--help) sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
     *) echo "soak.sh: unknown argument $1" >&2; exit 2;;
   esac
 done
@@ -71,7 +79,8 @@ wait_port() {  # file, pattern -> port
 # Room for the attacker's sessions too: a full server evicts by address, and
 # every honest client here shares 127.0.0.1 (the eviction rules are the
 # hardening tests' business, not the soak's).
-psk_start_server --max-clients $((CLIENTS + 64))
+# shellcheck disable=SC2086  # --server-args is split into arguments on purpose
+psk_start_server --max-clients $((CLIENTS + 64)) $SERVER_ARGS
 "$NETEM" --to 127.0.0.1:"$UDP_PORT" --listen 0 --loss 0.1 --reorder 0.05 --duplicate 0.02 --jitter-ms 5 \
   >"$TMP/netem.out" 2>"$TMP/netem.err" &
 NETEM_PID=$!
@@ -94,7 +103,8 @@ done
 # The attacker, once the honest clients are streaming, until shortly before they stop.
 if ((ATTACK)); then
   sleep 3
-  "$ATTACKER" --server 127.0.0.1:"$PORT" --duration $((SECONDS_RUN - 5)) >"$TMP/attack.json" 2>"$TMP/attack.err" &
+  # shellcheck disable=SC2086
+  "$ATTACKER" --server 127.0.0.1:"$PORT" --duration $((SECONDS_RUN - 5)) $ATTACK_ARGS >"$TMP/attack.json" 2>"$TMP/attack.err" &
   ATTACK_PID=$!
   PIDS+=("$ATTACK_PID")
 fi
@@ -118,6 +128,8 @@ while :; do
   sleep 5
 done
 end_rss=$(rss)
+# The server's CPU time (user + system) over the run, in seconds.
+cpu=$(awk -v hz="$(getconf CLK_TCK)" '{ printf "%.1f", ($14 + $15) / hz }' "/proc/$SERVER_PID/stat" 2>/dev/null || echo "?")
 
 status=0
 codes=()
@@ -149,7 +161,7 @@ field() { grep -o "\"$2\": [^,}]*" "$1" | head -1 | cut -d' ' -f2; }
 echo "soak: $CLIENTS clients x ${SECONDS_RUN} s, cap $CAP kbit/s, even-numbered clients via netem (10 % loss, 5 % reorder, 2 % duplication)$( ((ATTACK)) && echo ", beside progskin-attack")"
 [[ -z $base ]] && base=$(head -1 "$TMP/rss" | cut -d' ' -f2)
 growth=$(awk -v a="${base:-0}" -v b="${end_rss:-0}" 'BEGIN { if (a > 0) printf "%.1f", 100 * (b - a) / a; else print "n/a" }')
-echo "server: crashed=$crashed, RSS ${base:-?} KiB after $((SECONDS_RUN / 5)) s -> ${end_rss:-?} KiB at end (${growth} %), peak $peak KiB"
+echo "server: crashed=$crashed, RSS ${base:-?} KiB after $((SECONDS_RUN / 5)) s -> ${end_rss:-?} KiB at end (${growth} %), peak $peak KiB, CPU $cpu s"
 awk -v g="$growth" 'BEGIN { exit !(g != "n/a" && g + 0 >= 5) }' && { echo "soak: memory grew 5 % or more" >&2; status=1; }
 ((ATTACK)) && echo "attacker: $(cat "$TMP/attack.json" 2>/dev/null || echo 'no report') $(tail -1 "$TMP/attack.err" 2>/dev/null)"
 grep -h "refusals:" "$TMP/server.err" | tail -1 | sed 's/^progskin-server: /server /'

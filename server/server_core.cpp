@@ -206,7 +206,8 @@ ClientStream* ServerCore::eviction_candidate(const ClientStream& newcomer, doubl
         if (s->state() == SessionState::Welcomed && now - s->welcomed_at() > grace && now - s->last_asset_request() > grace &&
             (!unbound || s->welcomed_at() < unbound->welcomed_at()))
             unbound = s;
-        if (s->state() == SessionState::Streaming && now - s->last_heard() > grace && (!idle || s->last_heard() < idle->last_heard()))
+        if (s->state() == SessionState::Streaming && heard_until(now) - s->last_heard() > grace &&
+            (!idle || s->last_heard() < idle->last_heard()))
             idle = s;
         auto& [n, newest] = per_ip[e.remote];
         ++n;
