@@ -59,13 +59,15 @@ struct ServerConfig {
     // spend on it or on everybody else (docs/protocol.md "Security").
     // Characters per session: MAX_SPAWNED.
     int max_characters_per_address = 32;  // players' characters spawned from one IP address (0: no limit)
-    // Fair share: the characters of one player (the sessions of one IP
-    // address) take at most this of each observer's stream (their items
-    // beyond it wait, and the observer's rate does not grow for them; 0: no limit).
+    // Fair share: the characters of one session take at most this of each
+    // observer's stream, and at most an equal part of its budget among the
+    // owners with something to send (their items beyond it wait, and the
+    // observer's rate does not grow for them; 0: no limit).
     double owner_share_kbps = 256;
     // Asset bytes sent to one IP address, across its sessions and reconnects:
-    // a bucket this deep refilled at this per minute (0: asset_bytes_factor x
-    // the catalogue's bytes). Over it the session is closed.
+    // a bucket this deep refilled at this per minute (0: 64 x the catalogue's
+    // bytes: 64 players behind one NAT joining at once for the first time).
+    // Over it the session is closed.
     double asset_bytes_per_minute = 0;
     // The tick: a client's scheduler weighs at most this many characters
     // (the most important), and never more than its budget could carry.

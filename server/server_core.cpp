@@ -109,7 +109,7 @@ void ServerCore::refused(const std::string& reason) {
 
 double ServerCore::asset_bucket_bytes() const {
     return cfg_.asset_bytes_per_minute > 0 ? cfg_.asset_bytes_per_minute
-                                           : cfg_.asset_bytes_factor * total_asset_bytes_ + double(MAX_ASSET_CHUNK);
+                                           : 64.0 * total_asset_bytes_ + double(MAX_ASSET_CHUNK);
 }
 
 // The address's buckets, refilled to `now`; created full. Null when the
@@ -237,19 +237,17 @@ double ServerCore::heard_until(double now) const {
     return std::min(now, drained_);
 }
 
-// One number per address owning characters (all its sessions together: one
-// player cannot multiply its share by opening sessions), 0 for the server's.
+// One number per owning session, 0 for the server's characters. (Sessions,
+// not addresses: players behind one NAT keep a share each; what one address
+// can add in all is bounded by its characters, max_characters_per_address.)
 void ServerCore::update_owner_groups(const EncodedFrame* frame) {
     owner_groups_.clear();
     if (!frame) return;
     owner_groups_.resize(frame->instances.size(), 0);
-    std::map<PeerAddress, uint32_t, IpLess> groups;
+    std::map<uint64_t, uint32_t> groups;
     for (size_t i = 0; i < frame->instances.size(); ++i) {
         const EncodedInstance& e = frame->instances[i];
-        if (!e.active || e.owner == 0) continue;
-        auto it = sessions_.find(e.owner);
-        if (it == sessions_.end()) continue;  // its session is gone (the instance goes with it)
-        owner_groups_[i] = groups.emplace(it->second.remote, uint32_t(groups.size() + 1)).first->second;
+        if (e.active && e.owner != 0) owner_groups_[i] = groups.emplace(e.owner, uint32_t(groups.size() + 1)).first->second;
     }
 }
 

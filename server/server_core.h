@@ -66,8 +66,7 @@ public:
     // room (ServerConfig::evict_after), counted; false when none may go.
     bool make_room(const ClientStream& newcomer, double now);
     // Fair share: per instance slot, 0 for the server's own characters, else
-    // a number naming the IP address of its owning session (all sessions of
-    // an address share one share), the same in every session's tick.
+    // a number naming its owning session, the same in every session's tick.
     std::span<const uint32_t> owner_groups() const { return owner_groups_; }
     // Liveness independent of the tick's load: the shell says when it last
     // found the UDP receive queue empty (every Ack sent before then has been
