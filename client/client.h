@@ -170,6 +170,7 @@ struct ClientStats {
     double download_seconds = -1;  // from connect() until every catalogue asset was ready (-1: not yet)
     uint64_t poses_sent = 0, poses_refused = 0;  // publish(): sent, and refused (out of the codec's range)
     std::vector<double> per_second_bytes;  // wire bytes per second since the first frame
+    double max_gap_ms = 0;         // longest time between two frames received (the stream's worst stall)
 };
 
 class Client {
@@ -202,7 +203,9 @@ public:
     double tick_rate() const;
     ClientStats stats() const;
 
-    void set_view(const ViewSpec& view);   // at any time (sent when connected)
+    // At any time (sent when connected); throws Error for more than
+    // MAX_VIEW_WEIGHTS weights (the server would end the session).
+    void set_view(const ViewSpec& view);
     void set_max_kbps(double kbps);        // 0: the server's maximum
 
     // Asks the server for a character of its catalogue; returns a handle.

@@ -330,6 +330,7 @@ private:
         rep_.assets_cached = st.assets_cached;
         rep_.download_seconds = st.download_seconds;
         rep_.poses_sent = st.poses_sent;
+        rep_.max_gap_ms = st.max_gap_ms;
         const double stream_seconds = st.seconds;
         double total = 0;
         for (size_t i = 0; i < st.per_second_bytes.size(); ++i) {
@@ -432,7 +433,7 @@ std::string report_json(const ClientReport& r) {
     num_or_null(o, r.rms_pct);
     o << ", \"max_pct\": ";
     num_or_null(o, r.max_pct);
-    o << ", \"rate_max_kbps\": " << r.rate_max_kbps << ", \"max_jump_pct\": " << r.max_jump_pct
+    o << ", \"rate_max_kbps\": " << r.rate_max_kbps << ", \"max_gap_ms\": " << r.max_gap_ms << ", \"max_jump_pct\": " << r.max_jump_pct
       << ", \"delay_ms_max\": " << r.delay_ms << ", \"rtt_ms\": " << r.rtt_ms << ", \"estimate_kbps\": " << r.estimate_kbps
       << ", \"malformed\": " << r.malformed << ", \"duplicates\": " << r.duplicates
       << ", \"asset_bytes_downloaded\": " << r.asset_bytes_downloaded << ", \"assets_cached\": " << r.assets_cached << ", \"download_seconds\": " << r.download_seconds

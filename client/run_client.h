@@ -90,6 +90,7 @@ struct ClientReport {
     double rate_kbps = 0;
     double rate_max_kbps = 0;
     std::vector<double> per_second_kbps;
+    double max_gap_ms = 0;     // longest time between two frames received (ClientStats::max_gap_ms)
     uint64_t datagrams = 0, malformed = 0, duplicates = 0;
     double loss = 0;
     int characters = 0;        // instances with at least one frame received

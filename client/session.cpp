@@ -12,8 +12,10 @@
 #include <array>
 #include <cmath>
 #include <filesystem>
+#include <set>
 
 #include "asset_cache.h"
+#include "errors.h"
 #include "crypto.h"
 #include "frame_reader.h"
 
@@ -25,11 +27,15 @@ std::string read_instance(const wire::Instance& in, size_t catalogue_size, Remot
     if (in.asset() >= catalogue_size) return "asset " + std::to_string(in.asset()) + " is not in the catalogue";
     rc = RemoteCharacter{};
     rc.instance = in.id();
-    if (in.clips())
+    if (in.clips()) {
+        if (in.clips()->size() > MAX_INSTANCE_CLIPS) return std::to_string(in.clips()->size()) + " clips (at most " + std::to_string(MAX_INSTANCE_CLIPS) + ")";
         for (int c : *in.clips()) {
             if (c < 0) return "negative clip index";
+            if (std::find(rc.clip.selection.clips.begin(), rc.clip.selection.clips.end(), c) != rc.clip.selection.clips.end())
+                return "clip " + std::to_string(c) + " repeated";
             rc.clip.selection.clips.push_back(c);
         }
+    }
     rc.clip.selection.start = in.clip_start();
     rc.clip.selection.end = in.clip_end();
     rc.clip.time_offset = in.time_offset();
@@ -508,6 +514,8 @@ void ClientSession::handle_frame(const wire::Datagram& d, size_t n, double t) {
     }
     phase_ = SessionPhase::Streaming;
     ++since_ack_;
+    if (st_.datagrams > 0) st_.max_gap_ms = std::max(st_.max_gap_ms, 1000.0 * (t - last_frame_at_));
+    last_frame_at_ = t;
     ++st_.datagrams;
     st_.wire_bytes += n + UDP_IP_OVERHEAD;
     const size_t bin = size_t(t - t_first_);
@@ -652,6 +660,9 @@ void ClientSession::display(double now) {
 
 // ---------------------------------------------------------- view, cap --
 void ClientSession::set_view(const ViewSpec& view) {
+    if (view.weights.size() > MAX_VIEW_WEIGHTS)  // the server would end the session
+        throw Error("a View carries at most " + std::to_string(MAX_VIEW_WEIGHTS) + " weights (" + std::to_string(view.weights.size()) +
+                    " given)");
     view_ = view;
     view_set_ = true;
     view_dirty_ = was_welcomed();
@@ -700,10 +711,14 @@ int ClientSession::spawn(const SpawnSpec& spec) {
     o.asset = spec.asset;
     o.request = next_request_++;
     own_.push_back(o);
-    if (!was_welcomed() || spec.asset < 0 || size_t(spec.asset) >= catalogue_.size()) {
+    std::string why;  // what the server would refuse, refused here
+    if (!was_welcomed()) why = "not connected yet";
+    else if (spec.asset < 0 || size_t(spec.asset) >= catalogue_.size()) why = "no asset " + std::to_string(spec.asset) + " in the catalogue";
+    else if (spec.clips.size() > MAX_INSTANCE_CLIPS) why = "at most " + std::to_string(MAX_INSTANCE_CLIPS) + " clips";
+    else if (std::set<int>(spec.clips.begin(), spec.clips.end()).size() != spec.clips.size()) why = "a clip repeated";
+    if (!why.empty()) {
         own_.back().refused = true;
-        raise(ClientEvent::Type::SpawnRefused, -1, spec.asset, o.handle,
-              was_welcomed() ? "no asset " + std::to_string(spec.asset) + " in the catalogue" : "not connected yet");
+        raise(ClientEvent::Type::SpawnRefused, -1, spec.asset, o.handle, why);
         return o.handle;
     }
     flatbuffers::FlatBufferBuilder b;

@@ -282,6 +282,7 @@ private:
     double ack_arrival_ = 0, last_ack_sent_ = 0, next_bind_ = 0, next_stats_ = 0, last_datagram_ = 0;
     uint64_t since_ack_ = 0;
     double t_first_ = 0;
+    double last_frame_at_ = 0;  // newest frame datagram (ClientStats::max_gap_ms)
     ClientStats st_;
 
     // display clock (display())

@@ -48,6 +48,16 @@ inline float decode_morph_weight(int16_t q) { return float(q) / MORPH_WEIGHT_SCA
 inline constexpr size_t ROOT_BYTES = 26;              // root block (datagram.fbs Chunk)
 inline constexpr int MAX_SPAWNED = 16;                // characters one session may own
 inline constexpr size_t MAX_INSTANCES = 65535;        // instance ids are uint16 (0xFFFF unused)
+// Lists in control messages (docs/protocol.md "Limits"): every list a peer
+// sends has a limit the receiver checks on arrival, and every message a
+// server builds from them fits MAX_CONTROL_MESSAGE by construction.
+inline constexpr size_t MAX_INSTANCE_CLIPS = 64;      // Spawn.clips / Instance.clips (distinct indices)
+inline constexpr size_t MAX_VIEW_WEIGHTS = 4096;      // View.weights (distinct instances)
+inline constexpr size_t MAX_BATCH_INSTANCES = 1024;   // Instance tables per InstanceAdded (the verifier allows 4096 tables)
+inline constexpr size_t MAX_BATCH_REMOVED = 16000;    // ids per InstanceRemoved (32 KB)
+// The most bytes one Instance table (with MAX_INSTANCE_CLIPS clips) adds to
+// an InstanceAdded: InstanceAdded batches are cut by it (tests check it).
+inline constexpr size_t MAX_INSTANCE_TABLE_BYTES = 192 + 4 * MAX_INSTANCE_CLIPS;
 
 // FNV-1a 64 of bytes: the asset id (content hash; not cryptographic).
 uint64_t content_hash(std::span<const uint8_t> bytes);

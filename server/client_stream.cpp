@@ -52,8 +52,8 @@ PeerAddress PeerAddress::v4(uint32_t host_order_ip, uint16_t port) {
 
 // ---------------------------------------------------------------- session --
 
-ClientStream::ClientStream(ServerCore& core, uint64_t id, uint64_t token, double now)
-    : core_(core), id_(id), token_(token), opened_(now), last_heard_(now),
+ClientStream::ClientStream(ServerCore& core, uint64_t id, uint64_t token, double now, PeerAddress remote)
+    : core_(core), id_(id), token_(token), opened_(now), last_heard_(now), remote_(remote),
       rate_(core.config().max_kbps, std::min(core.config().initial_kbps, core.config().max_kbps)) {}
 
 ClientStream::~ClientStream() = default;
@@ -64,8 +64,11 @@ std::unique_ptr<ClientStream> ClientStream::detached(ServerCore& core, uint64_t 
     s->rate_ = RateController(kbps, kbps);
     s->adaptive_ = false;
     s->sync_instances();
-    s->out_.clear();
-    s->queued_ = 0;
+    do {  // every instance announced (the messages dropped)
+        s->out_.clear();
+        s->queued_ = 0;
+        s->announce_pending();
+    } while (!s->out_.empty());
     return s;
 }
 
@@ -77,6 +80,13 @@ void ClientStream::close(const std::string& why) {
     despawn_all();
     close_reason_ = why;
     log("session " + hex64(id_) + " (" + name_ + ") closed: " + why);
+}
+
+void ClientStream::evict(const std::string& why, double now) {
+    flatbuffers::FlatBufferBuilder fbb;
+    build_goodbye(fbb, "evicted: " + why);
+    log("session " + hex64(id_) + " (" + name_ + ") evicted: " + why);
+    finish(fbb, "evicted: " + why, now);
 }
 
 void ClientStream::despawn_all() {
@@ -118,6 +128,7 @@ void ClientStream::on_written() {
     queued_ -= out_.front().size();
     out_.pop_front();
     if (out_.empty() && state_ == SessionState::Closing) close(close_reason_);
+    else if (welcomed()) announce_pending();  // the next InstanceAdded batches as the client reads
 }
 
 void ClientStream::refuse(const std::string& reason, double now) {
@@ -126,6 +137,13 @@ void ClientStream::refuse(const std::string& reason, double now) {
     build_refuse(fbb, reason);
     log("refused: " + reason);
     finish(fbb, "refused: " + reason, now);
+}
+
+// A message over a budget or limit: counted by reason, the session closed.
+bool ClientStream::refuse_message(const std::string& reason, const std::string& why) {
+    core_.refused(reason);
+    close(why);
+    return false;
 }
 
 bool ClientStream::malformed(const std::string& why) {
@@ -151,7 +169,7 @@ bool ClientStream::on_control(std::span<const uint8_t> body, double now) {
         return malformed("unexpected control message in this state");
     switch (c->body_type()) {
         case wire::ControlBody::Hello: return on_hello(*c->body_as_Hello(), now);
-        case wire::ControlBody::AssetRequest: return on_asset_request(*c->body_as_AssetRequest());
+        case wire::ControlBody::AssetRequest: return on_asset_request(*c->body_as_AssetRequest(), now);
         case wire::ControlBody::View: return on_view(*c->body_as_View());
         case wire::ControlBody::Stats: return on_stats();
         case wire::ControlBody::Spawn: on_spawn(*c->body_as_Spawn(), now); return true;
@@ -162,7 +180,7 @@ bool ClientStream::on_control(std::span<const uint8_t> body, double now) {
 }
 
 // Why a Hello is refused (empty: welcome); a connect token names the client.
-std::string ClientStream::check_hello(const wire::Hello& h) {
+std::string ClientStream::check_hello(const wire::Hello& h, double now) {
     if (h.version() != PROTOCOL_VERSION)
         return "protocol version " + std::to_string(h.version()) + " not supported; this server speaks version " +
                std::to_string(PROTOCOL_VERSION);
@@ -172,12 +190,15 @@ std::string ClientStream::check_hello(const wire::Hello& h) {
     if (std::string why = core_.check_token(h.token(), who); !why.empty()) return why;
     name_ += who;
     const int max_clients = core_.config().max_clients;
-    if (core_.welcomed_sessions() >= max_clients) return "server full (" + std::to_string(max_clients) + " clients)";
+    if (core_.welcomed_sessions() >= max_clients && !core_.make_room(*this, now)) {
+        core_.refused("server_full");
+        return "server full (" + std::to_string(max_clients) + " clients)";
+    }
     return {};
 }
 
 bool ClientStream::on_hello(const wire::Hello& h, double now) {
-    if (std::string why = check_hello(h); !why.empty()) {
+    if (std::string why = check_hello(h, now); !why.empty()) {
         refuse(why, now);
         return false;
     }
@@ -215,18 +236,20 @@ bool ClientStream::send_welcome(double cap, double now) {
     return true;
 }
 
-bool ClientStream::on_asset_request(const wire::AssetRequest& r) {
+bool ClientStream::on_asset_request(const wire::AssetRequest& r, double now) {
     const ServerAsset* a = nullptr;
     for (const auto& x : core_.assets())
         if (x->id == r.asset_id()) a = x.get();
     if (!a || r.offset() >= a->bytes.size() || r.length() == 0 || r.length() > MAX_ASSET_CHUNK)
         return malformed("bad asset request");
     const size_t n = std::min<size_t>(r.length(), a->bytes.size() - r.offset());
+    asked_assets_ = now;
     asset_bytes_ += double(n);
-    if (asset_bytes_ > core_.config().asset_bytes_factor * core_.total_asset_bytes() + MAX_ASSET_CHUNK) {
-        close("asset download limit");
-        return false;
-    }
+    if (asset_bytes_ > core_.config().asset_bytes_factor * core_.total_asset_bytes() + MAX_ASSET_CHUNK)
+        return refuse_message("asset_budget_session", "asset download limit");
+    // Per address across its sessions and reconnects (ServerConfig::asset_bytes_per_minute).
+    if (!core_.charge_assets(remote_, n, now))
+        return refuse_message("asset_budget_address", "asset download limit of " + remote_.ip_string() + " per minute");
     flatbuffers::FlatBufferBuilder fbb(n + 128);
     build_asset_chunk(fbb, *a, r.offset(), n);
     core_.count([n](ServerStats& st) { st.asset_bytes_sent += n; });
@@ -235,7 +258,7 @@ bool ClientStream::on_asset_request(const wire::AssetRequest& r) {
 }
 
 bool ClientStream::on_view(const wire::View& v) {
-    view_ = read_view(v);
+    if (std::string why = read_view(v, view_); !why.empty()) return refuse_message("view_too_large", why);
     if (v.max_kbps()) rate_.set_cap(std::min(double(v.max_kbps()), core_.config().max_kbps));
     return true;
 }
@@ -254,17 +277,23 @@ void ClientStream::spawned(uint32_t request, bool ok, int instance, const std::s
     if (!ok) log("session " + hex64(id_) + " spawn refused: " + reason);
 }
 
+
+
 void ClientStream::on_spawn(const wire::Spawn& m, double now) {
+    auto refuse_spawn = [&](const char* reason, const std::string& why) {
+        core_.refused(reason);
+        spawned(m.request(), false, 0, why);
+    };
     if (owned_.size() >= size_t(MAX_SPAWNED))
-        return spawned(m.request(), false, 0, "this session owns " + std::to_string(MAX_SPAWNED) + " characters already");
+        return refuse_spawn("characters_per_session", "this session owns " + std::to_string(MAX_SPAWNED) + " characters already");
+    if (std::string why = core_.spawn_budget(*this); !why.empty()) return refuse_spawn("characters_per_address", why);
     InstanceSpec sp;
-    const std::string why = read_spawn(m, core_.assets(), id_, sp);
-    if (!why.empty()) return spawned(m.request(), false, 0, why);
+    if (std::string why = read_spawn(m, core_.assets(), id_, sp); !why.empty()) return refuse_spawn("spawn_invalid", why);
     int id;
     try {
         id = core_.add_instance(sp);
     } catch (const Error& e) {
-        return spawned(m.request(), false, 0, e.what());
+        return refuse_spawn("spawn_invalid", e.what());
     }
     owned_.push_back({id, 0.0, now});
     log("session " + hex64(id_) + " spawned " + core_.assets()[size_t(sp.asset)]->name + " as instance " + std::to_string(id));
@@ -283,32 +312,53 @@ bool ClientStream::on_despawn(const wire::Despawn& m) {
 
 void ClientStream::sync_instances() {
     const uint64_t version = core_.instances_version();
-    if (instances_seen_ == version || state_ == SessionState::Closed) return;
-    instances_seen_ = version;
-    std::vector<uint32_t>& generations = core_.generations();
-    core_.encoder().generations(generations);
-    if (known_.size() < generations.size()) known_.resize(generations.size(), 0);
-    std::vector<uint16_t> removed;
-    std::vector<std::pair<int, InstanceSpec>> added;  // id and spec, read once
-    for (size_t i = 0; i < known_.size(); ++i) {
-        const uint32_t g = i < generations.size() ? generations[i] : 0;
-        if (known_[i] == g) continue;
-        if (known_[i] != 0) removed.push_back(uint16_t(i));
-        known_[i] = 0;
-        InstanceSpec sp;
-        if (g == 0 || !core_.encoder().spec_if_active(int(i), sp) || sp.owner == id_) continue;
-        known_[i] = g;
-        added.emplace_back(int(i), std::move(sp));
+    if (state_ == SessionState::Closed) return;
+    if (instances_seen_ != version) {
+        instances_seen_ = version;
+        std::vector<uint32_t>& generations = core_.generations();
+        core_.encoder().generations(generations);
+        if (known_.size() < generations.size()) known_.resize(generations.size(), 0);
+        std::vector<uint16_t> removed;
+        pending_.clear();  // what is still to announce, as of this version
+        pending_at_ = 0;
+        for (size_t i = 0; i < known_.size(); ++i) {
+            const uint32_t g = i < generations.size() ? generations[i] : 0;
+            if (known_[i] == g) continue;
+            if (known_[i] != 0) removed.push_back(uint16_t(i));
+            known_[i] = 0;
+            if (g != 0) pending_.emplace_back(int(i), g);
+        }
+        for (size_t at = 0; at < removed.size(); at += MAX_BATCH_REMOVED) {
+            flatbuffers::FlatBufferBuilder fbb;
+            build_instances_removed(fbb, std::span(removed).subspan(at, std::min(MAX_BATCH_REMOVED, removed.size() - at)));
+            send(fbb);
+        }
     }
-    for (size_t at = 0; at < removed.size(); at += 16000) {
-        flatbuffers::FlatBufferBuilder fbb;
-        build_instances_removed(fbb, std::span(removed).subspan(at, std::min<size_t>(16000, removed.size() - at)));
-        send(fbb);
-    }
-    constexpr size_t kBatch = 128;  // an Instance table is under 200 bytes
-    for (size_t at = 0; at < added.size(); at += kBatch) {
-        flatbuffers::FlatBufferBuilder fbb(32768);
-        build_instances_added(fbb, core_.assets(), std::span(added).subspan(at, std::min(kBatch, added.size() - at)));
+    announce_pending();
+}
+
+void ClientStream::announce_pending() {
+    const size_t limit = std::max(core_.config().max_queued_bytes / 2, MAX_CONTROL_MESSAGE + 4);
+    std::vector<std::pair<int, InstanceSpec>> batch;  // id and spec, read once
+    std::vector<size_t> at;                           // their places in pending_
+    while (pending_at_ < pending_.size() && is_open() && queued_ + MAX_CONTROL_MESSAGE + 4 <= limit) {
+        batch.clear();
+        at.clear();
+        for (size_t p = pending_at_; p < pending_.size() && batch.size() < MAX_BATCH_INSTANCES; ++p) {
+            InstanceSpec sp;
+            if (!core_.encoder().spec_if_active(pending_[p].first, sp) || sp.owner == id_) continue;  // gone, or its own
+            batch.emplace_back(pending_[p].first, std::move(sp));
+            at.push_back(p);
+        }
+        if (batch.empty()) {
+            pending_at_ = pending_.size();
+            break;
+        }
+        const size_t n = instances_per_message(core_.assets(), batch);  // cut by bytes
+        pending_at_ = n < at.size() ? at[n] : pending_.size();
+        for (size_t k = 0; k < n; ++k) known_[size_t(batch[k].first)] = pending_[at[k]].second;
+        flatbuffers::FlatBufferBuilder fbb(MAX_CONTROL_MESSAGE);
+        build_instances_added(fbb, core_.assets(), std::span(batch).first(n));
         send(fbb);
     }
 }
@@ -389,6 +439,7 @@ DatagramVerdict ClientStream::on_challenge_response(const wire::ChallengeRespons
         sodium_memcmp(r.nonce()->data(), challenge_nonce_.data(), CHALLENGE_NONCE) != 0)
         return DatagramVerdict::rejected;
     const bool moved = bound_ && peer_ != from;
+    if (moved) rate_.on_path_change();  // back to the rate before the switch (rate_controller.h)
     peer_ = from;
     bound_ = true;
     last_heard_ = now;
@@ -464,12 +515,30 @@ TickResult ClientStream::tick(const EncodedFrame& frame, double now, double dt, 
     return send_frame(frame, budget, out);
 }
 
+// A chunk of one bone of a placed character: what the least useful pick costs.
+static constexpr size_t kSmallestChunk = WireCost::kChunk + 1 + ROOT_BYTES + RecordFormat::kPlainSize;
+
+void ClientStream::bound_candidates(size_t budget) {
+    const size_t most = std::min<size_t>(size_t(std::max(1, core_.config().max_candidates)), std::max<size_t>(64, budget / kSmallestChunk));
+    candidates_.clear();
+    for (size_t i = 0; i < importance_.size(); ++i)
+        if (importance_[i] > 0.0f) candidates_.push_back(i);
+    if (candidates_.size() <= most) return;
+    // The `most` most important (ties: the lower id) keep theirs; O(instances).
+    auto more = [&](size_t a, size_t b) { return importance_[a] > importance_[b] || (importance_[a] == importance_[b] && a < b); };
+    std::nth_element(candidates_.begin(), candidates_.begin() + long(most), candidates_.end(), more);
+    for (size_t c = most; c < candidates_.size(); ++c) importance_[candidates_[c]] = 0.0f;
+}
+
 TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, DatagramSink& out) {
     update_importance(frame);
+    bound_candidates(budget);
     if (selector_) {
         selector_(frame, budget, picks_);
     } else {
-        scheduler_.select(frame, core_.assets(), importance_, budget, core_.config().tick_rate, picks_);
+        const ServerConfig& cfg = core_.config();
+        scheduler_.set_shares(core_.owner_groups(), cfg.owner_share_kbps > 0 ? size_t(cfg.owner_share_kbps * 125.0 / cfg.tick_rate) : 0);
+        scheduler_.select(frame, core_.assets(), importance_, budget, cfg.tick_rate, picks_);
         if (scheduler_.limited()) rate_.mark_limited();
     }
     if (picks_.empty()) return {};
@@ -494,8 +563,10 @@ bool ClientStream::expired(double now) const {
         case SessionState::AwaitHello: return now - opened_ > cfg.hello_timeout;
         // Unbound: client_timeout after Welcome, whatever arrives over TCP.
         case SessionState::Welcomed: return now - welcomed_ > cfg.client_timeout;
-        // Streaming: client_timeout after the newest Ack from the bound address.
-        case SessionState::Streaming: return now - last_heard_ > cfg.client_timeout;
+        // Streaming: client_timeout after the newest Ack from the bound address
+        // as of the last time every datagram received had been read (so that a
+        // busy server does not drop a client whose Acks wait in its queue).
+        case SessionState::Streaming: return core_.heard_until(now) - last_heard_ > cfg.client_timeout;
         case SessionState::Closed: return false;
     }
     return false;

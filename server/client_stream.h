@@ -92,8 +92,9 @@ struct TickResult {
 
 class ClientStream {
 public:
-    // A session in AwaitHello, opened at `now` (ServerCore::open).
-    ClientStream(ServerCore& core, uint64_t id, uint64_t token, double now);
+    // A session in AwaitHello, opened at `now` from `remote` (its port
+    // ignored: the TCP peer; ServerCore::open).
+    ClientStream(ServerCore& core, uint64_t id, uint64_t token, double now, PeerAddress remote = {});
     ~ClientStream();
     ClientStream(const ClientStream&) = delete;
     ClientStream& operator=(const ClientStream&) = delete;
@@ -113,7 +114,16 @@ public:
     const std::string& close_reason() const { return close_reason_; }
     bool bound() const { return bound_; }
     const PeerAddress& peer() const { return peer_; }
+    const PeerAddress& remote() const { return remote_; }
     uint32_t seq() const { return seq_; }
+    // What admission and eviction weigh (ServerCore): when it connected, was
+    // welcomed, last heard an Ack from its bound address, last asked for
+    // asset bytes; the characters it owns.
+    double opened_at() const { return opened_; }
+    double welcomed_at() const { return welcomed_; }
+    double last_heard() const { return last_heard_; }
+    double last_asset_request() const { return asked_assets_; }
+    size_t owned_count() const { return owned_.size(); }
 
     // ------------------------------------------------------ control in --
     // A control message's length prefix: false (counted malformed, closed) when out of range.
@@ -124,6 +134,8 @@ public:
     void refuse(const std::string& reason, double now);
     // Closed at once (its characters despawned, logged); no-op when Closed.
     void close(const std::string& why);
+    // Goodbye "evicted: <why>" then Closing (ServerCore::make_room).
+    void evict(const std::string& why, double now);
 
     // ----------------------------------------------------- control out --
     // Framed messages waiting to be written, oldest first.
@@ -131,8 +143,16 @@ public:
     // The oldest was written; Closing with nothing left: Closed.
     void on_written();
     // Tells the client about instances added and removed since it last heard
-    // (never its own), in messages that fit the control limit.
+    // (never its own), in messages that fit the control limit: removals at
+    // once, additions paced (announce_pending).
     void sync_instances();
+    // Queues InstanceAdded batches of the instances not yet announced while
+    // the queued output stays within half of max_queued_bytes (a 16,000-instance
+    // scene is joined a batch at a time as the client reads; the rest waits
+    // for on_written or the next tick). Until announced an instance gets no
+    // importance and is not streamed.
+    void announce_pending();
+    bool announcing() const { return pending_at_ < pending_.size(); }
 
     // ------------------------------------------------------- datagrams --
     // The token matches (constant time) and the session is Welcomed or Streaming.
@@ -180,9 +200,9 @@ private:
     void log(const std::string& s) const;
     // Control messages (on_control); each returns whether to read on.
     bool on_hello(const wire::Hello& h, double now);
-    std::string check_hello(const wire::Hello& h);
+    std::string check_hello(const wire::Hello& h, double now);
     bool send_welcome(double cap, double now);
-    bool on_asset_request(const wire::AssetRequest& r);
+    bool on_asset_request(const wire::AssetRequest& r, double now);
     bool on_view(const wire::View& v);
     bool on_stats();
     void on_spawn(const wire::Spawn& m, double now);
@@ -200,6 +220,10 @@ private:
     // Sends one datagram to `to`, sealed when the session seals; returns the bytes sent.
     size_t send_datagram(std::span<const uint8_t> plain, const PeerAddress& to, DatagramSink& out);
     void update_importance(const EncodedFrame& frame);
+    // Leaves importance only to the characters that can matter: at most
+    // max_candidates, and no more than `budget` could carry a chunk of.
+    void bound_candidates(size_t budget);
+    bool refuse_message(const std::string& reason, const std::string& why);
 
     ServerCore& core_;
     uint64_t id_ = 0, token_ = 0;
@@ -207,6 +231,8 @@ private:
     std::string name_;
     std::string close_reason_;
     double opened_ = 0, welcomed_ = 0, last_heard_ = 0;  // last_heard: newest Ack from the bound address
+    double asked_assets_ = -1e300;  // newest AssetRequest
+    PeerAddress remote_;            // the TCP peer (port 0)
     double close_deadline_ = 0;
     std::deque<std::vector<uint8_t>> out_;
     size_t queued_ = 0;
@@ -233,6 +259,9 @@ private:
     std::vector<float> importance_;
     std::vector<Pick> picks_;
     std::vector<uint32_t> known_;    // per instance slot: generation announced to this client (0: none)
+    std::vector<std::pair<int, uint32_t>> pending_;  // (slot, generation) to announce, in order
+    size_t pending_at_ = 0;          // next in pending_
+    std::vector<size_t> candidates_;  // bound_candidates' scratch
     uint64_t instances_seen_ = ~0ull;  // ServerCore::instances_version last synced
     std::vector<Owned> owned_;       // characters this session spawned
 };

@@ -18,11 +18,16 @@ std::string read_spawn(const wire::Spawn& m, const ServerAssets& assets, uint64_
     sp.owner = owner;
     sp.once = m.once();
     sp.speed = m.speed();
-    if (m.clips())
+    if (m.clips()) {
+        if (m.clips()->size() > MAX_INSTANCE_CLIPS)
+            return std::to_string(m.clips()->size()) + " clips; a character plays at most " + std::to_string(MAX_INSTANCE_CLIPS);
         for (int c : *m.clips()) {
             if (c < 0 || size_t(c) >= a.character.clips.size()) return "no clip " + std::to_string(c) + " in " + a.name;
+            if (std::find(sp.announced_clips.begin(), sp.announced_clips.end(), c) != sp.announced_clips.end())
+                return "clip " + std::to_string(c) + " repeated";
             sp.announced_clips.push_back(c);
         }
+    }
     sp.publisher_start_us = m.publisher_start_us();
     if (m.walk_center()) sp.walk_center = {m.walk_center()->x(), m.walk_center()->y(), m.walk_center()->z()};
     sp.walk_radius = m.walk_radius();
@@ -37,8 +42,10 @@ std::string read_spawn(const wire::Spawn& m, const ServerAssets& assets, uint64_
     return {};
 }
 
-ViewSpec read_view(const wire::View& v) {
-    ViewSpec vs;
+std::string read_view(const wire::View& v, ViewSpec& vs) {
+    if (v.weights() && v.weights()->size() > MAX_VIEW_WEIGHTS)
+        return "View of " + std::to_string(v.weights()->size()) + " weights (at most " + std::to_string(MAX_VIEW_WEIGHTS) + ")";
+    vs = ViewSpec{};
     if (v.camera()) {
         vs.camera = {v.camera()->x(), v.camera()->y(), v.camera()->z()};
         vs.has_camera = true;
@@ -48,7 +55,11 @@ ViewSpec read_view(const wire::View& v) {
     if (v.weights())
         for (const auto* w : *v.weights())
             if (std::isfinite(w->weight())) vs.weights.emplace_back(w->instance(), w->weight());
-    return vs;
+    // Indexed, not scanned: sorted by instance, the last weight of an instance named twice kept.
+    std::stable_sort(vs.weights.begin(), vs.weights.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+    auto last = std::unique(vs.weights.rbegin(), vs.weights.rend(), [](const auto& a, const auto& b) { return a.first == b.first; });
+    vs.weights.erase(vs.weights.begin(), last.base());
+    return {};
 }
 
 namespace {
@@ -119,6 +130,29 @@ void build_welcome(flatbuffers::FlatBufferBuilder& fbb, const ServerAssets& asse
     auto w = wire::CreateWelcome(fbb, PROTOCOL_VERSION, session_id, udp_token, udp_port, tick_rate, uint32_t(cap_kbps), va, sn,
                                  keys);
     fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Welcome, w.Union()), wire::ControlIdentifier());
+}
+
+size_t instance_table_bound(const ServerAssets& assets, const InstanceSpec& sp) {
+    const ServerAsset& a = *assets[size_t(sp.asset)];
+    const size_t clips = sp.selection >= 0 ? a.selections[size_t(sp.selection)].clips.size() : sp.announced_clips.size();
+    return MAX_INSTANCE_TABLE_BYTES - 4 * (MAX_INSTANCE_CLIPS - std::min(clips, MAX_INSTANCE_CLIPS));
+}
+
+// The Control and InstanceAdded tables, the vector's length, the buffer's
+// identifier and alignment: what an InstanceAdded holds besides its Instance tables.
+static constexpr size_t kInstanceAddedOverhead = 64;
+static_assert(MAX_BATCH_REMOVED * 2 + kInstanceAddedOverhead <= MAX_CONTROL_MESSAGE, "InstanceRemoved fits");
+static_assert(MAX_INSTANCE_TABLE_BYTES + kInstanceAddedOverhead <= MAX_CONTROL_MESSAGE, "one Instance fits");
+
+size_t instances_per_message(const ServerAssets& assets, std::span<const std::pair<int, InstanceSpec>> added) {
+    size_t bytes = kInstanceAddedOverhead, n = 0;
+    while (n < added.size() && n < MAX_BATCH_INSTANCES) {
+        const size_t b = instance_table_bound(assets, added[n].second);
+        if (bytes + b > MAX_CONTROL_MESSAGE) break;
+        bytes += b;
+        ++n;
+    }
+    return n;
 }
 
 void build_instances_added(flatbuffers::FlatBufferBuilder& fbb, const ServerAssets& assets,

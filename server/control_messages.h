@@ -26,9 +26,12 @@ using ServerAssets = std::vector<std::shared_ptr<ServerAsset>>;
 // value not finite, a position outside the world). O(clips).
 std::string read_spawn(const wire::Spawn& m, const ServerAssets& assets, uint64_t owner, InstanceSpec& out);
 
-// A client's View: camera, field of view, viewport, explicit weights (the
-// finite ones).
-ViewSpec read_view(const wire::View& v);
+// Reads a client's View into `out`: camera, field of view, viewport and the
+// explicit weights (the finite ones) sorted by instance, one per instance
+// (the last given wins), so that the tick indexes them instead of scanning.
+// Returns an empty string, or why it is refused (more than MAX_VIEW_WEIGHTS
+// weights; `out` unchanged).
+std::string read_view(const wire::View& v, ViewSpec& out);
 
 // The Welcome: the session's ids, the UDP port, the tick rate, the cap and
 // every asset's header; keys (server -> client, then client -> server) when
@@ -36,7 +39,17 @@ ViewSpec read_view(const wire::View& v);
 void build_welcome(flatbuffers::FlatBufferBuilder& fbb, const ServerAssets& assets, uint64_t session_id, uint64_t udp_token,
                    uint16_t udp_port, float tick_rate, double cap_kbps, const crypto::Key* tx_key, const crypto::Key* rx_key);
 
-// InstanceAdded for `added` (id, spec); InstanceRemoved for `ids`.
+// The most bytes instance `sp`'s table adds to an InstanceAdded (at most
+// MAX_INSTANCE_TABLE_BYTES: FrameEncoder refuses instances of more clips).
+size_t instance_table_bound(const ServerAssets& assets, const InstanceSpec& sp);
+// How many of `added`, from the front, go into one InstanceAdded: batches are
+// cut by bytes (instance_table_bound) so that every message is within
+// MAX_CONTROL_MESSAGE, and at most MAX_BATCH_INSTANCES tables (the verifier's
+// table limit); at least 1 when `added` is not empty.
+size_t instances_per_message(const ServerAssets& assets, std::span<const std::pair<int, InstanceSpec>> added);
+
+// InstanceAdded for `added` (id, spec; at most instances_per_message of them);
+// InstanceRemoved for `ids` (at most MAX_BATCH_REMOVED).
 void build_instances_added(flatbuffers::FlatBufferBuilder& fbb, const ServerAssets& assets,
                            std::span<const std::pair<int, InstanceSpec>> added);
 void build_instances_removed(flatbuffers::FlatBufferBuilder& fbb, std::span<const uint16_t> ids);

@@ -54,6 +54,10 @@ int FrameEncoder::add_instance(const InstanceSpec& s) {
     const ServerAsset& a = *assets_[s.asset];
     if (s.selection >= int(a.selections.size())) throw Error("no clip selection " + std::to_string(s.selection));
     if (!std::isfinite(s.speed) || !std::isfinite(s.time_offset)) throw Error("clip speed and offset must be finite");
+    // Its Instance table must fit every InstanceAdded (MAX_INSTANCE_TABLE_BYTES).
+    const size_t clips = s.selection >= 0 ? a.selections[size_t(s.selection)].clips.size() : s.announced_clips.size();
+    if (clips > MAX_INSTANCE_CLIPS)
+        throw Error("an instance plays at most " + std::to_string(MAX_INSTANCE_CLIPS) + " clips (" + std::to_string(clips) + " given)");
     std::lock_guard lock(mutex_);
     int id;
     // Reuse the id freed longest ago only once a few have been freed, so a
@@ -79,6 +83,7 @@ int FrameEncoder::add_instance(const InstanceSpec& s) {
     ++slot.teleports;  // a new occupant of the slot is a discontinuity
     slot.has_root = false;
     slot.morphs.clear();
+    slot.changed = true;
     return id;
 }
 
@@ -158,6 +163,7 @@ bool FrameEncoder::push_pose(int instance, std::span<const Mat34> skinning) {
     for (int b = 0; b < a.bone_count(); ++b)
         encode_bone(decompose(skinning[size_t(a.skin.order[b])]), a.format, slot.records.data() + size_t(b) * rs);
     slot.live = slot.has_pose = true;
+    slot.changed = true;
     return true;
 }
 
@@ -181,6 +187,7 @@ bool FrameEncoder::push_records(int instance, uint32_t pose_seq, uint8_t epoch, 
     slot.pose_seq = pose_seq;
     slot.live_epoch = epoch;
     slot.live = slot.has_pose = slot.has_root = true;
+    slot.changed = true;
     return true;
 }
 
@@ -192,6 +199,7 @@ bool FrameEncoder::set_root(int instance, const RootPose& root, bool teleport) {
     Slot& slot = slots_[size_t(instance)];
     slot.root = block;
     slot.has_root = true;
+    slot.changed = true;
     if (teleport) ++slot.teleports;
     return true;
 }
@@ -205,7 +213,7 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         frame_.morph.resize(slots_.size() * morph_stride_, kNoWeight);
     }
     for (size_t i = 0; i < slots_.size(); ++i) {
-        const Slot& slot = slots_[i];
+        Slot& slot = slots_[i];
         auto& e = frame_.instances[i];
         e.active = slot.active;
         e.valid = false;
@@ -229,6 +237,9 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         } else {
             e.world = glm::dvec3(s.position);
         }
+        if (slot.changed || !slot.live) slot.changed_tick = tick;
+        slot.changed = false;
+        e.changed_tick = slot.changed_tick;
         if (slot.live) {
             if (!slot.has_pose) continue;
             std::copy(slot.records.begin(), slot.records.end(), out);

@@ -49,6 +49,11 @@ struct EncodedInstance {
     uint64_t owner = 0;     // session that owns it (0: server)
     glm::dvec3 world{0.0};  // current world position (importance)
     std::array<uint8_t, ROOT_BYTES> root{};  // root block (when flags & CHUNK_ROOT)
+    // The tick its content (records, root, morph weights) last changed: this
+    // tick for clip instances; for live ones the first encode after the newest
+    // push_pose / push_records / set_root (a pose sent once and never again
+    // costs its observers a refresh per hold, not a frame per tick).
+    uint32_t changed_tick = 0;
     int morph_count = 0;    // morph weights this tick (EncodedFrame::morph), 0: none
     size_t morph_offset = 0;  // into EncodedFrame::morph
 };
@@ -134,6 +139,8 @@ private:
         uint8_t live_epoch = 0, teleports = 0;
         bool has_root = false;
         std::array<uint8_t, ROOT_BYTES> root{};
+        bool changed = true;        // pushed to since the last encode
+        uint32_t changed_tick = 0;  // EncodedInstance::changed_tick
     };
     std::vector<std::shared_ptr<ServerAsset>> assets_;
     float tick_rate_;

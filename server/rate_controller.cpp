@@ -135,6 +135,22 @@ void RateController::update(double now) {
     }
     win_acked_ = win_lost_ = win_acked_bytes_ = 0;
     limited_ = false;
+    recent_[recent_at_++ % recent_.size()] = estimate_kbps_;
+}
+
+void RateController::on_path_change() {
+    for (auto& s : ring_)
+        if (s.valid) s.counted = true;  // neither acked nor lost: sent to a path that is gone
+    win_acked_ = win_lost_ = win_acked_bytes_ = 0;
+    loss_ = 0;
+    srtt_ms_ = 0;
+    min_rtt_ms_ = 1e9;
+    min_rtt_age_ = 0;
+    hold_ = 0;
+    double before = estimate_kbps_;
+    for (double e : recent_) before = std::max(before, e);
+    estimate_kbps_ = std::clamp(before, kMinKbps, std::max(kMinKbps, cap_kbps_));
+    slow_start_ = true;
 }
 
 }  // namespace progskin::net

@@ -17,6 +17,7 @@
 // 1.04 * cap. A tick sends only when the bucket holds at least min(400, depth
 // - one tick's fill) bytes.
 #pragma once
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <vector>
@@ -40,6 +41,13 @@ public:
     void on_ack(uint32_t ack, uint32_t ack_bits, uint32_t echo_us, uint32_t hold_us, uint32_t now_us);
     // Re-evaluates the estimate; call every tick (acts every 250 ms).
     void update(double now_seconds);
+    // The client's address changed (a NAT rebinding, once the new address
+    // answered the Challenge): what was sent to the old address was lost to
+    // the path, not to congestion. Forgets it (not counted lost), and the
+    // delay and loss of the old path; back to the estimate held before the
+    // switch (the highest of the last 2 s) in slow start, so the stream is
+    // back at its rate at once instead of probing up from a collapsed one.
+    void on_path_change();
 
     double cap_kbps() const { return cap_kbps_; }
     double estimate_kbps() const { return estimate_kbps_; }
@@ -72,6 +80,9 @@ private:
     double last_update_ = -1;
     int hold_ = 0;  // windows to wait after a back-off
     bool slow_start_ = true;  // doubling until the first back-off or short delivery
+    // The estimate at the last 8 updates (2 s): what on_path_change restores.
+    std::array<double, 8> recent_{};
+    size_t recent_at_ = 0;
 };
 
 }  // namespace progskin::net

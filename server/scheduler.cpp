@@ -20,17 +20,40 @@ size_t WireCost::wire(size_t payload) {
     return payload + n * (kFrameOverhead + UDP_IP_OVERHEAD) + (n - 1) * kSplitChunk;
 }
 
+namespace {
+
+using Weights = std::vector<std::pair<int, float>>;
+
+// The view's weights sorted by instance, one per instance (the last one
+// given wins): `w` itself when already so (read_view's), else a sorted copy.
+const Weights& indexed_weights(const Weights& w, Weights& copy) {
+    auto by_instance = [](const auto& a, const auto& b) { return a.first < b.first; };
+    if (std::adjacent_find(w.begin(), w.end(), [](const auto& a, const auto& b) { return a.first >= b.first; }) == w.end())
+        return w;  // strictly increasing
+    copy = w;
+    std::stable_sort(copy.begin(), copy.end(), by_instance);
+    auto last = std::unique(copy.rbegin(), copy.rend(), [](const auto& a, const auto& b) { return a.first == b.first; });
+    copy.erase(copy.begin(), last.base());
+    return copy;
+}
+
+}  // namespace
+
+// O(instances + weights): the weights are walked beside the slots, never
+// scanned per instance (a View of thousands of weights costs what it is long).
 void compute_importance(const ViewSpec& view, const EncodedFrame& frame,
                         const std::vector<std::shared_ptr<ServerAsset>>& assets, uint64_t viewer, std::vector<float>& imp) {
     imp.assign(frame.instances.size(), 0.0f);
+    Weights copy;
+    const Weights& weights = indexed_weights(view.weights, copy);
+    size_t next = 0;  // first weight whose instance is >= the slot
     for (size_t i = 0; i < frame.instances.size(); ++i) {
         const EncodedInstance& e = frame.instances[i];
+        while (next < weights.size() && weights[next].first < int(i)) ++next;
         if (!e.active || (viewer != 0 && e.owner == viewer)) continue;
         const ServerAsset& a = *assets[size_t(e.asset)];
-        if (!view.weights.empty()) {
-            float w = 0.0f;
-            for (const auto& [inst, weight] : view.weights)
-                if (inst == int(i)) w = weight;
+        if (!weights.empty()) {
+            const float w = next < weights.size() && weights[next].first == int(i) ? weights[next].second : 0.0f;
             imp[i] = std::max(0.0f, w) * float(1000.0 / a.diagonal);
         } else if (view.has_camera) {
             float d = std::max(float(glm::length(e.world - glm::dvec3(view.camera))), float(0.05 * a.diagonal));
@@ -138,6 +161,8 @@ void Scheduler::track_slots(const EncodedFrame& frame) {
 size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                               std::span<const float> importance) {
     size_t full = 0;
+    current_.assign(frame.instances.size(), 0);
+    std::fill(group_full_.begin(), group_full_.end(), 0);
     for (size_t i = 0; i < frame.instances.size(); ++i) {
         const auto& e = frame.instances[i];
         morph_[i] = MorphItem{};
@@ -145,16 +170,35 @@ size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::
         const ServerAsset& a = *assets[size_t(e.asset)];
         if (state_[i].bone_tick.size() != size_t(a.bone_count())) state_[i].bone_tick.assign(size_t(a.bone_count()), 0);
         morph_item(i, frame, a, double(importance[i]) * double(importance[i]) * double(a.character.vertex_count()));
-        full += WireCost::header(e) + size_t(e.bone_count) * e.record_size + morph_[i].bytes;
+        current_[i] = up_to_date(i, frame);
+        if (current_[i]) continue;  // nothing to send (the fast path and the greedy skip it)
+        const size_t bytes = WireCost::header(e) + size_t(e.bone_count) * e.record_size + morph_[i].bytes;
+        full += bytes;
+        if (const uint32_t g = group_of(i); g > 0) {
+            if (group_full_.size() <= g) group_full_.resize(size_t(g) + 1, 0);
+            group_full_[g] += bytes;
+        }
     }
     return full;
 }
 
+bool Scheduler::up_to_date(size_t i, const EncodedFrame& frame) const {
+    const auto& e = frame.instances[i];
+    if (e.changed_tick == frame.tick || morph_[i].value > 0) return false;
+    const State& st = state_[i];
+    for (int b = 0; b < e.bone_count; ++b) {
+        const uint32_t t = st.bone_tick[size_t(b)];
+        if (t == 0 || int32_t(t - e.changed_tick) < 0 || (b > 0 && int32_t(frame.tick - t) >= HOLD_TICKS - 1)) return false;
+    }
+    return true;
+}
+
 // The fast path: every bone and due weight of every important instance.
-void Scheduler::pick_everything(const EncodedFrame& frame, std::span<const float> importance, std::vector<Pick>& out) {
+void Scheduler::pick_everything(const EncodedFrame& frame, std::span<const float> importance, bool except_over_share,
+                                std::vector<Pick>& out) {
     for (size_t i = 0; i < frame.instances.size(); ++i) {
         const auto& e = frame.instances[i];
-        if (e.valid && importance[i] > 0.0f) {
+        if (e.valid && importance[i] > 0.0f && !current_[i] && !(except_over_share && over_share(i))) {
             out.push_back({int(i), e.bone_count, e.bone_count});
             out.back().morphs = morph_[i].mask;
             morph_[i].chosen = true;
@@ -180,8 +224,20 @@ void Scheduler::segment_items(size_t i, const EncodedFrame& frame, const ServerA
             const uint32_t t = st.bone_tick[size_t(x)];
             if (t == 0 || (x > 0 && int32_t(frame.tick - t) >= HOLD_TICKS)) shown = false;
         }
+        // Current: every bone sent since the content last changed (a live
+        // character not posed again): worth nothing until its hold runs out.
+        bool current = true;
+        for (int x = seg.from; x < seg.to && current; ++x) {
+            const uint32_t t = st.bone_tick[size_t(x)];
+            current = e.changed_tick != frame.tick && t != 0 && int32_t(t - e.changed_tick) >= 0;
+        }
         double v;
-        if (shown) {
+        bool idle = false;
+        if (shown && current) {
+            const int32_t age = int32_t(frame.tick - st.bone_tick[size_t(seg.to - 1)]);
+            idle = q == 0 || age < HOLD_TICKS - 1;  // bone 0 is never dropped
+            v = idle ? 0.0 : seg.show_value[size_t(m)];
+        } else if (shown) {
             const int32_t age = std::max(1, int32_t(frame.tick - st.bone_tick[size_t(seg.to - 1)]));
             const double g = double(age) * to30;
             if (g == double(age) && age < ServerAsset::kGapTable) v = seg.refresh[size_t(m)][size_t(age)];
@@ -194,7 +250,7 @@ void Scheduler::segment_items(size_t i, const EncodedFrame& frame, const ServerA
             // makes showing it most worthwhile (scene.h show_value).
             v = seg.show_value[size_t(m)];
         }
-        items.push_back({w * v, b, seg.from, seg.to, shown, false, false});
+        items.push_back({w * v, b, seg.from, seg.to, shown, false, false, idle});
     }
 }
 
@@ -232,13 +288,13 @@ void Scheduler::offer_chain(size_t i, uint32_t age) {
 
 // Every important instance's items offered to the heap (before any header is paid).
 void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
-                            std::span<const float> importance, float tick_rate) {
+                            std::span<const float> importance, float tick_rate, bool only_over_share) {
     const double to30 = 30.0 / std::max(1.0f, tick_rate);
     heap_.clear();
     for (size_t i = 0; i < frame.instances.size(); ++i) {
         items_[i].clear();
         const auto& e = frame.instances[i];
-        if (!e.valid || importance[i] <= 0.0f) continue;
+        if (!e.valid || importance[i] <= 0.0f || current_[i] || (only_over_share && !over_share(i))) continue;
         const ServerAsset& a = *assets[size_t(e.asset)];
         paid_[i] = 0;
         chain_next_[i] = 0;
@@ -258,9 +314,8 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
 }
 
 // Greedy over the items by value per byte, within `budget` wire bytes.
-void Scheduler::take_greedily(size_t budget) {
+void Scheduler::take_greedily(size_t budget, size_t payload) {
     std::make_heap(heap_.begin(), heap_.end());
-    size_t payload = 0;
     while (!heap_.empty()) {
         if (WireCost::wire(payload + RecordFormat::kPlainSize) > budget) break;  // not even the smallest record fits
         std::pop_heap(heap_.begin(), heap_.end());
@@ -275,10 +330,24 @@ void Scheduler::take_greedily(size_t budget) {
     }
 }
 
+// Whether instance `inst`'s group may take `bytes` more this tick (taking
+// them); if not, the instance is marked: what it leaves is its share's doing.
+bool Scheduler::share_allows(size_t inst, size_t bytes) {
+    const uint32_t g = group_of(inst);
+    if (g == 0) return true;
+    if (group_spent_.size() <= g) group_spent_.resize(size_t(g) + 1, 0);
+    if (group_spent_[g] + bytes > share_now_) {
+        share_left_[inst] = 1;
+        return false;
+    }
+    group_spent_[g] += bytes;
+    return true;
+}
+
 void Scheduler::take_morph(const Step& s, size_t header, size_t budget, size_t& payload) {
     const size_t inst = size_t(s.instance);
     MorphItem& mi = morph_[inst];
-    if (mi.chosen || WireCost::wire(payload + mi.bytes + header) > budget) return;
+    if (mi.chosen || WireCost::wire(payload + mi.bytes + header) > budget || !share_allows(inst, mi.bytes + header)) return;
     payload += mi.bytes + header;
     mi.chosen = true;
     if (!paid_[inst]) pay(s.instance, s.age);
@@ -291,7 +360,7 @@ void Scheduler::take_chain_step(const Step& s, size_t header, size_t budget, siz
     const ChainPoint& p1 = chain[size_t(s.step)];
     const size_t bytes = p1.bytes - p0.bytes + header;
     chain_next_[inst] = 0;
-    if (WireCost::wire(payload + bytes) > budget) return;
+    if (WireCost::wire(payload + bytes) > budget || !share_allows(inst, bytes)) return;
     payload += bytes;
     for (int q = p0.end; q < p1.end; ++q) items_[inst][size_t(q)].chosen = true;
     if (!paid_[inst]) pay(s.instance, s.age);
@@ -313,7 +382,7 @@ void Scheduler::take_segment(const Step& s, size_t header, size_t budget, size_t
         return;
     }
     const size_t bytes = it.bytes + header;
-    if (WireCost::wire(payload + bytes) > budget) {  // a smaller item may still fit
+    if (WireCost::wire(payload + bytes) > budget || !share_allows(inst, bytes)) {  // a smaller item may still fit
         if (s.paid) {
             offer_paid(s.instance, s.age);
         } else {
@@ -332,9 +401,10 @@ void Scheduler::take_segment(const Step& s, size_t header, size_t budget, size_t
 // estimate keeps probing up to the full rate, where everything goes).
 bool Scheduler::left_something() const {
     for (size_t i = 0; i < items_.size(); ++i) {
+        if (share_left_[i]) continue;  // its owner's share, not the rate, held it back
         if (morph_[i].value > 0 && !morph_[i].chosen) return true;
         for (const SegItem& it : items_[i])
-            if (!it.chosen) return true;
+            if (!it.chosen && !it.idle) return true;
     }
     return false;
 }
@@ -386,16 +456,46 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     // Morph items (the weights that are due, scheduler.h), then the fast
     // path: every bone and due weight of every (important) instance fits.
     const size_t full = morph_items(frame, assets, importance);
+    limited_ = false;
     if (full == 0) return 0;
-    if (WireCost::wire(full) <= budget) {
-        pick_everything(frame, importance, out);
+    share_left_.assign(frame.instances.size(), 0);
+    std::fill(group_spent_.begin(), group_spent_.end(), 0);
+    // The share this tick: the configured one, and no more than an equal part
+    // of the budget among the owners with something to send (the server's
+    // own characters count as one): a fair share of this client's stream.
+    size_t owners = 0, grouped = 0;
+    for (size_t g = 1; g < group_full_.size(); ++g) {
+        owners += group_full_[g] > 0;
+        grouped += group_full_[g];
+    }
+    owners += full > grouped;
+    share_now_ = owners ? std::min(share_bytes_, budget / owners) : share_bytes_;
+    // What the shares let through: a group's payload beyond its share never goes.
+    size_t free_payload = full, shared = 0;
+    bool over = false;
+    for (size_t g = 1; g < group_full_.size(); ++g)
+        if (group_full_[g] > share_now_) {
+            over = true;
+            free_payload -= group_full_[g];
+            shared += share_now_;
+        }
+    if (!over && WireCost::wire(full) <= budget) {
+        pick_everything(frame, importance, false, out);
         std::sort(out.begin(), out.end(), by_importance);
-        limited_ = false;
         return WireCost::wire(full);
     }
-    offer_items(frame, assets, importance, tick_rate);
-    take_greedily(budget);
-    limited_ = left_something();
+    if (over && WireCost::wire(free_payload + shared) <= budget) {
+        // All but what the shares hold back fits: everything of the other
+        // instances, and the greedy within their shares for the groups over
+        // them. Not limited (the rate does not grow for what a share holds).
+        pick_everything(frame, importance, true, out);
+        offer_items(frame, assets, importance, tick_rate, true);
+        take_greedily(budget, free_payload);
+    } else {
+        offer_items(frame, assets, importance, tick_rate, false);
+        take_greedily(budget, 0);
+        limited_ = left_something();
+    }
     chosen_picks(out);
     std::stable_sort(out.begin(), out.end(), by_importance);
     return estimate(frame, out);

@@ -108,6 +108,18 @@ public:
                   std::span<const float> importance, size_t budget, float tick_rate, std::vector<Pick>& out);
     // Records that `picks` went out at `tick`.
     void sent(std::span<const Pick> picks, uint32_t tick);
+    // Fair share for the next selects: the characters of one owner (group[i]
+    // > 0, the same number for one owner; 0 or beyond the span: the server's
+    // own, no limit) take at most share_bytes of payload per tick, and at most
+    // budget / n where n counts the owners with something to send this tick
+    // (the server's own characters as one): no owner takes more than an equal
+    // part of a client's stream (0: no share at all). What a share leaves
+    // unsent does not count as limited() (the rate does not probe up for it).
+    // The span must outlive the selects.
+    void set_shares(std::span<const uint32_t> group, size_t share_bytes) {
+        group_ = group;
+        share_bytes_ = share_bytes;
+    }
 
     // The last select left something unsent (so the rate estimate may probe up).
     bool limited() const { return limited_; }
@@ -144,6 +156,7 @@ private:
         bool shown;      // the client shows it now
         bool chosen;     // sent this tick
         bool tried;      // offered with the chunk header and did not fit
+        bool idle = false;  // the client has its current content and its hold is not running out: nothing to send
     };
     // Each instance has at most one shown item and one chain step in the heap
     // at a time. Before its chunk header is paid: its best shown item by value
@@ -153,14 +166,20 @@ private:
     // The steps of select: slots tracked, morph items (and the fast path's
     // payload), the items offered, the greedy loop, the picks.
     void track_slots(const EncodedFrame& frame);
+    // The client has every bone of instance i as it is now (sent since its
+    // content last changed) and no hold runs out this tick: it needs nothing.
+    bool up_to_date(size_t i, const EncodedFrame& frame) const;
     size_t morph_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                        std::span<const float> importance);
-    void pick_everything(const EncodedFrame& frame, std::span<const float> importance, std::vector<Pick>& out);
+    // except_over_share: not the instances of groups over their share.
+    void pick_everything(const EncodedFrame& frame, std::span<const float> importance, bool except_over_share,
+                         std::vector<Pick>& out);
+    // only_over_share: the instances of groups over their share only.
     void offer_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
-                     std::span<const float> importance, float tick_rate);
+                     std::span<const float> importance, float tick_rate, bool only_over_share);
     void segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30);
     void offer_chain(size_t i, uint32_t age);
-    void take_greedily(size_t budget);
+    void take_greedily(size_t budget, size_t payload);  // payload: already taken
     void take_morph(const Step& s, size_t header, size_t budget, size_t& payload);
     void take_chain_step(const Step& s, size_t header, size_t budget, size_t& payload);
     void take_segment(const Step& s, size_t header, size_t budget, size_t& payload);
@@ -187,8 +206,23 @@ private:
     std::vector<std::vector<int>> order_;           // per instance (once paid): shown items by value per byte
     std::vector<size_t> order_at_;                  // per instance: next in order_ to offer
     std::vector<MorphItem> morph_;                  // per instance
+    std::vector<uint8_t> current_;                  // per instance: up_to_date this tick
     std::vector<Step> heap_;
     bool limited_ = false;
+    // Fair share (set_shares): per group, payload taken this tick; per
+    // instance, whether an item was left for its group's share.
+    uint32_t group_of(size_t i) const { return share_bytes_ && i < group_.size() ? group_[i] : 0; }
+    bool share_allows(size_t inst, size_t bytes);  // takes `bytes` from the group's share, or marks the instance
+    bool over_share(size_t i) const {
+        const uint32_t g = group_of(i);
+        return g > 0 && g < group_full_.size() && group_full_[g] > share_now_;
+    }
+    std::vector<size_t> group_full_;  // per group: the payload of all its instances' due content this tick
+    std::span<const uint32_t> group_;
+    size_t share_bytes_ = 0;
+    size_t share_now_ = 0;  // this tick's: share_bytes_, at most budget / owners with content
+    std::vector<size_t> group_spent_;
+    std::vector<uint8_t> share_left_;
 };
 
 }  // namespace progskin::net

@@ -18,6 +18,7 @@
 #pragma once
 #include <atomic>
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <span>
 #include <string>
@@ -54,6 +55,34 @@ struct ServerConfig {
     double asset_bytes_factor = 4.0;  // per-session download limit, x total asset bytes
     size_t max_queued_bytes = 1 << 20;  // per-session control output waiting to be written; more closes the session
     int max_per_address = 64;     // open TCP connections from one IP address (0: no limit)
+    // Budgets: what one player (session, or IP address) may make the server
+    // spend on it or on everybody else (docs/protocol.md "Security").
+    // Characters per session: MAX_SPAWNED.
+    int max_characters_per_address = 32;  // players' characters spawned from one IP address (0: no limit)
+    // Fair share: the characters of one session take at most this of each
+    // observer's stream, and at most an equal part of its budget among the
+    // owners with something to send (their items beyond it wait, and the
+    // observer's rate does not grow for them; 0: no limit).
+    double owner_share_kbps = 256;
+    // Asset bytes sent to one IP address, across its sessions and reconnects:
+    // a bucket this deep refilled at this per minute (0: 64 x the catalogue's
+    // bytes: 64 players behind one NAT joining at once for the first time).
+    // Over it the session is closed.
+    double asset_bytes_per_minute = 0;
+    // The tick: a client's scheduler weighs at most this many characters
+    // (the most important), and never more than its budget could carry.
+    int max_candidates = 2048;
+    // Admission: connections before Hello (TLS handshakes included) at once;
+    // a new one beyond closes the oldest (0: no limit).
+    int max_handshakes = 128;
+    // New connections per IP address per second (a bucket of 8 s of them);
+    // beyond: closed at once, no handshake spent (0: no limit).
+    double connects_per_second = 32;
+    // When full, a Hello evicts (Goodbye "evicted: ...") a session unbound
+    // this long after its Welcome and not downloading, else one silent (no
+    // Ack) this long, else the newest of the address holding the most
+    // sessions when that is more than the newcomer's address holds + 1.
+    double evict_after = 2.0;
     bool verbose = false;
 };
 
@@ -71,6 +100,17 @@ struct ServerStats {
     uint64_t tls_failures = 0;     // TLS handshakes that failed
     uint64_t tokens_refused = 0;   // connect tokens invalid, expired, for another server or replayed
     double tick_seconds = 0;      // total time spent in ticks
+    // Every refusal of a budget or admission limit, by reason (docs/protocol.md
+    // "Limits"): characters_per_session, characters_per_address, spawn_invalid,
+    // view_too_large, asset_budget_session, asset_budget_address, connect_rate,
+    // connections_per_address, handshake_evicted, server_full, evicted_unbound,
+    // evicted_idle, evicted_address_share.
+    std::map<std::string, uint64_t> refusals;
+    uint64_t refusals_total() const {
+        uint64_t n = 0;
+        for (const auto& [k, v] : refusals) n += v;
+        return n;
+    }
 };
 
 class Server {

@@ -78,21 +78,177 @@ std::shared_ptr<ClientStream> ServerCore::open(const PeerAddress& remote, double
     uint64_t id;
     do id = random_u64();
     while (sessions_.count(id));
-    auto s = std::make_shared<ClientStream>(*this, id, random_u64(), now);
+    auto s = std::make_shared<ClientStream>(*this, id, random_u64(), now, remote);
     int same = 0;
     for (auto& [other, e] : sessions_)
         if (e.stream->is_open() && e.remote.same_ip(remote)) ++same;
     sessions_[id] = {s, remote};
     count([](ServerStats& st) { ++st.sessions_total; });
-    if (cfg_.max_per_address > 0 && same >= cfg_.max_per_address) {
+    if (!admit_connection(remote, now)) {  // closed without a word, no handshake spent on it
+        refused("connect_rate");
+        s->close("connection rate from " + remote.ip_string());
+    } else if (cfg_.max_per_address > 0 && same >= cfg_.max_per_address) {
+        refused("connections_per_address");
         if (tls()) {  // no handshake spent on it: closed without a message
             count([](ServerStats& st) { ++st.refused; });
             s->close("too many connections from " + remote.ip_string());
         } else {
             s->refuse("too many connections from " + remote.ip_string() + " (" + std::to_string(cfg_.max_per_address) + ")", now);
         }
+    } else {
+        limit_handshakes();
     }
     return s;
+}
+
+// ---------------------------------------------------------------- budgets --
+
+void ServerCore::refused(const std::string& reason) {
+    count([&](ServerStats& st) { ++st.refusals[reason]; });
+}
+
+double ServerCore::asset_bucket_bytes() const {
+    return cfg_.asset_bytes_per_minute > 0 ? cfg_.asset_bytes_per_minute
+                                           : 64.0 * total_asset_bytes_ + double(MAX_ASSET_CHUNK);
+}
+
+// The address's buckets, refilled to `now`; created full. Null when the
+// table is full of addresses still in use (kMaxAddresses): not tracked.
+ServerCore::AddressBudget* ServerCore::budget_of(const PeerAddress& remote, double now) {
+    constexpr size_t kMaxAddresses = 65536;
+    auto it = addresses_.find(remote);
+    if (it == addresses_.end()) {
+        if (addresses_.size() >= kMaxAddresses) prune_addresses(now);
+        if (addresses_.size() >= kMaxAddresses) return nullptr;
+        PeerAddress key = remote;
+        key.port = 0;
+        it = addresses_.emplace(key, AddressBudget{8.0 * cfg_.connects_per_second, now, asset_bucket_bytes(), now}).first;
+    }
+    AddressBudget& b = it->second;
+    b.connects = std::min(8.0 * cfg_.connects_per_second, b.connects + (now - b.connects_at) * cfg_.connects_per_second);
+    b.connects_at = now;
+    const double assets = asset_bucket_bytes();
+    b.assets = std::min(assets, b.assets + (now - b.assets_at) * assets / 60.0);
+    b.assets_at = now;
+    return &b;
+}
+
+bool ServerCore::admit_connection(const PeerAddress& remote, double now) {
+    if (cfg_.connects_per_second <= 0) return true;
+    AddressBudget* b = budget_of(remote, now);
+    if (!b) return true;
+    if (b->connects < 1.0) return false;
+    b->connects -= 1.0;
+    return true;
+}
+
+bool ServerCore::charge_assets(const PeerAddress& remote, size_t n, double now) {
+    AddressBudget* b = budget_of(remote, now);
+    if (!b) return true;
+    if (b->assets < double(n)) return false;
+    b->assets -= double(n);
+    return true;
+}
+
+// Addresses whose buckets are full again and that hold no session are forgotten.
+void ServerCore::prune_addresses(double now) {
+    std::map<PeerAddress, int, IpLess> in_use;
+    for (const auto& [id, e] : sessions_) ++in_use[e.remote];
+    const double assets = asset_bucket_bytes();
+    for (auto it = addresses_.begin(); it != addresses_.end();) {
+        const AddressBudget& b = it->second;
+        const bool full = b.connects + (now - b.connects_at) * cfg_.connects_per_second >= 8.0 * cfg_.connects_per_second &&
+                          b.assets + (now - b.assets_at) * assets / 60.0 >= assets;
+        if (full && !in_use.count(it->first)) it = addresses_.erase(it);
+        else ++it;
+    }
+}
+
+// More connections before Hello than max_handshakes: the oldest go first (a
+// slow or stalled handshake has had the longest time; an honest one takes
+// milliseconds).
+void ServerCore::limit_handshakes() {
+    if (cfg_.max_handshakes <= 0) return;
+    std::vector<ClientStream*> waiting;
+    for (auto& [id, e] : sessions_)
+        if (e.stream->state() == SessionState::AwaitHello) waiting.push_back(e.stream.get());
+    if (waiting.size() <= size_t(cfg_.max_handshakes)) return;
+    const size_t over = waiting.size() - size_t(cfg_.max_handshakes);
+    std::nth_element(waiting.begin(), waiting.begin() + long(over - 1), waiting.end(),
+                     [](const ClientStream* a, const ClientStream* b) { return a->opened_at() < b->opened_at(); });
+    for (size_t i = 0; i < over; ++i) {
+        refused("handshake_evicted");
+        waiting[i]->close("handshake evicted: " + std::to_string(cfg_.max_handshakes) + " in progress");
+    }
+}
+
+std::string ServerCore::spawn_budget(const ClientStream& s) const {
+    if (cfg_.max_characters_per_address <= 0) return {};
+    size_t n = 0;
+    for (const auto& [id, e] : sessions_)
+        if (e.stream->is_open() && e.remote.same_ip(s.remote())) n += e.stream->owned_count();
+    if (n < size_t(cfg_.max_characters_per_address)) return {};
+    return "the players at " + s.remote().ip_string() + " own " + std::to_string(n) + " characters (at most " +
+           std::to_string(cfg_.max_characters_per_address) + " per address)";
+}
+
+// Who goes when the server is full (ServerConfig::evict_after): the oldest
+// session still unbound that long after its Welcome and not downloading, else
+// the one silent longest (no Ack that long), else the newest of the address
+// holding the most sessions if it holds more than the newcomer's address + 1.
+ClientStream* ServerCore::eviction_candidate(const ClientStream& newcomer, double now, std::string& reason) {
+    const double grace = cfg_.evict_after;
+    ClientStream *unbound = nullptr, *idle = nullptr;
+    std::map<PeerAddress, std::pair<int, ClientStream*>, IpLess> per_ip;  // welcomed sessions, the newest
+    for (auto& [id, e] : sessions_) {
+        ClientStream* s = e.stream.get();
+        if (s == &newcomer || !s->welcomed()) continue;
+        if (s->state() == SessionState::Welcomed && now - s->welcomed_at() > grace && now - s->last_asset_request() > grace &&
+            (!unbound || s->welcomed_at() < unbound->welcomed_at()))
+            unbound = s;
+        if (s->state() == SessionState::Streaming && heard_until(now) - s->last_heard() > grace &&
+            (!idle || s->last_heard() < idle->last_heard()))
+            idle = s;
+        auto& [n, newest] = per_ip[e.remote];
+        ++n;
+        if (!newest || s->welcomed_at() > newest->welcomed_at()) newest = s;
+    }
+    if (unbound) return reason = "evicted_unbound", unbound;
+    if (idle) return reason = "evicted_idle", idle;
+    const auto mine = per_ip.find(newcomer.remote());
+    const int own = mine == per_ip.end() ? 0 : mine->second.first;
+    auto heaviest = std::max_element(per_ip.begin(), per_ip.end(),
+                                     [](const auto& a, const auto& b) { return a.second.first < b.second.first; });
+    if (heaviest != per_ip.end() && heaviest->second.first > own + 1) return reason = "evicted_address_share", heaviest->second.second;
+    return nullptr;
+}
+
+bool ServerCore::make_room(const ClientStream& newcomer, double now) {
+    std::string reason;
+    ClientStream* s = eviction_candidate(newcomer, now, reason);
+    if (!s) return false;
+    refused(reason);
+    s->evict("server full, " + reason.substr(8) + " session evicted for a newcomer", now);
+    return true;
+}
+
+double ServerCore::heard_until(double now) const {
+    if (drained_ < 0 || now - drained_ > 2.0 * cfg_.client_timeout) return now;
+    return std::min(now, drained_);
+}
+
+// One number per owning session, 0 for the server's characters. (Sessions,
+// not addresses: players behind one NAT keep a share each; what one address
+// can add in all is bounded by its characters, max_characters_per_address.)
+void ServerCore::update_owner_groups(const EncodedFrame* frame) {
+    owner_groups_.clear();
+    if (!frame) return;
+    owner_groups_.resize(frame->instances.size(), 0);
+    std::map<uint64_t, uint32_t> groups;
+    for (size_t i = 0; i < frame->instances.size(); ++i) {
+        const EncodedInstance& e = frame->instances[i];
+        if (e.active && e.owner != 0) owner_groups_[i] = groups.emplace(e.owner, uint32_t(groups.size() + 1)).first->second;
+    }
 }
 
 void ServerCore::erase(uint64_t id) { sessions_.erase(id); }
@@ -180,6 +336,11 @@ void ServerCore::tick(double now, DatagramSink& out) {
         if (e.stream->welcomed()) e.stream->sync_instances();
     }
     const EncodedFrame* frame = any ? &encoder_.encode(tick_) : nullptr;
+    update_owner_groups(frame);
+    if (now - pruned_at_ >= 1.0) {
+        prune_addresses(now);
+        pruned_at_ = now;
+    }
     uint64_t dg = 0, bytes = 0, timeouts = 0;
     std::vector<std::shared_ptr<ClientStream>> drop;
     for (auto& [id, e] : sessions_) {

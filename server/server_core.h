@@ -13,6 +13,7 @@
 #include <mutex>
 #include <span>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include "client_stream.h"
@@ -52,6 +53,29 @@ public:
     // connect token.
     std::string check_token(const flatbuffers::String* token, std::string& who);
 
+    // ------------------------------------------------------------- budgets --
+    // Counts one refusal of a budget or admission limit (ServerStats::refusals).
+    void refused(const std::string& reason);
+    // Why session `s` may not spawn another character: its address's players
+    // hold max_characters_per_address already (empty: it may).
+    std::string spawn_budget(const ClientStream& s) const;
+    // Takes n asset bytes from the bucket of `remote`'s address (shared by its
+    // sessions, kept across reconnects); false when it holds fewer.
+    bool charge_assets(const PeerAddress& remote, size_t n, double now);
+    // The server is full and `newcomer` said Hello: closes one session to make
+    // room (ServerConfig::evict_after), counted; false when none may go.
+    bool make_room(const ClientStream& newcomer, double now);
+    // Fair share: per instance slot, 0 for the server's own characters, else
+    // a number naming its owning session, the same in every session's tick.
+    std::span<const uint32_t> owner_groups() const { return owner_groups_; }
+    // Liveness independent of the tick's load: the shell says when it last
+    // found the UDP receive queue empty (every Ack sent before then has been
+    // accounted). A Streaming session times out client_timeout after its
+    // newest Ack as of that moment (heard_until), not as of now, unless the
+    // queue has not been empty for 2 x client_timeout. Without a shell: now.
+    void input_drained(double t) { drained_ = t; }
+    double heard_until(double now) const;
+
     // ----------------------------------------------------------------- I/O --
     // One datagram from `from`: opened (sealed: with the key of the session
     // its header names), verified, routed by session id and token, counted.
@@ -81,6 +105,24 @@ public:
 
 private:
     ClientStream* route(const wire::Datagram& d, ClientStream* sealed_by);
+    // Per IP address (its port ignored): new connections and asset bytes,
+    // token buckets that outlive the address's sessions (pruned once full).
+    struct AddressBudget {
+        double connects = 0, connects_at = 0;
+        double assets = 0, assets_at = 0;
+    };
+    struct IpLess {
+        bool operator()(const PeerAddress& a, const PeerAddress& b) const {
+            return std::tie(a.ip, a.scope, a.v6) < std::tie(b.ip, b.scope, b.v6);
+        }
+    };
+    AddressBudget* budget_of(const PeerAddress& remote, double now);
+    bool admit_connection(const PeerAddress& remote, double now);  // the per-address connection rate
+    void limit_handshakes();  // max_handshakes: the oldest closed
+    void prune_addresses(double now);
+    void update_owner_groups(const EncodedFrame* frame);
+    double asset_bucket_bytes() const;
+    ClientStream* eviction_candidate(const ClientStream& newcomer, double now, std::string& reason);
 
     ServerConfig cfg_;
     ServerAssets assets_;
@@ -92,6 +134,10 @@ private:
         PeerAddress remote;  // the TCP peer (max_per_address)
     };
     std::map<uint64_t, Entry> sessions_;
+    std::map<PeerAddress, AddressBudget, IpLess> addresses_;
+    double pruned_at_ = 0;
+    double drained_ = -1;  // input_drained (-1: no shell says)
+    std::vector<uint32_t> owner_groups_;
     std::atomic<uint64_t> instances_version_{1};  // bumped by every add / remove
     uint32_t tick_ = 0;
     double last_tick_time_ = 0;

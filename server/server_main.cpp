@@ -47,6 +47,15 @@ static const char* kUsage =
     "  --tick-rate HZ    ticks per second (default 30)\n"
     "  --max-clients N   (default 256)\n"
     "  --max-kbps N      per-client rate ceiling in kbit/s (default 50000)\n"
+    "  Budgets (what one player may cost the others; docs/protocol.md \"Security\"):\n"
+    "  --max-per-address N   open connections from one IP address (default 64; 0: none)\n"
+    "  --max-characters-per-address N  players' characters from one IP address (default 32)\n"
+    "  --owner-share-kbps N  what one session's characters may take of each other client's\n"
+    "                    stream (default 256; 0: no limit)\n"
+    "  --asset-bytes-per-minute N  asset bytes per IP address, across reconnects (default:\n"
+    "                    64 x the catalogue's bytes)\n"
+    "  --max-handshakes N    connections before Hello at once (default 128; the oldest go)\n"
+    "  --connects-per-second N  new connections per IP address (default 32, 8 s of burst)\n"
     "  --token T         require this access token in Hello\n"
     "  --token-public-key HEX  require a connect token signed by the matching secret\n"
     "                    key (progskin token keygen / issue) in Hello\n"
@@ -122,6 +131,12 @@ static int parse_options(int argc, char** argv, Options& o) {
             else if (a == "--tick-rate") cfg.tick_rate = float(cli::to_number(a, need(i)));
             else if (a == "--max-clients") cfg.max_clients = cli::to_int(a, need(i));
             else if (a == "--max-kbps") cfg.max_kbps = cli::to_number(a, need(i));
+            else if (a == "--max-per-address") cfg.max_per_address = cli::to_int(a, need(i));
+            else if (a == "--max-characters-per-address") cfg.max_characters_per_address = cli::to_int(a, need(i));
+            else if (a == "--owner-share-kbps") cfg.owner_share_kbps = cli::to_number(a, need(i));
+            else if (a == "--asset-bytes-per-minute") cfg.asset_bytes_per_minute = cli::to_number(a, need(i));
+            else if (a == "--max-handshakes") cfg.max_handshakes = cli::to_int(a, need(i));
+            else if (a == "--connects-per-second") cfg.connects_per_second = cli::to_number(a, need(i));
             else if (a == "--token") cfg.token = need(i);
             else if (a == "--token-public-key") cfg.token_public_key = need(i);
             else if (a == "--public-address") cfg.public_address = need(i);
@@ -153,6 +168,15 @@ static int check_options(const Options& o) {
         std::fprintf(stderr, "progskin-server: argument out of range\n%s", kUsage);
         return 2;
     }
+    const std::pair<const char*, double> budgets[] = {
+        {"--max-per-address", cfg.max_per_address},   {"--max-characters-per-address", cfg.max_characters_per_address},
+        {"--owner-share-kbps", cfg.owner_share_kbps}, {"--asset-bytes-per-minute", cfg.asset_bytes_per_minute},
+        {"--max-handshakes", cfg.max_handshakes},     {"--connects-per-second", cfg.connects_per_second}};
+    for (const auto& [name, v] : budgets)
+        if (!(v >= 0)) {
+            std::fprintf(stderr, "progskin-server: %s must be >= 0\n%s", name, kUsage);
+            return 2;
+        }
     if (o.no_tls && (!cfg.tls_cert_file.empty() || !cfg.tls_key_file.empty() || o.seal_asked || !o.tls_dir.empty())) {
         std::fprintf(stderr, "progskin-server: --no-tls excludes --tls-cert, --tls-key, --tls-dir and --seal-datagrams\n%s", kUsage);
         return 2;
@@ -244,6 +268,9 @@ static void report(const ServerStats& st) {
                  (unsigned long long)st.poses_received, (unsigned long long)st.poses_stale,
                  (unsigned long long)st.poses_rate_limited, (unsigned long long)st.poses_out_of_range,
                  st.ticks ? 1000.0 * st.tick_seconds / double(st.ticks) : 0.0);
+    std::string refusals;
+    for (const auto& [reason, n] : st.refusals) refusals += " " + reason + " " + std::to_string(n);
+    std::fprintf(stderr, "progskin-server: refusals:%s\n", refusals.empty() ? " none" : refusals.c_str());
 }
 
 int main(int argc, char** argv) {

@@ -4,7 +4,11 @@
 // times, a sink that keeps what would have been sent.
 #include <gtest/gtest.h>
 
+#include <set>
+
 #include "client_stream.h"
+#include "control_messages.h"
+#include "errors.h"
 #include "net_test_support.h"
 #include "server_core.h"
 
@@ -316,4 +320,258 @@ TEST(ClientStream, InstancesNotYetAnnouncedOrOwnGetNoImportance) {
     EXPECT_TRUE(sent_to_client(npc));
     EXPECT_EQ(client->importance()[size_t(mine)], 0.0f);
     EXPECT_FALSE(sent_to_client(mine));
+}
+
+namespace {
+
+std::vector<uint8_t> spawn_message(uint32_t request, std::vector<int32_t> clips = {}) {
+    flatbuffers::FlatBufferBuilder fbb;
+    auto vc = fbb.CreateVector(clips);
+    auto s = wire::CreateSpawn(fbb, request, 0, vc);
+    fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Spawn, s.Union()), wire::ControlIdentifier());
+    return bytes_of(fbb);
+}
+
+std::vector<uint8_t> view_message(size_t weights) {
+    std::vector<wire::InstanceWeight> ws;
+    for (size_t i = 0; i < weights; ++i) ws.emplace_back(uint16_t(i), 1.0f);
+    flatbuffers::FlatBufferBuilder fbb;
+    auto vw = fbb.CreateVectorOfStructs(ws);
+    wire::ViewBuilder vb(fbb);
+    vb.add_weights(vw);
+    auto v = vb.Finish();
+    fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::View, v.Union()), wire::ControlIdentifier());
+    return bytes_of(fbb);
+}
+
+// The Spawned answers in the session's output, in order: (ok, reason).
+std::vector<std::pair<bool, std::string>> spawned_answers(const ClientStream& s) {
+    std::vector<std::pair<bool, std::string>> r;
+    for (size_t i = 0; i < s.output().size(); ++i)
+        if (const wire::Control* c = output_message(s, i); c && c->body_type() == wire::ControlBody::Spawned)
+            r.emplace_back(c->body_as_Spawned()->ok(), c->body_as_Spawned()->reason() ? c->body_as_Spawned()->reason()->str() : "");
+    return r;
+}
+
+uint64_t refusals(const ServerCore& core, const std::string& reason) {
+    const ServerStats st = core.stats();
+    auto it = st.refusals.find(reason);
+    return it == st.refusals.end() ? 0 : it->second;
+}
+
+}  // namespace
+
+// Characters per session (MAX_SPAWNED) and per address
+// (max_characters_per_address), clips per Spawn and repeated clips: each
+// refused with its reason in Spawned and counted by reason.
+TEST(ClientStream, SpawnsAreBoundedPerSessionAndPerAddress) {
+    Fixture f;
+    auto second = f.core->open(kTcp, 100.0);  // the same address
+    ASSERT_TRUE(second->on_control(hello(0), 100.0));
+    auto elsewhere = f.core->open(kOther, 100.0);
+    ASSERT_TRUE(elsewhere->on_control(hello(0), 100.0));
+    for (uint32_t r = 0; r < 17; ++r) f.s->on_control(spawn_message(r), 100.1);
+    auto a = spawned_answers(*f.s);
+    ASSERT_EQ(a.size(), 17u);
+    for (int i = 0; i < 16; ++i) EXPECT_TRUE(a[size_t(i)].first) << i;
+    EXPECT_FALSE(a[16].first);
+    EXPECT_EQ(refusals(*f.core, "characters_per_session"), 1u);
+    for (uint32_t r = 0; r < 16; ++r) second->on_control(spawn_message(r), 100.1);
+    a = spawned_answers(*second);
+    ASSERT_EQ(a.size(), 16u);
+    EXPECT_TRUE(a[15].first);  // 32 from this address
+    auto third = f.core->open(kTcp, 100.1);
+    ASSERT_TRUE(third->on_control(hello(0), 100.1));
+    third->on_control(spawn_message(1), 100.1);
+    a = spawned_answers(*third);
+    ASSERT_EQ(a.size(), 1u);
+    EXPECT_FALSE(a[0].first);
+    EXPECT_NE(a[0].second.find("per address"), std::string::npos) << a[0].second;
+    EXPECT_EQ(refusals(*f.core, "characters_per_address"), 1u);
+    // Another address is not affected; clips beyond the limit or repeated are refused.
+    elsewhere->on_control(spawn_message(1, {0}), 100.1);
+    elsewhere->on_control(spawn_message(2, std::vector<int32_t>(MAX_INSTANCE_CLIPS + 1, 0)), 100.1);
+    elsewhere->on_control(spawn_message(3, {0, 0}), 100.1);
+    a = spawned_answers(*elsewhere);
+    ASSERT_EQ(a.size(), 3u);
+    EXPECT_TRUE(a[0].first);
+    EXPECT_FALSE(a[1].first);
+    EXPECT_FALSE(a[2].first);
+    EXPECT_NE(a[2].second.find("repeated"), std::string::npos) << a[2].second;
+    EXPECT_EQ(refusals(*f.core, "spawn_invalid"), 2u);
+    // A session that closes gives its characters back to its address.
+    f.s->close("gone");
+    third->on_control(spawn_message(99), 100.2);
+    EXPECT_TRUE(spawned_answers(*third).back().first);
+}
+
+// A View of more than MAX_VIEW_WEIGHTS weights closes the session (counted);
+// one of MAX_VIEW_WEIGHTS is accepted.
+TEST(ClientStream, ViewsOverTheWeightLimitAreRefused) {
+    Fixture f;
+    EXPECT_TRUE(f.s->on_control(view_message(MAX_VIEW_WEIGHTS), 100.1));
+    EXPECT_EQ(f.s->state(), SessionState::Welcomed);
+    EXPECT_FALSE(f.s->on_control(view_message(MAX_VIEW_WEIGHTS + 1), 100.2));
+    EXPECT_EQ(f.s->state(), SessionState::Closed);
+    EXPECT_EQ(refusals(*f.core, "view_too_large"), 1u);
+}
+
+// A 16,000-instance scene: InstanceAdded batches are queued as the client
+// reads, never more than half the output limit at once, each message within
+// MAX_CONTROL_MESSAGE, and every instance is announced once.
+TEST(ClientStream, ALargeSceneIsAnnouncedWithinTheOutputLimit) {
+    ServerConfig cfg;
+    ServerCore core(cfg, default_assets(), crowd_layout(default_assets(), 16000));
+    auto s = core.open(kTcp, 100.0);
+    ASSERT_TRUE(s->on_control(hello(0), 100.0));
+    std::set<int> announced;
+    size_t most_queued = 0, messages = 0, duplicates = 0;
+    for (int round = 0; round < 10000 && !s->output().empty(); ++round) {
+        size_t queued = 0;
+        for (const auto& m : s->output()) queued += m.size();
+        most_queued = std::max(most_queued, queued);
+        const wire::Control* c = output_message(*s, 0);
+        ASSERT_TRUE(c);
+        if (c->body_type() == wire::ControlBody::InstanceAdded) {
+            ++messages;
+            for (const wire::Instance* in : *c->body_as_InstanceAdded()->instances()) duplicates += !announced.insert(in->id()).second;
+        }
+        s->on_written();
+    }
+    EXPECT_EQ(announced.size(), 16000u);
+    EXPECT_EQ(duplicates, 0u);
+    EXPECT_LE(most_queued, cfg.max_queued_bytes / 2);
+    EXPECT_EQ(s->state(), SessionState::Welcomed);
+    std::printf("16,000 instances in %zu InstanceAdded messages, at most %zu bytes queued\n", messages, most_queued);
+}
+
+// Every InstanceAdded the server builds fits the receivers' limits by
+// construction: instance_table_bound covers the worst Instance table (the
+// most clips, every field), and instances_per_message cuts by bytes.
+TEST(ControlMessages, InstanceAddedBatchesFitTheControlLimit) {
+    const ServerAssets& assets = default_assets();
+    InstanceSpec worst;
+    worst.selection = -1;
+    worst.owner = 7;
+    for (size_t c = 0; c < MAX_INSTANCE_CLIPS; ++c) worst.announced_clips.push_back(int(c));
+    worst.walk_radius = 1;
+    worst.walk_speed = 1;
+    worst.publisher_start_us = ~0ull;
+    std::vector<std::pair<int, InstanceSpec>> added;
+    for (int i = 0; i < 4000; ++i) added.emplace_back(i, worst);
+    flatbuffers::FlatBufferBuilder empty, one;
+    build_instances_added(empty, assets, {});
+    build_instances_added(one, assets, std::span(added).first(1));
+    EXPECT_LE(one.GetSize() - empty.GetSize(), instance_table_bound(assets, worst));
+    EXPECT_LE(instance_table_bound(assets, worst), MAX_INSTANCE_TABLE_BYTES);
+    const size_t n = instances_per_message(assets, added);
+    ASSERT_GE(n, 1u);
+    flatbuffers::FlatBufferBuilder full;
+    build_instances_added(full, assets, std::span(added).first(n));
+    EXPECT_LE(full.GetSize(), MAX_CONTROL_MESSAGE);
+    EXPECT_TRUE(verify_control({full.GetBufferPointer(), full.GetSize()}));
+    // Instances of no clips: more per message, still within the limit and the verifier's table limit.
+    for (auto& [id, sp] : added) sp.announced_clips.clear();
+    const size_t m = instances_per_message(assets, added);
+    EXPECT_GT(m, n);
+    EXPECT_LE(m, MAX_BATCH_INSTANCES);
+    flatbuffers::FlatBufferBuilder many;
+    build_instances_added(many, assets, std::span(added).first(m));
+    EXPECT_LE(many.GetSize(), MAX_CONTROL_MESSAGE);
+    EXPECT_TRUE(verify_control({many.GetBufferPointer(), many.GetSize()}));
+    // The encoder refuses an instance whose table could not fit.
+    FrameEncoder enc(assets, {}, 30.0f);
+    InstanceSpec over = worst;
+    over.announced_clips.push_back(int(MAX_INSTANCE_CLIPS));
+    EXPECT_THROW(enc.add_instance(over), Error);
+}
+
+// A full server: a Hello evicts the oldest session still unbound
+// evict_after past its Welcome, else the one silent longest, else the
+// newest of the address holding the most (when it holds more than the
+// newcomer's + 1); otherwise Refuse "server full".
+TEST(ServerCore, AFullServerEvictsUnboundThenSilentThenTheBusiestAddress) {
+    ServerConfig cfg;
+    cfg.max_clients = 3;
+    cfg.evict_after = 2.0;
+    ServerCore core(cfg, default_assets(), default_instances(default_assets()));
+    DatagramCollector sink;
+    const PeerAddress a = PeerAddress::v4(0x0a000001, 0), b = PeerAddress::v4(0x0a000002, 0);
+    auto s1 = core.open(a, 100.0);
+    ASSERT_TRUE(s1->on_control(hello(0), 100.0));
+    auto s2 = core.open(a, 100.5);
+    ASSERT_TRUE(s2->on_control(hello(0), 100.5));
+    auto s3 = core.open(a, 101.0);
+    ASSERT_TRUE(s3->on_control(hello(0), 101.0));
+    // Too early for anybody to be unbound long: the busiest address (3 > 0 + 1) gives its newest.
+    auto n1 = core.open(b, 101.5);
+    ASSERT_TRUE(n1->on_control(hello(0), 101.5));
+    EXPECT_EQ(s3->state(), SessionState::Closing);
+    EXPECT_EQ(refusals(core, "evicted_address_share"), 1u);
+    // Later: s1 (unbound since 100.0) goes before s2 (since 100.5).
+    auto n2 = core.open(b, 103.0);
+    ASSERT_TRUE(n2->on_control(hello(0), 103.0));
+    EXPECT_FALSE(s1->is_open());
+    EXPECT_TRUE(s2->is_open());
+    EXPECT_EQ(refusals(core, "evicted_unbound"), 1u);
+    // Now a: 1 session, b: 2; a third from b finds nobody to evict once all are bound and heard.
+    for (auto& s : {s2, n1, n2}) {
+        flatbuffers::FlatBufferBuilder bind;
+        build_bind(bind, s->id(), s->token());
+        const PeerAddress from = PeerAddress::v4(0x0a0000f0, uint16_t(5000 + s->id() % 1000));
+        core.on_datagram(bytes_of(bind), from, 103.1, sink);
+        const wire::Datagram* d = verify_datagram(sink.sent.back().bytes);
+        ASSERT_TRUE(d && d->body_type() == wire::DatagramBody::Challenge);
+        flatbuffers::FlatBufferBuilder r;
+        build_challenge_response(r, s->id(), s->token(), {d->body_as_Challenge()->nonce()->data(), CHALLENGE_NONCE});
+        core.on_datagram(bytes_of(r), from, 103.1, sink);
+        ASSERT_EQ(s->state(), SessionState::Streaming);
+    }
+    auto n3 = core.open(b, 103.5);
+    EXPECT_FALSE(n3->on_control(hello(0), 103.5));
+    EXPECT_EQ(refusals(core, "server_full"), 1u);
+    // One goes silent (no Ack for evict_after): it is evicted for the next newcomer.
+    auto n4 = core.open(b, 106.0);
+    EXPECT_TRUE(n4->on_control(hello(0), 106.0));
+    EXPECT_EQ(refusals(core, "evicted_idle"), 1u);
+}
+
+// Admission: each address opens at most connects_per_second (8 s of burst),
+// the rest closed at once; at most max_handshakes sessions wait for Hello,
+// the oldest closed for a newer one.
+TEST(ServerCore, ConnectionRateAndHandshakesInProgressAreBounded) {
+    ServerConfig cfg;
+    cfg.connects_per_second = 2;  // a burst of 16
+    cfg.max_handshakes = 4;
+    cfg.max_per_address = 0;
+    ServerCore core(cfg, default_assets(), default_instances(default_assets()));
+    std::vector<std::shared_ptr<ClientStream>> v;
+    for (int i = 0; i < 20; ++i) v.push_back(core.open(kTcp, 100.0 + 0.001 * i));
+    size_t closed = 0;
+    for (auto& s : v) closed += s->state() == SessionState::Closed;
+    EXPECT_EQ(refusals(core, "connect_rate"), 4u);  // 20 - 16
+    EXPECT_EQ(refusals(core, "handshake_evicted"), 12u);  // 16 admitted, 4 may wait
+    EXPECT_EQ(closed, 16u);
+    for (size_t i = 12; i < 16; ++i) EXPECT_EQ(v[i]->state(), SessionState::AwaitHello) << i;  // the newest wait
+    // 0.75 s later the bucket holds one more (1.5 connections: not two).
+    EXPECT_EQ(core.open(kTcp, 100.75)->state(), SessionState::AwaitHello);
+    EXPECT_EQ(core.open(kTcp, 100.75)->state(), SessionState::Closed);
+    // Another address has its own bucket.
+    EXPECT_EQ(core.open(kOther, 100.75)->state(), SessionState::AwaitHello);
+}
+
+// Liveness does not depend on how fast the shell reads: a Streaming session
+// times out client_timeout after its newest Ack as of the last time the UDP
+// queue was found empty (input_drained), not as of now.
+TEST(ServerCore, AcksCountAsOfTheLastTimeTheQueueWasEmpty) {
+    Fixture f;
+    f.bind(kHome, 100.0);
+    ASSERT_EQ(f.s->state(), SessionState::Streaming);
+    f.core->on_datagram(ack(*f.s, 0), kHome, 101.0, f.sink);
+    f.core->input_drained(101.5);
+    f.core->tick(112.0, f.sink);  // 11 s after the Ack, but the queue was last seen empty 0.5 s after it
+    EXPECT_EQ(f.s->state(), SessionState::Streaming);
+    f.core->input_drained(111.5);
+    f.core->tick(112.1, f.sink);
+    EXPECT_NE(f.s->state(), SessionState::Streaming);
 }

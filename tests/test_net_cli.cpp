@@ -21,7 +21,8 @@
 namespace {
 
 std::string bin(const std::string& name) {
-    return std::string(PROGSKIN_BIN_DIR) + (name == "progskin-client" ? "/client/" : "/server/") + name;
+    const char* dir = name == "progskin-client" ? "/client/" : name == "progskin-attack" ? "/tests/" : "/server/";
+    return std::string(PROGSKIN_BIN_DIR) + dir + name;
 }
 
 bool built(const std::string& name) { return std::ifstream(bin(name)).good(); }
@@ -60,7 +61,7 @@ struct BackgroundServer {
 }  // namespace
 
 TEST(NetCli, HelpAndExitCodes) {
-    for (const char* name : {"progskin-server", "progskin-client", "progskin-netem"}) {
+    for (const char* name : {"progskin-server", "progskin-client", "progskin-netem", "progskin-attack"}) {
         if (!built(name)) GTEST_SKIP() << name << " not built";
         CmdResult h = run(bin(name) + " --help");
         EXPECT_EQ(h.code, 0) << name;
@@ -81,6 +82,9 @@ TEST(NetCli, HelpAndExitCodes) {
         {"progskin-client --insecure --max-kbps 0.5 --server 127.0.0.1:1", "--max-kbps"},  // not silently unlimited
         {"progskin-netem --to 127.0.0.1:7777 --loss 2", "--loss"},
         {"progskin-netem --to 127.0.0.1:7777 --seed 1.5", "--seed"},
+        {"progskin-attack --server 10.0.0.1:7777", "--server"},
+        {"progskin-server --owner-share-kbps -5", "--owner-share-kbps"},
+        {"progskin-attack --server 127.0.0.1:7777 --posers -1", "--posers"},
     };
     for (const auto& [cmd, option] : bad_values) {
         const std::string c = cmd;

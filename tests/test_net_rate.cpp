@@ -142,3 +142,45 @@ TEST(NetRate, SlowStartEndsAtTheFirstLoss) {
     EXPECT_FALSE(rc.in_slow_start());
     EXPECT_LT(rc.estimate_kbps(), before);
 }
+
+// A NAT rebinding: what went to the old address was neither acked nor lost
+// to congestion. on_path_change forgets it and restores the estimate held
+// before the switch, instead of backing off to what got through (nothing).
+TEST(NetRate, RebindingRestoresTheRateHeldBeforeIt) {
+    auto run = [](bool path_change) {
+        RateController rc(50000, 400);
+        rc.set_slow_start(false);
+        uint32_t seq = 0;
+        double t = 0;
+        std::vector<bool> got(1, false);  // per seq: delivered
+        auto tick = [&](bool delivered) {
+            rc.refill(1.0 / 30.0);
+            for (size_t b = rc.budget(); b > 0; b = rc.budget()) {
+                const size_t d = std::min(b, MAX_DATAGRAM + UDP_IP_OVERHEAD);
+                rc.spend(d);
+                rc.on_sent(++seq, uint32_t(t * 1e6), d);
+                got.push_back(delivered);
+                if (!delivered) continue;
+                uint32_t bits = 0;  // what the client received of the 32 before
+                for (uint32_t i = 0; i < 32 && i + 1 < seq; ++i)
+                    if (got[seq - 1 - i]) bits |= 1u << i;
+                rc.on_ack(seq, bits, uint32_t(t * 1e6), 0, uint32_t(t * 1e6) + 2000);
+            }
+            rc.mark_limited();
+            rc.update(t);
+            t += 1.0 / 30.0;
+        };
+        for (int i = 0; i < 60; ++i) tick(true);  // 2 s on the old path
+        const double before = rc.estimate_kbps();
+        for (int i = 0; i < 33; ++i) tick(false);  // 1.1 s sent to an address that is gone
+        if (path_change) rc.on_path_change();
+        for (int i = 0; i < 15; ++i) tick(true);  // 0.5 s on the new path
+        return std::make_pair(before, rc.estimate_kbps());
+    };
+    const auto [before, kept] = run(true);
+    const auto [before_old, collapsed] = run(false);
+    std::printf("rebinding: estimate %.0f kbit/s before, %.0f after 0.5 s on the new path (%.0f without on_path_change)\n", before,
+                kept, collapsed);
+    EXPECT_GE(kept, 0.95 * before);
+    EXPECT_LT(collapsed, 0.75 * before_old);  // what the loss would have done
+}

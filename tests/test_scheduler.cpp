@@ -356,3 +356,85 @@ TEST(Scheduler, MorphBlockBytes) {
     EXPECT_EQ(morph_block_bytes({1, 0, 0, 0}), 1 + MORPH_ENTRY_BYTES);
     EXPECT_EQ(morph_block_bytes({0b1011, 0, 0, uint64_t(1) << 63}), 1 + 4 * MORPH_ENTRY_BYTES);
 }
+
+// A View's weights are indexed, not scanned per instance: unsorted, with an
+// instance named twice (the last weight given wins) and ids past the scene,
+// compute_importance gives what the definition says (scheduler.h).
+TEST(Scheduler, ViewWeightsAreIndexedWithTheLastOfAnInstanceWinning) {
+    Session s(50);
+    const EncodedFrame& f = s.enc.encode(1);
+    ViewSpec v;
+    v.weights = {{7, 2.0f}, {3, 1.0f}, {40, 0.5f}, {7, 4.0f}, {60000, 9.0f}, {-1, 3.0f}, {3, -1.0f}};
+    std::vector<float> imp;
+    compute_importance(v, f, s.assets, 0, imp);
+    ASSERT_EQ(imp.size(), f.instances.size());
+    for (size_t i = 0; i < imp.size(); ++i) {
+        float w = 0;  // the definition: the last weight naming i, 0 when none
+        for (const auto& [inst, wt] : v.weights)
+            if (inst == int(i)) w = wt;
+        const double d = s.assets[size_t(f.instances[i].asset)]->diagonal;
+        EXPECT_FLOAT_EQ(imp[i], std::max(0.0f, w) * float(1000.0 / d)) << i;
+    }
+    EXPECT_GT(imp[7], 0.0f);
+    EXPECT_EQ(imp[3], 0.0f);  // its last weight is negative
+}
+
+// Fair share (set_shares): the characters of one owner take at most the
+// share's bytes per tick, the server's own are not limited by it, and what
+// the share holds back does not make the rate probe up (limited()).
+TEST(Scheduler, OneOwnersCharactersTakeAtMostTheirShare) {
+    Session s(12);
+    std::vector<uint32_t> group(s.specs.size(), 0);
+    for (size_t i = 6; i < group.size(); ++i) group[i] = 1;  // instances 6.. belong to one player
+    const size_t share = 700;
+    s.sched.set_shares(group, share);
+    for (uint32_t t = 1; t <= 40; ++t) {
+        const EncodedFrame& f = s.enc.encode(t);
+        std::vector<Pick> picks;
+        s.sched.select(f, s.assets, s.importance, kUnlimited, 30.0f, picks);
+        std::map<int, size_t> bytes;  // payload per instance, as the scheduler counts it
+        for (const Pick& p : picks) {
+            const EncodedInstance& e = f.instances[size_t(p.instance)];
+            if (!bytes.count(p.instance)) bytes[p.instance] = WireCost::header(e);
+            bytes[p.instance] += size_t(std::max(0, p.k - p.first)) * size_t(e.record_size) + morph_block_bytes(p.morphs);
+        }
+        size_t player = 0;
+        for (const auto& [i, b] : bytes) player += group[size_t(i)] ? b : 0;
+        EXPECT_LE(player, share) << "tick " << t;
+        for (int i = 0; i < 6; ++i) EXPECT_TRUE(bytes.count(i)) << "the server's own instance " << i << " at tick " << t;
+        EXPECT_GT(player, 0u);
+        EXPECT_FALSE(s.sched.limited()) << "tick " << t;  // only the share held anything back
+        s.sched.sent(picks, t);
+    }
+}
+
+// A live character posed once and never again: sent whole once, then
+// nothing until its hold runs out, then refreshed (a static character costs
+// its observers one frame per hold, not one per tick).
+TEST(Scheduler, ALivePoseNotChangedIsNotSentAgainUntilItsHoldRunsOut) {
+    std::vector<InstanceSpec> specs(1);
+    specs[0].selection = -1;  // live
+    Session s(specs);
+    const ServerAsset& a = *s.assets[0];
+    std::vector<Mat34> rest(a.character.joint_count());
+    for (size_t j = 0; j < rest.size(); ++j) rest[j] = Mat34::from_glm(glm::dmat4(1.0));
+    ASSERT_TRUE(s.enc.push_pose(0, rest));
+    std::vector<int> sent;  // ticks at which bones went
+    for (uint32_t t = 1; t <= 40; ++t) {
+        const Session::Tick r = s.tick(t, kUnlimited);
+        int bones = 0;
+        for (const Pick& p : r.picks) bones += std::max(0, p.k - p.first);
+        if (bones) sent.push_back(int(t));
+        EXPECT_FALSE(s.sched.limited());
+    }
+    ASSERT_GE(sent.size(), 2u);
+    EXPECT_EQ(sent[0], 1);
+    for (size_t i = 1; i < sent.size(); ++i) {
+        EXPECT_EQ(sent[i] - sent[i - 1], HOLD_TICKS - 1) << "refresh " << i;  // the hold, never earlier
+    }
+    // A new pose goes at once.
+    ASSERT_TRUE(s.enc.push_pose(0, rest));
+    const Session::Tick r = s.tick(41, kUnlimited);
+    ASSERT_FALSE(r.picks.empty());
+    EXPECT_EQ(r.picks[0].k, s.bones(0));
+}
