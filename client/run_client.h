@@ -111,6 +111,9 @@ struct ClientReport {
     double latency_ms_p50 = -1, latency_ms_p99 = -1;
     int published = 0;         // characters this client published
     uint64_t poses_sent = 0;
+    // Assets of the catalogue this client could not load (ClientEvent::AssetFailed):
+    // (name, why). Their characters are not shown; the others are.
+    std::vector<std::pair<std::string, std::string>> assets_failed;
 };
 
 // Runs a session for options.duration seconds. Throws Error (refusal,

@@ -29,6 +29,7 @@
 #include "crypto.h"
 #endif
 #include "scratch_build.h"
+#include "self_contained.h"
 #include "vertex_animation.h"
 
 using namespace progskin;
@@ -54,6 +55,8 @@ usage:
       glTF 2.0 file (joints in progressive order, weights reordered, animations
       kept, PROGSKIN_progressive_skin extension on the skin). OUT ending in
       .gltf is written as JSON with embedded buffers, anything else as .glb.
+      OUT is self-contained: images IN keeps in files beside it are embedded
+      (a missing or refused one is an error, before anything is built).
   progskin build --from-vertices IN -o OUT.glb [--bones N] [--max-error PERCENT]
                  [--rest-frame F] [--similarity] [--method auto|collapse|hybrid|top-down]
                  [--clip SPEC] [--fps 30] [--quiet]
@@ -244,6 +247,8 @@ int cmd_build(int argc, char** argv) {
     if (st != Strategy::Reorder && st != Strategy::Flatten && st != Strategy::LeafPrune)
         throw UsageError("--strategy must be reorder, flatten or leaf_prune");
     const bool quiet = a.has("--quiet");
+    // The output embeds the images the input keeps beside it: every one is checked before the build.
+    external_files(a.positional[0]);
     const Character c = import_character(a.positional[0], character_arg(a));
     const FrameSet frames = sample_frames(c, training_set(c, a.get("--clip")), fps);
     if (!quiet)
