@@ -99,6 +99,21 @@ public:
     }
 
     ClientReport run() {
+        try {
+            loop();
+        } catch (const std::exception& e) {
+            // What was received until now is reported with the reason (never lost).
+            rep_.error = e.what();
+            rep_.server_goodbye = client_.fail_reason() == FailReason::SessionEnded;
+            finish(false);
+            throw ClientRunError(e.what(), rep_);
+        }
+        finish(true);
+        return rep_;
+    }
+
+private:
+    void loop() {
         for (;;) {
             const double now = now_seconds();
             client_.update(now);
@@ -112,17 +127,22 @@ public:
             const double wait = next - now_seconds();
             if (wait > 0) std::this_thread::sleep_for(std::chrono::duration<double>(wait));
         }
-        for (Published& p : pubs_) client_.despawn(p.handle);
-        client_.update(now_seconds());
+    }
+
+    // The report of what was received; `clean`: the run reached its end
+    // (its characters are despawned first).
+    void finish(bool clean) {
+        if (clean) {
+            for (Published& p : pubs_) client_.despawn(p.handle);
+            client_.update(now_seconds());
+        }
         const ClientStats st = client_.stats();
         client_.close("done");
         rep_.seconds = t_stream_ > 0 ? now_seconds() - t_stream_ : 0;
         report_stream(st);
         report_instances();
-        return rep_;
     }
 
-private:
     void check_events() {
         if (client_.state() == ClientState::Failed) throw Error(client_.error());
         if (client_.state() == ClientState::Closed) throw Error("the session closed");
@@ -490,7 +510,7 @@ std::string report_json(const ClientReport& r) {
     for (size_t i = 0; i < r.assets_failed.size(); ++i)
         o << (i ? ", " : "") << "{\"asset\": " << json_string(r.assets_failed[i].first)
           << ", \"error\": " << json_string(r.assets_failed[i].second) << "}";
-    o << "]}";
+    o << "], \"error\": " << json_string(r.error) << ", \"server_goodbye\": " << (r.server_goodbye ? "true" : "false") << "}";
     return o.str();
 }
 

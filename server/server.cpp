@@ -108,6 +108,8 @@ struct Server::Impl {
     UdpSink sink{udp_sock};
     asio::steady_timer timer{io};
     asio::steady_timer accept_timer{io};
+    asio::steady_timer stop_timer{io};  // finish_stop
+    bool stopping = false;              // stop() ran
     std::unique_ptr<asio::ssl::context> tls_ctx;  // set when ServerConfig::tls_cert_file is
     std::chrono::steady_clock::time_point next_tick;
     std::map<uint64_t, std::shared_ptr<Connection>> conns;
@@ -336,6 +338,25 @@ struct Server::Impl {
 #endif
     }
 
+    // ---------------------------------------------------------------- stop --
+    // After stop() queued the Goodbyes: every 10 ms, once no connection is
+    // still writing (or at `deadline`), closes what is left and stops io.
+    void finish_stop(std::chrono::steady_clock::time_point deadline) {
+        bool writing = false;
+        for (auto& [id, c] : conns) writing = writing || (!c->closed && (c->writing || !c->stream->output().empty()));
+        if (writing && std::chrono::steady_clock::now() < deadline) {
+            stop_timer.expires_after(std::chrono::milliseconds(10));
+            stop_timer.async_wait([this, deadline](asio::error_code) { finish_stop(deadline); });
+            return;
+        }
+        asio::error_code ig;
+        for (auto& [id, c] : conns) {
+            c->closed = true;
+            c->sock.close(ig);
+        }
+        io.stop();
+    }
+
     // --------------------------------------------------------------- tick --
     void schedule_tick() {
         next_tick += std::chrono::microseconds(int64_t(1e6 / core.config().tick_rate));
@@ -378,16 +399,21 @@ void Server::run() {
 
 void Server::stop() {
     asio::post(impl_->io, [this] {
+        if (impl_->stopping) return;
+        impl_->stopping = true;
         asio::error_code ig;
         impl_->acceptor.close(ig);
         impl_->udp_sock.close(ig);
         impl_->timer.cancel();
         impl_->accept_timer.cancel();
+        // Every session is told (Goodbye "shutdown: ..."), so that a client
+        // tells a clean stop from a crash; then the sockets close.
+        const double now = now_seconds();
         for (auto& [id, c] : impl_->conns) {
-            c->closed = true;
-            c->sock.close(ig);
+            c->stream->goodbye(kShutdownReason, now);
+            impl_->pump(c);
         }
-        impl_->io.stop();
+        impl_->finish_stop(std::chrono::steady_clock::now() + std::chrono::milliseconds(int(kShutdownLingerSeconds * 1000)));
     });
 }
 
