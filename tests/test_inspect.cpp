@@ -6,6 +6,7 @@
 #include "run_command.h"
 
 #include <array>
+#include <chrono>
 #include <cstdio>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -36,4 +37,24 @@ TEST(Inspect, ListsEveryCharacter) {
     const CmdResult bad = run(progskin() + " inspect " + data("multi_skin.gltf") + " --character 5");
     EXPECT_EQ(bad.code, 1);
     EXPECT_NE(bad.out.find("no character 5 (the file has 2 characters)"), std::string::npos) << bad.out;
+}
+
+// build checks its output path before any work: a folder that does not exist
+// is an argument error (exit 2) at once, naming -o and the folder.
+TEST(BuildCli, OutputPathCheckedBeforeTheBuild) {
+    if (!std::ifstream(progskin()).good()) GTEST_SKIP() << progskin() << " not built";
+    const std::string in = std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb";
+    for (const std::string extra : {"", " --from-vertices --bones 4"}) {
+        const auto start = std::chrono::steady_clock::now();
+        const CmdResult r = run(progskin() + " build " + in + extra + " -o /nonexistent/dir/out.glb");
+        const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+        EXPECT_EQ(r.code, 2) << extra << ": " << r.out;
+        EXPECT_NE(r.out.find("-o /nonexistent/dir/out.glb: the folder /nonexistent/dir does not exist"), std::string::npos)
+            << r.out;
+        EXPECT_EQ(r.out.find("collapses"), std::string::npos) << "worked before checking: " << r.out;
+        EXPECT_LT(seconds, 1.0) << r.out;
+    }
+    const CmdResult folder = run(progskin() + " build " + in + " -o /tmp");
+    EXPECT_EQ(folder.code, 2) << folder.out;
+    EXPECT_NE(folder.out.find("-o /tmp: is a folder"), std::string::npos) << folder.out;
 }

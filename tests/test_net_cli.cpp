@@ -216,3 +216,25 @@ TEST(NetCli, ReportWrittenOnEveryExitServerGoodbyeToldFromACrash) {
     EXPECT_NE(r.out.find("\"error\": \""), std::string::npos) << r.out;
     EXPECT_NE(r.out.find("cannot connect"), std::string::npos) << r.out;
 }
+
+// The ports are bound before any asset is built: a port in use is an error
+// at once (exit 1, naming the port), not after the build.
+TEST(NetCli, PortInUseReportedBeforeAnyAssetIsBuilt) {
+    if (!built("progskin-server")) GTEST_SKIP() << "progskin-server not built";
+    BackgroundServer first("progskin-cli-port-first", "--no-tls --port 0 --duration 20 --asset " +
+                                                          std::string(PROGSKIN_ASSETS) + "/Fox.glb");
+    ASSERT_FALSE(first.port.empty()) << first.text();
+    // An empty cache: this server would build the CesiumMan (seconds) before binding, as it used to.
+    const std::string cache = ::testing::TempDir() + "progskin-cli-port-cache-" + std::to_string(::getpid());
+    std::system(("rm -rf " + cache).c_str());
+    const auto start = std::chrono::steady_clock::now();
+    const CmdResult r = run(bin("progskin-server") + " --no-tls --port " + first.port + " --duration 5 --cache " + cache +
+                            " --asset " + PROGSKIN_ASSETS + "/CesiumMan.glb");
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    EXPECT_EQ(r.code, 1) << r.out;
+    EXPECT_NE(r.out.find("cannot listen on 0.0.0.0:" + first.port), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("in use"), std::string::npos) << r.out;
+    EXPECT_EQ(r.out.find("loading"), std::string::npos) << "built before binding: " << r.out;
+    EXPECT_LT(seconds, 1.0) << r.out;
+    std::system(("rm -rf " + cache).c_str());
+}

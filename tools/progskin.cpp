@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <unistd.h>
 #include <fstream>
 #include <iostream>
 #include <map>
@@ -170,11 +171,24 @@ json server_tables(const Character& c, const ProgressiveSkin& s) {
     return extra;
 }
 
+// Throws UsageError unless `out` can be written, before any work is done:
+// its folder exists and is writable, and `out` is not a folder.
+void check_output_path(const std::string& out) {
+    namespace fs = std::filesystem;
+    const fs::path p(out);
+    const fs::path dir = p.parent_path().empty() ? fs::path(".") : p.parent_path();
+    std::error_code ec;
+    if (!fs::is_directory(dir, ec)) throw UsageError("-o " + out + ": the folder " + dir.string() + " does not exist");
+    if (fs::is_directory(p, ec)) throw UsageError("-o " + out + ": is a folder");
+    if (::access(dir.c_str(), W_OK) != 0) throw UsageError("-o " + out + ": the folder " + dir.string() + " is not writable");
+}
+
 int character_arg(const Args& a) { return a.has("--character") ? to_int("--character", a.get("--character")) : 0; }
 
 int cmd_build_from_vertices(const Args& a) {
     if (a.positional.size() != 1) throw UsageError("build --from-vertices needs exactly one input file");
     if (!a.has("-o")) throw UsageError("build needs -o OUT.glb");
+    check_output_path(a.get("-o"));
     if (a.has("--strategy") || a.has("--plain-copy")) throw UsageError("--strategy/--plain-copy do not apply to --from-vertices");
     VertexAnimationOptions vo;
     vo.fps = a.has("--fps") ? to_number("--fps", a.get("--fps")) : 30.0;
@@ -241,6 +255,7 @@ int cmd_build(int argc, char** argv) {
         if (a.has(k)) throw UsageError(std::string(k) + " needs --from-vertices");
     if (a.positional.size() != 1) throw UsageError("build needs exactly one input file");
     if (!a.has("-o")) throw UsageError("build needs -o OUT.glb");
+    check_output_path(a.get("-o"));
     const double fps = a.has("--fps") ? to_number("--fps", a.get("--fps")) : 30.0;
     if (fps <= 0 || fps > 1000) throw UsageError("--fps must be in (0, 1000]");
     const Strategy st = parse_strategy(a.get("--strategy", "reorder"));
