@@ -158,6 +158,12 @@ ExternalFile resolve_external_uri(const std::string& gltf_path, const std::strin
     return {kind, index, uri, real, size};
 }
 
+nlohmann::json read_gltf_json(const std::string& path) {
+    Parsed p;
+    if (!parse_gltf(read_whole(path, path), p)) return nlohmann::json(nlohmann::json::value_t::discarded);
+    return p.json;
+}
+
 std::vector<ExternalFile> external_files(const std::string& path) {
     Parsed p;
     if (!parse_gltf(read_whole(path, path), p)) return {};

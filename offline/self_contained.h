@@ -13,6 +13,7 @@
 #pragma once
 #include <cstdint>
 #include <filesystem>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
@@ -57,6 +58,10 @@ std::vector<ExternalFile> external_files(const std::string& path);
 // Error (a URI refused, a file shorter than its buffer's byteLength, the
 // result over kMaxSelfContainedBytes).
 std::vector<uint8_t> self_contained_glb(const std::string& path);
+
+// The JSON object of a glTF or GLB file (a GLB's JSON chunk); a discarded
+// value when the file is neither. Throws Error when it cannot be read.
+nlohmann::json read_gltf_json(const std::string& path);
 
 // For writers that go through tinygltf (offline/gltf_export.cpp): stores
 // every image of `m` that has an external URI (relative to `source_path`,
