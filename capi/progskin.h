@@ -112,7 +112,8 @@ typedef enum psk_event_type {
     PSK_EVENT_SPAWNED = 5,            /* handle (psk_client_spawn) now owns instance */
     PSK_EVENT_SPAWN_REFUSED = 6,      /* handle; text: the server's reason */
     PSK_EVENT_CLOSED = 7,             /* text: why */
-    PSK_EVENT_FAILED = 8              /* text: why */
+    PSK_EVENT_FAILED = 8,             /* text: why */
+    PSK_EVENT_ASSET_FAILED = 9        /* asset cannot be loaded; text: why. The session goes on without its characters */
 } psk_event_type;
 
 typedef struct psk_client psk_client; /* opaque */

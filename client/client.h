@@ -139,6 +139,8 @@ struct ClientEvent {
         SpawnRefused,      // handle; text: the server's reason
         Closed,            // text: why (the server's Goodbye reason, or close())
         Failed,            // text: why (also in error())
+        AssetFailed,       // an asset of the catalogue cannot be loaded: asset = index, text: why. The session
+                           // goes on; characters of that asset are never shown (the others are)
     };
     Type type;
     int instance = -1;
@@ -197,7 +199,8 @@ public:
     std::span<const ClientEvent> events() const;  // raised by the last update()
     std::span<const RemoteCharacter> characters() const;  // every remote character, by instance id
     const RemoteCharacter* character(int instance) const;  // nullptr when unknown
-    // The server's catalogue; entries are null until their asset is ready.
+    // The server's catalogue; entries are null until their asset is ready
+    // (and stay null for an asset that failed to load: AssetFailed).
     const std::vector<std::shared_ptr<ClientAsset>>& assets() const;
     const std::vector<std::string>& asset_names() const;  // catalogue names (Welcome), ready or not
     double tick_rate() const;

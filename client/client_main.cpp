@@ -46,7 +46,9 @@ static const char* kUsage =
     "  --warmup S          seconds of display left out of bones/error statistics while the\n"
     "                      display delay adapts (default 1; the rate counts from the start)\n"
     "  --snap-to-ticks     display on server ticks only (isolates quantisation error)\n"
-    "  --report json|text  final summary format on stdout (default text)\n"
+    "  --report json|text  final summary format on stdout (default text), written on every\n"
+    "                      exit: \"error\" says why a session ended early, \"server_goodbye\"\n"
+    "                      whether the server ended it (a clean shutdown: \"shutdown: ...\")\n"
     "  --cache DIR         asset cache directory (default ~/.cache/progskin)\n"
     "  --tls               TLS on the control channel (default); the server's certificate\n"
     "                      must be trusted by --ca and/or --pin (or --insecure)\n"
@@ -64,7 +66,11 @@ static const char* kUsage =
     "                      OpenGL, GPU-skinned from the client's palettes; needs render/)\n"
     "  --snapshot-dir DIR  where the PNGs go (default snapshots/): snapshot_0000.png, ...\n"
     "  --help\n"
-    "Exit codes: 0 ok, 1 runtime error (refused, unreachable, bad data, stream lost), 2 bad arguments.\n";
+    "Exit codes: 0 ok, 1 runtime error (refused, unreachable, bad data, stream lost, connection\n"
+    "closed), 2 bad arguments, 3 the server ended the session with a Goodbye (e.g. it shut down).\n";
+
+// The server's Goodbye ended the session (a clean shutdown, a timeout, an eviction): not a crash.
+static constexpr int kExitServerGoodbye = 3;
 
 static std::vector<float> floats(const std::string& s) {
     std::vector<float> v;
@@ -324,13 +330,25 @@ int main(int argc, char** argv) {
     opt.on_download = [&progress](const std::string& name, uint64_t got, uint64_t size) { progress.update(name, got, size); };
     if (opt.tls && opt.insecure)
         std::fprintf(stderr, "progskin-client: --insecure: the server's certificate is not verified\n");
-    try {
-        ClientReport r = run_client(opt);
+    // The report is written on every exit (with "error" when the session ended early).
+    auto write_report = [&args](const ClientReport& r) {
         if (args.report == "json") std::printf("%s\n", report_json(r).c_str());
-        else std::fputs(report_text(r).c_str(), stdout);
+        else if (r.error.empty()) std::fputs(report_text(r).c_str(), stdout);
+        else if (r.seconds > 0) std::fprintf(stdout, "until it ended: %s", report_text(r).c_str());
+        std::fflush(stdout);
+    };
+    try {
+        write_report(run_client(opt));
         return 0;
+    } catch (const ClientRunError& e) {
+        std::fprintf(stderr, "progskin-client: %s\n", e.what());
+        write_report(e.report);
+        return e.report.server_goodbye ? kExitServerGoodbye : 1;
     } catch (const std::exception& e) {
         std::fprintf(stderr, "progskin-client: %s\n", e.what());
+        ClientReport r;
+        r.error = e.what();
+        write_report(r);
         return 1;
     }
 }

@@ -99,6 +99,21 @@ public:
     }
 
     ClientReport run() {
+        try {
+            loop();
+        } catch (const std::exception& e) {
+            // What was received until now is reported with the reason (never lost).
+            rep_.error = e.what();
+            rep_.server_goodbye = client_.fail_reason() == FailReason::SessionEnded;
+            finish(false);
+            throw ClientRunError(e.what(), rep_);
+        }
+        finish(true);
+        return rep_;
+    }
+
+private:
+    void loop() {
         for (;;) {
             const double now = now_seconds();
             client_.update(now);
@@ -112,21 +127,27 @@ public:
             const double wait = next - now_seconds();
             if (wait > 0) std::this_thread::sleep_for(std::chrono::duration<double>(wait));
         }
-        for (Published& p : pubs_) client_.despawn(p.handle);
-        client_.update(now_seconds());
+    }
+
+    // The report of what was received; `clean`: the run reached its end
+    // (its characters are despawned first).
+    void finish(bool clean) {
+        if (clean) {
+            for (Published& p : pubs_) client_.despawn(p.handle);
+            client_.update(now_seconds());
+        }
         const ClientStats st = client_.stats();
         client_.close("done");
         rep_.seconds = t_stream_ > 0 ? now_seconds() - t_stream_ : 0;
         report_stream(st);
         report_instances();
-        return rep_;
     }
 
-private:
     void check_events() {
         if (client_.state() == ClientState::Failed) throw Error(client_.error());
         if (client_.state() == ClientState::Closed) throw Error("the session closed");
         for (const ClientEvent& e : client_.events()) {
+            if (e.type == ClientEvent::Type::AssetFailed) asset_failed(e);
             if (e.type == ClientEvent::Type::SpawnRefused)
                 throw Error("the server refused to spawn " + (e.asset >= 0 && size_t(e.asset) < client_.asset_names().size()
                                                                   ? client_.asset_names()[size_t(e.asset)]
@@ -135,10 +156,21 @@ private:
         }
     }
 
+    // An asset this client cannot load: said on stderr, reported; the session goes on.
+    void asset_failed(const ClientEvent& e) {
+        const std::string name =
+            e.asset >= 0 && size_t(e.asset) < client_.asset_names().size() ? client_.asset_names()[size_t(e.asset)] : "?";
+        std::fprintf(stderr, "progskin-client: %s (its characters are not shown; the others are)\n", e.text.c_str());
+        rep_.assets_failed.emplace_back(name, e.text);
+        failed_assets_.push_back(e.asset);
+    }
+    bool asset_failed(int i) const { return std::find(failed_assets_.begin(), failed_assets_.end(), i) != failed_assets_.end(); }
+
+    // Every asset loaded or failed.
     bool catalogue_ready() const {
         if (client_.asset_names().empty()) return false;
-        for (const auto& a : client_.assets())
-            if (!a) return false;
+        for (size_t i = 0; i < client_.assets().size(); ++i)
+            if (!client_.assets()[i] && !asset_failed(int(i))) return false;
         return true;
     }
 
@@ -149,6 +181,8 @@ private:
             Published p;
             p.opt = po;
             p.asset = find_asset(client_, po.asset);
+            if (asset_failed(p.asset))
+                throw Error("--publish " + po.asset + ": this client could not load that asset");
             const ClientAsset& a = *client_.assets()[size_t(p.asset)];
             p.selection = po.clip.empty() ? select_clips(a.character, "all") : select_clips(a.character, po.clip);
             const double diag = a.diagonal;
@@ -408,6 +442,7 @@ private:
     uint64_t display_count_ = 0;
     double t_start_ = 0;  // connect() returned
     std::map<int, Acc> acc_;  // by instance id
+    std::vector<int> failed_assets_;  // catalogue indices (AssetFailed)
     std::vector<double> latencies_;
     std::vector<glm::vec3> shown_, ref_, morphed_, ref_morphed_;
     std::vector<float> ref_weights_;
@@ -418,6 +453,21 @@ private:
 }  // namespace
 
 ClientReport run_client(const ClientOptions& opt) { return Run(opt).run(); }
+
+// s as a JSON string literal (quotes, backslashes and control characters escaped).
+static std::string json_string(const std::string& s) {
+    std::string o = "\"";
+    for (const char ch : s) {
+        const unsigned char c = static_cast<unsigned char>(ch);
+        if (c == '"' || c == '\\') o += '\\', o += ch;
+        else if (c < 0x20) {
+            char b[8];
+            std::snprintf(b, sizeof b, "\\u%04x", c);
+            o += b;
+        } else o += ch;
+    }
+    return o + "\"";
+}
 
 static void num_or_null(std::ostringstream& o, double v) {
     if (v >= 0) o << v;
@@ -451,12 +501,16 @@ std::string report_json(const ClientReport& r) {
     o << "], \"instances\": [";
     for (size_t i = 0; i < r.instances.size(); ++i) {
         const auto& x = r.instances[i];
-        o << (i ? ", " : "") << "{\"instance\": " << x.instance << ", \"asset\": \"" << x.asset << "\", \"bones_mean\": " << x.bones_mean
+        o << (i ? ", " : "") << "{\"instance\": " << x.instance << ", \"asset\": " << json_string(x.asset) << ", \"bones_mean\": " << x.bones_mean
           << ", \"bones_min\": " << x.bones_min << ", \"bones_max\": " << x.bones_max << ", \"rms_pct\": " << x.rms_pct
           << ", \"max_pct\": " << x.max_pct << ", \"max_jump_pct\": " << x.max_jump_pct << ", \"frames\": " << x.frames
           << ", \"published\": " << (x.published ? "true" : "false") << "}";
     }
-    o << "]}";
+    o << "], \"assets_failed\": [";
+    for (size_t i = 0; i < r.assets_failed.size(); ++i)
+        o << (i ? ", " : "") << "{\"asset\": " << json_string(r.assets_failed[i].first)
+          << ", \"error\": " << json_string(r.assets_failed[i].second) << "}";
+    o << "], \"error\": " << json_string(r.error) << ", \"server_goodbye\": " << (r.server_goodbye ? "true" : "false") << "}";
     return o.str();
 }
 

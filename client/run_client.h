@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "client.h"
+#include "errors.h"
 
 namespace progskin::net {
 
@@ -111,10 +112,28 @@ struct ClientReport {
     double latency_ms_p50 = -1, latency_ms_p99 = -1;
     int published = 0;         // characters this client published
     uint64_t poses_sent = 0;
+    // Assets of the catalogue this client could not load (ClientEvent::AssetFailed):
+    // (name, why). Their characters are not shown; the others are.
+    std::vector<std::pair<std::string, std::string>> assets_failed;
+    // Why the session ended early ("" when it ran its duration): the
+    // Client's error (the server closed the connection, a timeout, bad data).
+    std::string error;
+    // The server ended the session with a Goodbye (FailReason::SessionEnded):
+    // its reason is in `error` (kShutdownReason when it stopped cleanly).
+    bool server_goodbye = false;
+};
+
+// run_client's failure after it connected: what was received until then,
+// with ClientReport::error (and server_goodbye) set.
+struct ClientRunError : Error {
+    ClientRunError(const std::string& what, ClientReport r) : Error(what), report(std::move(r)) {}
+    ClientReport report;
 };
 
 // Runs a session for options.duration seconds. Throws Error (refusal,
-// timeout, bad server data, lost stream) with a message for the user.
+// timeout, bad server data, lost stream, the server's Goodbye) with a
+// message for the user: a ClientRunError carrying the report so far once
+// connect() returned (an unresolvable host throws a plain Error).
 ClientReport run_client(const ClientOptions& options);
 std::string report_json(const ClientReport& r);
 std::string report_text(const ClientReport& r);

@@ -341,7 +341,7 @@ void ClientSession::start_downloads() {
 }
 
 void ClientSession::request_chunks() {
-    while (downloading_ < catalogue_.size() && catalogue_[downloading_].ready) ++downloading_;
+    while (downloading_ < catalogue_.size() && (catalogue_[downloading_].ready || catalogue_[downloading_].failed)) ++downloading_;
     if (downloading_ >= catalogue_.size()) return;
     CatalogueEntry& e = catalogue_[downloading_];
     while (e.in_flight < 4 && e.requested < e.size) {
@@ -380,7 +380,12 @@ void ClientSession::asset_loaded(size_t i, const std::string& path) {
     try {
         assets_[i] = load_client_asset(welcome_->assets()->Get(flatbuffers::uoffset_t(i)), path);
     } catch (const std::exception& e) {
-        return fail(FailReason::BadServerData, std::string("asset ") + catalogue_[i].name + ": " + e.what());
+        // One asset this client cannot load costs its characters only: the others stream on.
+        catalogue_[i].failed = true;
+        catalogue_[i].bytes = {};
+        if (all_assets_ready()) st_.download_seconds = clock_() - started_;
+        raise(ClientEvent::Type::AssetFailed, -1, int(i), -1, std::string("asset ") + catalogue_[i].name + ": " + e.what());
+        return;
     }
     catalogue_[i].ready = true;
     catalogue_[i].bytes = {};
@@ -392,7 +397,7 @@ void ClientSession::asset_loaded(size_t i, const std::string& path) {
 
 bool ClientSession::all_assets_ready() const {
     for (const auto& e : catalogue_)
-        if (!e.ready) return false;
+        if (!e.ready && !e.failed) return false;
     return was_welcomed();
 }
 
@@ -714,6 +719,7 @@ int ClientSession::spawn(const SpawnSpec& spec) {
     std::string why;  // what the server would refuse, refused here
     if (!was_welcomed()) why = "not connected yet";
     else if (spec.asset < 0 || size_t(spec.asset) >= catalogue_.size()) why = "no asset " + std::to_string(spec.asset) + " in the catalogue";
+    else if (catalogue_[size_t(spec.asset)].failed) why = "asset " + catalogue_[size_t(spec.asset)].name + " could not be loaded";
     else if (spec.clips.size() > MAX_INSTANCE_CLIPS) why = "at most " + std::to_string(MAX_INSTANCE_CLIPS) + " clips";
     else if (std::set<int>(spec.clips.begin(), spec.clips.end()).size() != spec.clips.size()) why = "a clip repeated";
     if (!why.empty()) {

@@ -187,6 +187,7 @@ private:
         uint64_t requested = 0;
         int in_flight = 0;
         bool ready = false;
+        bool failed = false;  // cannot be loaded (AssetFailed raised): skipped, its characters never shown
     };
     struct Remote {  // a remote character, by instance id
         RemoteCharacter rc;

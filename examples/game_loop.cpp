@@ -2,7 +2,9 @@
 // spawn one character of the server's catalogue, publish its pose every
 // frame (driven here by its clip, walking a circle), and print the other
 // players' characters once a second. No thread of its own: one update()
-// per frame.
+// per frame. The spawn announces what the character plays (its clips, the
+// start time on the clock of publish()'s source_us, the walk), so that a
+// peer's `progskin-client --verify` measures what it displays against it.
 //
 //   progskin-server --no-scene &      # prints "TLS certificate sha256 HEX"
 //   game_loop 127.0.0.1 7777 [seconds [HEX]]
@@ -42,9 +44,10 @@ int main(int argc, char** argv) {
     }
     int me = -1;                       // spawn handle
     ClipSelection clip;                // what drives my character
+    double walk_radius = 0, walk_speed = 0;  // my walk around the origin
     std::vector<glm::dmat4> joints;
     std::vector<Mat34> skinning;
-    const double start = now_seconds();
+    const double start = now_seconds();  // my clip's and my walk's time 0
     double next_print = start + 1.0;
     while (now_seconds() - start < seconds) {
         const double now = now_seconds();
@@ -65,9 +68,17 @@ int main(int argc, char** argv) {
             clip = select_clips(c, "all");
             joints.resize(c.joint_count());
             skinning.resize(c.joint_count());
+            walk_radius = 5.0 * client.assets()[0]->diagonal;
+            walk_speed = 0.75 * client.assets()[0]->diagonal;
+            // What the others' references replay: these clips from `start`, this walk.
             SpawnSpec spec;
             spec.asset = 0;
             spec.clips = clip.clips;
+            spec.start_us = uint64_t(start * 1e6);
+            spec.walk_center = glm::dvec3(0.0);
+            spec.walk_radius = walk_radius;
+            spec.walk_speed = walk_speed;
+            spec.position = glm::vec3(walk_root(spec.walk_center, walk_radius, walk_speed, now - start).position);
             me = client.spawn(spec);
         }
         // My pose this frame: the clip at my time, walking a circle.
@@ -76,8 +87,8 @@ int main(int argc, char** argv) {
             const ClientAsset& a = *client.assets()[0];
             sample_skinning_matrices(a.character, clip, clip.looped(t), joints);
             for (size_t j = 0; j < joints.size(); ++j) skinning[j] = Mat34::from_glm(joints[j]);
-            RootPose root = walk_root(glm::dvec3(0.0), 5.0 * a.diagonal, 0.75 * a.diagonal, t);
-            root.source_us = uint64_t(now * 1e6);
+            RootPose root = walk_root(glm::dvec3(0.0), walk_radius, walk_speed, t);
+            root.source_us = uint64_t(now * 1e6);  // the clock of spec.start_us
             client.publish(me, root, skinning);
         }
         // The others: a renderer would upload rc.palette and place rc.root.

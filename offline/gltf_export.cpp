@@ -17,6 +17,7 @@
 #include "errors.h"
 #include "gltf_accessor.h"
 #include "gltf_import.h"
+#include "self_contained.h"
 
 namespace progskin {
 
@@ -312,6 +313,7 @@ void save_progressive(const Character& c, const ProgressiveSkin& s, const std::s
         throw Error(out_path + ": progressive skin does not match the character");
     tinygltf::Model m = load_model(c.source);
     merge_buffers(m);
+    embed_external_images(m, c.source);  // the output is self-contained wherever it is written
 
     // The unified joint list in progressive order, with its inverse bind matrices.
     std::vector<int> joints(size_t(B), 0);
@@ -390,6 +392,7 @@ void write_with_skins_first(const std::string& path, const std::vector<int>& fir
     for (auto& n : m.nodes)
         if (n.skin >= 0 && size_t(n.skin) < new_index.size()) n.skin = new_index[size_t(n.skin)];
     merge_buffers(m);
+    embed_external_images(m, path);
     add_missing_bounds(m, path);
     write_gltf(m, skin_ext, out_path);
 }

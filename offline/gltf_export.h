@@ -25,7 +25,9 @@ namespace progskin {
 
 
 // Writes `skin` of `c` (imported from c.source) to out_path (.glb binary, or
-// .gltf with embedded buffers). The file is written to a temporary name and
+// .gltf with embedded buffers). Self-contained: images the input keeps in
+// files beside it are embedded (offline/self_contained.h embed_external_images;
+// a URI it refuses or a missing image throws). The file is written to a temporary name and
 // renamed, so a failure leaves no partial output. Throws Error.
 // `extra`: further members of the extension object (e.g. "server", the
 // server's precomputed tables, server/scene.h); must be an object or null.
@@ -60,8 +62,8 @@ void add_missing_bounds(tinygltf::Model& m, const std::string& path);
 int append_accessor(tinygltf::Model& m, const void* data, size_t bytes, int component, int type, size_t count,
                     int target, bool normalized = false);
 
-// Writes a copy of the glTF at `path` (as .glb, buffers merged, images kept as
-// they are) in which the skins `first` come first, in that order, followed by
+// Writes a copy of the glTF at `path` (as .glb, buffers merged, external
+// images embedded as with save_progressive) in which the skins `first` come first, in that order, followed by
 // the others in file order, with every node.skin and skin extension moved
 // along: import_gltf of the copy lists the character of those skins as
 // character 0 (what a client that imports character 0 needs). Throws Error.

@@ -80,6 +80,11 @@ double now_seconds();  // monotonic seconds
 
 // Helpers building the small messages both sides send.
 void build_goodbye(flatbuffers::FlatBufferBuilder& fbb, const std::string& reason);
+// The Goodbye reason of a server that stops cleanly (SIGINT/SIGTERM,
+// Server::stop); a client reports it as the server's goodbye, not a crash.
+inline constexpr const char* kShutdownReason = "shutdown: the server is stopping";
+// How long Server::stop waits for its Goodbyes to be written before it closes the sockets.
+inline constexpr double kShutdownLingerSeconds = 1.0;
 void build_refuse(flatbuffers::FlatBufferBuilder& fbb, const std::string& reason);
 // Datagrams a client sends to bind its UDP address (docs/protocol.md "Bind"):
 // the Bind (padded so that it is larger than any answer) and the answer to a

@@ -89,6 +89,12 @@ void ClientStream::evict(const std::string& why, double now) {
     finish(fbb, "evicted: " + why, now);
 }
 
+void ClientStream::goodbye(const std::string& reason, double now) {
+    flatbuffers::FlatBufferBuilder fbb;
+    build_goodbye(fbb, reason);
+    finish(fbb, reason, now);
+}
+
 void ClientStream::despawn_all() {
     for (const auto& o : owned_) core_.remove_instance(o.instance);
     owned_.clear();

@@ -136,6 +136,9 @@ public:
     void close(const std::string& why);
     // Goodbye "evicted: <why>" then Closing (ServerCore::make_room).
     void evict(const std::string& why, double now);
+    // Goodbye `reason` then Closing: the server ends the session (Server::stop:
+    // "shutdown: the server is stopping"). No-op once Closing or Closed.
+    void goodbye(const std::string& reason, double now);
 
     // ----------------------------------------------------- control out --
     // Framed messages waiting to be written, oldest first.

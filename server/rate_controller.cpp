@@ -10,17 +10,24 @@ static constexpr double kMinKbps = 8.0;
 // Bucket depth: 10 % of a second of the target, and at least 470 bytes (room
 // for ~400-byte datagrams, whose 108 bytes of datagram headers are then about
 // a quarter of them) where that is at most 35 % of a second; min_depth for
-// senders that need more. The fill makes up the rest of 1.04 x the target
+// senders that need more; never less than kMinDatagramBytes, the smallest
+// datagram worth sending (below ~5 kbit/s 35 % of a second is less: such a
+// cap sent nothing at all). The fill makes up the rest of 1.04 x the target
 // per second (at most 0.94), so any one-second window carries at most 1.04 x
-// the target (unless min_depth alone exceeds 79 % of a second).
+// the target (unless min_depth alone exceeds 79 % of a second); on a link so
+// slow that the bucket holds more than 35 % of a second, it fills at 0.96 x
+// the target: the mean rate stays under the cap, one datagram may take more
+// than a second of it.
 double RateController::depth_bytes(double kbps) const {
     const double second = kbps * 125.0;
-    return std::max({min_depth_, 0.10 * second, std::min(470.0, 0.35 * second)});
+    return std::max({min_depth_, 0.10 * second, std::min(470.0, 0.35 * second), kMinDatagramBytes});
 }
 
 double RateController::fill_fraction(double kbps) const {
     const double second = std::max(1.0, kbps * 125.0);
-    return std::clamp(1.04 - depth_bytes(kbps) / second, 0.25, 0.94);
+    const double depth = depth_bytes(kbps);
+    if (depth > 0.35 * second && depth == kMinDatagramBytes) return 0.96;
+    return std::clamp(1.04 - depth / second, 0.25, 0.94);
 }
 
 RateController::RateController(double cap_kbps, double initial_kbps, double min_depth_bytes)

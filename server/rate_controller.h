@@ -14,8 +14,10 @@
 // that the 108 bytes of datagram headers do not eat the budget), filled at
 // 1.04 x the target minus the depth per second (94% from 60 kbit/s up, 81% at
 // 16 kbit/s), so the wire bytes in any one second stay <= 1.04 * target <=
-// 1.04 * cap. A tick sends only when the bucket holds at least min(400, depth
-// - one tick's fill) bytes.
+// 1.04 * cap. Never shallower than kMinDatagramBytes: below ~7 kbit/s the
+// bucket is that deep and fills at 0.96 x the target (the mean stays under
+// the cap; a datagram every 2 s at 1 kbit/s). A tick sends only when the
+// bucket holds at least min(400, depth - one tick's fill) bytes.
 #pragma once
 #include <array>
 #include <cstddef>
@@ -26,6 +28,11 @@ namespace progskin::net {
 
 class RateController {
 public:
+    // The smallest datagram worth sending (datagram headers and the chunks of
+    // bone 0 of a few characters): the bucket is never shallower, so that
+    // every cap, down to the wire's 1 kbit/s, delivers the root level of its
+    // characters at a reduced frame rate instead of nothing.
+    static constexpr double kMinDatagramBytes = 240;
     // min_depth_bytes: a deeper bucket (bursts beyond 10% of a second) for
     // senders whose smallest useful datagram is larger (the RD baselines).
     RateController(double cap_kbps = 1000, double initial_kbps = 1000, double min_depth_bytes = 0);

@@ -20,6 +20,7 @@
 #include "progressive_asset.h"
 #include "progressive_skin.h"
 #include "scratch_build.h"
+#include "self_contained.h"
 #include "skinning.h"
 #include "vertex_animation.h"
 #include "wire.h"
@@ -66,7 +67,7 @@ std::shared_ptr<ServerAsset> load_server_asset(const std::string& path) {
     auto a = std::make_shared<ServerAsset>();
     a->path = path;
     a->name = fs::path(path).filename().string();
-    a->bytes = read_file(path);
+    a->bytes = self_contained_glb(path);  // external buffers and images embedded: what every client can load
     a->id = content_hash(a->bytes);
     ProgressiveAsset pa = load_progressive(path);
     a->character = std::move(pa.character);
@@ -158,6 +159,7 @@ void check_one(const std::string& arg, const AssetOptions& o, std::vector<Pendin
         const bool pc2 = path.size() >= 4 && (path.compare(path.size() - 4, 4, ".pc2") == 0 ||
                                                path.compare(path.size() - 4, 4, ".PC2") == 0);
         if (!pc2) {
+            external_files(path);  // every external buffer and image can be embedded (else the problem, naming the uri)
             ImportOptions io;
             io.require_skin = false;
             chars = import_gltf(path, io);
@@ -337,12 +339,14 @@ std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const Ass
         a->progressive_file = true;
     } else {
         a->path = p.path;
-        a->bytes = read_file(p.path);
+        // Served self-contained: a client downloads one file (external buffers and images embedded).
+        a->bytes = self_contained_glb(p.path);
         if (p.character > 0) {
-            // A client plays character 0 of what it downloads: serve a copy with this character's skins first.
+            // A client plays character 0 of what it downloads: serve a copy with this character's skins first
+            // (self-contained too: "-sc"; copies cached before images were embedded are not reused).
             fs::create_directories(cache);
-            const std::string out = (fs::path(cache) / (hex64(content_hash(a->bytes)) + "-character" +
-                                                         std::to_string(p.character) + ".glb")).string();
+            const std::string out = (fs::path(cache) / (hex64(content_hash(read_file(p.path))) + "-character" +
+                                                         std::to_string(p.character) + "-sc.glb")).string();
             if (!fs::exists(out)) write_with_skins_first(p.path, skins_of(p.imported), out);
             a->bytes = read_file(out);
         }

@@ -125,6 +125,7 @@ void Scheduler::reset(size_t n) {
     chain_.assign(n, {});
     paid_.assign(n, 0);
     chain_next_.assign(n, 0);
+    chain_tried_.assign(n, 0);
     header_.assign(n, 0);
     order_.assign(n, {});
     order_at_.assign(n, 0);
@@ -144,6 +145,7 @@ void Scheduler::track_slots(const EncodedFrame& frame) {
         chain_.resize(n);
         paid_.resize(n, 0);
         chain_next_.resize(n, 0);
+        chain_tried_.resize(n, 0);
         header_.resize(n, 0);
         order_.resize(n);
         order_at_.resize(n, 0);
@@ -298,6 +300,7 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
         const ServerAsset& a = *assets[size_t(e.asset)];
         paid_[i] = 0;
         chain_next_[i] = 0;
+        chain_tried_[i] = 0;
         header_[i] = WireCost::header(e);
         const State& st = state_[i];
         // Squared error in screen units, summed over the instance's vertices
@@ -360,7 +363,16 @@ void Scheduler::take_chain_step(const Step& s, size_t header, size_t budget, siz
     const ChainPoint& p1 = chain[size_t(s.step)];
     const size_t bytes = p1.bytes - p0.bytes + header;
     chain_next_[inst] = 0;
-    if (WireCost::wire(payload + bytes) > budget || !share_allows(inst, bytes)) return;
+    if (WireCost::wire(payload + bytes) > budget || !share_allows(inst, bytes)) {
+        // A hull step may span many segments, more than the budget or the
+        // owner's share can ever carry (the character stayed at 1 bone): its
+        // segments are offered one at a time instead.
+        if (p1.end - p0.end > 1) {
+            chain_tried_[inst] = 1;
+            offer_single(s.instance, s.age);
+        }
+        return;
+    }
     payload += bytes;
     for (int q = p0.end; q < p1.end; ++q) items_[inst][size_t(q)].chosen = true;
     if (!paid_[inst]) pay(s.instance, s.age);
@@ -377,6 +389,14 @@ void Scheduler::take_chain_step(const Step& s, size_t header, size_t budget, siz
 void Scheduler::take_segment(const Step& s, size_t header, size_t budget, size_t& payload) {
     const size_t inst = size_t(s.instance);
     SegItem& it = items_[inst][size_t(s.step)];
+    if (s.single) {  // an unshown segment on its own: the next one follows it if it goes
+        if (it.chosen || WireCost::wire(payload + it.bytes + header) > budget || !share_allows(inst, it.bytes + header)) return;
+        payload += it.bytes + header;
+        it.chosen = true;
+        if (!paid_[inst]) pay(s.instance, s.age);
+        offer_single(s.instance, s.age);
+        return;
+    }
     if (it.chosen) {
         if (s.paid) offer_paid(s.instance, s.age);
         return;
@@ -490,10 +510,10 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         // them. Not limited (the rate does not grow for what a share holds).
         pick_everything(frame, importance, true, out);
         offer_items(frame, assets, importance, tick_rate, true);
-        take_greedily(budget, free_payload);
+        take_greedily(budget, take_stale_roots(frame, budget, free_payload));
     } else {
         offer_items(frame, assets, importance, tick_rate, false);
-        take_greedily(budget, 0);
+        take_greedily(budget, take_stale_roots(frame, budget, 0));
         limited_ = left_something();
     }
     chosen_picks(out);
@@ -524,6 +544,48 @@ void Scheduler::offer_unpaid(int instance, uint32_t age) {
     std::push_heap(heap_.begin(), heap_.end());
 }
 
+void Scheduler::offer_single(int instance, uint32_t age) {
+    const size_t i = size_t(instance);
+    const auto& items = items_[i];
+    size_t u = 0;
+    while (u < items.size() && (items[u].shown || items[u].chosen)) ++u;
+    if (u == items.size() || !(items[u].value > 0)) return;
+    const double header = paid_[i] ? 0.0 : double(header_[i]);
+    Step st{items[u].value / (double(items[u].bytes) + header), instance, int(u), age, false, paid_[i] != 0};
+    st.single = true;
+    heap_.push_back(st);
+    std::push_heap(heap_.begin(), heap_.end());
+}
+
+size_t Scheduler::take_stale_roots(const EncodedFrame& frame, size_t budget, size_t payload) {
+    stale_.clear();
+    for (size_t i = 0; i < items_.size(); ++i) {
+        if (items_[i].empty() || items_[i][0].chosen) continue;  // not offered this tick (or up to date)
+        const uint32_t t = state_[i].bone_tick.empty() ? 0 : state_[i].bone_tick[0];
+        const uint32_t age = t == 0 ? UINT32_MAX : frame.tick - t;
+        if (age >= uint32_t(ROOT_REFRESH_TICKS)) stale_.push_back({age, i});
+    }
+    std::sort(stale_.begin(), stale_.end(), [](const auto& a, const auto& b) { return a.first > b.first || (a.first == b.first && a.second < b.second); });
+    for (const auto& [age, i] : stale_) {
+        SegItem& it = items_[i][0];
+        const size_t bytes = it.bytes + (paid_[i] ? 0 : header_[i]);
+        if (WireCost::wire(payload + bytes) > budget) continue;  // a smaller one may still fit
+        // Within the owner's share, except its first root of the tick: every
+        // owner gets one even when shares are thinner than a root chunk, and
+        // no owner gets more than its share (many characters buy nothing).
+        const uint32_t g = group_of(i);
+        if (g > 0) {
+            if (group_spent_.size() <= g) group_spent_.resize(size_t(g) + 1, 0);
+            if (group_spent_[g] > 0 && group_spent_[g] + bytes > share_now_) continue;
+            group_spent_[g] += bytes;
+        }
+        payload += bytes;
+        it.chosen = true;
+        if (!paid_[i]) pay(int(i), age);
+    }
+    return payload;
+}
+
 void Scheduler::pay(int instance, uint32_t age) {
     const size_t i = size_t(instance);
     paid_[i] = 1;
@@ -544,6 +606,8 @@ void Scheduler::pay(int instance, uint32_t age) {
     if (const int c = chain_next_[i]; c > 0) {
         heap_.push_back({step_ratio(chain_[i], c), instance, c, age, true, true});
         std::push_heap(heap_.begin(), heap_.end());
+    } else if (chain_tried_[i]) {
+        offer_single(instance, age);  // its hull step did not fit: the segments one at a time, header paid
     }
 }
 

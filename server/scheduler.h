@@ -20,7 +20,9 @@
 // Shown segments are items of their own (the chunk's bone mask carries only
 // the bones that are due); the segments not shown can only be shown in
 // order, so they are offered as the steps of the upper concave hull of their
-// cumulative (bytes, value). A heap takes items of all instances by value per
+// cumulative (bytes, value); a step that does not fit is replaced by its
+// segments one at a time (offer_single). Before the heap, the floor
+// (ROOT_REFRESH_TICKS): bone 0 of every stale instance. A heap takes items of all instances by value per
 // byte: their records, plus the instance's chunk header (WireCost::header:
 // struct and bone mask, one per instance and tick whatever bones it carries)
 // for the first item of an instance in the tick; once an instance's header is
@@ -84,6 +86,15 @@ void compute_importance(const ViewSpec& view, const EncodedFrame& frame,
                         const std::vector<std::shared_ptr<ServerAsset>>& assets, uint64_t viewer, std::vector<float>& out);
 
 inline constexpr int MORPH_REFRESH_TICKS = 30;        // a weight is re-sent at least this often
+// The floor no character falls under: bone 0 (with the root block) of every
+// important instance not sent for this many ticks (or never) is taken
+// before the greedy, stalest first, while the budget allows it, whatever its
+// value, within its owner's share (set_shares) but for the owner's first
+// root of the tick, which a share thinner than a root chunk does not refuse.
+// When the budget cannot carry them all, the stalest go first: every
+// character's root is refreshed in turn, at the rate the budget allows; an
+// owner of many characters gets no more than its share.
+inline constexpr int ROOT_REFRESH_TICKS = 20;
 inline constexpr double MORPH_REFRESH_WEIGHT = 1.0 / 64;  // the refresh's nominal weight error
 
 struct Pick {
@@ -147,6 +158,7 @@ private:
         bool chain;    // a step of the unshown segments' hull
         bool paid;     // ratio without the chunk header (offered once the instance's header is paid)
         bool morph = false;  // the instance's morph item (morph_)
+        bool single = false; // one unshown segment on its own (its hull step did not fit)
         bool operator<(const Step& o) const { return ratio < o.ratio || (ratio == o.ratio && age < o.age); }
     };
     struct SegItem {
@@ -180,6 +192,11 @@ private:
     void segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30);
     void offer_chain(size_t i, uint32_t age);
     void take_greedily(size_t budget, size_t payload);  // payload: already taken
+    // The floor (ROOT_REFRESH_TICKS): bone 0 of the stale instances, stalest
+    // first, within budget. Returns the payload taken.
+    size_t take_stale_roots(const EncodedFrame& frame, size_t budget, size_t payload);
+    // Offers the first unshown, unchosen segment of instance i on its own.
+    void offer_single(int instance, uint32_t age);
     void take_morph(const Step& s, size_t header, size_t budget, size_t& payload);
     void take_chain_step(const Step& s, size_t header, size_t budget, size_t& payload);
     void take_segment(const Step& s, size_t header, size_t budget, size_t& payload);
@@ -202,12 +219,14 @@ private:
     std::vector<std::vector<ChainPoint>> chain_;    // per instance: upper hull over the unshown segments
     std::vector<uint8_t> paid_;                     // per instance: chunk header paid this tick
     std::vector<int> chain_next_;                   // per instance: chain step offered now (0: none)
+    std::vector<uint8_t> chain_tried_;              // per instance: a hull step did not fit (singles offered)
     std::vector<size_t> header_;                    // per instance: WireCost::header of its bones
     std::vector<std::vector<int>> order_;           // per instance (once paid): shown items by value per byte
     std::vector<size_t> order_at_;                  // per instance: next in order_ to offer
     std::vector<MorphItem> morph_;                  // per instance
     std::vector<uint8_t> current_;                  // per instance: up_to_date this tick
     std::vector<Step> heap_;
+    std::vector<std::pair<uint32_t, size_t>> stale_;  // take_stale_roots: (age, instance)
     bool limited_ = false;
     // Fair share (set_shares): per group, payload taken this tick; per
     // instance, whether an item was left for its group's share.

@@ -15,6 +15,12 @@
 #include <chrono>
 #include <cstdio>
 #include <map>
+#include <utility>
+
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
 #if defined(__GLIBC__)
 #include <malloc.h>
 #endif
@@ -28,6 +34,16 @@ using asio::ip::tcp;
 using asio::ip::udp;
 
 namespace {
+
+// The local port of a bound socket (0 when it cannot be read).
+uint16_t port_of(int fd) {
+    sockaddr_storage ss{};
+    socklen_t n = sizeof ss;
+    if (::getsockname(fd, reinterpret_cast<sockaddr*>(&ss), &n) != 0) return 0;
+    if (ss.ss_family == AF_INET) return ntohs(reinterpret_cast<const sockaddr_in*>(&ss)->sin_port);
+    if (ss.ss_family == AF_INET6) return ntohs(reinterpret_cast<const sockaddr_in6*>(&ss)->sin6_port);
+    return 0;
+}
 
 PeerAddress peer_of(const asio::ip::address& a, uint16_t port) {
     PeerAddress p;
@@ -108,6 +124,8 @@ struct Server::Impl {
     UdpSink sink{udp_sock};
     asio::steady_timer timer{io};
     asio::steady_timer accept_timer{io};
+    asio::steady_timer stop_timer{io};  // finish_stop
+    bool stopping = false;              // stop() ran
     std::unique_ptr<asio::ssl::context> tls_ctx;  // set when ServerConfig::tls_cert_file is
     std::chrono::steady_clock::time_point next_tick;
     std::map<uint64_t, std::shared_ptr<Connection>> conns;
@@ -117,37 +135,18 @@ struct Server::Impl {
     size_t closed_since_trim = 0;
     double trimmed_at = 0;
 
-    Impl(ServerConfig c, std::vector<std::shared_ptr<ServerAsset>> a, std::vector<InstanceSpec> inst)
+    Impl(ServerConfig c, std::vector<std::shared_ptr<ServerAsset>> a, std::vector<InstanceSpec> inst, BoundPorts ports)
         : core(std::move(c), std::move(a), std::move(inst)), tls_ctx(make_tls_context(core.config())) {
-        listen();
+        listen(std::move(ports));
         core.set_udp_port(udp_sock.local_endpoint().port());
     }
 
-    // Binds TCP, then UDP on the same number when possible.
-    void listen() {
-        const ServerConfig& cfg = core.config();
-        auto addr = asio::ip::make_address(cfg.bind_address);
-        for (int attempt = 0;; ++attempt) {
-            tcp::endpoint ep(addr, cfg.port);
-            acceptor = tcp::acceptor(io);
-            acceptor.open(ep.protocol());
-            acceptor.set_option(tcp::acceptor::reuse_address(true));
-            asio::error_code ec;
-            acceptor.bind(ep, ec);
-            if (ec) throw Error("cannot listen on " + cfg.bind_address + ":" + std::to_string(cfg.port) + ": " + ec.message());
-            acceptor.listen(asio::socket_base::max_listen_connections);
-            uint16_t want = cfg.udp_port ? cfg.udp_port : acceptor.local_endpoint().port();
-            udp_sock = udp::socket(io);
-            udp_sock.open(udp::v4());
-            udp_sock.bind(udp::endpoint(addr, want), ec);
-            if (!ec) break;
-            if (cfg.udp_port) throw Error("cannot bind UDP port " + std::to_string(cfg.udp_port) + ": " + ec.message());
-            if (cfg.port != 0 || attempt > 20) {
-                udp_sock.bind(udp::endpoint(addr, 0), ec);  // any free port; announced in Welcome
-                if (ec) throw Error("cannot bind UDP: " + ec.message());
-                break;
-            }
-        }
+    // The sockets: those bound beforehand (bind_ports), else bound now.
+    void listen(BoundPorts ports) {
+        if (ports.tcp_fd < 0 || ports.udp_fd < 0) ports = bind_ports(core.config());
+        const bool v6 = asio::ip::make_address(core.config().bind_address).is_v6();
+        acceptor.assign(v6 ? tcp::v6() : tcp::v4(), std::exchange(ports.tcp_fd, -1));
+        udp_sock.assign(udp::v4(), std::exchange(ports.udp_fd, -1));
         udp_sock.non_blocking(true);
         udp_sock.set_option(asio::socket_base::send_buffer_size(4 << 20));
         udp_sock.set_option(asio::socket_base::receive_buffer_size(4 << 20));
@@ -336,6 +335,25 @@ struct Server::Impl {
 #endif
     }
 
+    // ---------------------------------------------------------------- stop --
+    // After stop() queued the Goodbyes: every 10 ms, once no connection is
+    // still writing (or at `deadline`), closes what is left and stops io.
+    void finish_stop(std::chrono::steady_clock::time_point deadline) {
+        bool writing = false;
+        for (auto& [id, c] : conns) writing = writing || (!c->closed && (c->writing || !c->stream->output().empty()));
+        if (writing && std::chrono::steady_clock::now() < deadline) {
+            stop_timer.expires_after(std::chrono::milliseconds(10));
+            stop_timer.async_wait([this, deadline](asio::error_code) { finish_stop(deadline); });
+            return;
+        }
+        asio::error_code ig;
+        for (auto& [id, c] : conns) {
+            c->closed = true;
+            c->sock.close(ig);
+        }
+        io.stop();
+    }
+
     // --------------------------------------------------------------- tick --
     void schedule_tick() {
         next_tick += std::chrono::microseconds(int64_t(1e6 / core.config().tick_rate));
@@ -353,8 +371,57 @@ struct Server::Impl {
     }
 };
 
-Server::Server(ServerConfig config, std::vector<std::shared_ptr<ServerAsset>> assets, std::vector<InstanceSpec> instances)
-    : impl_(std::make_unique<Impl>(std::move(config), std::move(assets), std::move(instances))) {}
+Server::Server(ServerConfig config, std::vector<std::shared_ptr<ServerAsset>> assets, std::vector<InstanceSpec> instances,
+               BoundPorts ports)
+    : impl_(std::make_unique<Impl>(std::move(config), std::move(assets), std::move(instances), std::move(ports))) {}
+
+BoundPorts::~BoundPorts() {
+    if (tcp_fd >= 0) ::close(tcp_fd);
+    if (udp_fd >= 0) ::close(udp_fd);
+}
+BoundPorts& BoundPorts::operator=(BoundPorts&& o) noexcept {
+    if (this != &o) {
+        this->~BoundPorts();
+        tcp_fd = std::exchange(o.tcp_fd, -1);
+        udp_fd = std::exchange(o.udp_fd, -1);
+    }
+    return *this;
+}
+uint16_t BoundPorts::tcp_port() const { return tcp_fd < 0 ? 0 : port_of(tcp_fd); }
+
+// Binds TCP, then UDP on the same number when possible.
+BoundPorts bind_ports(const ServerConfig& cfg) {
+    asio::io_context io;
+    tcp::acceptor acceptor(io);
+    udp::socket udp_sock(io);
+    asio::error_code ec;
+    const auto addr = asio::ip::make_address(cfg.bind_address, ec);
+    if (ec) throw Error("cannot listen on " + cfg.bind_address + ": not an IP address");
+    for (int attempt = 0;; ++attempt) {
+        tcp::endpoint ep(addr, cfg.port);
+        acceptor = tcp::acceptor(io);
+        acceptor.open(ep.protocol());
+        acceptor.set_option(tcp::acceptor::reuse_address(true));
+        acceptor.bind(ep, ec);
+        if (ec) throw Error("cannot listen on " + cfg.bind_address + ":" + std::to_string(cfg.port) + ": " + ec.message());
+        acceptor.listen(asio::socket_base::max_listen_connections);
+        uint16_t want = cfg.udp_port ? cfg.udp_port : acceptor.local_endpoint().port();
+        udp_sock = udp::socket(io);
+        udp_sock.open(udp::v4());
+        udp_sock.bind(udp::endpoint(addr, want), ec);
+        if (!ec) break;
+        if (cfg.udp_port) throw Error("cannot bind UDP port " + std::to_string(cfg.udp_port) + ": " + ec.message());
+        if (cfg.port != 0 || attempt > 20) {
+            udp_sock.bind(udp::endpoint(addr, 0), ec);  // any free port; announced in Welcome
+            if (ec) throw Error("cannot bind UDP: " + ec.message());
+            break;
+        }
+    }
+    BoundPorts p;
+    p.tcp_fd = acceptor.release();
+    p.udp_fd = udp_sock.release();
+    return p;
+}
 
 Server::~Server() = default;
 
@@ -378,16 +445,21 @@ void Server::run() {
 
 void Server::stop() {
     asio::post(impl_->io, [this] {
+        if (impl_->stopping) return;
+        impl_->stopping = true;
         asio::error_code ig;
         impl_->acceptor.close(ig);
         impl_->udp_sock.close(ig);
         impl_->timer.cancel();
         impl_->accept_timer.cancel();
+        // Every session is told (Goodbye "shutdown: ..."), so that a client
+        // tells a clean stop from a crash; then the sockets close.
+        const double now = now_seconds();
         for (auto& [id, c] : impl_->conns) {
-            c->closed = true;
-            c->sock.close(ig);
+            c->stream->goodbye(kShutdownReason, now);
+            impl_->pump(c);
         }
-        impl_->io.stop();
+        impl_->finish_stop(std::chrono::steady_clock::now() + std::chrono::milliseconds(int(kShutdownLingerSeconds * 1000)));
     });
 }
 

@@ -22,6 +22,7 @@
 #include <memory>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "scene.h"
@@ -113,9 +114,27 @@ struct ServerStats {
     }
 };
 
+// A server's TCP listener and UDP socket, bound (and listening) but not yet
+// served: progskin-server binds them before it builds its assets, so that a
+// port in use is reported at once. Owns the descriptors until a Server takes them.
+struct BoundPorts {
+    int tcp_fd = -1, udp_fd = -1;
+    BoundPorts() = default;
+    BoundPorts(BoundPorts&& o) noexcept : tcp_fd(std::exchange(o.tcp_fd, -1)), udp_fd(std::exchange(o.udp_fd, -1)) {}
+    BoundPorts& operator=(BoundPorts&& o) noexcept;
+    ~BoundPorts();
+    uint16_t tcp_port() const;  // 0 when not bound
+};
+// Binds cfg's TCP port (bind_address:port, 0 = ephemeral), then UDP on the
+// same number when free (or cfg.udp_port). Throws Error naming the address
+// and port ("cannot listen on 0.0.0.0:7777: Address already in use").
+BoundPorts bind_ports(const ServerConfig& cfg);
+
 class Server {
 public:
-    Server(ServerConfig config, std::vector<std::shared_ptr<ServerAsset>> assets, std::vector<InstanceSpec> instances);
+    // Serves on `ports` when given (bind_ports), else binds cfg's ports here (throws Error).
+    Server(ServerConfig config, std::vector<std::shared_ptr<ServerAsset>> assets, std::vector<InstanceSpec> instances,
+           BoundPorts ports = {});
     ~Server();
     Server(const Server&) = delete;
     Server& operator=(const Server&) = delete;

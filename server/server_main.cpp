@@ -285,6 +285,14 @@ int main(int argc, char** argv) {
         return 1;
     }
     try {
+        // The ports first: one in use is reported before any asset is built.
+        BoundPorts ports;
+        try {
+            ports = bind_ports(o.cfg);
+        } catch (const std::exception& e) {
+            std::fprintf(stderr, "progskin-server: %s\n", e.what());
+            return 1;
+        }
         std::vector<std::shared_ptr<ServerAsset>> assets;
         if (!load_assets(o, argv[0], assets)) return 1;
         std::vector<InstanceSpec> instances;
@@ -296,7 +304,7 @@ int main(int argc, char** argv) {
             instances = default_instances(assets);
         }
         for (auto& s : instances) s.once = o.once;
-        Server server(o.cfg, assets, instances);
+        Server server(o.cfg, assets, instances, std::move(ports));
         g_server = &server;
         std::signal(SIGINT, on_signal);
         std::signal(SIGTERM, on_signal);

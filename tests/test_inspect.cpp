@@ -6,6 +6,7 @@
 #include "run_command.h"
 
 #include <array>
+#include <chrono>
 #include <cstdio>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -36,4 +37,50 @@ TEST(Inspect, ListsEveryCharacter) {
     const CmdResult bad = run(progskin() + " inspect " + data("multi_skin.gltf") + " --character 5");
     EXPECT_EQ(bad.code, 1);
     EXPECT_NE(bad.out.find("no character 5 (the file has 2 characters)"), std::string::npos) << bad.out;
+}
+
+// build checks its output path before any work: a folder that does not exist
+// is an argument error (exit 2) at once, naming -o and the folder.
+TEST(BuildCli, OutputPathCheckedBeforeTheBuild) {
+    if (!std::ifstream(progskin()).good()) GTEST_SKIP() << progskin() << " not built";
+    const std::string in = std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb";
+    for (const std::string extra : {"", " --from-vertices --bones 4"}) {
+        const auto start = std::chrono::steady_clock::now();
+        const CmdResult r = run(progskin() + " build " + in + extra + " -o /nonexistent/dir/out.glb");
+        const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+        EXPECT_EQ(r.code, 2) << extra << ": " << r.out;
+        EXPECT_NE(r.out.find("-o /nonexistent/dir/out.glb: the folder /nonexistent/dir does not exist"), std::string::npos)
+            << r.out;
+        EXPECT_EQ(r.out.find("collapses"), std::string::npos) << "worked before checking: " << r.out;
+        EXPECT_LT(seconds, 1.0) << r.out;
+    }
+    const CmdResult folder = run(progskin() + " build " + in + " -o /tmp");
+    EXPECT_EQ(folder.code, 2) << folder.out;
+    EXPECT_NE(folder.out.find("-o /tmp: is a folder"), std::string::npos) << folder.out;
+}
+
+// A file without a skin: inspect lists what it has (vertices, frames, clips,
+// morph targets) and points to --from-vertices; build says the same.
+TEST(Inspect, FileWithoutASkinListsClipsAndMorphTargetsAndPointsToFromVertices) {
+    if (!std::ifstream(progskin()).good()) GTEST_SKIP() << progskin() << " not built";
+    const std::string sphere = std::string(PROGSKIN_ASSETS) + "/AnimatedMorphSphere.gltf";
+    const CmdResult text = run(progskin() + " inspect " + sphere);
+    ASSERT_EQ(text.code, 0) << text.out;
+    EXPECT_NE(text.out.find("no skin"), std::string::npos) << text.out;
+    EXPECT_NE(text.out.find("morph targets: 2"), std::string::npos) << text.out;
+    EXPECT_NE(text.out.find("progskin build --from-vertices " + sphere), std::string::npos) << text.out;
+    const CmdResult js = run(progskin() + " inspect " + sphere + " --json");
+    ASSERT_EQ(js.code, 0) << js.out;
+    const nlohmann::json j = nlohmann::json::parse(js.out.substr(js.out.find('{')));
+    EXPECT_EQ(j["skinned"], false);
+    EXPECT_GT(j["vertices"].get<int>(), 0);
+    EXPECT_GT(j["frames"].get<int>(), 1);
+    ASSERT_GE(j["clips"].size(), 1u);
+    EXPECT_GT(j["clips"][0]["end"].get<double>(), 0.0);
+    EXPECT_GE(j["clips"][0]["weights_channels"].get<int>(), 1);
+    ASSERT_EQ(j["morph_targets"].size(), 2u);
+    const CmdResult build = run(progskin() + " build " + sphere + " -o /tmp/progskin-no-skin-out.glb");
+    EXPECT_EQ(build.code, 1) << build.out;
+    EXPECT_NE(build.out.find("no skin"), std::string::npos) << build.out;
+    EXPECT_NE(build.out.find("progskin build --from-vertices " + sphere), std::string::npos) << build.out;
 }

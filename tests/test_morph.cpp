@@ -187,7 +187,7 @@ TEST(Morph, PoseAndInspectIncludeMorphs) {
     const nlohmann::json j = nlohmann::json::parse(ins.out.substr(ins.out.find('{')));
     EXPECT_EQ(j["morph_targets"].size(), 4u);
     EXPECT_EQ(j["morph_targets"][0]["name"], "smile");
-    EXPECT_FALSE(j["morph_targets_streamed"].get<bool>());
+    EXPECT_TRUE(j["morph_targets_streamed"].get<bool>());  // the morph block carries their weights (issue 24)
 }
 
 TEST(Morph, BrokenFilesNameTheDefect) {

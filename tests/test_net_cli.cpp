@@ -151,3 +151,90 @@ TEST(NetCli, ClientJsonSummaryHasTheDocumentedKeys) {
         EXPECT_NE(r.out.find(key), std::string::npos) << key << " missing in " << r.out;
     EXPECT_NE(r.out.find("\"characters\": 3"), std::string::npos) << r.out;  // Fox: Survey, Walk, CmdResult
 }
+
+namespace {
+
+// A progskin-client run in the background: its stdout and stderr in a file,
+// then "EXIT <code>". wait() returns the exit code (-1: still running after `seconds`).
+struct BackgroundClient {
+    std::string out;
+    BackgroundClient(const std::string& name, const std::string& args) {
+        out = ::testing::TempDir() + name + ".out";
+        std::remove(out.c_str());
+        std::system(("(" + bin("progskin-client") + " " + args + "; echo \"EXIT $?\") > " + out + " 2>&1 &").c_str());
+    }
+    std::string text() const {
+        std::ifstream f(out);
+        return std::string(std::istreambuf_iterator<char>(f), {});
+    }
+    int wait(double seconds) const {
+        for (int i = 0; i < int(seconds * 20); ++i) {
+            const std::string t = text();
+            if (auto p = t.find("EXIT "); p != std::string::npos) return std::atoi(t.c_str() + p + 5);
+            std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        }
+        return -1;
+    }
+};
+
+}  // namespace
+
+// --report json is written on every exit: a server stopped by SIGTERM says
+// Goodbye (the client reports server_goodbye, exit 3); a server killed
+// outright closes the connection (an error, exit 1); both reports hold what
+// was received until then.
+TEST(NetCli, ReportWrittenOnEveryExitServerGoodbyeToldFromACrash) {
+    if (!built("progskin-server") || !built("progskin-client")) GTEST_SKIP() << "executables not built";
+    const std::string cache = " --cache " + ::testing::TempDir() + "progskin-cli-cache";
+    for (const bool clean : {true, false}) {
+        const std::string tag = clean ? "term" : "kill";
+        BackgroundServer s("progskin-cli-bye-" + tag, "--no-tls --port 0 --duration 60 --asset " +
+                                                           std::string(PROGSKIN_ASSETS) + "/Fox.glb");
+        ASSERT_FALSE(s.port.empty()) << s.text();
+        BackgroundClient c("progskin-cli-bye-client-" + tag,
+                           "--no-tls --server 127.0.0.1:" + s.port + " --duration 30 --report json" + cache);
+        std::this_thread::sleep_for(std::chrono::seconds(3));
+        std::system(("kill " + std::string(clean ? "-TERM " : "-KILL ") + std::to_string(s.pid)).c_str());
+        const int code = c.wait(10);
+        const std::string out = c.text();
+        EXPECT_EQ(code, clean ? 3 : 1) << tag << ": " << out;
+        const size_t json_at = out.find("{\"seconds\"");
+        ASSERT_NE(json_at, std::string::npos) << tag << ": no report in " << out;
+        const std::string json = out.substr(json_at, out.find('\n', json_at) - json_at);
+        EXPECT_NE(json.find("\"characters\": 3"), std::string::npos) << tag << ": " << json;  // received before the end
+        EXPECT_EQ(json.find("\"datagrams\": 0,"), std::string::npos) << tag << ": " << json;
+        EXPECT_NE(json.find(clean ? "\"server_goodbye\": true" : "\"server_goodbye\": false"), std::string::npos)
+            << tag << ": " << json;
+        if (clean) EXPECT_NE(json.find("\"error\": \"the server ended the session: shutdown: the server is stopping\""),
+                             std::string::npos) << json;
+        else EXPECT_NE(json.find("closed the control connection"), std::string::npos) << json;
+        s.pid = 0;  // already gone
+    }
+    // No server at all: still a report, with the reason.
+    CmdResult r = run(bin("progskin-client") + " --no-tls --server 127.0.0.1:1 --duration 1 --report json" + cache);
+    EXPECT_EQ(r.code, 1);
+    EXPECT_NE(r.out.find("\"error\": \""), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("cannot connect"), std::string::npos) << r.out;
+}
+
+// The ports are bound before any asset is built: a port in use is an error
+// at once (exit 1, naming the port), not after the build.
+TEST(NetCli, PortInUseReportedBeforeAnyAssetIsBuilt) {
+    if (!built("progskin-server")) GTEST_SKIP() << "progskin-server not built";
+    BackgroundServer first("progskin-cli-port-first", "--no-tls --port 0 --duration 20 --asset " +
+                                                          std::string(PROGSKIN_ASSETS) + "/Fox.glb");
+    ASSERT_FALSE(first.port.empty()) << first.text();
+    // An empty cache: this server would build the CesiumMan (seconds) before binding, as it used to.
+    const std::string cache = ::testing::TempDir() + "progskin-cli-port-cache-" + std::to_string(::getpid());
+    std::system(("rm -rf " + cache).c_str());
+    const auto start = std::chrono::steady_clock::now();
+    const CmdResult r = run(bin("progskin-server") + " --no-tls --port " + first.port + " --duration 5 --cache " + cache +
+                            " --asset " + PROGSKIN_ASSETS + "/CesiumMan.glb");
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    EXPECT_EQ(r.code, 1) << r.out;
+    EXPECT_NE(r.out.find("cannot listen on 0.0.0.0:" + first.port), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("in use"), std::string::npos) << r.out;
+    EXPECT_EQ(r.out.find("loading"), std::string::npos) << "built before binding: " << r.out;
+    EXPECT_LT(seconds, 1.0) << r.out;
+    std::system(("rm -rf " + cache).c_str());
+}

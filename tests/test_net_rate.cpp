@@ -184,3 +184,33 @@ TEST(NetRate, RebindingRestoresTheRateHeldBeforeIt) {
     EXPECT_GE(kept, 0.95 * before);
     EXPECT_LT(collapsed, 0.75 * before_old);  // what the loss would have done
 }
+
+// Caps of a few kbit/s (the wire's smallest is 1): the bucket still holds a
+// datagram worth sending (kMinDatagramBytes; it held 44 bytes at 1 kbit/s and
+// 131 at 3, less than any frame: nothing was ever sent), one goes out every
+// 2 s at most, and the mean rate stays under the cap.
+TEST(NetRate, ASlowCapStillSendsADatagramEveryTwoSeconds) {
+    for (double cap : {1.0, 2.0, 3.0, 5.0}) {
+        RateController rc(cap, cap);
+        size_t total = 0, datagrams = 0, smallest = SIZE_MAX;
+        int last = 0, longest_gap = 0;
+        const int ticks = 30 * 60;
+        for (int t = 0; t < ticks; ++t) {
+            rc.refill(1.0 / 30.0);
+            if (const size_t b = rc.budget(); b > 0) {
+                rc.spend(b);
+                total += b;
+                ++datagrams;
+                smallest = std::min(smallest, b);
+                longest_gap = std::max(longest_gap, t - last);
+                last = t;
+            }
+        }
+        const double second = cap * 125.0;
+        EXPECT_GT(datagrams, 0u) << "cap " << cap;
+        EXPECT_GE(double(smallest), 0.9 * RateController::kMinDatagramBytes) << "cap " << cap;  // less one tick's fill
+        EXPECT_LE(longest_gap, 2 * 30 + 1) << "cap " << cap;
+        EXPECT_LE(double(total) / 60.0, second) << "cap " << cap;
+        EXPECT_GE(double(total) / 60.0, 0.8 * second) << "cap " << cap;
+    }
+}

@@ -632,11 +632,21 @@ TEST(NetSecurity, GltfUrisOutsideTheCacheAreRefused) {
     const fs::path ok = root / "cache" / "ok.gltf";
     std::ofstream(ok) << gltf("ok.bin");
     EXPECT_NO_THROW(check_external_uris(ok.string()));
-    // End to end: a server serving such a .gltf is refused before anything is opened.
+    // End to end: a server serving such a .gltf: the asset is refused before
+    // anything is opened, and the client says which and why (it goes on
+    // without that asset; this fake server streams nothing, so the run ends
+    // in an error with its report).
     const std::string text = gltf("../../etc/hostname");
     FakeServer fake("evil.gltf", std::vector<uint8_t>(text.begin(), text.end()), text.size(), text.size());
-    const std::string e = error_of(fake.client());
-    EXPECT_NE(e.find("outside the cache folder"), std::string::npos) << e;
+    ClientReport rep;
+    try {
+        run_client(fake.client());
+    } catch (const ClientRunError& e) {
+        rep = e.report;
+    }
+    ASSERT_EQ(rep.assets_failed.size(), 1u) << rep.error;
+    EXPECT_EQ(rep.assets_failed[0].first, "evil.gltf");
+    EXPECT_NE(rep.assets_failed[0].second.find("outside the cache folder"), std::string::npos) << rep.assets_failed[0].second;
 }
 
 // Flaw 10: when the stream is lost for good (here the server times the

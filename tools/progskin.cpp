@@ -4,8 +4,10 @@
 // 2 bad command line.
 #include <chrono>
 #include <cstdio>
+#include <cctype>
 #include <cstring>
 #include <filesystem>
+#include <unistd.h>
 #include <fstream>
 #include <iostream>
 #include <map>
@@ -29,6 +31,7 @@
 #include "crypto.h"
 #endif
 #include "scratch_build.h"
+#include "self_contained.h"
 #include "vertex_animation.h"
 
 using namespace progskin;
@@ -54,6 +57,8 @@ usage:
       glTF 2.0 file (joints in progressive order, weights reordered, animations
       kept, PROGSKIN_progressive_skin extension on the skin). OUT ending in
       .gltf is written as JSON with embedded buffers, anything else as .glb.
+      OUT is self-contained: images IN keeps in files beside it are embedded
+      (a missing or refused one is an error, before anything is built).
   progskin build --from-vertices IN -o OUT.glb [--bones N] [--max-error PERCENT]
                  [--rest-frame F] [--similarity] [--method auto|collapse|hybrid|top-down]
                  [--clip SPEC] [--fps 30] [--quiet]
@@ -167,11 +172,41 @@ json server_tables(const Character& c, const ProgressiveSkin& s) {
     return extra;
 }
 
+// Throws UsageError unless `out` can be written, before any work is done:
+// its folder exists and is writable, and `out` is not a folder.
+void check_output_path(const std::string& out) {
+    namespace fs = std::filesystem;
+    const fs::path p(out);
+    const fs::path dir = p.parent_path().empty() ? fs::path(".") : p.parent_path();
+    std::error_code ec;
+    if (!fs::is_directory(dir, ec)) throw UsageError("-o " + out + ": the folder " + dir.string() + " does not exist");
+    if (fs::is_directory(p, ec)) throw UsageError("-o " + out + ": is a folder");
+    if (::access(dir.c_str(), W_OK) != 0) throw UsageError("-o " + out + ": the folder " + dir.string() + " is not writable");
+}
+
 int character_arg(const Args& a) { return a.has("--character") ? to_int("--character", a.get("--character")) : 0; }
+
+// What to run for a file without a skin (the server's message says the same).
+std::string from_vertices_hint(const std::string& path) {
+    return "build a progressive skin from its vertex animation with `progskin build --from-vertices " + path +
+           " -o OUT.glb [--bones N]`";
+}
+
+// import_character, with the --from-vertices hint on a file that has no skin.
+Character import_or_hint(const std::string& path, int character) {
+    try {
+        return import_character(path, character);
+    } catch (const Error& e) {
+        const std::string what = e.what();
+        if (what.find(": no skin") == std::string::npos) throw;
+        throw Error(what + ": " + from_vertices_hint(path));
+    }
+}
 
 int cmd_build_from_vertices(const Args& a) {
     if (a.positional.size() != 1) throw UsageError("build --from-vertices needs exactly one input file");
     if (!a.has("-o")) throw UsageError("build needs -o OUT.glb");
+    check_output_path(a.get("-o"));
     if (a.has("--strategy") || a.has("--plain-copy")) throw UsageError("--strategy/--plain-copy do not apply to --from-vertices");
     VertexAnimationOptions vo;
     vo.fps = a.has("--fps") ? to_number("--fps", a.get("--fps")) : 30.0;
@@ -238,13 +273,16 @@ int cmd_build(int argc, char** argv) {
         if (a.has(k)) throw UsageError(std::string(k) + " needs --from-vertices");
     if (a.positional.size() != 1) throw UsageError("build needs exactly one input file");
     if (!a.has("-o")) throw UsageError("build needs -o OUT.glb");
+    check_output_path(a.get("-o"));
     const double fps = a.has("--fps") ? to_number("--fps", a.get("--fps")) : 30.0;
     if (fps <= 0 || fps > 1000) throw UsageError("--fps must be in (0, 1000]");
     const Strategy st = parse_strategy(a.get("--strategy", "reorder"));
     if (st != Strategy::Reorder && st != Strategy::Flatten && st != Strategy::LeafPrune)
         throw UsageError("--strategy must be reorder, flatten or leaf_prune");
     const bool quiet = a.has("--quiet");
-    const Character c = import_character(a.positional[0], character_arg(a));
+    // The output embeds the images the input keeps beside it: every one is checked before the build.
+    external_files(a.positional[0]);
+    const Character c = import_or_hint(a.positional[0], character_arg(a));
     const FrameSet frames = sample_frames(c, training_set(c, a.get("--clip")), fps);
     if (!quiet)
         std::fprintf(stderr, "%s: %zu joints, %zu vertices, %zu frames at %g fps\n", a.positional[0].c_str(),
@@ -275,6 +313,77 @@ int cmd_build(int argc, char** argv) {
     return 0;
 }
 
+bool is_pc2(const std::string& path) {
+    std::string ext = std::filesystem::path(path).extension().string();
+    for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
+    return ext == ".pc2";
+}
+
+// inspect of a file without a skin (morph-target animation, PC2 point
+// cache): its vertices and frames, the clips and morph targets of a glTF,
+// and the command that builds a skin from it. Exit 0.
+int inspect_unskinned(const std::string& path, bool as_json) {
+    const VertexAnimation anim = load_vertex_animation(path);
+    json out;
+    out["file"] = path;
+    out["skinned"] = false;
+    out["vertices"] = anim.vertex_count;
+    out["frames"] = anim.frame_count;
+    out["fps"] = anim.fps;
+    out["clips"] = json::array();
+    out["morph_targets"] = json::array();
+    const json g = is_pc2(path) ? json() : read_gltf_json(path);
+    if (g.is_object()) {
+        const json& acc = g.value("accessors", json::array());
+        for (const json& an : g.value("animations", json::array())) {
+            double start = 0, end = 0;
+            bool first = true;
+            int weights = 0;
+            for (const json& s : an.value("samplers", json::array())) {
+                const size_t in = s.value("input", size_t(0));
+                if (in >= acc.size() || !acc[in].contains("min") || !acc[in].contains("max")) continue;
+                const double lo = acc[in]["min"][0].get<double>(), hi = acc[in]["max"][0].get<double>();
+                start = first ? lo : std::min(start, lo);
+                end = first ? hi : std::max(end, hi);
+                first = false;
+            }
+            for (const json& ch : an.value("channels", json::array()))
+                weights += ch.contains("target") && ch["target"].value("path", std::string()) == "weights";
+            out["clips"].push_back({{"name", an.value("name", std::string())}, {"start", start}, {"end", end},
+                                    {"channels", an.value("channels", json::array()).size()}, {"weights_channels", weights}});
+        }
+        const json& meshes = g.value("meshes", json::array());
+        for (size_t m = 0; m < meshes.size(); ++m) {
+            const json& prims = meshes[m].value("primitives", json::array());
+            const size_t n = prims.empty() ? 0 : prims[0].value("targets", json::array()).size();
+            const json names = meshes[m].contains("extras") ? meshes[m]["extras"].value("targetNames", json::array()) : json::array();
+            for (size_t t = 0; t < n; ++t)
+                out["morph_targets"].push_back({{"mesh", m},
+                                                {"mesh_name", meshes[m].value("name", std::string())},
+                                                {"target", t},
+                                                {"name", t < names.size() && names[t].is_string() ? names[t].get<std::string>() : ""}});
+        }
+    }
+    out["hint"] = from_vertices_hint(path);
+    if (as_json) {
+        std::cout << out.dump(2) << "\n";
+        return 0;
+    }
+    std::printf("%s\n  no skin: a vertex animation (%s), %zu vertices, %zu frames at %g fps\n", path.c_str(),
+                is_pc2(path) ? "PC2 point cache" : "morph targets", anim.vertex_count, anim.frame_count, anim.fps);
+    std::printf("  clips:");
+    for (const json& c : out["clips"])
+        std::printf(" \"%s\" (%.3g-%.3g s, %d weights channels)", c["name"].get<std::string>().c_str(),
+                    c["start"].get<double>(), c["end"].get<double>(), c["weights_channels"].get<int>());
+    std::printf("%s\n", out["clips"].empty() ? " none" : "");
+    std::printf("  morph targets: %zu\n", out["morph_targets"].size());
+    for (const json& t : out["morph_targets"])
+        std::printf("    mesh %d \"%s\" target %d \"%s\"\n", t["mesh"].get<int>(), t["mesh_name"].get<std::string>().c_str(),
+                    t["target"].get<int>(), t["name"].get<std::string>().c_str());
+    std::printf("  %s\n", out["hint"].get<std::string>().c_str());
+    return 0;
+}
+
 int cmd_inspect(int argc, char** argv) {
     Args a = parse(argc, argv, 2, {"--json", "--help", "--quiet"}, {"--clip", "--fps", "--character", "--plot"});
     if (a.has("--help")) {
@@ -285,8 +394,13 @@ int cmd_inspect(int argc, char** argv) {
     const bool as_json = a.has("--json");
     const double fps = a.has("--fps") ? to_number("--fps", a.get("--fps")) : 30.0;
     if (fps <= 0 || fps > 1000) throw UsageError("--fps must be in (0, 1000]");
-    // Every character of the file (listed), the one of --character (default 0) in detail.
-    std::vector<Character> all = import_gltf(a.positional[0]);
+    // Every character of the file (listed), the one of --character (default 0) in detail;
+    // a file without a skin: what it has and how to build a skin from it.
+    if (is_pc2(a.positional[0])) return inspect_unskinned(a.positional[0], as_json);
+    ImportOptions io;
+    io.require_skin = false;
+    std::vector<Character> all = import_gltf(a.positional[0], io);
+    if (all.empty()) return inspect_unskinned(a.positional[0], as_json);
     const int index = character_arg(a);
     if (index < 0 || size_t(index) >= all.size())
         throw Error(a.positional[0] + ": no character " + std::to_string(index) + " (the file has " +
@@ -328,7 +442,7 @@ int cmd_inspect(int argc, char** argv) {
                                 {"channels", cl.channels.size()}});
     out["renormalised_vertices"] = c.renormalised_vertices;
     out["morph_targets_ignored"] = false;  // evaluated by import, pose and the error tables
-    out["morph_targets_streamed"] = false; // the wire carries bones only (yet)
+    out["morph_targets_streamed"] = true;  // their weights travel in the morph block (docs/protocol.md), the first 255
     out["morph_targets"] = json::array();
     const std::vector<double> importance = morph_importance(c);
     for (size_t m = 0; m < c.morphs.size(); ++m)

@@ -29,7 +29,7 @@ public enum Status { Ok = 0, Empty = 1, NotReady = 2, ErrNull = -1, ErrArgument 
                      ErrConnect = -4, ErrFailed = -5, ErrMemory = -6, ErrInternal = -7 }
 public enum State { Idle = 0, Connecting = 1, Streaming = 2, Closed = 3, Failed = 4 }
 public enum EventType { Connected = 1, AssetReady = 2, CharacterAdded = 3, CharacterRemoved = 4, Spawned = 5,
-                        SpawnRefused = 6, Closed = 7, Failed = 8 }
+                        SpawnRefused = 6, Closed = 7, Failed = 8, AssetFailed = 9 }
 
 public class ProgskinException : Exception {
     public readonly Status Status;

@@ -33,9 +33,10 @@ class State:
 
 
 class EventType:
-    CONNECTED, ASSET_READY, CHARACTER_ADDED, CHARACTER_REMOVED, SPAWNED, SPAWN_REFUSED, CLOSED, FAILED = range(1, 9)
+    CONNECTED, ASSET_READY, CHARACTER_ADDED, CHARACTER_REMOVED, SPAWNED, SPAWN_REFUSED, CLOSED, FAILED, \
+        ASSET_FAILED = range(1, 10)
     NAMES = {1: "connected", 2: "asset_ready", 3: "character_added", 4: "character_removed", 5: "spawned",
-             6: "spawn_refused", 7: "closed", 8: "failed"}
+             6: "spawn_refused", 7: "closed", 8: "failed", 9: "asset_failed"}
 
 
 class Error(Exception):
