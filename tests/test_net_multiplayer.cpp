@@ -287,8 +287,11 @@ TEST(NetMultiplayer, StarvedRoomStillShowsEveryCharacter) {
         EXPECT_LE(r.rate_kbps, 6.0 * 1.1) << "player " << i;  // the first datagram is a full bucket
         EXPECT_GT(r.latency_ms_p99, 0.0) << "player " << i;
         EXPECT_LT(r.latency_ms_p99, 3000.0) << "player " << i;
-        for (const InstanceReport& ir : r.instances)
-            if (ir.published) EXPECT_GE(ir.bones_min, 1) << "player " << i << " instance " << ir.instance;
+        for (const InstanceReport& ir : r.instances) {
+            if (ir.published) {
+                EXPECT_GE(ir.bones_min, 1) << "player " << i << " instance " << ir.instance;
+            }
+        }
     }
 }
 
