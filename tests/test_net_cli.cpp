@@ -84,6 +84,9 @@ TEST(NetCli, HelpAndExitCodes) {
         {"progskin-netem --to 127.0.0.1:7777 --seed 1.5", "--seed"},
         {"progskin-attack --server 10.0.0.1:7777", "--server"},
         {"progskin-server --owner-share-kbps -5", "--owner-share-kbps"},
+        {"progskin-server --threads 0", "--threads"},
+        {"progskin-server --threads 257", "--threads"},
+        {"progskin-server --threads 2x", "--threads"},
         {"progskin-attack --server 127.0.0.1:7777 --posers -1", "--posers"},
     };
     for (const auto& [cmd, option] : bad_values) {
