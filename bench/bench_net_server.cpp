@@ -16,6 +16,7 @@
 // more tick threads (CPU per player per tick, scaling).
 #include <benchmark/benchmark.h>
 #include <poll.h>
+#include <sys/socket.h>
 #include <pthread.h>
 #include <time.h>
 
@@ -222,6 +223,44 @@ BENCHMARK(BM_PublishingPlayers)
     ->Args({1000, 2, 1})
     ->Args({1000, 2, 2})
     ->Unit(benchmark::kMillisecond);
+
+// How the tick's workers send (server.cpp UdpSink): sendto(2) from T threads
+// at once on one UDP socket, 1,100-byte datagrams to a loopback socket that
+// nobody reads (the kernel drops them once its queue is full, after the
+// whole send path). wall_ns_per_datagram falls with T when concurrent sends
+// on one socket scale; the alternative, collecting every worker's datagrams
+// and sending them from the tick thread after the workers join, would
+// stay at the 1-thread figure for all of them.
+static void BM_UdpSendShared(benchmark::State& st) {
+    const int threads = int(st.range(0));
+    asio::io_context io;
+    asio::ip::udp::socket rx(io, asio::ip::udp::endpoint(asio::ip::make_address("127.0.0.1"), 0));
+    asio::ip::udp::socket tx(io, asio::ip::udp::endpoint(asio::ip::make_address("127.0.0.1"), 0));
+    tx.non_blocking(true);
+    tx.set_option(asio::socket_base::send_buffer_size(4 << 20));
+    const asio::ip::udp::endpoint to = rx.local_endpoint();
+    const int fd = tx.native_handle();
+    constexpr int kPerThread = 2000;
+    std::vector<uint8_t> payload(1100, 0x5a);
+    double wall = 0, cpu = 0;
+    for (auto _ : st) {
+        const double w0 = now_seconds(), c0 = process_seconds();
+        std::vector<std::thread> ts;
+        auto send = [&] {
+            for (int i = 0; i < kPerThread; ++i)
+                (void)::sendto(fd, payload.data(), payload.size(), MSG_DONTWAIT, to.data(), socklen_t(to.size()));
+        };
+        for (int t = 1; t < threads; ++t) ts.emplace_back(send);
+        send();
+        for (auto& t : ts) t.join();
+        wall += now_seconds() - w0;
+        cpu += process_seconds() - c0;
+    }
+    const double n = double(st.iterations()) * kPerThread * threads;
+    st.counters["wall_ns_per_datagram"] = 1e9 * wall / n;
+    st.counters["cpu_ns_per_datagram"] = 1e9 * cpu / n;
+}
+BENCHMARK(BM_UdpSendShared)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond);
 
 // ---------------------------------------------------------------- loopback --
 
