@@ -141,7 +141,7 @@ TEST(NetThreads, TwoThreadsStreamToSeveralTlsClients) {
         EXPECT_EQ(r.characters, 4);
         EXPECT_EQ(r.malformed, 0u);
         EXPECT_GT(r.datagrams, 30u);
-        for (const auto& i : r.instances) EXPECT_GE(i.frames, 30u) << i.asset;
+        for (const auto& i : r.instances) EXPECT_GE(i.frames, 20u) << i.asset;  // 1.5 s after the warm-up: 45 at 30 Hz
         EXPECT_LT(r.rms_pct, kInterpolatedRmsPct);
     }
     const ServerStats st = s.server->stats();
