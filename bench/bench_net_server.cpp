@@ -10,9 +10,13 @@
 // lightweight clients (Hello, UDP Bind, Acks; no display) for 5 s: mean tick
 // time, the server thread's CPU time per client, and the datagrams, bytes
 // and rate each client received; its 4th argument 1 runs every session over
-// TLS (a self-signed pair from server/tls_identity.h) with sealed datagrams.
+// TLS (a self-signed pair from server/tls_identity.h) with sealed datagrams,
+// its 5th is the server's tick threads (ServerConfig::threads).
+// BM_PublishingPlayers: players publishing their own characters, at 1 or
+// more tick threads (CPU per player per tick, scaling).
 #include <benchmark/benchmark.h>
 #include <poll.h>
+#include <sys/socket.h>
 #include <pthread.h>
 #include <time.h>
 
@@ -29,6 +33,7 @@
 #include "scene.h"
 #include "server.h"
 #include "server_core.h"
+#include "tick_pool.h"
 #include "wire.h"
 
 using namespace progskin;
@@ -97,10 +102,16 @@ static void BM_ServerTick200x100(benchmark::State& st) {
 }
 BENCHMARK(BM_ServerTick200x100)->Arg(256)->Arg(1000)->Unit(benchmark::kMillisecond);
 
-// CPU seconds of this thread (a shared machine's other load does not count).
+// CPU seconds of this thread / of every thread of this process (a shared
+// machine's other load does not count).
 static double thread_seconds() {
     timespec ts;
     ::clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
+}
+static double process_seconds() {
+    timespec ts;
+    ::clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
     return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
 }
 
@@ -112,11 +123,19 @@ static double thread_seconds() {
 // (its view, its own character excluded), selection and packing.
 // mode 0: everyone sees everyone alike (no view) at 1 Mbit/s each; mode 1:
 // players spread over a 2 km world, each viewing from its own character
-// (far characters cheap), 256 kbit/s each. core_load_at_30Hz: this
-// thread's CPU time per tick x 30; players_per_core = P / load (at this P).
+// (far characters cheap), 256 kbit/s each; mode 2: as mode 1, each player
+// weighing only the nearest 100 characters (ServerConfig::max_candidates 100).
+// Third argument: tick threads (ServerConfig::threads; the per-player part
+// spread over a TickPool by ServerCore::tick_streams, as in the server; the
+// poses and the encoding stay on this thread). core_load_at_30Hz: the
+// process's CPU time (every thread) per tick x 30; players_per_core = P /
+// load (at this P); cpu_us_per_player_tick: CPU per player per tick;
+// wall_ms_per_tick: elapsed time per tick (what threads shorten).
 static void BM_PublishingPlayers(benchmark::State& st) {
     const int players = int(st.range(0));
-    const bool views = st.range(1) != 0;
+    const int mode = int(st.range(1));
+    const bool views = mode != 0;
+    const int threads = std::max(1, int(st.range(2)));
     const double kbps = views ? 256 : 1000;
     std::vector<InstanceSpec> specs;
     for (int p = 0; p < players; ++p) {
@@ -126,7 +145,11 @@ static void BM_PublishingPlayers(benchmark::State& st) {
         s.owner = uint64_t(p + 1);
         specs.push_back(s);
     }
-    ServerCore core(ServerConfig{}, assets(), specs);
+    ServerConfig cfg;
+    if (mode == 2) cfg.max_candidates = 100;
+    ServerCore core(cfg, assets(), specs);
+    TickPool pool(threads);
+    core.set_pool(&pool);
     FrameEncoder& enc = core.encoder();
     // Each player's pose source: its asset's clip, sampled as a publisher does.
     std::vector<std::vector<std::vector<uint8_t>>> poses(2);  // per asset, 30 frames of records
@@ -155,12 +178,14 @@ static void BM_PublishingPlayers(benchmark::State& st) {
         }
         client.back()->set_view(v);
     }
+    std::vector<ClientStream*> streams;
+    for (auto& c : client) streams.push_back(c.get());
     NoSockets sink;
     std::array<uint8_t, ROOT_BYTES> root{};
     uint32_t tick = 0;
-    double busy = 0, sent = 0;
+    double busy = 0, sent = 0, wall = 0;
     for (auto _ : st) {
-        const double t0 = thread_seconds();
+        const double t0 = process_seconds(), w0 = now_seconds();
         ++tick;
         for (int p = 0; p < players; ++p) {
             const auto& rec = poses[size_t(p % 2)][(tick + uint32_t(p)) % 30];
@@ -173,16 +198,69 @@ static void BM_PublishingPlayers(benchmark::State& st) {
             if (ok) enc.push_records(p, tick, 0, 0, rec, root);
         }
         const EncodedFrame& f = enc.encode(tick);
-        for (auto& c : client) sent += double(c->tick(f, tick / 30.0, 1.0 / 30.0, sink).wire_bytes);
-        busy += thread_seconds() - t0;
+        sent += double(core.tick_streams(streams, f, tick / 30.0, 1.0 / 30.0, sink).wire_bytes);
+        busy += process_seconds() - t0;
+        wall += now_seconds() - w0;
     }
-    const double load = busy / double(st.iterations()) * 30.0;
+    const double ticks = double(st.iterations());
+    const double load = busy / ticks * 30.0;
     st.counters["core_load_at_30Hz"] = load;
     st.counters["players_per_core"] = double(players) / load;
-    st.counters["kbps_per_player"] = sent * 8 / 1000 / (double(st.iterations()) / 30.0) / players;
-    st.SetLabel(views ? "players over 2 km, each viewing from its character, 256 kbit/s" : "everyone sees everyone, 1 Mbit/s");
+    st.counters["cpu_us_per_player_tick"] = 1e6 * busy / ticks / players;
+    st.counters["wall_ms_per_tick"] = 1e3 * wall / ticks;
+    st.counters["kbps_per_player"] = sent * 8 / 1000 / (ticks / 30.0) / players;
+    st.SetLabel(mode == 0   ? "everyone sees everyone, 1 Mbit/s"
+                : mode == 1 ? "players over 2 km, each viewing from its character, 256 kbit/s"
+                            : "players over 2 km, each weighing its nearest 100, 256 kbit/s");
 }
-BENCHMARK(BM_PublishingPlayers)->Args({16, 0})->Args({200, 0})->Args({200, 1})->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_PublishingPlayers)
+    ->ArgNames({"players", "mode", "threads"})
+    ->Args({16, 0, 1})
+    ->Args({200, 0, 1})
+    ->Args({200, 1, 1})
+    ->Args({200, 2, 1})
+    ->Args({200, 2, 2})
+    ->Args({1000, 2, 1})
+    ->Args({1000, 2, 2})
+    ->Unit(benchmark::kMillisecond);
+
+// How the tick's workers send (server.cpp UdpSink): sendto(2) from T threads
+// at once on one UDP socket, 1,100-byte datagrams to a loopback socket that
+// nobody reads (the kernel drops them once its queue is full, after the
+// whole send path). wall_ns_per_datagram falls with T when concurrent sends
+// on one socket scale; the alternative, collecting every worker's datagrams
+// and sending them from the tick thread after the workers join, would
+// stay at the 1-thread figure for all of them.
+static void BM_UdpSendShared(benchmark::State& st) {
+    const int threads = int(st.range(0));
+    asio::io_context io;
+    asio::ip::udp::socket rx(io, asio::ip::udp::endpoint(asio::ip::make_address("127.0.0.1"), 0));
+    asio::ip::udp::socket tx(io, asio::ip::udp::endpoint(asio::ip::make_address("127.0.0.1"), 0));
+    tx.non_blocking(true);
+    tx.set_option(asio::socket_base::send_buffer_size(4 << 20));
+    const asio::ip::udp::endpoint to = rx.local_endpoint();
+    const int fd = tx.native_handle();
+    constexpr int kPerThread = 2000;
+    std::vector<uint8_t> payload(1100, 0x5a);
+    double wall = 0, cpu = 0;
+    for (auto _ : st) {
+        const double w0 = now_seconds(), c0 = process_seconds();
+        std::vector<std::thread> ts;
+        auto send = [&] {
+            for (int i = 0; i < kPerThread; ++i)
+                (void)::sendto(fd, payload.data(), payload.size(), MSG_DONTWAIT, to.data(), socklen_t(to.size()));
+        };
+        for (int t = 1; t < threads; ++t) ts.emplace_back(send);
+        send();
+        for (auto& t : ts) t.join();
+        wall += now_seconds() - w0;
+        cpu += process_seconds() - c0;
+    }
+    const double n = double(st.iterations()) * kPerThread * threads;
+    st.counters["wall_ns_per_datagram"] = 1e9 * wall / n;
+    st.counters["cpu_ns_per_datagram"] = 1e9 * cpu / n;
+}
+BENCHMARK(BM_UdpSendShared)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond);
 
 // ---------------------------------------------------------------- loopback --
 
@@ -252,15 +330,12 @@ static void BM_Loopback200Clients(benchmark::State& st) {
         }
         asio::ssl::context ctx(asio::ssl::context::tls_client);
         ctx.set_verify_mode(asio::ssl::verify_none);  // the bench's own pair; clients elsewhere verify
+        cfg.threads = int(st.range(4));
         Server server(cfg, assets(), crowd_layout(assets(), n));
         std::thread th([&] { server.run(); });
-        clockid_t server_clock;
-        pthread_getcpuclockid(th.native_handle(), &server_clock);
-        auto server_cpu = [&] {
-            timespec ts;
-            clock_gettime(server_clock, &ts);
-            return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
-        };
+        // Every server thread (control, tick, workers): the process's CPU
+        // less this thread's, which runs the clients.
+        auto server_cpu = [&] { return process_seconds() - thread_seconds(); };
         asio::io_context io;
         std::vector<std::unique_ptr<LightClient>> cs;
         asio::ip::udp::endpoint srv(asio::ip::make_address("127.0.0.1"), server.udp_port());
@@ -394,10 +469,12 @@ static void BM_Loopback200Clients(benchmark::State& st) {
     }
 }
 BENCHMARK(BM_Loopback200Clients)
-    ->Args({200, 100, 256, 0})
-    ->Args({200, 100, 256, 1})
-    ->Args({200, 4, 256, 0})
-    ->Args({200, 4, 256, 1})
+    ->ArgNames({"clients", "characters", "kbps", "sealed", "threads"})
+    ->Args({200, 100, 256, 0, 1})
+    ->Args({200, 100, 256, 1, 1})
+    ->Args({200, 4, 256, 0, 1})
+    ->Args({200, 4, 256, 1, 1})
+    ->Args({200, 100, 256, 1, 2})
     ->Iterations(1)
     ->Unit(benchmark::kSecond);
 

@@ -378,12 +378,12 @@ bool ClientStream::open_sealed(std::span<const uint8_t> wire, std::vector<uint8_
     return opener_ && crypto::open_datagram(*opener_, id_, PROTOCOL_VERSION, wire, plain, seq) == crypto::OpenResult::ok;
 }
 
-size_t ClientStream::send_datagram(std::span<const uint8_t> plain, const PeerAddress& to, DatagramSink& out) {
+size_t ClientStream::send_datagram(std::span<const uint8_t> plain, const PeerAddress& to, DatagramSink& out,
+                                   std::vector<uint8_t>& sealed) {
     if (!sealer_) {
         out.send(plain, to);
         return plain.size();
     }
-    std::vector<uint8_t>& sealed = core_.sealed();
     crypto::seal_datagram(*sealer_, id_, PROTOCOL_VERSION, plain, sealed);
     out.send(sealed, to);
     return sealed.size();
@@ -395,7 +395,7 @@ size_t ClientStream::send_datagram(std::span<const uint8_t> plain, const PeerAdd
 void ClientStream::answer(const flatbuffers::FlatBufferBuilder& fbb, size_t size, const PeerAddress& from, bool unverified,
                           DatagramSink& out) {
     if (fbb.GetSize() >= size) return;
-    const size_t sent = send_datagram({fbb.GetBufferPointer(), fbb.GetSize()}, from, out);
+    const size_t sent = send_datagram({fbb.GetBufferPointer(), fbb.GetSize()}, from, out, core_.scratch().sealed);
     if (unverified) core_.count([&](ServerStats& st) { st.unverified_bytes_out += sent; });
 }
 
@@ -511,6 +511,10 @@ void ClientStream::update_importance(const EncodedFrame& frame) {
 }
 
 TickResult ClientStream::tick(const EncodedFrame& frame, double now, double dt, DatagramSink& out) {
+    return tick(frame, now, dt, out, core_.scratch());
+}
+
+TickResult ClientStream::tick(const EncodedFrame& frame, double now, double dt, DatagramSink& out, TickScratch& scratch) {
     rate_.refill(dt);
     if (adaptive_) rate_.update(now);
     const size_t budget = rate_.budget();
@@ -518,7 +522,7 @@ TickResult ClientStream::tick(const EncodedFrame& frame, double now, double dt, 
         picks_.clear();
         return {};
     }
-    return send_frame(frame, budget, out);
+    return send_frame(frame, budget, out, scratch);
 }
 
 // A chunk of one bone of a placed character: what the least useful pick costs.
@@ -537,6 +541,10 @@ void ClientStream::bound_candidates(size_t budget) {
 }
 
 TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, DatagramSink& out) {
+    return send_frame(frame, budget, out, core_.scratch());
+}
+
+TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, DatagramSink& out, TickScratch& scratch) {
     update_importance(frame);
     bound_candidates(budget);
     if (selector_) {
@@ -548,12 +556,12 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
         if (scheduler_.limited()) rate_.mark_limited();
     }
     if (picks_.empty()) return {};
-    std::vector<std::vector<uint8_t>>& dgrams = core_.datagrams();
+    std::vector<std::vector<uint8_t>>& dgrams = scratch.datagrams;
     dgrams.clear();
     const uint32_t first_seq = seq_;
-    size_t wire = core_.packer().pack(frame, picks_, seq_, dgrams);
+    size_t wire = scratch.packer.pack(frame, picks_, seq_, dgrams);
     for (size_t i = 0; i < dgrams.size(); ++i) {
-        const size_t sent = send_datagram(dgrams[i], peer_, out);
+        const size_t sent = send_datagram(dgrams[i], peer_, out, scratch.sealed);
         if (adaptive_) rate_.on_sent(first_seq + uint32_t(i), now_us32(), sent + UDP_IP_OVERHEAD);
         wire += sent - dgrams[i].size();  // the seal's 32 bytes count against the rate
     }

@@ -26,7 +26,9 @@
 // the session), datagrams through a DatagramSink, and the state: Closed
 // means the shell closes the connection (close_reason() says why).
 // Whole-server things (catalogue, instances, counters, the other sessions)
-// go through ServerCore. Single-threaded, like the shell's io_context.
+// go through ServerCore. Not thread-safe: one thread at a time, holding
+// ServerCore::mutex() (the shell's control or tick thread), or a tick worker
+// that ServerCore::tick gave this session to (tick_pool.h).
 #pragma once
 #include <array>
 #include <cstdint>
@@ -38,6 +40,7 @@
 #include <vector>
 
 #include "crypto.h"
+#include "datagram_packer.h"
 #include "frame_encoder.h"
 #include "rate_controller.h"
 #include "scheduler.h"
@@ -84,6 +87,15 @@ enum class SessionState { AwaitHello, Welcomed, Streaming, Closing, Closed };
 
 // What became of a datagram routed to a session (ServerCore counts it).
 enum class DatagramVerdict { accepted, rejected, malformed };
+
+// Scratch of one thread's client ticks (packing and sealing buffers), reused
+// from tick to tick: ServerCore keeps one per tick thread (tick_pool.h), so
+// that sessions ticked at once on several threads share nothing writable.
+struct TickScratch {
+    DatagramPacker packer;
+    std::vector<std::vector<uint8_t>> datagrams;
+    std::vector<uint8_t> sealed;
+};
 
 struct TickResult {
     size_t datagrams = 0;
@@ -172,10 +184,15 @@ public:
     // ------------------------------------------------------------ tick --
     // One tick of a Streaming session: the rate (refill by dt, re-evaluated
     // at now when adaptive), then send_frame within its budget.
+    // `scratch`: the calling thread's (default: the core's own, one thread).
+    // Reads the frame, the catalogue, the configuration and the core's owner
+    // groups; writes only this session and `scratch`.
+    TickResult tick(const EncodedFrame& frame, double now, double dt, DatagramSink& out, TickScratch& scratch);
     TickResult tick(const EncodedFrame& frame, double now, double dt, DatagramSink& out);
     // Importance (the view; 0 for instances not announced or own), the
     // selection within `budget` wire bytes, packing, sealing, to peer();
     // spends the rate and tells the scheduler.
+    TickResult send_frame(const EncodedFrame& frame, size_t budget, DatagramSink& out, TickScratch& scratch);
     TickResult send_frame(const EncodedFrame& frame, size_t budget, DatagramSink& out);
     // A timeout is due at `now` (hello, bind, acks) or Closing ran out of time.
     bool expired(double now) const;
@@ -220,8 +237,9 @@ private:
     DatagramVerdict on_pose(const wire::Pose& p, const PeerAddress& from, double now);
     void bind_ack(size_t size, const PeerAddress& from, DatagramSink& out);
     void answer(const flatbuffers::FlatBufferBuilder& fbb, size_t size, const PeerAddress& from, bool unverified, DatagramSink& out);
-    // Sends one datagram to `to`, sealed when the session seals; returns the bytes sent.
-    size_t send_datagram(std::span<const uint8_t> plain, const PeerAddress& to, DatagramSink& out);
+    // Sends one datagram to `to`, sealed (into `sealed`) when the session
+    // seals; returns the bytes sent.
+    size_t send_datagram(std::span<const uint8_t> plain, const PeerAddress& to, DatagramSink& out, std::vector<uint8_t>& sealed);
     void update_importance(const EncodedFrame& frame);
     // Leaves importance only to the characters that can matter: at most
     // max_candidates, and no more than `budget` could carry a chunk of.

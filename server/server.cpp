@@ -9,12 +9,17 @@
 // session's handler closes that session only.
 #include "server.h"
 
+#include <pthread.h>
+#include <sys/socket.h>
+
 #include <asio.hpp>
 #include <asio/ssl.hpp>
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <map>
+#include <mutex>
+#include <thread>
 #include <utility>
 
 #include <arpa/inet.h>
@@ -72,18 +77,44 @@ udp::endpoint endpoint_of(const PeerAddress& p) {
     return {asio::ip::address_v6(b, p.scope), p.port};
 }
 
-// The UDP socket as the cores' datagram sink (a failed send is a lost datagram).
+// The UDP socket as the cores' datagram sink (a failed send is a lost
+// datagram). Thread-safe: sendto(2) on the socket's descriptor, which the
+// tick's workers call at once (asio's socket objects are not safe to share
+// between threads; the descriptor is, and it stays open while a tick runs:
+// it is closed on the tick thread, between ticks).
 class UdpSink final : public DatagramSink {
 public:
-    explicit UdpSink(udp::socket& s) : sock_(s) {}
+    void set_descriptor(int fd) { fd_ = fd; }
     void send(std::span<const uint8_t> d, const PeerAddress& to) override {
-        asio::error_code ig;
-        sock_.send_to(asio::buffer(d.data(), d.size()), endpoint_of(to), 0, ig);
+        const udp::endpoint ep = endpoint_of(to);
+        (void)::sendto(fd_, d.data(), d.size(), MSG_DONTWAIT | MSG_NOSIGNAL, ep.data(), socklen_t(ep.size()));
     }
 
 private:
-    udp::socket& sock_;
+    int fd_ = -1;
 };
+
+// The thread's name as top -H and debuggers show it (at most 15 characters).
+void name_thread(const char* name) {
+#if defined(__GLIBC__)
+    ::pthread_setname_np(::pthread_self(), name);
+#else
+    (void)name;
+#endif
+}
+
+// Runs `io` until it is stopped; a handler's exception stops io.run() only:
+// logged, and the loop goes on serving.
+void run_io(asio::io_context& io) {
+    for (;;) {
+        try {
+            io.run();
+            return;
+        } catch (const std::exception& e) {
+            std::fprintf(stderr, "progskin-server: error: %s\n", e.what());
+        }
+    }
+}
 
 // TLS 1.2+ (OpenSSL through asio::ssl) with the configured pair; null without TLS.
 std::unique_ptr<asio::ssl::context> make_tls_context(const ServerConfig& cfg) {
@@ -118,14 +149,20 @@ struct Server::Impl {
     };
 
     ServerCore core;
-    asio::io_context io;
+    const int threads;                               // tick_threads(config)
+    asio::io_context io;                             // control (everything when threads == 1)
+    std::unique_ptr<asio::io_context> own_tick_io;   // threads > 1: the UDP socket and the tick
+    asio::io_context& tick_io;                       // own_tick_io, else io
+    std::unique_ptr<TickPool> pool;                  // threads > 1
     tcp::acceptor acceptor{io};
-    udp::socket udp_sock{io};
-    UdpSink sink{udp_sock};
-    asio::steady_timer timer{io};
+    udp::socket udp_sock{tick_io};
+    UdpSink sink;
+    asio::steady_timer timer{tick_io};
     asio::steady_timer accept_timer{io};
-    asio::steady_timer stop_timer{io};  // finish_stop
-    bool stopping = false;              // stop() ran
+    asio::steady_timer stop_timer{io};               // finish_stop
+    bool stopping = false;                           // stop() ran (control thread)
+    uint16_t tcp_port = 0, udp_port = 0;             // as bound (read from any thread)
+    std::atomic<bool> pump_posted{false};            // a pump_all waits in io
     std::unique_ptr<asio::ssl::context> tls_ctx;  // set when ServerConfig::tls_cert_file is
     std::chrono::steady_clock::time_point next_tick;
     std::map<uint64_t, std::shared_ptr<Connection>> conns;
@@ -136,12 +173,25 @@ struct Server::Impl {
     double trimmed_at = 0;
 
     Impl(ServerConfig c, std::vector<std::shared_ptr<ServerAsset>> a, std::vector<InstanceSpec> inst, BoundPorts ports)
-        : core(std::move(c), std::move(a), std::move(inst)), tls_ctx(make_tls_context(core.config())) {
+        : core(std::move(c), std::move(a), std::move(inst)),
+          threads(tick_threads(core.config())),
+          own_tick_io(threads > 1 ? std::make_unique<asio::io_context>() : nullptr),
+          tick_io(own_tick_io ? *own_tick_io : io),
+          pool(threads > 1 ? std::make_unique<TickPool>(threads) : nullptr),
+          tls_ctx(make_tls_context(core.config())) {
         listen(std::move(ports));
-        core.set_udp_port(udp_sock.local_endpoint().port());
+        tcp_port = acceptor.local_endpoint().port();
+        udp_port = udp_sock.local_endpoint().port();
+        sink.set_descriptor(udp_sock.native_handle());
+        core.set_udp_port(udp_port);
+        core.set_pool(pool.get());
     }
 
-    // The sockets: those bound beforehand (bind_ports), else bound now.
+    // The core's lock (server_core.h): held for every call into the core.
+    std::unique_lock<std::mutex> hold() { return std::unique_lock(core.mutex()); }
+
+    // The sockets: those bound beforehand (bind_ports), else bound now; the
+    // UDP socket belongs to tick_io.
     void listen(BoundPorts ports) {
         if (ports.tcp_fd < 0 || ports.udp_fd < 0) ports = bind_ports(core.config());
         const bool v6 = asio::ip::make_address(core.config().bind_address).is_v6();
@@ -192,6 +242,7 @@ struct Server::Impl {
         const asio::ip::address remote = s.remote_endpoint(ig).address();
         if (ig) return;  // already gone
         auto c = std::make_shared<Connection>(std::move(s));
+        auto lock = hold();
         c->stream = core.open(peer_of(remote, 0), now_seconds());
         conns[c->stream->id()] = c;
         pump(c);  // refused (too many from this address): its Refuse, or closed
@@ -200,6 +251,7 @@ struct Server::Impl {
         // The handshake runs under hello_timeout like the rest of AwaitHello.
         c->tls = std::make_unique<asio::ssl::stream<tcp::socket&>>(c->sock, *tls_ctx);
         c->tls->async_handshake(asio::ssl::stream_base::server, [this, c](asio::error_code ec) {
+            auto lock = hold();
             if (gone(*c)) return;
             if (ec) {
                 count_error(&ServerStats::tls_failures);
@@ -226,7 +278,7 @@ struct Server::Impl {
 
     // After the core acted on a session: a Closed session's connection is
     // closed (and forgotten once its pending handlers ran), else its queued
-    // output is written, one message at a time.
+    // output is written, one message at a time. Control thread, core held.
     void pump(const std::shared_ptr<Connection>& c) {
         if (c->closed) return;
         if (c->stream->state() == SessionState::Closed) {
@@ -237,7 +289,8 @@ struct Server::Impl {
             c->sock.close(ig);
             asio::post(io, [this, id = c->stream->id()] {
                 conns.erase(id);
-                core.erase(id);
+                auto lock = hold();
+                core.erase(id, now_seconds());
             });
             return;
         }
@@ -246,7 +299,10 @@ struct Server::Impl {
 
     void write_next(const std::shared_ptr<Connection>& c) {
         c->writing = true;
+        // The message stays put while it is written: the core only appends to
+        // output() (the tick thread too) and only on_written removes it.
         write_all(c, asio::buffer(c->stream->output().front()), [this, c](asio::error_code ec, size_t) {
+            auto lock = hold();
             c->writing = false;
             if (gone(*c)) return;
             if (ec) c->stream->close("write: " + ec.message());
@@ -257,6 +313,7 @@ struct Server::Impl {
 
     void read_header(const std::shared_ptr<Connection>& c) {
         read_exactly(c, asio::buffer(c->len_buf, 4), [this, c](asio::error_code ec, size_t) {
+            auto lock = hold();
             if (c->stream->state() == SessionState::Closing) return;  // nothing more is read once the last message is queued
             if (ec || gone(*c)) {
                 c->stream->close(ec ? ec.message() : "closed");
@@ -266,11 +323,14 @@ struct Server::Impl {
             read_length({c->len_buf, 4}, n);
             if (!c->stream->accept_length(n)) return pump(c);
             c->body.resize(n);
-            read_exactly(c, asio::buffer(c->body), [this, c](asio::error_code ec2, size_t) { read_body(c, ec2); });
+            read_exactly(c, asio::buffer(c->body), [this, c](asio::error_code ec2, size_t) {
+                auto lock2 = hold();
+                read_body(c, ec2);
+            });
         });
     }
 
-    void read_body(const std::shared_ptr<Connection>& c, asio::error_code ec) {
+    void read_body(const std::shared_ptr<Connection>& c, asio::error_code ec) {  // core held
         if (c->stream->state() == SessionState::Closing) return;
         if (ec || gone(*c)) {
             c->stream->close(ec ? ec.message() : "closed");
@@ -298,6 +358,7 @@ struct Server::Impl {
     }
 
     void on_datagram(std::span<const uint8_t> bytes, const udp::endpoint& from) {
+        auto lock = hold();
         try {
             core.on_datagram(bytes, peer_of(from.address(), from.port()), now_seconds(), sink);
         } catch (const std::exception& e) {
@@ -315,6 +376,7 @@ struct Server::Impl {
             asio::error_code ec;
             const size_t n = udp_sock.receive_from(asio::buffer(drain_buf), drain_from, 0, ec);
             if (ec == asio::error::would_block || ec == asio::error::try_again) {
+                auto lock = hold();
                 core.input_drained(now_seconds());
                 return;
             }
@@ -340,7 +402,10 @@ struct Server::Impl {
     // still writing (or at `deadline`), closes what is left and stops io.
     void finish_stop(std::chrono::steady_clock::time_point deadline) {
         bool writing = false;
-        for (auto& [id, c] : conns) writing = writing || (!c->closed && (c->writing || !c->stream->output().empty()));
+        {
+            auto lock = hold();
+            for (auto& [id, c] : conns) writing = writing || (!c->closed && (c->writing || !c->stream->output().empty()));
+        }
         if (writing && std::chrono::steady_clock::now() < deadline) {
             stop_timer.expires_after(std::chrono::milliseconds(10));
             stop_timer.async_wait([this, deadline](asio::error_code) { finish_stop(deadline); });
@@ -355,6 +420,7 @@ struct Server::Impl {
     }
 
     // --------------------------------------------------------------- tick --
+    // Tick thread.
     void schedule_tick() {
         next_tick += std::chrono::microseconds(int64_t(1e6 / core.config().tick_rate));
         auto now = std::chrono::steady_clock::now();
@@ -363,11 +429,54 @@ struct Server::Impl {
         timer.async_wait([this](asio::error_code ec) {
             if (ec) return;
             drain_udp();  // Acks accounted before the tick's work
-            core.tick(now_seconds(), sink);
-            for (auto& [id, c] : conns) pump(c);  // Goodbyes, instance announcements, evictions, closes
-            trim_memory();
+            {
+                auto lock = hold();
+                core.tick(now_seconds(), sink);
+            }
+            // Goodbyes, instance announcements, evictions, closes: at once with
+            // one thread, else on the control thread.
+            if (!own_tick_io) pump_all();
+            else if (!pump_posted.exchange(true)) asio::post(io, [this] {
+                pump_posted = false;
+                pump_all();
+            });
             schedule_tick();
         });
+    }
+
+    // Control thread: every connection's output and closes, after a tick.
+    void pump_all() {
+        {
+            auto lock = hold();
+            for (auto& [id, c] : conns) pump(c);
+        }
+        trim_memory();
+    }
+
+    // --------------------------------------------------------------- stop --
+    void stop_ticking() {  // tick thread
+        asio::error_code ig;
+        udp_sock.close(ig);
+        timer.cancel();
+        if (own_tick_io) own_tick_io->stop();
+    }
+    // Control thread: every session is told (Goodbye "shutdown: ..."), so
+    // that a client tells a clean stop from a crash; then finish_stop.
+    void begin_stop() {
+        if (stopping) return;
+        stopping = true;
+        asio::error_code ig;
+        acceptor.close(ig);
+        accept_timer.cancel();
+        {
+            auto lock = hold();
+            const double now = now_seconds();
+            for (auto& [id, c] : conns) {
+                c->stream->goodbye(kShutdownReason, now);
+                pump(c);
+            }
+        }
+        finish_stop(std::chrono::steady_clock::now() + std::chrono::milliseconds(int(kShutdownLingerSeconds * 1000)));
     }
 };
 
@@ -425,42 +534,38 @@ BoundPorts bind_ports(const ServerConfig& cfg) {
 
 Server::~Server() = default;
 
-uint16_t Server::tcp_port() const { return impl_->acceptor.local_endpoint().port(); }
-uint16_t Server::udp_port() const { return impl_->udp_sock.local_endpoint().port(); }
+int tick_threads(const ServerConfig& cfg) {
+    if (cfg.threads > 0) return cfg.threads;
+    return std::clamp(int(std::thread::hardware_concurrency()), 1, TickPool::kMaxThreads);
+}
+
+uint16_t Server::tcp_port() const { return impl_->tcp_port; }
+uint16_t Server::udp_port() const { return impl_->udp_port; }
 
 void Server::run() {
-    impl_->accept();
-    impl_->receive();
-    impl_->next_tick = std::chrono::steady_clock::now();
-    impl_->schedule_tick();
-    for (;;) {  // a handler's exception stops run() only: log it and go on serving
-        try {
-            impl_->io.run();
-            return;
-        } catch (const std::exception& e) {
-            std::fprintf(stderr, "progskin-server: error: %s\n", e.what());
-        }
+    Impl& m = *impl_;
+    m.accept();
+    m.receive();
+    m.next_tick = std::chrono::steady_clock::now();
+    m.schedule_tick();  // the tick thread's first work, armed before it starts
+    std::thread ticker;
+    if (m.own_tick_io)
+        ticker = std::thread([&m] {
+            name_thread("progskin-tick");
+            run_io(*m.own_tick_io);
+        });
+    run_io(m.io);
+    if (ticker.joinable()) {
+        asio::post(*m.own_tick_io, [&m] { m.stop_ticking(); });  // already, unless io ran out of work
+        ticker.join();
     }
 }
 
+// The tick's part first: with one io_context (threads == 1) it runs before
+// stop_control stops it.
 void Server::stop() {
-    asio::post(impl_->io, [this] {
-        if (impl_->stopping) return;
-        impl_->stopping = true;
-        asio::error_code ig;
-        impl_->acceptor.close(ig);
-        impl_->udp_sock.close(ig);
-        impl_->timer.cancel();
-        impl_->accept_timer.cancel();
-        // Every session is told (Goodbye "shutdown: ..."), so that a client
-        // tells a clean stop from a crash; then the sockets close.
-        const double now = now_seconds();
-        for (auto& [id, c] : impl_->conns) {
-            c->stream->goodbye(kShutdownReason, now);
-            impl_->pump(c);
-        }
-        impl_->finish_stop(std::chrono::steady_clock::now() + std::chrono::milliseconds(int(kShutdownLingerSeconds * 1000)));
-    });
+    asio::post(impl_->tick_io, [this] { impl_->stop_ticking(); });
+    asio::post(impl_->io, [this] { impl_->begin_stop(); });
 }
 
 bool Server::push_pose(int instance, std::span<const Mat34> m) { return impl_->core.encoder().push_pose(instance, m); }

@@ -1,8 +1,13 @@
 // server.h — the streaming server (docs/protocol.md): TCP control sessions,
 // a UDP frame stream, and a tick that samples + encodes every instance once,
 // then per client selects (scheduler.h) and packs (datagram_packer.h) within
-// the client's rate (rate_controller.h). Single-threaded (one asio
-// io_context); push_pose, stop and stats may be called from other threads.
+// the client's rate (rate_controller.h). ServerConfig::threads: with 1, one
+// asio io_context on one thread does everything; with N > 1, connections
+// (TLS handshakes, control messages, asset downloads) have a thread of their
+// own, the UDP socket and the tick another, and the tick's per-client work
+// runs on N threads (tick_pool.h; docs/protocol.md "Threads"). push_pose,
+// set_root, add_instance, remove_instance, stop and stats may be called from
+// other threads.
 //
 // Library use (game servers pushing their own characters' poses, NPCs):
 //   Server s(cfg, assets, instances);   // InstanceSpec::selection = -1: live only
@@ -84,13 +89,25 @@ struct ServerConfig {
     // Ack) this long, else the newest of the address holding the most
     // sessions when that is more than the newcomer's address holds + 1.
     double evict_after = 2.0;
+    // Threads of the tick's per-client work (importance, selection, packing,
+    // sealing, sending), the tick thread included. 0: the machine's cores
+    // (std::thread::hardware_concurrency). 1: one thread for everything, the
+    // tick, the UDP socket and the connections. More than 1: the connections
+    // also get a thread of their own, so that TLS handshakes, control
+    // messages and asset downloads never delay a tick. At most 256.
+    int threads = 0;
     bool verbose = false;
 };
+
+// The tick threads a configuration asks for: ServerConfig::threads, or the
+// machine's cores when it is 0 (at least 1, at most 256).
+int tick_threads(const ServerConfig& cfg);
 
 struct ServerStats {
     uint64_t sessions_total = 0, sessions_active = 0, refused = 0, timeouts = 0;
     uint64_t ticks = 0, datagrams_sent = 0, wire_bytes_sent = 0;
     uint64_t datagrams_received = 0, malformed_datagrams = 0, rejected_datagrams = 0;
+    uint64_t late_datagrams = 0;  // of a session closed less than 2 s before (ServerCore::erase)
     uint64_t unverified_bytes_in = 0, unverified_bytes_out = 0;  // from addresses not bound / to them (Challenges only)
     uint64_t malformed_control = 0, asset_bytes_sent = 0;
     uint64_t poses_received = 0, poses_stale = 0, poses_rate_limited = 0;  // players' Pose datagrams

@@ -34,6 +34,8 @@ ServerCore::ServerCore(ServerConfig c, ServerAssets a, std::vector<InstanceSpec>
     : cfg_(std::move(c)), assets_(a), encoder_(a, std::move(instances), cfg_.tick_rate) {
     if (!(cfg_.tick_rate > 0 && cfg_.tick_rate <= 240)) throw Error("tick rate must be in (0, 240]");
     if (assets_.empty()) throw Error("server: no assets");
+    if (cfg_.threads < 0 || cfg_.threads > TickPool::kMaxThreads)
+        throw Error("server: threads must be in [0, " + std::to_string(TickPool::kMaxThreads) + "] (0: the machine's cores)");
     if (sodium_init() < 0) throw Error("server: libsodium could not be initialised");
     if (cfg_.tls_cert_file.empty() != cfg_.tls_key_file.empty())
         throw Error("server: TLS needs both a certificate and a private key file");
@@ -251,7 +253,20 @@ void ServerCore::update_owner_groups(const EncodedFrame* frame) {
     }
 }
 
-void ServerCore::erase(uint64_t id) { sessions_.erase(id); }
+void ServerCore::erase(uint64_t id, double now) {
+    if (sessions_.erase(id)) {
+        closed_recently_.emplace_back(id, now);
+        if (closed_recently_.size() > kClosedRemembered) closed_recently_.pop_front();
+    }
+}
+
+bool ServerCore::closed_recently(uint64_t id, double now) {
+    while (!closed_recently_.empty() && closed_recently_.front().second < now - kClosedRememberSeconds)
+        closed_recently_.pop_front();
+    for (const auto& [closed, at] : closed_recently_)
+        if (closed == id) return true;
+    return false;
+}
 
 int ServerCore::welcomed_sessions() const {
     int n = 0;
@@ -280,6 +295,16 @@ std::string ServerCore::check_token(const flatbuffers::String* token, std::strin
 
 // The session a client -> server datagram names, when its token matches and
 // it is Welcomed or Streaming (and, sealed, the session whose key opened it).
+uint64_t ServerCore::datagram_session(const wire::Datagram& d) {
+    switch (d.body_type()) {
+        case wire::DatagramBody::Bind: return d.body_as_Bind()->session_id();
+        case wire::DatagramBody::ChallengeResponse: return d.body_as_ChallengeResponse()->session_id();
+        case wire::DatagramBody::Ack: return d.body_as_Ack()->session_id();
+        case wire::DatagramBody::Pose: return d.body_as_Pose()->session_id();
+        default: return 0;
+    }
+}
+
 ClientStream* ServerCore::route(const wire::Datagram& d, ClientStream* sealed_by) {
     uint64_t id = 0, token = 0;
     switch (d.body_type()) {
@@ -307,9 +332,13 @@ void ServerCore::on_datagram(std::span<const uint8_t> bytes, const PeerAddress& 
             st.unverified_bytes_in += n;
         });
     };
+    // A datagram of a session closed in the last kClosedRememberSeconds (its
+    // last Ack crossing the Goodbye): dropped, counted apart from attacks.
+    auto late = [&] { count([&](ServerStats& st) { ++st.late_datagrams; }); };
     ClientStream* sealed_by = nullptr;  // seal_datagrams: the session whose key opened it
     if (cfg_.seal_datagrams) {
         auto it = sessions_.find(crypto::sealed_session_id(bytes));
+        if (it == sessions_.end() && closed_recently(crypto::sealed_session_id(bytes), now)) return late();
         if (it == sessions_.end() || !it->second.stream->open_sealed(bytes, opened_))
             return reject(false);  // forged, replayed, or unsealed
         sealed_by = it->second.stream.get();
@@ -318,6 +347,7 @@ void ServerCore::on_datagram(std::span<const uint8_t> bytes, const PeerAddress& 
     const wire::Datagram* d = verify_datagram(bytes);
     if (!d) return reject(true);
     ClientStream* s = route(*d, sealed_by);
+    if (!s && !sealed_by && closed_recently(datagram_session(*d), now)) return late();
     if (!s) return reject(false);
     const DatagramVerdict v = s->on_datagram(*d, bytes.size(), from, now, out);
     if (v != DatagramVerdict::accepted) reject(v == DatagramVerdict::malformed);
@@ -325,11 +355,52 @@ void ServerCore::on_datagram(std::span<const uint8_t> bytes, const PeerAddress& 
 
 // ------------------------------------------------------------------- tick --
 
-void ServerCore::tick(double now, DatagramSink& out) {
-    const double t0 = now_seconds();
-    const double dt = last_tick_time_ > 0 ? std::min(0.25, now - last_tick_time_) : 1.0 / cfg_.tick_rate;
-    last_tick_time_ = now;
-    ++tick_;
+void ServerCore::set_pool(TickPool* pool) {
+    pool_ = pool;
+    const size_t n = pool ? size_t(pool->threads()) : 0;
+    pool_scratch_.clear();
+    for (size_t i = 0; i < n; ++i) pool_scratch_.push_back(std::make_unique<TickScratch>());
+    totals_.assign(std::max<size_t>(n, 1), ThreadTotals{});
+}
+
+TickResult ServerCore::tick_streams(std::span<ClientStream* const> streams, const EncodedFrame& frame, double now, double dt,
+                                    DatagramSink& out) {
+    TickResult all;
+    if (!pool_ || pool_->threads() == 1 || streams.size() < 2) {
+        for (ClientStream* s : streams) {
+            const TickResult r = s->tick(frame, now, dt, out, pool_ ? *pool_scratch_[0] : scratch_);
+            all.datagrams += r.datagrams;
+            all.wire_bytes += r.wire_bytes;
+        }
+        return all;
+    }
+    // Sessions are taken a few at a time from a shared counter (a slow one
+    // does not hold up a whole share); each goes to exactly one thread.
+    constexpr size_t kBatch = 4;
+    std::atomic<size_t> next{0};
+    auto job = [&](int w) {
+        ThreadTotals& t = totals_[size_t(w)];
+        t = {};
+        TickScratch& scratch = *pool_scratch_[size_t(w)];
+        for (size_t at = next.fetch_add(kBatch); at < streams.size(); at = next.fetch_add(kBatch))
+            for (size_t i = at; i < std::min(streams.size(), at + kBatch); ++i) {
+                const TickResult r = streams[i]->tick(frame, now, dt, out, scratch);
+                t.datagrams += r.datagrams;
+                t.wire_bytes += r.wire_bytes;
+            }
+    };
+    pool_->run(job);
+    for (const ThreadTotals& t : totals_) {
+        all.datagrams += t.datagrams;
+        all.wire_bytes += t.wire_bytes;
+    }
+    return all;
+}
+
+// The tick's serial part before the sessions' ticks: instances announced,
+// the frame encoded (when anyone streams), owner groups, address pruning;
+// streaming_ gets the sessions to tick, `drop` those whose time is up.
+const EncodedFrame* ServerCore::prepare_tick(double now, std::vector<std::shared_ptr<ClientStream>>& drop) {
     bool any = false;
     for (auto& [id, e] : sessions_) {
         if (e.stream->state() == SessionState::Streaming) any = true;
@@ -341,25 +412,31 @@ void ServerCore::tick(double now, DatagramSink& out) {
         prune_addresses(now);
         pruned_at_ = now;
     }
-    uint64_t dg = 0, bytes = 0, timeouts = 0;
-    std::vector<std::shared_ptr<ClientStream>> drop;
+    streaming_.clear();
     for (auto& [id, e] : sessions_) {
-        if (e.stream->expired(now)) {
-            drop.push_back(e.stream);
-            continue;
-        }
-        if (e.stream->state() != SessionState::Streaming || !frame) continue;
-        const TickResult r = e.stream->tick(*frame, now, dt, out);
-        dg += r.datagrams;
-        bytes += r.wire_bytes;
+        if (e.stream->expired(now)) drop.push_back(e.stream);
+        else if (e.stream->state() == SessionState::Streaming && frame) streaming_.push_back(e.stream.get());
     }
+    return frame;
+}
+
+void ServerCore::tick(double now, DatagramSink& out) {
+    const double t0 = now_seconds();
+    const double dt = last_tick_time_ > 0 ? std::min(0.25, now - last_tick_time_) : 1.0 / cfg_.tick_rate;
+    last_tick_time_ = now;
+    ++tick_;
+    std::vector<std::shared_ptr<ClientStream>> drop;
+    const EncodedFrame* frame = prepare_tick(now, drop);
+    TickResult sent;
+    if (frame) sent = tick_streams(streaming_, *frame, now, dt, out);
+    uint64_t timeouts = 0;
     for (auto& s : drop)
         if (s->expire(now)) ++timeouts;
     const double t1 = now_seconds();
     count([&](ServerStats& st) {
         ++st.ticks;
-        st.datagrams_sent += dg;
-        st.wire_bytes_sent += bytes;
+        st.datagrams_sent += sent.datagrams;
+        st.wire_bytes_sent += sent.wire_bytes;
         st.timeouts += timeouts;
         st.tick_seconds += t1 - t0;
         uint64_t active = 0;

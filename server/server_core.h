@@ -3,11 +3,22 @@
 // connect-token state. server.cpp (the shell: io_context, acceptor, TLS
 // streams, UDP socket, timers) drives it: open a session per accepted
 // connection, hand it control bytes, route datagrams (on_datagram), tick.
-// Everything here runs on the shell's thread except add_instance,
-// remove_instance, encoder() pushes and stats(), which are thread-safe.
+//
+// Threads (ownership rule; docs/protocol.md "Threads"): add_instance,
+// remove_instance, encoder() pushes and stats() are thread-safe. Everything
+// else — the session table, the address budgets, the token replay cache,
+// drained_, and every ClientStream — is touched only by a thread holding
+// mutex() (the shell's control thread for connections and control messages,
+// its tick thread for datagrams and the tick), with one exception: during
+// tick(), with a pool attached (set_pool), the pool's workers tick the
+// Streaming sessions the tick thread handed them (each session on one
+// thread, with that thread's TickScratch), while the tick thread holds
+// mutex() for them all. The encoded frame, the catalogue, the configuration
+// and owner_groups() are then read-only.
 #pragma once
 #include <atomic>
 #include <cstdint>
+#include <deque>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -22,6 +33,7 @@
 #include "datagram_packer.h"
 #include "frame_encoder.h"
 #include "server.h"
+#include "tick_pool.h"
 
 namespace progskin::net {
 
@@ -46,7 +58,12 @@ public:
     // that address it is refused at once: closed without a word over TLS
     // (no handshake spent on it), else a Refuse, Closing.
     std::shared_ptr<ClientStream> open(const PeerAddress& remote, double now);
-    void erase(uint64_t id);  // the shell, once the connection is closed
+    // The shell, once the connection is closed. Its id is remembered for
+    // kClosedRememberSeconds (at most kClosedRemembered ids) so that its
+    // datagrams still in flight count as late_datagrams, not rejected ones.
+    void erase(uint64_t id, double now);
+    static constexpr size_t kClosedRemembered = 1024;
+    static constexpr double kClosedRememberSeconds = 2.0;
     int welcomed_sessions() const;  // Welcomed or Streaming (max_clients)
     // Hello.token against the configured access token or connect-token key:
     // an empty string, or why it is refused; `who` gets "client N " for a
@@ -83,8 +100,22 @@ public:
     // smaller than what came (never amplifies toward an unproven address).
     void on_datagram(std::span<const uint8_t> bytes, const PeerAddress& from, double now, DatagramSink& out);
     // One tick at `now`: instances announced, the frame encoded once (when
-    // anyone streams), each Streaming session's tick to `out`, timeouts.
+    // anyone streams), each Streaming session's tick to `out` (on the pool's
+    // threads when one is attached: `out` must then take sends from several
+    // threads at once), timeouts. The caller holds mutex().
     void tick(double now, DatagramSink& out);
+    // The Streaming sessions' part of a tick: each of `streams` ticked once
+    // (ClientStream::tick) with `frame`, spread over the pool's threads when
+    // one is attached (each stream on one thread), else on this one. Returns
+    // the datagrams and wire bytes sent in all. (tick(); benchmarks.)
+    TickResult tick_streams(std::span<ClientStream* const> streams, const EncodedFrame& frame, double now, double dt,
+                            DatagramSink& out);
+    // The pool of threads tick_streams uses from now on (null: this thread
+    // alone); it must outlive its use. One TickScratch per pool thread.
+    void set_pool(TickPool* pool);
+
+    // The lock that owns the sessions (see the ownership rule above).
+    std::mutex& mutex() { return mutex_; }
 
     // --------------------------------------------------------------- world --
     int add_instance(const InstanceSpec& spec);  // thread-safe; every session is told at the next tick
@@ -97,14 +128,15 @@ public:
     }
     ServerStats stats() const;  // thread-safe snapshot
     void log(const std::string& s) const;
-    // Scratch shared by the sessions' ticks (one thread).
+    // Scratch of whoever holds mutex() (sync_instances, datagram answers,
+    // ticks without a pool).
     std::vector<uint32_t>& generations() { return generations_; }
-    DatagramPacker& packer() { return packer_; }
-    std::vector<std::vector<uint8_t>>& datagrams() { return datagrams_; }
-    std::vector<uint8_t>& sealed() { return sealed_; }
+    TickScratch& scratch() { return scratch_; }
 
 private:
     ClientStream* route(const wire::Datagram& d, ClientStream* sealed_by);
+    static uint64_t datagram_session(const wire::Datagram& d);  // 0 for server -> client bodies
+    bool closed_recently(uint64_t id, double now);  // and forgets those older than kClosedRememberSeconds
     // Per IP address (its port ignored): new connections and asset bytes,
     // token buckets that outlive the address's sessions (pruned once full).
     struct AddressBudget {
@@ -121,6 +153,7 @@ private:
     void limit_handshakes();  // max_handshakes: the oldest closed
     void prune_addresses(double now);
     void update_owner_groups(const EncodedFrame* frame);
+    const EncodedFrame* prepare_tick(double now, std::vector<std::shared_ptr<ClientStream>>& drop);
     double asset_bucket_bytes() const;
     ClientStream* eviction_candidate(const ClientStream& newcomer, double now, std::string& reason);
 
@@ -134,6 +167,7 @@ private:
         PeerAddress remote;  // the TCP peer (max_per_address)
     };
     std::map<uint64_t, Entry> sessions_;
+    std::deque<std::pair<uint64_t, double>> closed_recently_;  // erase(): id, when
     std::map<PeerAddress, AddressBudget, IpLess> addresses_;
     double pruned_at_ = 0;
     double drained_ = -1;  // input_drained (-1: no shell says)
@@ -147,9 +181,16 @@ private:
     crypto::PublicKey token_key_{};
     crypto::TokenReplayCache token_replays_;
     std::vector<uint32_t> generations_;
-    DatagramPacker packer_;
-    std::vector<std::vector<uint8_t>> datagrams_;
-    std::vector<uint8_t> sealed_, opened_;
+    TickScratch scratch_;
+    std::vector<uint8_t> opened_;
+    std::mutex mutex_;  // mutex(): the sessions' owner
+    TickPool* pool_ = nullptr;
+    std::vector<std::unique_ptr<TickScratch>> pool_scratch_;  // per pool thread
+    std::vector<ClientStream*> streaming_;  // tick's: the sessions to tick (capacity kept)
+    struct alignas(64) ThreadTotals {  // tick_streams: per pool thread (own cache line)
+        size_t datagrams = 0, wire_bytes = 0;
+    };
+    std::vector<ThreadTotals> totals_;
 };
 
 }  // namespace progskin::net

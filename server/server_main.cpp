@@ -4,6 +4,7 @@
 // (tls_identity.h) and prints the certificate's SHA-256 on stdout
 // ("progskin-server: TLS certificate sha256 HEX") for clients to pin; with
 // TLS, datagrams are sealed unless --no-seal-datagrams. --no-tls: plain.
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <csignal>
@@ -45,6 +46,10 @@ static const char* kUsage =
     "                    and publish their own characters: progskin-client --publish)\n"
     "  --play loop|once  clips loop (default) or play once and hold their last frame\n"
     "  --tick-rate HZ    ticks per second (default 30)\n"
+    "  --threads N       threads of the tick's per-client work (1..256; default: the\n"
+    "                    machine's cores). With more than 1, connections (TLS handshakes,\n"
+    "                    control messages, asset downloads) also get a thread of their own\n"
+    "                    and never delay a tick; 1: one thread for everything\n"
     "  --max-clients N   (default 256)\n"
     "  --max-kbps N      per-client rate ceiling in kbit/s (default 50000)\n"
     "  Budgets (what one player may cost the others; docs/protocol.md \"Security\"):\n"
@@ -85,6 +90,7 @@ struct Options {
     std::vector<std::string> asset_paths;
     AssetOptions asset_options;
     int crowd = 0;
+    int threads = -1;  // -1: not given (the machine's cores)
     double duration = 0;
     bool no_scene = false, once = false;
     bool no_tls = false, seal = true, seal_asked = false;
@@ -129,6 +135,7 @@ static int parse_options(int argc, char** argv, Options& o) {
                 o.once = v == "once";
             }
             else if (a == "--tick-rate") cfg.tick_rate = float(cli::to_number(a, need(i)));
+            else if (a == "--threads") o.threads = cli::to_int(a, need(i));
             else if (a == "--max-clients") cfg.max_clients = cli::to_int(a, need(i));
             else if (a == "--max-kbps") cfg.max_kbps = cli::to_number(a, need(i));
             else if (a == "--max-per-address") cfg.max_per_address = cli::to_int(a, need(i));
@@ -163,6 +170,10 @@ static int parse_options(int argc, char** argv, Options& o) {
 // Ranges and combinations parse_options cannot see alone; 2 when wrong, else -1.
 static int check_options(const Options& o) {
     const ServerConfig& cfg = o.cfg;
+    if (o.threads != -1 && (o.threads < 1 || o.threads > 256)) {
+        std::fprintf(stderr, "progskin-server: --threads must be in [1, 256]\n%s", kUsage);
+        return 2;
+    }
     if (!(cfg.tick_rate > 0 && cfg.tick_rate <= 240) || o.crowd < 0 || cfg.max_clients < 1 || cfg.max_kbps <= 0 ||
         o.asset_options.scratch_bones < 1 || o.asset_options.scratch_bones > MAX_BONES) {
         std::fprintf(stderr, "progskin-server: argument out of range\n%s", kUsage);
@@ -261,10 +272,11 @@ static void serve(Server& server, double duration) {
 
 static void report(const ServerStats& st) {
     std::fprintf(stderr,
-                 "progskin-server: %llu sessions, %llu datagrams sent, %llu malformed + %llu rejected datagrams, "
+                 "progskin-server: %llu sessions, %llu datagrams sent, %llu malformed + %llu rejected + %llu late datagrams, "
                  "%llu poses received (%llu stale, %llu over the rate limit, %llu out of range), mean tick %.3f ms\n",
                  (unsigned long long)st.sessions_total, (unsigned long long)st.datagrams_sent,
                  (unsigned long long)st.malformed_datagrams, (unsigned long long)st.rejected_datagrams,
+                 (unsigned long long)st.late_datagrams,
                  (unsigned long long)st.poses_received, (unsigned long long)st.poses_stale,
                  (unsigned long long)st.poses_rate_limited, (unsigned long long)st.poses_out_of_range,
                  st.ticks ? 1000.0 * st.tick_seconds / double(st.ticks) : 0.0);
@@ -304,6 +316,7 @@ int main(int argc, char** argv) {
             instances = default_instances(assets);
         }
         for (auto& s : instances) s.once = o.once;
+        o.cfg.threads = std::max(0, o.threads);
         Server server(o.cfg, assets, instances, std::move(ports));
         g_server = &server;
         std::signal(SIGINT, on_signal);
@@ -312,6 +325,8 @@ int main(int argc, char** argv) {
         std::printf("progskin-server: listening on TCP %u, UDP %u, %zu instances, %.0f Hz%s\n", server.tcp_port(),
                     server.udp_port(), instances.size(), double(o.cfg.tick_rate),
                     o.no_tls ? ", plain TCP (no TLS)" : o.cfg.seal_datagrams ? ", TLS, sealed datagrams" : ", TLS");
+        std::printf("progskin-server: %d tick thread%s%s\n", tick_threads(o.cfg), tick_threads(o.cfg) == 1 ? "" : "s",
+                    tick_threads(o.cfg) == 1 ? " (connections on the same thread)" : " + 1 for connections");
         std::fflush(stdout);
         serve(server, o.duration);
         report(server.stats());

@@ -158,14 +158,26 @@ public:
         do {
             while (receive(0)) ++n;
         } while (clock::now() < end && (std::this_thread::sleep_for(std::chrono::milliseconds(2)), true));
-        if (bound_) {
-            flatbuffers::FlatBufferBuilder a;
-            auto ack = wire::CreateAck(a, session_, token_, newest_seq_, 0xffffffffu, newest_send_us_, 0);
-            a.Finish(wire::CreateDatagram(a, 0, now_us32(), wire::DatagramBody::Ack, ack.Union()), wire::DatagramIdentifier());
-            send_datagram(a);
-        }
+        ack();
         frames_ += n;
         return n;
+    }
+    // Waits up to ms for a datagram, then reads every one waiting; returns
+    // the Frames among them (no Ack sent: ack()).
+    size_t read_frames(int ms) {
+        size_t n = 0;
+        for (const wire::Datagram* d = receive(ms); d; d = receive(0))
+            if (d->body_type() == wire::DatagramBody::Frame) ++n;
+        frames_ += n;
+        return n;
+    }
+    // Acknowledges the newest Frame received (and the 32 before it).
+    void ack() {
+        if (!bound_) return;
+        flatbuffers::FlatBufferBuilder a;
+        auto ack = wire::CreateAck(a, session_, token_, newest_seq_, 0xffffffffu, newest_send_us_, 0);
+        a.Finish(wire::CreateDatagram(a, 0, now_us32(), wire::DatagramBody::Ack, ack.Union()), wire::DatagramIdentifier());
+        send_datagram(a);
     }
 
     // A Spawn of `asset` announcing `clips` (any count, repeats included);

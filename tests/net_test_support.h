@@ -2,6 +2,7 @@
 // test binary, a server on an ephemeral loopback port run on its own thread,
 // and a per-test asset cache directory.
 #pragma once
+#include <cstdlib>
 #include <filesystem>
 #include <memory>
 #include <string>
@@ -48,11 +49,20 @@ inline std::shared_ptr<ClientAsset> client_asset(const ServerAsset& s) {
     return c;
 }
 
+// ServerConfig::threads for the tests' servers that ask for no count of
+// their own: $PROGSKIN_TEST_THREADS when set (scripts/tsan.sh: 3), else 0
+// (the machine's cores, as progskin-server).
+inline int test_threads() {
+    const char* v = std::getenv("PROGSKIN_TEST_THREADS");
+    return v && *v ? std::atoi(v) : 0;
+}
+
 class RunningServer {
 public:
     explicit RunningServer(std::vector<InstanceSpec> instances = {}, ServerConfig cfg = {}) {
         cfg.bind_address = "127.0.0.1";
         cfg.port = 0;
+        if (cfg.threads == 0) cfg.threads = test_threads();
         if (instances.empty()) instances = default_instances(default_assets());
         server = std::make_unique<Server>(cfg, default_assets(), instances);
         thread = std::thread([this] { server->run(); });

@@ -575,3 +575,23 @@ TEST(ServerCore, AcksCountAsOfTheLastTimeTheQueueWasEmpty) {
     f.core->tick(112.1, f.sink);
     EXPECT_NE(f.s->state(), SessionState::Streaming);
 }
+
+// An Ack crossing the Goodbye: the session is erased, its datagram arrives
+// after. Counted as late (not as an attack) for 2 s, then rejected.
+TEST(ClientStream, DatagramsOfAJustClosedSessionAreLateNotRejected) {
+    Fixture f;
+    f.bind(kHome, 101.0);
+    ASSERT_EQ(f.s->state(), SessionState::Streaming);
+    const std::vector<uint8_t> a = ack(*f.s, 0);
+    const uint64_t id = f.s->id();
+    const ServerStats before = f.core->stats();
+    f.core->erase(id, 102.0);
+    f.core->on_datagram(a, kHome, 102.5, f.sink);
+    ServerStats st = f.core->stats();
+    EXPECT_EQ(st.late_datagrams, before.late_datagrams + 1);
+    EXPECT_EQ(st.rejected_datagrams, before.rejected_datagrams);
+    f.core->on_datagram(a, kHome, 104.5, f.sink);  // 2.5 s after: forgotten
+    st = f.core->stats();
+    EXPECT_EQ(st.late_datagrams, before.late_datagrams + 1);
+    EXPECT_EQ(st.rejected_datagrams, before.rejected_datagrams + 1);
+}

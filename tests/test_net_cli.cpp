@@ -84,6 +84,9 @@ TEST(NetCli, HelpAndExitCodes) {
         {"progskin-netem --to 127.0.0.1:7777 --seed 1.5", "--seed"},
         {"progskin-attack --server 10.0.0.1:7777", "--server"},
         {"progskin-server --owner-share-kbps -5", "--owner-share-kbps"},
+        {"progskin-server --threads 0", "--threads"},
+        {"progskin-server --threads 257", "--threads"},
+        {"progskin-server --threads 2x", "--threads"},
         {"progskin-attack --server 127.0.0.1:7777 --posers -1", "--posers"},
     };
     for (const auto& [cmd, option] : bad_values) {
@@ -137,12 +140,14 @@ TEST(NetCli, ServerPrintsItsFingerprintAndReusesItsPair) {
 
 TEST(NetCli, ClientJsonSummaryHasTheDocumentedKeys) {
     if (!built("progskin-server") || !built("progskin-client")) GTEST_SKIP() << "executables not built";
-    // TLS and sealed datagrams (the defaults), the pair in a temporary directory.
-    BackgroundServer s("progskin-cli-server", "--port 0 --duration 15 --tls-dir " + ::testing::TempDir() +
+    // TLS and sealed datagrams (the defaults), the pair in a temporary
+    // directory; two tick threads and the control thread (--threads 2).
+    BackgroundServer s("progskin-cli-server", "--port 0 --threads 2 --duration 15 --tls-dir " + ::testing::TempDir() +
                                                   "progskin-cli-tls --asset " + PROGSKIN_ASSETS + "/Fox.glb");
     ASSERT_FALSE(s.port.empty()) << s.text();
     ASSERT_EQ(s.pin.size(), 64u) << s.text();
     EXPECT_NE(s.text().find("TLS, sealed datagrams"), std::string::npos) << s.text();
+    EXPECT_NE(s.text().find("2 tick threads + 1 for connections"), std::string::npos) << s.text();
     CmdResult r = run(bin("progskin-client") + " --server 127.0.0.1:" + s.port + " --pin " + s.pin +
                       " --max-kbps 64 --duration 2 --verify --report json --cache " + ::testing::TempDir() + "progskin-cli-cache");
     ASSERT_EQ(r.code, 0) << r.out;

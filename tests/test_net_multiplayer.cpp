@@ -103,6 +103,7 @@ void step(Player& p, double now, int index) {
 TEST(NetMultiplayer, EightPlayersSeeEachOtherJoinAndLeave) {
     ServerConfig cfg;
     cfg.bind_address = "127.0.0.1";
+    cfg.threads = progskin::net::testing::test_threads();
     Server server(cfg, default_assets(), {});  // catalogue only (--no-scene)
     std::thread st([&] { server.run(); });
     const uint16_t port = server.tcp_port();
