@@ -113,7 +113,10 @@ typedef enum psk_event_type {
     PSK_EVENT_SPAWN_REFUSED = 6,      /* handle; text: the server's reason */
     PSK_EVENT_CLOSED = 7,             /* text: why */
     PSK_EVENT_FAILED = 8,             /* text: why */
-    PSK_EVENT_ASSET_FAILED = 9        /* asset cannot be loaded; text: why. The session goes on without its characters */
+    PSK_EVENT_ASSET_FAILED = 9,       /* asset cannot be loaded; text: why. The session goes on without its characters */
+    PSK_EVENT_FAILED_OVER = 10        /* the server was lost (text: why, and the next server of
+                                         psk_client_connect_list): remote characters are removed, the
+                                         player's spawned again there (PSK_EVENT_SPAWNED, new instance) */
 } psk_event_type;
 
 typedef struct psk_client psk_client; /* opaque */
@@ -263,6 +266,13 @@ PSK_API psk_status psk_client_destroy(psk_client* client);
  * numeric address never to block. PSK_ERR_FAILED when the configuration
  * cannot connect (TLS with nothing to trust the certificate by, ...). */
 PSK_API psk_status psk_client_connect(psk_client* client, const char* host, uint16_t port);
+/* Failover: servers is "HOST:PORT[,HOST:PORT...]" (the servers of one world,
+ * serving the same catalogue). Connects to the first; when a server is lost
+ * (closed, its goodbye, a timeout, a refusal) the client connects to the
+ * next within the same psk_client_update, spawns its characters again and
+ * raises PSK_EVENT_FAILED_OVER; each server is tried once per loss.
+ * PSK_ERR_ARGUMENT for a list that is not HOST:PORT entries. */
+PSK_API psk_status psk_client_connect_list(psk_client* client, const char* servers);
 /* Once per game frame; never blocks. now: psk_now()'s clock. Does the
  * socket I/O, downloads, acks, and the palettes of every character.
  * PSK_ERR_FAILED once the client is Failed. No allocation once steady. */

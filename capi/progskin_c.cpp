@@ -287,6 +287,29 @@ psk_status psk_client_connect(psk_client* client, const char* host, uint16_t por
     });
 }
 
+psk_status psk_client_connect_list(psk_client* client, const char* servers) {
+    return guard(__func__, [&] {
+        PSK_NEED(client);
+        PSK_NEED(servers);
+        if (client->client.state() != ClientState::Idle)
+            return fail(PSK_ERR_STATE, "psk_client_connect_list: the client was connected already (one connect per client)");
+        std::vector<progskin::net::ServerAddress> list;
+        try {
+            list = progskin::net::parse_server_list(servers);
+        } catch (const progskin::Error& e) {
+            return fail(PSK_ERR_ARGUMENT, std::string("psk_client_connect_list: ") + e.what());
+        }
+        try {
+            client->client.connect(list);
+        } catch (const progskin::Error& e) {
+            return fail(PSK_ERR_CONNECT, std::string("psk_client_connect_list: ") + e.what());
+        }
+        if (client->client.state() == ClientState::Failed)
+            return fail(PSK_ERR_FAILED, "psk_client_connect_list: " + client->client.error());
+        return ok();
+    });
+}
+
 psk_status psk_client_update(psk_client* client, double now) {
     return guard(__func__, [&] {
         PSK_NEED(client);

@@ -98,6 +98,9 @@ struct Client::Impl final : DatagramSource {
     udp::endpoint server_udp;
     std::string host;
     uint16_t port = 0;
+    // connect()'s list; the server in use; servers tried since the stream was last up
+    std::vector<ServerAddress> servers;
+    size_t current = 0, tried = 0;
     // Control channel: bytes read, and the batch being written while the
     // session's Outbox::control fills (both keep their capacity).
     std::vector<uint8_t> rx_chunk = std::vector<uint8_t>(65536), tx_inflight;
@@ -278,11 +281,86 @@ struct Client::Impl final : DatagramSource {
             io.poll();
             io.restart();
         }
-        if (session.welcomed() && !udp_sock.is_open() && !open_udp()) return;
-        session.update(now, this);
+        if (!session.welcomed() || udp_sock.is_open() || open_udp()) {
+            session.update(now, this);
+            flush();
+        }
+        if (session.phase() == SessionPhase::Streaming) tried = 0;
+        fail_over(now);
+    }
+
+    // ------------------------------------------------------------ connect --
+    // Starts the channel to servers[current] (session started or restarted).
+    void open_channel() {
+        tcp::resolver r(io);
+        asio::error_code ec;
+        auto res = r.resolve(host, std::to_string(port), ec);
+        if (ec) return fail(FailReason::Unreachable, "cannot resolve " + host + ": " + ec.message());
+        if (cfg.tls && !setup_tls()) return;  // Failed: see error()
+        asio::async_connect(tcp_sock, res, [this](asio::error_code e, const tcp::endpoint&) {
+            if (!session.running()) return;
+            if (e) return fail(FailReason::Unreachable, "cannot connect to " + host + ":" + std::to_string(port) + ": " + e.message());
+            asio::error_code ig;
+            tcp_sock.set_option(tcp::no_delay(true), ig);
+            if (!tls) return channel_ready();
+            session.on_transport_connected();
+            tls->async_handshake(asio::ssl::stream_base::client, [this](asio::error_code he) {
+                if (!session.running()) return;
+                if (he) {
+                    if (!tls_verify_error.empty()) return fail(FailReason::TlsUntrusted, "server certificate not trusted: " + tls_verify_error);
+                    return fail(FailReason::TlsHandshake,
+                                "TLS handshake with " + host + ":" + std::to_string(port) + " failed: " + he.message());
+                }
+                if (check_pin()) channel_ready();
+            });
+        });
+    }
+
+    // The server was lost and another of the list may carry on: the old
+    // sockets closed (their handlers run now, on a Failed session: no-ops),
+    // the session restarted toward the next server.
+    void fail_over(double now) {
+        if (servers.size() < 2 || !session.can_fail_over() || ++tried >= servers.size()) return;
+        asio::error_code ig;
+        tcp_sock.close(ig);
+        udp_sock.close(ig);
+        io.poll();
+        io.restart();
+        tls.reset();
+        ssl_ctx.reset();
+        tls_verify_error.clear();
+        pin.clear();
+        reading = writing = false;
+        tx_inflight.clear();
+        out.control.clear();
+        out.clear_datagrams();
+        current = (current + 1) % servers.size();
+        host = servers[current].host;
+        port = servers[current].port;
+        session.restart(now, host + ":" + std::to_string(port));
+        open_channel();
         flush();
     }
 };
+
+std::vector<ServerAddress> parse_server_list(const std::string& list) {
+    std::vector<ServerAddress> out;
+    size_t at = 0;
+    for (;;) {
+        const size_t comma = list.find(',', at);
+        const std::string item = list.substr(at, comma == std::string::npos ? std::string::npos : comma - at);
+        const size_t colon = item.rfind(':');
+        std::string host = colon == std::string::npos ? std::string() : item.substr(0, colon);
+        if (host.size() > 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
+        const std::string digits = colon == std::string::npos ? std::string() : item.substr(colon + 1);
+        const bool numeric = !digits.empty() && digits.size() <= 5 && digits.find_first_not_of("0123456789") == std::string::npos;
+        const long p = numeric ? std::stol(digits) : 0;
+        if (host.empty() || p < 1 || p > 65535) throw Error("server list: '" + item + "' is not HOST:PORT with a port in 1..65535");
+        out.push_back({host, uint16_t(p)});
+        if (comma == std::string::npos) return out;
+        at = comma + 1;
+    }
+}
 
 Client::Client(ClientConfig config) : impl_(std::make_unique<Impl>(config)) {}
 Client::~Client() {
@@ -290,33 +368,26 @@ Client::~Client() {
 }
 
 void Client::connect(const std::string& host, uint16_t port) {
+    const ServerAddress one{host, port};
+    connect(std::span<const ServerAddress>(&one, 1));
+}
+
+void Client::connect(std::span<const ServerAddress> servers) {
     Impl& m = *impl_;
     if (m.session.phase() != SessionPhase::Idle) throw Error("connect: the client is already connected");
-    m.host = host;
-    m.port = port;
+    if (servers.empty()) throw Error("connect: no server given");
+    m.servers.assign(servers.begin(), servers.end());
+    m.host = servers[0].host;
+    m.port = servers[0].port;
     const double started = now_seconds();
-    tcp::resolver r(m.io);
-    asio::error_code ec;
-    auto res = r.resolve(host, std::to_string(port), ec);
-    if (ec) throw Error("cannot resolve " + host + ": " + ec.message());
-    m.session.start(started, host + ":" + std::to_string(port));
-    if (m.cfg.tls && !m.setup_tls()) return;  // Failed: see error()
-    asio::async_connect(m.tcp_sock, res, [&m](asio::error_code e, const tcp::endpoint&) {
-        if (e) return m.fail(FailReason::Unreachable, "cannot connect to " + m.host + ":" + std::to_string(m.port) + ": " + e.message());
-        asio::error_code ig;
-        m.tcp_sock.set_option(tcp::no_delay(true), ig);
-        if (!m.tls) return m.channel_ready();
-        m.session.on_transport_connected();
-        m.tls->async_handshake(asio::ssl::stream_base::client, [&m](asio::error_code he) {
-            if (!m.session.running()) return;
-            if (he) {
-                if (!m.tls_verify_error.empty()) return m.fail(FailReason::TlsUntrusted, "server certificate not trusted: " + m.tls_verify_error);
-                return m.fail(FailReason::TlsHandshake,
-                              "TLS handshake with " + m.host + ":" + std::to_string(m.port) + " failed: " + he.message());
-            }
-            if (m.check_pin()) m.channel_ready();
-        });
-    });
+    {   // the first server's name must resolve (a typo is the caller's error, not a failover)
+        tcp::resolver r(m.io);
+        asio::error_code ec;
+        r.resolve(m.host, std::to_string(m.port), ec);
+        if (ec) throw Error("cannot resolve " + m.host + ": " + ec.message());
+    }
+    m.session.start(started, m.host + ":" + std::to_string(m.port));
+    m.open_channel();
 }
 
 void Client::update(double now) { impl_->update(now); }

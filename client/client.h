@@ -141,6 +141,9 @@ struct ClientEvent {
         Failed,            // text: why (also in error())
         AssetFailed,       // an asset of the catalogue cannot be loaded: asset = index, text: why. The session
                            // goes on; characters of that asset are never shown (the others are)
+        FailedOver,        // the server was lost (text: why, and the next server): the client connects to the
+                           // next of connect()'s list; remote characters are removed (CharacterRemoved), the
+                           // player's are spawned again there (Spawned, with their new instance)
     };
     Type type;
     int instance = -1;
@@ -173,7 +176,18 @@ struct ClientStats {
     uint64_t poses_sent = 0, poses_refused = 0;  // publish(): sent, and refused (out of the codec's range)
     std::vector<double> per_second_bytes;  // wire bytes per second since the first frame
     double max_gap_ms = 0;         // longest time between two frames received (the stream's worst stall)
+    int failovers = 0;             // times the client lost its server and moved to the next of connect()'s list
+    double failover_seconds = 0;   // the longest of them: from losing a server to the next frame (0: none)
 };
+
+// One server of a world (connect()'s list).
+struct ServerAddress {
+    std::string host;
+    uint16_t port = 0;
+};
+// "HOST:PORT[,HOST:PORT...]" (IPv6 hosts in brackets: [::1]:7777). Throws
+// Error naming the entry that is not HOST:PORT with a port in 1..65535.
+std::vector<ServerAddress> parse_server_list(const std::string& list);
 
 class Client {
 public:
@@ -189,6 +203,15 @@ public:
     // certificate by (no ca_file, pin_sha256 or insecure), a malformed pin or
     // an unreadable CA file, the state is Failed on return (see error()).
     void connect(const std::string& host, uint16_t port);
+    // Failover: connects to servers[0]; when the server is lost (the
+    // connection closes or fails, its Goodbye, a timeout, no datagram for
+    // stream_timeout, a refusal) the client connects to the next one of the
+    // list, within the same update(), spawns the player's characters again
+    // and sends its view and cap again (a FailedOver event, then Connected,
+    // Spawned...). Each server is tried at most once per loss: when every
+    // other one failed too, the state is Failed. Every server of the list must
+    // serve the same catalogue (another one fails: BadServerData).
+    void connect(std::span<const ServerAddress> servers);
     // Once per game frame; never blocks. `now`: seconds on now_seconds()'s clock.
     void update(double now);
     void close(const std::string& reason = "done");

@@ -24,7 +24,10 @@ static const char* kUsage =
     "usage: progskin-client [options]\n"
     "Receives progressive bone packets from a progskin-server and displays (CPU-skins) them.\n"
     "\n"
-    "  --server HOST:PORT  server control address (default 127.0.0.1:7777)\n"
+    "  --server HOST:PORT[,HOST:PORT...]\n"
+    "                      server control address (default 127.0.0.1:7777); with a list, when\n"
+    "                      the server is lost the client connects to the next one, spawns its\n"
+    "                      characters again and goes on (the report's \"failover\")\n"
     "  --udp-via HOST:PORT send the frame stream through a relay (progskin-netem)\n"
     "  --max-kbps N        bandwidth cap in kbit/s, docs/metrics.md §3 (default: server maximum)\n"
     "  --view SPEC         camera:X,Y,Z[,FOV_DEG[,HEIGHT_PX]]  or  weights:W0,W1,...\n"
@@ -67,7 +70,8 @@ static const char* kUsage =
     "  --snapshot-dir DIR  where the PNGs go (default snapshots/): snapshot_0000.png, ...\n"
     "  --help\n"
     "Exit codes: 0 ok, 1 runtime error (refused, unreachable, bad data, stream lost, connection\n"
-    "closed), 2 bad arguments, 3 the server ended the session with a Goodbye (e.g. it shut down).\n";
+    "closed), 2 bad arguments, 3 the server ended the session with a Goodbye (e.g. it shut down).\n"
+    "With a --server list, a lost server that the next one replaced is not a failure (exit 0).\n";
 
 // The server's Goodbye ended the session (a clean shutdown, a timeout, an eviction): not a crash.
 static constexpr int kExitServerGoodbye = 3;
@@ -115,9 +119,16 @@ void parse_view(const std::string& v, ViewSpec& view) {
 template <class Value>
 bool parse_session_option(const std::string& a, Value&& val, ClientOptions& opt) {
     if (a == "--server") {
-        const cli::HostPort hp = cli::host_port(a, val());
-        opt.host = hp.host;
-        opt.port = hp.port;
+        std::vector<ServerAddress> list;
+        const std::string v = val();
+        try {
+            list = parse_server_list(v);
+        } catch (const Error& e) {
+            throw cli::UsageError("--server: " + std::string(e.what()));
+        }
+        opt.host = list[0].host;
+        opt.port = list[0].port;
+        opt.failover.assign(list.begin() + 1, list.end());
     } else if (a == "--udp-via") {
         const cli::HostPort hp = cli::host_port(a, val());
         opt.udp_via_host = hp.host;

@@ -93,7 +93,9 @@ double last_second_kbps(const Client& client) {
 class Run {
 public:
     explicit Run(const ClientOptions& opt) : opt_(opt), client_(client_config(opt)) {
-        client_.connect(opt.host, opt.port);
+        std::vector<ServerAddress> servers{{opt.host, opt.port}};
+        servers.insert(servers.end(), opt.failover.begin(), opt.failover.end());
+        client_.connect(servers);
         if (opt.send_view) client_.set_view(opt.view);
         t_start_ = now_seconds();
     }
@@ -365,6 +367,8 @@ private:
         rep_.download_seconds = st.download_seconds;
         rep_.poses_sent = st.poses_sent;
         rep_.max_gap_ms = st.max_gap_ms;
+        rep_.failovers = st.failovers;
+        rep_.failover_seconds_to_stream = st.failover_seconds;
         const double stream_seconds = st.seconds;
         double total = 0;
         for (size_t i = 0; i < st.per_second_bytes.size(); ++i) {
@@ -510,7 +514,8 @@ std::string report_json(const ClientReport& r) {
     for (size_t i = 0; i < r.assets_failed.size(); ++i)
         o << (i ? ", " : "") << "{\"asset\": " << json_string(r.assets_failed[i].first)
           << ", \"error\": " << json_string(r.assets_failed[i].second) << "}";
-    o << "], \"error\": " << json_string(r.error) << ", \"server_goodbye\": " << (r.server_goodbye ? "true" : "false") << "}";
+    o << "], \"failover\": {\"count\": " << r.failovers << ", \"seconds_to_stream\": " << r.failover_seconds_to_stream << "}";
+    o << ", \"error\": " << json_string(r.error) << ", \"server_goodbye\": " << (r.server_goodbye ? "true" : "false") << "}";
     return o.str();
 }
 
@@ -537,6 +542,10 @@ std::string report_text(const ClientReport& r) {
             std::snprintf(b, sizeof b, ", latency p50 %.1f ms p99 %.1f ms", r.latency_ms_p50, r.latency_ms_p99);
             s += b;
         }
+    }
+    if (r.failovers > 0) {
+        std::snprintf(b, sizeof b, "; %d failovers (streaming again within %.2f s)", r.failovers, r.failover_seconds_to_stream);
+        s += b;
     }
     return s + "\n";
 }

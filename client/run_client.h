@@ -43,6 +43,7 @@ struct PublishOptions {
 struct ClientOptions {
     std::string host = "127.0.0.1";
     uint16_t port = 7777;
+    std::vector<ServerAddress> failover;  // the servers after host:port, tried in turn when one is lost
     std::string udp_via_host;
     uint16_t udp_via_port = 0;
     std::string name = "progskin-client";
@@ -121,6 +122,8 @@ struct ClientReport {
     // The server ended the session with a Goodbye (FailReason::SessionEnded):
     // its reason is in `error` (kShutdownReason when it stopped cleanly).
     bool server_goodbye = false;
+    int failovers = 0;                  // servers lost and replaced by the next (ClientStats::failovers)
+    double failover_seconds_to_stream = 0;  // the longest time from losing a server to the next frame
 };
 
 // run_client's failure after it connected: what was received until then,

@@ -157,10 +157,71 @@ void ClientSession::raise(ClientEvent::Type t, int instance, int asset, int hand
 
 void ClientSession::fail(FailReason why, const std::string& text) {
     if (phase_ == SessionPhase::Failed || phase_ == SessionPhase::Closed) return;
+    if (phase_ == SessionPhase::Streaming && lost_at_ == 0) lost_at_ = clock_();  // a stream was lost (failover counts from here)
     phase_ = SessionPhase::Failed;
     fail_reason_ = why;
     error_ = text;
     raise(ClientEvent::Type::Failed, -1, -1, -1, text);
+}
+
+bool ClientSession::can_fail_over() const {
+    if (phase_ != SessionPhase::Failed) return false;
+    switch (fail_reason_) {
+        case FailReason::Unreachable:
+        case FailReason::TlsHandshake:
+        case FailReason::Timeout:
+        case FailReason::Refused:
+        case FailReason::ChannelLost:
+        case FailReason::SessionEnded:
+        case FailReason::StreamLost: return true;
+        default: return false;  // Config, TlsUntrusted, BadServerData, LocalIo: the next server would not help
+    }
+}
+
+void ClientSession::restart(double now, std::string peer) {
+    if (!can_fail_over()) return;
+    for (size_t id = 0; id < remotes_.size(); ++id) remove_remote(int(id));
+    if (lost_at_ > 0) ++st_.failovers;
+    // The Failed event becomes a FailedOver one: the session goes on.
+    for (auto it = events_.rbegin(); it != events_.rend(); ++it)
+        if (it->type == ClientEvent::Type::Failed) {
+            it->type = ClientEvent::Type::FailedOver;
+            it->text += "; connecting to " + peer;
+            break;
+        }
+    if (window_.started) {
+        loss_span_before_ += uint64_t(window_.max_seq - window_.min_seq) + 1;
+        loss_unique_before_ += window_.unique;
+    }
+    window_ = AckWindow{};
+    for (Own& o : own_) {
+        o.instance = -1;
+        o.request = 0;
+        ++o.epoch;  // a discontinuity for its observers
+    }
+    for (CatalogueEntry& e : catalogue_)
+        if (!e.ready && !e.failed) {  // a download starts over
+            e.bytes = {};
+            e.requested = 0;
+            e.in_flight = 0;
+        }
+    phase_ = SessionPhase::OpeningChannel;
+    fail_reason_ = FailReason::None;
+    error_.clear();
+    started_ = now;
+    peer_ = std::move(peer);
+    rx_.clear();
+    session_ = udp_token_ = 0;
+    udp_port_ = 0;
+    sealer_.reset();
+    opener_.reset();
+    welcome_ = nullptr;
+    ack_echo_ = 0;
+    ack_arrival_ = last_ack_sent_ = next_bind_ = last_datagram_ = 0;
+    since_ack_ = 0;
+    tick_offset_ = -1e300;
+    last_display_time_ = needed_delay_ = 0;
+    shown_dirty_ = true;
 }
 
 void ClientSession::start(double now, std::string peer) {
@@ -302,6 +363,14 @@ void ClientSession::on_welcome(const wire::Welcome* w, double now) {
     delay_ticks_ = base_delay_;
     st_.per_second_bytes.reserve(3600);  // an hour of per-second rate bins without reallocating
     next_stats_ = now + 1.0;
+    if (!catalogue_.empty()) {  // failover: the same world, the same catalogue
+        if (!same_catalogue(*w))
+            return fail(FailReason::BadServerData, "server " + peer_ + " serves another catalogue than the server before it");
+        raise(ClientEvent::Type::Connected);
+        if (view_set_) view_dirty_ = true;
+        respawn_own();
+        return start_downloads();
+    }
     if (w->assets())
         for (const wire::Asset* a : *w->assets()) {
             CatalogueEntry e;
@@ -317,6 +386,23 @@ void ClientSession::on_welcome(const wire::Welcome* w, double now) {
     start_downloads();
 }
 
+bool ClientSession::same_catalogue(const wire::Welcome& w) const {
+    const size_t n = w.assets() ? w.assets()->size() : 0;
+    if (n != catalogue_.size()) return false;
+    for (size_t i = 0; i < n; ++i)
+        if (w.assets()->Get(flatbuffers::uoffset_t(i))->asset_id() != catalogue_[i].id) return false;
+    return true;
+}
+
+// After a failover's Welcome: the player's characters, spawned again.
+void ClientSession::respawn_own() {
+    for (Own& o : own_)
+        if (!o.gone && !o.refused) {
+            o.request = next_request_++;
+            send_spawn(o);
+        }
+}
+
 // -------------------------------------------------------------- assets --
 // Finds cached assets, then downloads the others one after another.
 void ClientSession::start_downloads() {
@@ -325,6 +411,7 @@ void ClientSession::start_downloads() {
     fs::create_directories(cache_, ec);
     for (size_t i = 0; i < catalogue_.size(); ++i) {
         CatalogueEntry& e = catalogue_[i];
+        if (e.ready || e.failed) continue;  // loaded before a failover
         const std::string path = cached_asset_path(cache_, e.name, e.id);
         if (fs::exists(path) && content_hash(read_file(path)) == e.id) {
             ++st_.assets_cached;
@@ -511,7 +598,11 @@ void ClientSession::handle_frame(const wire::Datagram& d, size_t n, double t) {
     // Cover the gaps these runs filled (the display delay, display()).
     if (tick_offset_ > -1e299 && a.reach_from < double(f->tick()))
         needed_delay_ = std::max(needed_delay_, t * tick_rate_ + tick_offset_ - a.reach_from);
-    if (!window_.started) t_first_ = t;
+    if (!window_.started && st_.datagrams == 0) t_first_ = t;  // the first frame ever (failovers keep it)
+    if (lost_at_ > 0) {  // the first frame after a failover
+        st_.failover_seconds = std::max(st_.failover_seconds, t - lost_at_);
+        lost_at_ = 0;
+    }
     window_.add(seq);
     if (seq == window_.ack) {
         ack_echo_ = d.send_time_us();
@@ -613,8 +704,9 @@ void ClientSession::send_stats(double now) {
 ClientStats ClientSession::stats(double now) const {
     ClientStats s = st_;
     s.seconds = window_.started ? now - t_first_ : 0;
-    const uint64_t span = window_.started ? uint64_t(window_.max_seq - window_.min_seq) + 1 : 0;
-    s.loss = span ? std::max(0.0, 1.0 - double(window_.unique) / double(span)) : 0;
+    const uint64_t span = (window_.started ? uint64_t(window_.max_seq - window_.min_seq) + 1 : 0) + loss_span_before_;
+    const uint64_t unique = window_.unique + loss_unique_before_;
+    s.loss = span ? std::max(0.0, 1.0 - double(unique) / double(span)) : 0;
     return s;
 }
 
@@ -715,6 +807,7 @@ int ClientSession::spawn(const SpawnSpec& spec) {
     o.handle = int(own_.size()) + 1;
     o.asset = spec.asset;
     o.request = next_request_++;
+    o.spec = spec;
     own_.push_back(o);
     std::string why;  // what the server would refuse, refused here
     if (!was_welcomed()) why = "not connected yet";
@@ -727,6 +820,12 @@ int ClientSession::spawn(const SpawnSpec& spec) {
         raise(ClientEvent::Type::SpawnRefused, -1, spec.asset, o.handle, why);
         return o.handle;
     }
+    send_spawn(own_.back());
+    return o.handle;
+}
+
+void ClientSession::send_spawn(const Own& o) {
+    const SpawnSpec& spec = o.spec;
     flatbuffers::FlatBufferBuilder b;
     std::vector<int32_t> clips(spec.clips.begin(), spec.clips.end());
     auto vc = b.CreateVector(clips);
@@ -736,7 +835,6 @@ int ClientSession::spawn(const SpawnSpec& spec) {
                                spec.walk_speed, &pos);
     b.Finish(wire::CreateControl(b, wire::ControlBody::Spawn, s.Union()), wire::ControlIdentifier());
     send(b);
-    return o.handle;
 }
 
 void ClientSession::on_spawned(const wire::Spawned& m) {

@@ -149,6 +149,18 @@ public:
     void update(double now, DatagramSource* source = nullptr);
     void clear_events();  // before the shell reads its sockets, once per update
     void fail(FailReason why, const std::string& text);
+    // Failover (docs/protocol.md "Failover"): after a failure another server
+    // of the same world may carry on (can_fail_over: the connection was lost,
+    // timed out, refused or ended by the server; not a trust, configuration
+    // or data failure). restart() starts over with that server as start()
+    // does: the remote characters are removed (CharacterRemoved), the
+    // player's characters keep their handles and are spawned again once the
+    // new server's Welcome comes (Spawned again, with their new instance),
+    // the view and cap are sent again, the assets are kept when the new
+    // catalogue is the same (another catalogue fails: BadServerData). The
+    // shell opens a new channel first. O(characters).
+    bool can_fail_over() const;
+    void restart(double now, std::string peer);
     // Closed; the Goodbye goes into Outbox::control when the channel is up.
     void close(const std::string& reason);
 
@@ -202,6 +214,7 @@ private:
         uint32_t request = 0, pose_seq = 0;
         uint8_t epoch = 0;
         bool refused = false, gone = false;
+        SpawnSpec spec;  // spawned again on the next server after a failover
     };
     // The receive window of the frame stream: the newest sequence and the
     // 32 before it (Ack), the range seen (loss).
@@ -218,6 +231,9 @@ private:
     void send_datagram(const flatbuffers::FlatBufferBuilder& b);
     void handle_control(std::vector<uint8_t>& body, double now);
     void on_welcome(const wire::Welcome* w, double now);
+    bool same_catalogue(const wire::Welcome& w) const;
+    void send_spawn(const Own& o);
+    void respawn_own();
     bool was_welcomed() const { return welcome_ != nullptr; }  // stays true once Failed or Closed
     void start_downloads();
     void request_chunks();
@@ -285,6 +301,10 @@ private:
     double t_first_ = 0;
     double last_frame_at_ = 0;  // newest frame datagram (ClientStats::max_gap_ms)
     ClientStats st_;
+    // failover: when the last server was lost (0: streaming), the stream's
+    // first frame then, the loss figures of the servers before
+    double lost_at_ = 0, stream_started_ = 0;
+    uint64_t loss_unique_before_ = 0, loss_span_before_ = 0;
 
     // display clock (display())
     double base_delay_ = 0, max_delay_ = 0, delay_ticks_ = 0, needed_delay_ = 0, last_display_time_ = 0;

@@ -222,6 +222,43 @@ TEST(NetCli, ReportWrittenOnEveryExitServerGoodbyeToldFromACrash) {
     EXPECT_NE(r.out.find("cannot connect"), std::string::npos) << r.out;
 }
 
+// --server A,B: the first server killed outright (or stopped with its
+// Goodbye), the client goes on with the second, spawns its character again
+// and exits 0; the report says how many failovers and how long to stream.
+TEST(NetCli, ServerListFailsOverToTheNextServer) {
+    if (!built("progskin-server") || !built("progskin-client")) GTEST_SKIP() << "executables not built";
+    const std::string cache = " --cache " + ::testing::TempDir() + "progskin-cli-cache";
+    const std::string asset = " --asset " + std::string(PROGSKIN_ASSETS) + "/Fox.glb";
+    for (const bool clean : {true, false}) {
+        const std::string tag = clean ? "term" : "kill";
+        BackgroundServer a("progskin-cli-failover-a-" + tag, "--no-tls --port 0 --duration 60" + asset);
+        BackgroundServer b("progskin-cli-failover-b-" + tag, "--no-tls --port 0 --duration 60" + asset);
+        ASSERT_FALSE(a.port.empty() || b.port.empty()) << a.text() << b.text();
+        BackgroundClient c("progskin-cli-failover-client-" + tag, "--no-tls --server 127.0.0.1:" + a.port + ",127.0.0.1:" +
+                                                                    b.port + " --duration 6 --publish 0 --report json" + cache);
+        std::this_thread::sleep_for(std::chrono::seconds(3));
+        std::system(("kill " + std::string(clean ? "-TERM " : "-KILL ") + std::to_string(a.pid)).c_str());
+        a.pid = 0;
+        const int code = c.wait(15);
+        const std::string out = c.text();
+        EXPECT_EQ(code, 0) << tag << ": " << out;
+        const size_t at = out.find("\"failover\": {\"count\": ");
+        ASSERT_NE(at, std::string::npos) << tag << ": " << out;
+        EXPECT_EQ(std::atoi(out.c_str() + at + 22), 1) << tag << ": " << out;
+        const size_t sec = out.find("\"seconds_to_stream\": ", at);
+        ASSERT_NE(sec, std::string::npos) << out;
+        const double seconds = std::atof(out.c_str() + sec + 21);
+        EXPECT_GT(seconds, 0.0) << out;
+        EXPECT_LT(seconds, 3.0) << out;
+        EXPECT_NE(out.find("\"error\": \"\""), std::string::npos) << tag << ": " << out;
+        std::printf("%s: streaming again %.3f s after losing the first server\n", tag.c_str(), seconds);
+    }
+    // A list that is not HOST:PORT entries: exit 2, naming the entry.
+    const CmdResult r = run(bin("progskin-client") + " --no-tls --server 127.0.0.1:7777,nope --duration 1");
+    EXPECT_EQ(r.code, 2) << r.out;
+    EXPECT_NE(r.out.find("'nope' is not HOST:PORT"), std::string::npos) << r.out;
+}
+
 // The ports are bound before any asset is built: a port in use is an error
 // at once (exit 1, naming the port), not after the build.
 TEST(NetCli, PortInUseReportedBeforeAnyAssetIsBuilt) {

@@ -29,7 +29,7 @@ public enum Status { Ok = 0, Empty = 1, NotReady = 2, ErrNull = -1, ErrArgument 
                      ErrConnect = -4, ErrFailed = -5, ErrMemory = -6, ErrInternal = -7 }
 public enum State { Idle = 0, Connecting = 1, Streaming = 2, Closed = 3, Failed = 4 }
 public enum EventType { Connected = 1, AssetReady = 2, CharacterAdded = 3, CharacterRemoved = 4, Spawned = 5,
-                        SpawnRefused = 6, Closed = 7, Failed = 8, AssetFailed = 9 }
+                        SpawnRefused = 6, Closed = 7, Failed = 8, AssetFailed = 9, FailedOver = 10 }
 
 public class ProgskinException : Exception {
     public readonly Status Status;
@@ -124,6 +124,7 @@ public static class Native {
     [DllImport(Lib)] public static extern IntPtr psk_client_create(ref NativeConfig c);
     [DllImport(Lib)] public static extern Status psk_client_destroy(IntPtr c);
     [DllImport(Lib)] public static extern Status psk_client_connect(IntPtr c, [MarshalAs(UnmanagedType.LPUTF8Str)] string host, ushort port);
+    [DllImport(Lib)] public static extern Status psk_client_connect_list(IntPtr c, [MarshalAs(UnmanagedType.LPUTF8Str)] string servers);
     [DllImport(Lib)] public static extern Status psk_client_update(IntPtr c, double now);
     [DllImport(Lib)] public static extern Status psk_client_close(IntPtr c, [MarshalAs(UnmanagedType.LPUTF8Str)] string reason);
     [DllImport(Lib)] public static extern Status psk_client_state(IntPtr c, out State s);
@@ -226,6 +227,8 @@ public sealed class Client : IDisposable {
         if (port < 1 || port > 65535) throw new ArgumentOutOfRangeException("port");
         Native.Check(Native.psk_client_connect(H, host, (ushort)port));
     }
+    // servers: "HOST:PORT[,HOST:PORT...]"; fails over to the next when one is lost.
+    public void ConnectList(string servers) { Native.Check(Native.psk_client_connect_list(H, servers)); }
     public void Update() { Update(Now); }
     public void Update(double now) { Native.Check(Native.psk_client_update(H, now)); }
     public void Close(string reason) { Native.Check(Native.psk_client_close(H, reason)); }

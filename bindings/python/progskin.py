@@ -34,9 +34,9 @@ class State:
 
 class EventType:
     CONNECTED, ASSET_READY, CHARACTER_ADDED, CHARACTER_REMOVED, SPAWNED, SPAWN_REFUSED, CLOSED, FAILED, \
-        ASSET_FAILED = range(1, 10)
+        ASSET_FAILED, FAILED_OVER = range(1, 11)
     NAMES = {1: "connected", 2: "asset_ready", 3: "character_added", 4: "character_removed", 5: "spawned",
-             6: "spawn_refused", 7: "closed", 8: "failed", 9: "asset_failed"}
+             6: "spawn_refused", 7: "closed", 8: "failed", 9: "asset_failed", 10: "failed_over"}
 
 
 class Error(Exception):
@@ -123,6 +123,7 @@ _SIGNATURES = {
     "psk_client_create": (_P, [ctypes.POINTER(_Config)]),
     "psk_client_destroy": (_I, [_P]),
     "psk_client_connect": (_I, [_P, ctypes.c_char_p, ctypes.c_uint16]),
+    "psk_client_connect_list": (_I, [_P, ctypes.c_char_p]),
     "psk_client_update": (_I, [_P, ctypes.c_double]),
     "psk_client_close": (_I, [_P, ctypes.c_char_p]),
     "psk_client_state": (_I, [_P, _PI]),
@@ -266,6 +267,10 @@ class Client:
 
     def connect(self, host, port):
         _check(_lib().psk_client_connect(self._h, _b(host), port))
+
+    def connect_list(self, servers):
+        """servers: "HOST:PORT[,HOST:PORT...]"; fails over to the next when one is lost."""
+        _check(_lib().psk_client_connect_list(self._h, _b(servers)))
 
     def update(self, t=None):
         """One frame (t: now() by default). Raises Error once the client is Failed."""
