@@ -530,4 +530,28 @@ ProgressiveSkin build_progressive_skin(const Character& c, const FrameSet& frame
     return s;
 }
 
+double mean_rms(const std::vector<LodError>& table) {
+    double sum = 0;
+    for (const LodError& e : table) sum += e.rms;
+    return table.empty() ? 0.0 : sum / double(table.size());
+}
+
+ProgressiveSkin build_best_progressive_skin(const Character& c, const FrameSet& frames, const BuildOptions& options,
+                                            StrategyChoice* choice) {
+    BuildOptions opt = options;
+    const auto progress = options.progress;
+    opt.strategy = Strategy::Reorder;
+    if (progress) opt.progress = [&progress](int s, int t) { progress(s, 2 * t); };
+    ProgressiveSkin reorder = build_progressive_skin(c, frames, opt);
+    opt.strategy = Strategy::Flatten;
+    if (progress) opt.progress = [&progress](int s, int t) { progress(t + s, 2 * t); };
+    ProgressiveSkin flatten = build_progressive_skin(c, frames, opt);
+    StrategyChoice ch;
+    ch.reorder_mean_rms = mean_rms(reorder.error);
+    ch.flatten_mean_rms = mean_rms(flatten.error);
+    ch.chosen = ch.flatten_mean_rms < ch.reorder_mean_rms ? Strategy::Flatten : Strategy::Reorder;
+    if (choice) *choice = ch;
+    return ch.chosen == Strategy::Flatten ? std::move(flatten) : std::move(reorder);
+}
+
 }  // namespace progskin

@@ -20,4 +20,17 @@ struct BuildOptions {
 ProgressiveSkin build_progressive_skin(const Character& c, const FrameSet& frames,
                                        const BuildOptions& options = {});
 
+// The default build (docs/algorithms.md "Choosing the strategy"): builds
+// with reorder and with flatten and keeps the one of lower mean RMS error
+// over every prefix k = 1..B (the stream may show any; ties: reorder).
+// options.strategy is ignored; progress runs once over both builds
+// (total = 2 (B - 1)). Twice the cost of one build.
+struct StrategyChoice {
+    Strategy chosen = Strategy::Reorder;
+    double reorder_mean_rms = 0, flatten_mean_rms = 0;  // model units, mean over k of LodError::rms
+};
+ProgressiveSkin build_best_progressive_skin(const Character& c, const FrameSet& frames, const BuildOptions& options = {},
+                                            StrategyChoice* choice = nullptr);
+double mean_rms(const std::vector<LodError>& table);  // mean of rms over the rows; 0 for none
+
 }  // namespace progskin

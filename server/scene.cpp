@@ -76,7 +76,7 @@ std::shared_ptr<ServerAsset> load_server_asset(const std::string& path) {
         a->skin = std::move(pa.skin);  // progressive glTF: joints already in progressive order
         a->progressive_file = true;
     } else {
-        a->skin = build_progressive_skin(a->character, sample_frames(a->character, a->selections, 30.0));
+        a->skin = build_best_progressive_skin(a->character, sample_frames(a->character, a->selections, 30.0));
     }
     prepare_morphs(*a, path);
     finish_server_asset(*a);
@@ -238,10 +238,11 @@ std::vector<std::string> check_server_assets(const std::vector<std::string>& arg
 
 namespace {
 
-// Cache file of a plain file's build: content hash of the file, character, table version.
+// Cache file of a plain file's build: content hash of the file, character,
+// table version, build ("b2": the lower-error strategy, build_best_progressive_skin).
 std::string cached_build_path(const PendingAsset& p, const std::string& cache, const std::vector<uint8_t>& bytes) {
     return (fs::path(cache) / (hex64(content_hash(bytes)) + "-c" + std::to_string(p.character) + "-t" +
-                               std::to_string(kServerTablesVersion) + ".glb"))
+                               std::to_string(kServerTablesVersion) + "-b2.glb"))
         .string();
 }
 
@@ -382,7 +383,7 @@ std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const Ass
             }
         }
     } else if (!load_cached_build(p, cache, *a)) {
-        a->skin = build_progressive_skin(a->character, sample_frames(a->character, a->selections, 30.0));
+        a->skin = build_best_progressive_skin(a->character, sample_frames(a->character, a->selections, 30.0));
         finish_server_asset(*a);
         save_cached_build(p, cache, *a);
     }

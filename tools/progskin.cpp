@@ -51,14 +51,16 @@ namespace {
 const char* kUsage = R"(progskin — progressive skinning, offline tool
 
 usage:
-  progskin build IN -o OUT.glb [--strategy reorder|flatten] [--clip SPEC] [--fps 30]
-                 [--character N] [--plain-copy] [--quiet]
+  progskin build IN -o OUT.glb [--strategy auto|reorder|flatten|leaf_prune] [--clip SPEC]
+                 [--fps 30] [--character N] [--plain-copy] [--quiet]
       Build a progressive skin by collapsing IN's skin and write a standard
       glTF 2.0 file (joints in progressive order, weights reordered, animations
       kept, PROGSKIN_progressive_skin extension on the skin). OUT ending in
       .gltf is written as JSON with embedded buffers, anything else as .glb.
       OUT is self-contained: images IN keeps in files beside it are embedded
       (a missing or refused one is an error, before anything is built).
+      --strategy auto (default) builds reorder and flatten and keeps the one of
+      lower mean RMS error over k = 1..B, saying which (twice the time).
   progskin build --from-vertices IN -o OUT.glb [--bones N] [--max-error PERCENT]
                  [--rest-frame F] [--similarity] [--method auto|collapse|hybrid|top-down]
                  [--clip SPEC] [--fps 30] [--quiet]
@@ -132,25 +134,52 @@ void print_table(const std::string& title, const std::vector<LodError>& t, doubl
                     e.influences);
 }
 
+// Progress of a build on stderr: on a terminal one line rewritten (\r) at
+// most every 250 ms; in a log (stderr not a terminal) one line every 2 s.
+// The estimate weighs each collapse by the bones left in its round, squared
+// (a collapse with r bones left tries r candidates, each refitted over the
+// vertices they move), and counts from the first step reported (the set-up
+// before it says nothing of the rest); none before two steps and 1 s.
 class Progress {
 public:
-    explicit Progress(bool quiet, std::string what) : quiet_(quiet), what_(std::move(what)) {}
+    Progress(bool quiet, std::string what, int rounds = 1)
+        : quiet_(quiet), tty_(::isatty(STDERR_FILENO) == 1), rounds_(std::max(1, rounds)), what_(std::move(what)) {}
     void operator()(int step, int total) {
         if (quiet_ || total <= 0) return;
         const auto now = std::chrono::steady_clock::now();
-        if (step < total && now - last_ < std::chrono::milliseconds(250)) return;
+        if (first_step_ < 0) {
+            first_step_ = step;
+            first_ = now;
+        }
+        if (step < total && now - last_ < std::chrono::milliseconds(tty_ ? 250 : 2000)) return;
         last_ = now;
         const double el = std::chrono::duration<double>(now - start_).count();
-        const double eta = step > 0 ? el * (total - step) / step : 0.0;
-        std::fprintf(stderr, "\r%s: %d/%d collapses, %.1f s, about %.1f s left   ", what_.c_str(), step, total, el,
-                     eta);
-        if (step >= total) std::fprintf(stderr, "\n");
+        const double since = std::chrono::duration<double>(now - first_).count();
+        const double done = work(first_step_, step, total);
+        char eta[64] = "";
+        if (step < total && step - first_step_ >= 2 && since >= 1.0 && done > 0)
+            std::snprintf(eta, sizeof eta, ", about %.1f s left", since * work(step, total, total) / done);
+        std::fprintf(stderr, tty_ ? "\r%s: %d/%d collapses, %.1f s%s      " : "%s: %d/%d collapses, %.1f s%s\n",
+                     what_.c_str(), step, total, el, eta);
+        if (tty_ && step >= total) std::fprintf(stderr, "\n");
     }
 
 private:
-    bool quiet_;
+    // The weight of steps [from, to) of `total` (rounds_ builds one after another).
+    double work(int from, int to, int total) const {
+        const int n = std::max(1, total / rounds_);
+        double w = 0;
+        for (int i = from; i < to; ++i) {
+            const double r = double(n - i % n + 1);
+            w += r * r;
+        }
+        return w;
+    }
+    bool quiet_, tty_;
+    int rounds_;
     std::string what_;
-    std::chrono::steady_clock::time_point start_ = std::chrono::steady_clock::now(), last_{};
+    int first_step_ = -1;
+    std::chrono::steady_clock::time_point start_ = std::chrono::steady_clock::now(), first_{}, last_{};
 };
 
 ProgressiveSkin build_with_progress(const Character& c, const FrameSet& frames, Strategy st, bool fit, bool quiet) {
@@ -160,6 +189,15 @@ ProgressiveSkin build_with_progress(const Character& c, const FrameSet& frames, 
     Progress p(quiet, std::string("build ") + strategy_name(st));
     opt.progress = [&p](int s, int t) { p(s, t); };
     return build_progressive_skin(c, frames, opt);
+}
+
+// --strategy auto: reorder and flatten, the lower mean RMS kept (offline/collapse.h).
+ProgressiveSkin build_best_with_progress(const Character& c, const FrameSet& frames, bool fit, bool quiet, StrategyChoice& chosen) {
+    BuildOptions opt;
+    opt.fit_corrections = fit;
+    Progress p(quiet, "build reorder, then flatten", 2);
+    opt.progress = [&p](int s, int t) { p(s, t); };
+    return build_best_progressive_skin(c, frames, opt, &chosen);
 }
 
 // The server's tables of a built skin (offline/cost_tables.h), stored in the
@@ -276,9 +314,11 @@ int cmd_build(int argc, char** argv) {
     check_output_path(a.get("-o"));
     const double fps = a.has("--fps") ? to_number("--fps", a.get("--fps")) : 30.0;
     if (fps <= 0 || fps > 1000) throw UsageError("--fps must be in (0, 1000]");
-    const Strategy st = parse_strategy(a.get("--strategy", "reorder"));
+    const std::string strategy = a.get("--strategy", "auto");
+    const bool choose = strategy == "auto";
+    const Strategy st = choose ? Strategy::Reorder : parse_strategy(strategy);
     if (st != Strategy::Reorder && st != Strategy::Flatten && st != Strategy::LeafPrune)
-        throw UsageError("--strategy must be reorder, flatten or leaf_prune");
+        throw UsageError("--strategy must be auto, reorder, flatten or leaf_prune");
     const bool quiet = a.has("--quiet");
     // The output embeds the images the input keeps beside it: every one is checked before the build.
     external_files(a.positional[0]);
@@ -292,8 +332,21 @@ int cmd_build(int argc, char** argv) {
                      "%s: %zu morph targets: kept in the output and evaluated before skinning; the error table is "
                      "the skinning error on the morphed mesh\n",
                      a.positional[0].c_str(), c.morphs.size());
-    const ProgressiveSkin s = build_with_progress(c, frames, st, !a.has("--plain-copy"), quiet);
+    StrategyChoice chosen;
+    const ProgressiveSkin s = choose ? build_best_with_progress(c, frames, !a.has("--plain-copy"), quiet, chosen)
+                                     : build_with_progress(c, frames, st, !a.has("--plain-copy"), quiet);
+    if (!quiet) std::fprintf(stderr, "%s: computing the server's tables (bone costs and importance)\n", a.positional[0].c_str());
     json extra = server_tables(c, s);
+    if (choose) {
+        extra["strategy_choice"] = {{"chosen", strategy_name(chosen.chosen)},
+                                    {"reorder_mean_rms_pct", 100.0 * chosen.reorder_mean_rms / s.diagonal},
+                                    {"flatten_mean_rms_pct", 100.0 * chosen.flatten_mean_rms / s.diagonal}};
+        if (!quiet)
+            std::fprintf(stderr, "%s: strategy %s: mean RMS over k %.4f %% of the diagonal (reorder %.4f %%, flatten %.4f %%)\n",
+                         a.positional[0].c_str(), strategy_name(chosen.chosen),
+                         100.0 * std::min(chosen.reorder_mean_rms, chosen.flatten_mean_rms) / s.diagonal,
+                         100.0 * chosen.reorder_mean_rms / s.diagonal, 100.0 * chosen.flatten_mean_rms / s.diagonal);
+    }
     // What the error table was measured on (docs/metrics.md §2: a table is only comparable with its frames).
     extra["fps"] = fps;
     extra["clips"] = a.get("--clip", "auto");
@@ -305,9 +358,10 @@ int cmd_build(int argc, char** argv) {
     }
     extra["frames"] = frames.frame_count();
     extra["source"] = std::filesystem::path(a.positional[0]).filename().string();
+    if (!quiet) std::fprintf(stderr, "%s: writing %s\n", a.positional[0].c_str(), a.get("-o").c_str());
     save_progressive(c, s, a.get("-o"), "", extra);
     if (!quiet) {
-        print_table(std::string("progressive skin, strategy ") + strategy_name(st), s.error, s.diagonal);
+        print_table(std::string("progressive skin, strategy ") + strategy_name(s.strategy), s.error, s.diagonal);
         std::printf("\nwrote %s\n", a.get("-o").c_str());
     }
     return 0;
@@ -538,8 +592,8 @@ int cmd_pose(int argc, char** argv) {
     }
     const FrameSet one = sample_pose(c, sel, t);  // bones and morph weights at exactly t
     if (!asset.progressive && k < B) {
-        asset.skin = build_with_progress(c, sample_frames(c, default_training_set(c), 30.0), Strategy::Reorder, true,
-                                         true);
+        StrategyChoice ignored;
+        asset.skin = build_best_with_progress(c, sample_frames(c, default_training_set(c), 30.0), true, true, ignored);
         asset.progressive = true;
     }
     std::vector<glm::vec3> pos(c.vertex_count());
