@@ -59,6 +59,29 @@ TEST(BuildCli, OutputPathCheckedBeforeTheBuild) {
     EXPECT_NE(folder.out.find("-o /tmp: is a folder"), std::string::npos) << folder.out;
 }
 
+// The default build says which strategy it kept and why, writes it in the
+// file, and logs progress one line at a time when stderr is not a terminal
+// (run() captures it through a pipe): no carriage returns piling up.
+TEST(BuildCli, DefaultStrategyChosenAndSaidProgressOneLineAtATime) {
+    if (!std::ifstream(progskin()).good()) GTEST_SKIP() << progskin() << " not built";
+    const std::string out = ::testing::TempDir() + "progskin_build_auto.glb";
+    const CmdResult r = run(progskin() + " build " + std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb -o " + out);
+    ASSERT_EQ(r.code, 0) << r.out;
+    EXPECT_EQ(r.out.find('\r'), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("collapses"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("computing the server's tables"), std::string::npos) << r.out;
+    const size_t at = r.out.find(": strategy ");
+    ASSERT_NE(at, std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("(reorder ", at), std::string::npos) << r.out;
+    const CmdResult j = run(progskin() + " inspect " + out + " --json");
+    ASSERT_EQ(j.code, 0) << j.out;
+    const nlohmann::json doc = nlohmann::json::parse(j.out.substr(j.out.find('{')));
+    EXPECT_TRUE(doc.is_object());
+    const std::string said = r.out.substr(at + 11, r.out.find(':', at + 11) - at - 11);
+    EXPECT_TRUE(said == "reorder" || said == "flatten") << said;
+    EXPECT_NE(j.out.find("\"" + said + "\""), std::string::npos) << "the file does not say " << said << ": " << j.out.substr(0, 400);
+}
+
 // A file without a skin: inspect lists what it has (vertices, frames, clips,
 // morph targets) and points to --from-vertices; build says the same.
 TEST(Inspect, FileWithoutASkinListsClipsAndMorphTargetsAndPointsToFromVertices) {

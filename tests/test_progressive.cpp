@@ -179,6 +179,36 @@ TEST_P(CollapseOnAsset, StrategiesBeatLeafPruneAndReproduceOriginal) {
     }
 }
 
+// The default build keeps whichever of reorder and flatten has the lower
+// mean RMS over k, and says so; progress covers both builds once.
+TEST_P(CollapseOnAsset, DefaultBuildKeepsTheLowerErrorStrategy) {
+    const AssetCase ac = GetParam();
+    const Character c = import_character(asset(ac.file));
+    const auto sets = *ac.clip ? std::vector<ClipSelection>{select_clips(c, ac.clip)} : default_training_set(c);
+    const FrameSet f = sample_frames(c, sets, 15.0);
+    const ProgressiveSkin reorder = build(c, f, Strategy::Reorder), flatten = build(c, f, Strategy::Flatten);
+    BuildOptions opt;
+    int last = 0, total = 0;
+    bool monotonic = true;
+    opt.progress = [&](int s, int t) {
+        monotonic = monotonic && s >= last;
+        last = s;
+        total = t;
+    };
+    StrategyChoice ch;
+    const ProgressiveSkin best = build_best_progressive_skin(c, f, opt, &ch);
+    EXPECT_DOUBLE_EQ(ch.reorder_mean_rms, mean_rms(reorder.error));
+    EXPECT_DOUBLE_EQ(ch.flatten_mean_rms, mean_rms(flatten.error));
+    EXPECT_EQ(ch.chosen, ch.flatten_mean_rms < ch.reorder_mean_rms ? Strategy::Flatten : Strategy::Reorder);
+    EXPECT_EQ(best.strategy, ch.chosen);
+    EXPECT_DOUBLE_EQ(mean_rms(best.error), std::min(ch.reorder_mean_rms, ch.flatten_mean_rms));
+    if (c.joint_count() > 1) {
+        EXPECT_TRUE(monotonic);
+        EXPECT_EQ(total, 2 * (int(c.joint_count()) - 1));
+        EXPECT_EQ(last, total);
+    }
+}
+
 INSTANTIATE_TEST_SUITE_P(Assets, CollapseOnAsset,
                          ::testing::Values(AssetCase{"RiggedSimple.gltf", ""}, AssetCase{"Fox.glb", "Survey"},
                                            AssetCase{"CesiumMan.glb", "all"}),
