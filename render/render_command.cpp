@@ -73,10 +73,10 @@ int render_command(int argc, char** argv) {
         if (!asset.progressive) {
             if (!quiet)
                 std::fprintf(stderr,
-                             "render: %s has no progressive skin; building one (reorder, 30 fps; "
-                             "`progskin build` once to skip this)\n",
+                             "render: %s has no progressive skin; building one (the lower-error strategy, "
+                             "30 fps; `progskin build` once to skip this)\n",
                              pos[0].c_str());
-            asset.skin = build_progressive_skin(c, sample_frames(c, default_training_set(c), 30.0));
+            asset.skin = build_best_progressive_skin(c, sample_frames(c, default_training_set(c), 30.0));
             asset.progressive = true;
         }
         const ProgressiveSkin& s = asset.skin;
