@@ -56,7 +56,17 @@ static psk_client* connect_client(const char* name) {
         fprintf(stderr, "psk_client_create: %s\n", psk_last_error());
         exit(1);
     }
-    s = psk_client_connect(c, env("PROGSKIN_HOST"), (uint16_t)atoi(env("PROGSKIN_PORT")));
+    if (strcmp(name, "c-player") == 0) {
+        /* The player names a second server to fail over to (never needed here). */
+        char list[300];
+        CHECK(psk_client_connect_list(c, "127.0.0.1:7777,nope") == PSK_ERR_ARGUMENT &&
+                  strstr(psk_last_error(), "'nope' is not HOST:PORT"),
+              "a bad server list: %s", psk_last_error());
+        snprintf(list, sizeof list, "%s:%s,127.0.0.1:1", env("PROGSKIN_HOST"), env("PROGSKIN_PORT"));
+        s = psk_client_connect_list(c, list);
+    } else {
+        s = psk_client_connect(c, env("PROGSKIN_HOST"), (uint16_t)atoi(env("PROGSKIN_PORT")));
+    }
     CHECK(s == PSK_OK, "connect: %s", psk_status_name(s));
     return c;
 }
