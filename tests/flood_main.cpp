@@ -59,11 +59,7 @@ int parse(int argc, char** argv, Options& o) {
                 std::fputs(kUsage, stdout);
                 return 0;
             } else if (a == "--server") {
-                const std::string v = need();
-                const auto colon = v.rfind(':');
-                if (colon == std::string::npos || v.substr(0, colon) != "127.0.0.1")
-                    throw std::invalid_argument("--server must be 127.0.0.1:PORT (the flood runs on loopback)");
-                o.port = cli::to_port(a, v.substr(colon + 1));
+                o.port = loopback_port(a, need(), "the flood runs on loopback");
             } else if (a == "--rate") o.rate = cli::to_number(a, need());
             else if (a == "--duration") o.duration = cli::to_number(a, need());
             else if (a == "--addresses") o.addresses = cli::to_int(a, need());

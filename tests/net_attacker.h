@@ -21,10 +21,20 @@
 #include <vector>
 
 #include "bone_codec.h"
+#include "cli_args.h"
 #include "crypto.h"
 #include "wire.h"
 
 namespace progskin::net::testing {
+
+// The port of a --server 127.0.0.1:PORT value: the load tools (progskin-attack,
+// progskin-flood) only ever aim at this machine. `why` ends the message.
+inline uint16_t loopback_port(const std::string& key, const std::string& v, const char* why) {
+    const auto colon = v.rfind(':');
+    if (colon == std::string::npos || v.substr(0, colon) != "127.0.0.1")
+        throw std::invalid_argument(key + " must be 127.0.0.1:PORT (" + why + ")");
+    return cli::to_port(key, v.substr(colon + 1));
+}
 
 class Attacker {
 public:
