@@ -7,32 +7,16 @@
 // publishes a character of its own.
 #include <gtest/gtest.h>
 
-#pragma GCC diagnostic ignored "-Wmismatched-new-delete"  // operator new below is malloc, delete free
-
-#include <cstdlib>
-#include <new>
 #include <thread>
 #include <vector>
 
+#include "alloc_counter.h"
 #include "net_test_support.h"
 #include "progskin.h"
 
-namespace {
-thread_local bool counting = false, measuring = false;
-thread_local long allocations = 0;
-}  // namespace
-
-void* operator new(std::size_t n) {
-    if (counting) ++allocations;
-    if (void* p = std::malloc(n ? n : 1)) return p;
-    throw std::bad_alloc();
-}
-void* operator new[](std::size_t n) { return operator new(n); }
-// NOLINTNEXTLINE: paired with the malloc above
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete[](void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
-void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+using alloc_counter::allocations;
+using alloc_counter::counting;
+using alloc_counter::measuring;
 
 using progskin::net::testing::RunningServer;
 
