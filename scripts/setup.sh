@@ -4,7 +4,7 @@ set -euo pipefail
 PKGS=(build-essential cmake pkg-config libasio-dev libflatbuffers-dev flatbuffers-compiler
       libglm-dev libeigen3-dev libtinygltf-dev nlohmann-json3-dev libgtest-dev libbenchmark-dev
       libegl-dev libgl-dev libegl-mesa0 libgl1-mesa-dri libstb-dev gnuplot-nox libsodium-dev libssl-dev
-      libhwy-dev mono-mcs mono-runtime)
+      libhwy-dev mono-mcs mono-runtime libnats-dev nats-server)
 missing=()
 for p in "${PKGS[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

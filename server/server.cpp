@@ -32,6 +32,7 @@
 
 #include "errors.h"
 #include "server_core.h"
+#include "world_bus.h"
 
 namespace progskin::net {
 
@@ -149,6 +150,7 @@ struct Server::Impl {
     };
 
     ServerCore core;
+    std::unique_ptr<WorldBus> bus;  // ServerConfig::nats_url: this node's world (docs/deployment.md)
     const int threads;                               // tick_threads(config)
     asio::io_context io;                             // control (everything when threads == 1)
     std::unique_ptr<asio::io_context> own_tick_io;   // threads > 1: the UDP socket and the tick
@@ -185,6 +187,8 @@ struct Server::Impl {
         sink.set_descriptor(udp_sock.native_handle());
         core.set_udp_port(udp_port);
         core.set_pool(pool.get());
+        if (const ServerConfig& cfg = core.config(); !cfg.nats_url.empty())
+            bus = std::make_unique<WorldBus>(WorldConfig{cfg.nats_url, cfg.world_node, cfg.world_name, cfg.world_cell}, core);
     }
 
     // The core's lock (server_core.h): held for every call into the core.
@@ -433,6 +437,7 @@ struct Server::Impl {
                 auto lock = hold();
                 core.tick(now_seconds(), sink);
             }
+            if (bus) bus->after_tick(core.encoder().frame(), now_seconds());  // outside the core's lock
             // Goodbyes, instance announcements, evictions, closes: at once with
             // one thread, else on the control thread.
             if (!own_tick_io) pump_all();
@@ -574,6 +579,22 @@ bool Server::set_root(int instance, const RootPose& root, bool teleport) {
 }
 int Server::add_instance(const InstanceSpec& spec) { return impl_->core.add_instance(spec); }
 void Server::remove_instance(int instance) { impl_->core.remove_instance(instance); }
-ServerStats Server::stats() const { return impl_->core.stats(); }
+ServerStats Server::stats() const {
+    ServerStats st = impl_->core.stats();
+    if (impl_->bus) {
+        const WorldStats w = impl_->bus->stats();
+        st.world_messages_out = w.messages_out;
+        st.world_bytes_out = w.bytes_out;
+        st.world_messages_in = w.messages_in;
+        st.world_bytes_in = w.bytes_in;
+        st.world_dropped = w.dropped;
+        st.world_malformed = w.malformed;
+        st.world_refused = w.refused;
+        st.world_publish_failed = w.publish_failed;
+        st.world_foreign = w.foreign;
+        st.world_connected = w.connected;
+    }
+    return st;
+}
 
 }  // namespace progskin::net

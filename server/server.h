@@ -97,6 +97,12 @@ struct ServerConfig {
     // messages and asset downloads never delay a tick. At most 256.
     int threads = 0;
     bool verbose = false;
+    // One world across servers (docs/deployment.md): non-empty, the NATS
+    // server this node joins (nats://HOST:PORT; needs a build with libnats).
+    std::string nats_url;
+    std::string world_node = "node";   // this node's name in the world's logs
+    std::string world_name = "default";
+    double world_cell = 16.0;          // side of a bus cell, world units
 };
 
 // The tick threads a configuration asks for: ServerConfig::threads, or the
@@ -108,6 +114,13 @@ struct ServerStats {
     uint64_t ticks = 0, datagrams_sent = 0, wire_bytes_sent = 0;
     uint64_t datagrams_received = 0, malformed_datagrams = 0, rejected_datagrams = 0;
     uint64_t late_datagrams = 0;  // of a session closed less than 2 s before (ServerCore::erase)
+    // The world bus (nats_url): messages and bytes each way, messages dropped
+    // (a full queue, no instance id left), malformed, of another catalogue,
+    // the other nodes' characters in this scene now.
+    uint64_t world_messages_out = 0, world_bytes_out = 0, world_messages_in = 0, world_bytes_in = 0;
+    uint64_t world_dropped = 0, world_malformed = 0, world_refused = 0, world_publish_failed = 0;
+    int world_foreign = 0;
+    bool world_connected = false;
     uint64_t unverified_bytes_in = 0, unverified_bytes_out = 0;  // from addresses not bound / to them (Challenges only)
     uint64_t malformed_control = 0, asset_bytes_sent = 0;
     uint64_t poses_received = 0, poses_stale = 0, poses_rate_limited = 0;  // players' Pose datagrams

@@ -406,7 +406,8 @@ const EncodedFrame* ServerCore::prepare_tick(double now, std::vector<std::shared
         if (e.stream->state() == SessionState::Streaming) any = true;
         if (e.stream->welcomed()) e.stream->sync_instances();
     }
-    const EncodedFrame* frame = any ? &encoder_.encode(tick_) : nullptr;
+    // A node of a world encodes every tick: its characters go on the bus (world_bus.h).
+    const EncodedFrame* frame = any || !cfg_.nats_url.empty() ? &encoder_.encode(tick_) : nullptr;
     update_owner_groups(frame);
     if (now - pruned_at_ >= 1.0) {
         prune_addresses(now);

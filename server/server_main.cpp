@@ -50,6 +50,12 @@ static const char* kUsage =
     "                    machine's cores). With more than 1, connections (TLS handshakes,\n"
     "                    control messages, asset downloads) also get a thread of their own\n"
     "                    and never delay a tick; 1: one thread for everything\n"
+    "  --nats URL        join a world of servers on this NATS server (nats://HOST:PORT):\n"
+    "                    this node's characters go on the bus by spatial cell, the other\n"
+    "                    nodes' come into this scene (docs/deployment.md)\n"
+    "  --node NAME       this node's name in the world's logs (default: node)\n"
+    "  --world NAME      the world's name, its bus subjects (default: default)\n"
+    "  --world-cell M    side of a bus cell in world units (default 16)\n"
     "  --max-clients N   (default 256)\n"
     "  --max-kbps N      per-client rate ceiling in kbit/s (default 50000)\n"
     "  Budgets (what one player may cost the others; docs/protocol.md \"Security\"):\n"
@@ -136,6 +142,10 @@ static int parse_options(int argc, char** argv, Options& o) {
             }
             else if (a == "--tick-rate") cfg.tick_rate = float(cli::to_number(a, need(i)));
             else if (a == "--threads") o.threads = cli::to_int(a, need(i));
+            else if (a == "--nats") cfg.nats_url = need(i);
+            else if (a == "--node") cfg.world_node = need(i);
+            else if (a == "--world") cfg.world_name = need(i);
+            else if (a == "--world-cell") cfg.world_cell = cli::to_number(a, need(i));
             else if (a == "--max-clients") cfg.max_clients = cli::to_int(a, need(i));
             else if (a == "--max-kbps") cfg.max_kbps = cli::to_number(a, need(i));
             else if (a == "--max-per-address") cfg.max_per_address = cli::to_int(a, need(i));
@@ -280,6 +290,14 @@ static void report(const ServerStats& st) {
                  (unsigned long long)st.poses_received, (unsigned long long)st.poses_stale,
                  (unsigned long long)st.poses_rate_limited, (unsigned long long)st.poses_out_of_range,
                  st.ticks ? 1000.0 * st.tick_seconds / double(st.ticks) : 0.0);
+    if (st.world_messages_out + st.world_messages_in > 0)
+        std::fprintf(stderr,
+                     "progskin-server: world bus: %llu messages (%llu bytes) out, %llu (%llu bytes) in, %llu dropped, "
+                     "%llu malformed, %llu of another catalogue, %llu publish failures, %d foreign characters now\n",
+                     (unsigned long long)st.world_messages_out, (unsigned long long)st.world_bytes_out,
+                     (unsigned long long)st.world_messages_in, (unsigned long long)st.world_bytes_in,
+                     (unsigned long long)st.world_dropped, (unsigned long long)st.world_malformed,
+                     (unsigned long long)st.world_refused, (unsigned long long)st.world_publish_failed, st.world_foreign);
     std::string refusals;
     for (const auto& [reason, n] : st.refusals) refusals += " " + reason + " " + std::to_string(n);
     std::fprintf(stderr, "progskin-server: refusals:%s\n", refusals.empty() ? " none" : refusals.c_str());

@@ -1,0 +1,332 @@
+// world_bus.cpp — see world_bus.h. libnats (Debian's libnats-dev) carries
+// the messages; this file decides what goes on the bus and what comes off it.
+#include "world_bus.h"
+
+#include <nats/nats.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <random>
+
+#include "bone_codec.h"
+#include "errors.h"
+#include "frame_encoder.h"
+#include "server_core.h"
+
+namespace progskin::net {
+
+namespace {
+
+// Owner of a foreign character (what makes it a published one for its
+// observers): distinct per character, so that each gets its own share of an
+// observer's stream. Which instances are foreign is kept apart (is_foreign).
+constexpr uint64_t kForeignOwner = uint64_t(1) << 63;
+constexpr uint8_t kHelloMagic[4] = {'P', 'S', 'K', 'H'};
+
+void say(const std::string& s) { std::fprintf(stderr, "progskin-server: world: %s\n", s.c_str()); }
+
+}  // namespace
+
+struct WorldBus::Impl {
+    WorldConfig cfg;
+    ServerCore& core;
+    uint16_t node_id = 0;
+    uint64_t catalogue = 0;
+    natsOptions* opts = nullptr;
+    natsConnection* nc = nullptr;
+    natsSubscription* cells = nullptr;
+    natsSubscription* hellos = nullptr;
+    std::string cell_prefix, hello_subject;
+
+    // libnats threads -> tick thread
+    std::mutex queue_mutex;
+    std::deque<std::vector<uint8_t>> queue;  // first byte: 0 cell message, 1 hello
+    size_t queued_bytes = 0;
+
+    mutable std::mutex stats_mutex;
+    WorldStats st;
+
+    struct Foreign {
+        int local = -1;
+        double last_seen = 0;
+        uint32_t seq = 0;
+    };
+    std::map<uint32_t, Foreign> foreign;       // by node << 16 | the node's id
+    std::vector<bool> is_foreign;               // by local instance id
+    std::map<uint16_t, std::string> nodes;      // hellos heard (node id -> name)
+    std::map<uint16_t, bool> refused_nodes;     // nodes of another catalogue (said once)
+    double next_hello = 0;
+    std::vector<uint8_t> out;                   // one message being written
+    std::map<std::pair<int64_t, int64_t>, std::vector<WorldCharacter>> by_cell;
+    std::vector<WorldCharacter> incoming;
+
+    Impl(WorldConfig c, ServerCore& k) : cfg(std::move(c)), core(k) {
+        std::random_device rd;
+        while (node_id == 0) node_id = uint16_t(rd());
+        catalogue = catalogue_hash(core.assets());
+        cell_prefix = "progskin." + cfg.world + ".cell.";
+        hello_subject = "progskin." + cfg.world + ".hello";
+    }
+
+    template <class F>
+    void count(F f) {
+        std::lock_guard lock(stats_mutex);
+        f(st);
+    }
+
+    // ------------------------------------------------------- libnats side --
+    static void on_message(natsConnection*, natsSubscription* sub, natsMsg* msg, void* closure) {
+        auto* self = static_cast<Impl*>(closure);
+        const int n = natsMsg_GetDataLength(msg);
+        const auto* data = reinterpret_cast<const uint8_t*>(natsMsg_GetData(msg));
+        const uint8_t kind = sub == self->hellos ? 1 : 0;
+        {
+            std::lock_guard lock(self->queue_mutex);
+            if (self->queue.size() < kQueueMessages && self->queued_bytes + size_t(n) <= kQueueBytes && n >= 0 &&
+                size_t(n) <= kWorldMaxMessage) {
+                std::vector<uint8_t> m(size_t(n) + 1);
+                m[0] = kind;
+                if (n) std::memcpy(m.data() + 1, data, size_t(n));
+                self->queued_bytes += m.size();
+                self->queue.push_back(std::move(m));
+                natsMsg_Destroy(msg);
+                return;
+            }
+        }
+        self->count([](WorldStats& s) { ++s.dropped; });
+        natsMsg_Destroy(msg);
+    }
+    static void on_disconnected(natsConnection*, void* closure) {
+        auto* self = static_cast<Impl*>(closure);
+        self->count([](WorldStats& s) { s.connected = false; });
+        say("lost the bus (" + self->cfg.url + "); reconnecting, local streaming goes on");
+    }
+    static void on_reconnected(natsConnection*, void* closure) {
+        auto* self = static_cast<Impl*>(closure);
+        self->count([](WorldStats& s) { s.connected = true; });
+        say("reconnected to the bus (" + self->cfg.url + ")");
+    }
+    static void on_connected(natsConnection*, void* closure) { on_reconnected(nullptr, closure); }
+
+    void connect() {
+        auto check = [](natsStatus s, const char* what) {
+            if (s != NATS_OK) throw Error(std::string("world bus: ") + what + ": " + natsStatus_GetText(s));
+        };
+        check(natsOptions_Create(&opts), "options");
+        check(natsOptions_SetURL(opts, cfg.url.c_str()), ("bad URL " + cfg.url).c_str());
+        check(natsOptions_SetName(opts, ("progskin " + cfg.node).c_str()), "name");
+        check(natsOptions_SetAllowReconnect(opts, true), "reconnect");
+        check(natsOptions_SetMaxReconnect(opts, -1), "reconnect");
+        check(natsOptions_SetReconnectWait(opts, 250), "reconnect wait");
+        check(natsOptions_SetReconnectBufSize(opts, 8 << 20), "reconnect buffer");
+        check(natsOptions_SetNoEcho(opts, true), "no echo");  // never our own messages back
+        check(natsOptions_SetDisconnectedCB(opts, on_disconnected, this), "callback");
+        check(natsOptions_SetReconnectedCB(opts, on_reconnected, this), "callback");
+        check(natsOptions_SetRetryOnFailedConnect(opts, true, on_connected, this), "retry");
+        const natsStatus s = natsConnection_Connect(&nc, opts);
+        if (s != NATS_OK && s != NATS_NOT_YET_CONNECTED) check(s, ("cannot connect to " + cfg.url).c_str());
+        if (s == NATS_OK) count([](WorldStats& w) { w.connected = true; });
+        check(natsConnection_Subscribe(&cells, nc, (cell_prefix + ">").c_str(), on_message, this), "subscribe");
+        check(natsConnection_Subscribe(&hellos, nc, hello_subject.c_str(), on_message, this), "subscribe");
+        for (natsSubscription* sub : {cells, hellos})
+            check(natsSubscription_SetPendingLimits(sub, int(kQueueMessages), int(kQueueBytes)), "pending limits");
+        say("node " + cfg.node + " joins world " + cfg.world + " on " + cfg.url + (s == NATS_OK ? "" : " (not up yet: retrying)"));
+    }
+
+    void publish(const std::string& subject, const std::vector<uint8_t>& bytes) {
+        if (natsConnection_Publish(nc, subject.c_str(), bytes.data(), int(bytes.size())) == NATS_OK)
+            count([&](WorldStats& s) {
+                ++s.messages_out;
+                s.bytes_out += bytes.size();
+            });
+        else count([](WorldStats& s) { ++s.publish_failed; });
+    }
+
+    // ------------------------------------------------------- tick side --
+    void publish_own(const EncodedFrame& frame);
+    void receive(double now);
+    void take_cell(std::span<const uint8_t> bytes, double now);
+    void take_hello(std::span<const uint8_t> bytes);
+    void expire(double now);
+    void hello(double now);
+};
+
+// This node's characters, batched by cell: one message per non-empty cell.
+void WorldBus::Impl::publish_own(const EncodedFrame& frame) {
+    by_cell.clear();
+    const ServerAssets& assets = core.assets();
+    InstanceSpec spec;
+    for (size_t i = 0; i < frame.instances.size(); ++i) {
+        const EncodedInstance& e = frame.instances[i];
+        if (!e.valid || (i < is_foreign.size() && is_foreign[i]) || !core.encoder().spec_if_active(int(i), spec)) continue;
+        WorldCharacter c;
+        c.id = uint16_t(i);
+        c.asset = uint16_t(e.asset);
+        c.epoch = e.epoch;
+        if (e.flags & CHUNK_ROOT) c.root = e.root;
+        else if (!encode_root(RootPose{glm::dvec3(spec.position), spec.rotation}, c.root.data())) continue;
+        c.records = {frame.records(int(i)), size_t(e.bone_count) * size_t(e.record_size)};
+        bool weights = e.morph_count > 0;
+        for (int32_t w : frame.morphs(int(i))) weights = weights && w != kNoWeight;
+        if (weights)
+            for (int32_t w : frame.morphs(int(i))) c.morphs.push_back(int16_t(w));
+        c.published = spec.owner != 0;
+        if (c.published) {  // a player's: what it announced, for its observers' references
+            c.clips = spec.announced_clips;
+            c.publisher_start_us = spec.publisher_start_us;
+            c.walk_center = {spec.walk_center.x, spec.walk_center.y, spec.walk_center.z};
+            c.walk_radius = spec.walk_radius;
+            c.walk_speed = spec.walk_speed;
+        }
+        const auto cell = std::make_pair(int64_t(std::floor(e.world.x / cfg.cell_size)), int64_t(std::floor(e.world.z / cfg.cell_size)));
+        by_cell[cell].push_back(std::move(c));
+    }
+    for (auto& [cell, list] : by_cell) {
+        if (list.empty()) continue;
+        for (size_t at = 0; at < list.size(); at += kWorldMaxCharacters) {
+            const size_t n = std::min(kWorldMaxCharacters, list.size() - at);
+            write_world_message({node_id, catalogue, frame.tick}, std::span(list).subspan(at, n), assets, out);
+            publish(cell_prefix + std::to_string(cell.first) + "." + std::to_string(cell.second), out);
+        }
+    }
+}
+
+void WorldBus::Impl::receive(double now) {
+    std::deque<std::vector<uint8_t>> got;
+    {
+        std::lock_guard lock(queue_mutex);
+        got.swap(queue);
+        queued_bytes = 0;
+    }
+    for (const auto& m : got) {
+        count([&](WorldStats& s) {
+            ++s.messages_in;
+            s.bytes_in += m.size() - 1;
+        });
+        const std::span<const uint8_t> body(m.data() + 1, m.size() - 1);
+        if (m[0] == 1) take_hello(body);
+        else take_cell(body, now);
+    }
+}
+
+// Another node's cell: each character into the scene (added when new).
+void WorldBus::Impl::take_cell(std::span<const uint8_t> bytes, double now) {
+    WorldHeader h;
+    const std::string why = read_world_message(bytes, core.assets(), h, incoming);
+    if (!why.empty()) {
+        const bool other = why == "another catalogue";
+        count([&](WorldStats& s) { ++(other ? s.refused : s.malformed); });
+        if (other && !refused_nodes[h.node]) {
+            refused_nodes[h.node] = true;
+            say("node " + (nodes.count(h.node) ? nodes[h.node] : std::to_string(h.node)) +
+                " serves another catalogue: its characters are refused (start every node with the same assets)");
+        }
+        return;
+    }
+    for (const WorldCharacter& c : incoming) {
+        const uint32_t key = uint32_t(h.node) << 16 | c.id;
+        auto it = foreign.find(key);
+        if (it == foreign.end()) {
+            InstanceSpec sp;
+            sp.asset = c.asset;
+            sp.selection = -1;
+            sp.owner = c.published ? kForeignOwner | key : 0;  // a player's stays one (its own share)
+            sp.announced_clips = c.clips;
+            sp.publisher_start_us = c.publisher_start_us;
+            sp.walk_center = {c.walk_center[0], c.walk_center[1], c.walk_center[2]};
+            sp.walk_radius = c.walk_radius;
+            sp.walk_speed = c.walk_speed;
+            sp.position = glm::vec3(decode_root(c.root.data()).position);
+            try {
+                it = foreign.emplace(key, Foreign{core.add_instance(sp), now, 0}).first;
+            } catch (const Error&) {  // every instance id taken
+                count([](WorldStats& s) { ++s.dropped; });
+                continue;
+            }
+            const size_t local = size_t(it->second.local);
+            if (is_foreign.size() <= local) is_foreign.resize(local + 1, false);
+            is_foreign[local] = true;
+            count([](WorldStats& s) { ++s.foreign_added; });
+        }
+        Foreign& f = it->second;
+        f.last_seen = now;
+        core.encoder().push_records(f.local, ++f.seq, c.epoch, 0, c.records, c.root, c.morphs);
+    }
+}
+
+void WorldBus::Impl::take_hello(std::span<const uint8_t> bytes) {
+    if (bytes.size() < 4 + 2 + 8 + 1 || std::memcmp(bytes.data(), kHelloMagic, 4) != 0 || bytes.size() != 15u + bytes[14]) {
+        count([](WorldStats& s) { ++s.malformed; });
+        return;
+    }
+    uint16_t node;
+    uint64_t cat;
+    std::memcpy(&node, bytes.data() + 4, 2);
+    std::memcpy(&cat, bytes.data() + 6, 8);
+    const std::string name(reinterpret_cast<const char*>(bytes.data() + 15), bytes[14]);
+    if (nodes.emplace(node, name).second) {
+        say("node " + name + " is in world " + cfg.world + (cat == catalogue ? "" : " with another catalogue: refused"));
+        count([](WorldStats& s) { ++s.nodes_seen; });
+    }
+}
+
+// Foreign characters not heard from for kForeignTimeout: gone (their node died, left or lost the bus).
+void WorldBus::Impl::expire(double now) {
+    for (auto it = foreign.begin(); it != foreign.end();) {
+        if (now - it->second.last_seen > kForeignTimeout) {
+            core.remove_instance(it->second.local);
+            is_foreign[size_t(it->second.local)] = false;
+            count([](WorldStats& s) { ++s.foreign_removed; });
+            it = foreign.erase(it);
+        } else {
+            ++it;
+        }
+    }
+    count([&](WorldStats& s) { s.foreign = int(foreign.size()); });
+}
+
+void WorldBus::Impl::hello(double now) {
+    if (now < next_hello) return;
+    next_hello = now + 1.0;
+    out.assign(kHelloMagic, kHelloMagic + 4);
+    out.resize(15);
+    std::memcpy(out.data() + 4, &node_id, 2);
+    std::memcpy(out.data() + 6, &catalogue, 8);
+    const std::string name = cfg.node.substr(0, 255);
+    out[14] = uint8_t(name.size());
+    out.insert(out.end(), name.begin(), name.end());
+    publish(hello_subject, out);
+}
+
+WorldBus::WorldBus(WorldConfig cfg, ServerCore& core) : impl_(std::make_unique<Impl>(std::move(cfg), core)) {
+    if (impl_->cfg.world.empty() || impl_->cfg.world.find_first_of(".*> \t") != std::string::npos)
+        throw Error("world name '" + impl_->cfg.world + "': no dots, spaces, * or >");
+    if (!(impl_->cfg.cell_size > 0)) throw Error("world cell size must be > 0");
+    impl_->connect();
+}
+
+WorldBus::~WorldBus() {
+    if (!impl_) return;
+    for (natsSubscription* s : {impl_->cells, impl_->hellos})
+        if (s) natsSubscription_Destroy(s);
+    if (impl_->nc) {
+        natsConnection_Close(impl_->nc);
+        natsConnection_Destroy(impl_->nc);
+    }
+    if (impl_->opts) natsOptions_Destroy(impl_->opts);
+}
+
+void WorldBus::after_tick(const EncodedFrame& frame, double now) {
+    impl_->receive(now);
+    impl_->expire(now);
+    impl_->publish_own(frame);
+    impl_->hello(now);
+}
+
+WorldStats WorldBus::stats() const {
+    std::lock_guard lock(impl_->stats_mutex);
+    return impl_->st;
+}
+
+}  // namespace progskin::net

@@ -1,0 +1,74 @@
+// world_bus.h — one node of a world on NATS (docs/deployment.md,
+// docs/protocol.md "World bus"). After each tick the node publishes its own
+// characters (clip instances and players' published ones), as the encoder
+// encoded them, one message per spatial cell (world_message.h) on
+// `progskin.<world>.cell.<cx>.<cz>`; it receives the other nodes' cells and
+// keeps their characters in its own scene as foreign live instances
+// (ServerCore::add_instance, FrameEncoder::push_records), so that its
+// clients see them exactly as local ones. A foreign character is removed
+// when none of its messages came for 1.5 s (its node died or it left).
+// Every second a hello on `progskin.<world>.hello` names the node and its
+// catalogue; messages of another catalogue are refused and counted.
+//
+// Threads: libnats delivers on its own threads; a message is copied into a
+// bounded queue (kQueueMessages, kQueueBytes: beyond, dropped and counted)
+// that after_tick drains on the tick thread. Publishing never blocks (libnats
+// buffers; while it reconnects, up to its reconnect buffer, then the
+// message is dropped and counted). A nats-server that restarts is reconnected
+// to (every 250 ms, forever).
+#pragma once
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "world_message.h"
+
+namespace progskin::net {
+
+class ServerCore;
+struct EncodedFrame;
+
+struct WorldConfig {
+    std::string url;            // nats://HOST:PORT
+    std::string node = "node";  // this node's name (logs, hello)
+    std::string world = "default";
+    double cell_size = 16.0;    // metres (world units) per cell side
+};
+
+struct WorldStats {
+    uint64_t messages_out = 0, bytes_out = 0, publish_failed = 0;
+    uint64_t messages_in = 0, bytes_in = 0, dropped = 0, malformed = 0, refused = 0;
+    uint64_t foreign_added = 0, foreign_removed = 0;
+    int foreign = 0, nodes_seen = 0;
+    bool connected = false;
+};
+
+class WorldBus {
+public:
+    // Connects (retrying in the background if nats-server is not up yet).
+    // Throws Error for a bad URL or name.
+    WorldBus(WorldConfig cfg, ServerCore& core);
+    ~WorldBus();
+    WorldBus(const WorldBus&) = delete;
+    WorldBus& operator=(const WorldBus&) = delete;
+
+    // Tick thread, after ServerCore::tick: the foreign characters received
+    // since the last call into the scene, those unheard for 2 s removed, this
+    // node's characters published by cell; a hello every second.
+    void after_tick(const EncodedFrame& frame, double now);
+    WorldStats stats() const;
+
+    static constexpr size_t kQueueMessages = 1024, kQueueBytes = 16 << 20;
+    static constexpr double kForeignTimeout = 1.5;
+
+    struct Impl;  // libnats callbacks reach it
+
+private:
+    std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace progskin::net

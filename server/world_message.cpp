@@ -1,0 +1,149 @@
+// world_message.cpp — see world_message.h.
+#include "world_message.h"
+
+#include <cstring>
+
+namespace progskin::net {
+
+namespace {
+
+template <class T>
+void put(std::vector<uint8_t>& out, T v) {
+    uint8_t b[sizeof(T)];
+    std::memcpy(b, &v, sizeof(T));  // little-endian hosts (x86-64, arm64): the wire order
+    out.insert(out.end(), b, b + sizeof(T));
+}
+
+// A bounded reader: every take checks the bytes left.
+struct Reader {
+    std::span<const uint8_t> in;
+    size_t at = 0;
+    bool ok = true;
+    template <class T>
+    T get() {
+        T v{};
+        if (!ok || in.size() - at < sizeof(T)) {
+            ok = false;
+            return v;
+        }
+        std::memcpy(&v, in.data() + at, sizeof(T));
+        at += sizeof(T);
+        return v;
+    }
+    std::span<const uint8_t> take(size_t n) {
+        if (!ok || in.size() - at < n) {
+            ok = false;
+            return {};
+        }
+        auto s = in.subspan(at, n);
+        at += n;
+        return s;
+    }
+};
+
+constexpr uint8_t kMagic[4] = {'P', 'S', 'K', 'W'};
+constexpr uint8_t kVersion = 1;
+
+// One character after the header; "" or what is wrong.
+std::string read_character(Reader& r, const ServerAssets& assets, WorldCharacter& c) {
+    c.id = r.get<uint16_t>();
+    c.asset = r.get<uint16_t>();
+    c.epoch = r.get<uint8_t>();
+    const uint8_t flags = r.get<uint8_t>();
+    if (flags > 1) return "character flags " + std::to_string(flags);
+    c.published = flags == 1;
+    const int bones = r.get<uint8_t>(), rs = r.get<uint8_t>();
+    if (!r.ok) return "truncated character";
+    if (c.asset >= assets.size()) return "asset " + std::to_string(c.asset) + " not in the catalogue";
+    const ServerAsset& a = *assets[c.asset];
+    if (bones != a.bone_count() || rs != a.format.size())
+        return "character " + std::to_string(c.id) + ": " + std::to_string(bones) + " bones of " + std::to_string(rs) +
+               " bytes, the asset has " + std::to_string(a.bone_count()) + " of " + std::to_string(a.format.size());
+    const auto root = r.take(ROOT_BYTES);
+    if (r.ok) std::memcpy(c.root.data(), root.data(), ROOT_BYTES);
+    c.records = r.take(size_t(bones) * size_t(rs));
+    const size_t morphs = r.get<uint8_t>();
+    const size_t expect = std::min<size_t>(a.character.morphs.size(), MAX_MORPHS);
+    if (r.ok && morphs != 0 && morphs != expect) return "character " + std::to_string(c.id) + ": " + std::to_string(morphs) + " morph weights";
+    c.morphs.resize(morphs);
+    for (auto& w : c.morphs) w = r.get<int16_t>();
+    const size_t clips = r.get<uint8_t>();
+    if (clips > MAX_INSTANCE_CLIPS) return "more than " + std::to_string(MAX_INSTANCE_CLIPS) + " clips";
+    c.clips.resize(clips);
+    for (auto& k : c.clips) {
+        k = r.get<int32_t>();
+        if (r.ok && (k < 0 || size_t(k) >= a.character.clips.size())) return "clip " + std::to_string(k) + " not in the asset";
+    }
+    c.publisher_start_us = r.get<uint64_t>();
+    for (double& v : c.walk_center) v = r.get<double>();
+    c.walk_radius = r.get<double>();
+    c.walk_speed = r.get<double>();
+    if (!r.ok) return "truncated character";
+    return {};
+}
+
+}  // namespace
+
+uint64_t catalogue_hash(const ServerAssets& assets) {
+    uint64_t h = 1469598103934665603ull;  // FNV-1a over the ids' bytes
+    for (const auto& a : assets)
+        for (int i = 0; i < 8; ++i) h = (h ^ ((a->id >> (8 * i)) & 0xff)) * 1099511628211ull;
+    return h;
+}
+
+void write_world_message(const WorldHeader& h, std::span<const WorldCharacter> chars, const ServerAssets& assets,
+                         std::vector<uint8_t>& out) {
+    out.clear();
+    out.insert(out.end(), kMagic, kMagic + 4);
+    put<uint8_t>(out, kVersion);
+    put<uint8_t>(out, 0);
+    put<uint16_t>(out, h.node);
+    put<uint64_t>(out, h.catalogue);
+    put<uint32_t>(out, h.tick);
+    put<uint16_t>(out, uint16_t(chars.size()));
+    for (const WorldCharacter& c : chars) {
+        const ServerAsset& a = *assets[c.asset];
+        put<uint16_t>(out, c.id);
+        put<uint16_t>(out, c.asset);
+        put<uint8_t>(out, c.epoch);
+        put<uint8_t>(out, c.published ? 1 : 0);
+        put<uint8_t>(out, uint8_t(a.bone_count()));
+        put<uint8_t>(out, uint8_t(a.format.size()));
+        out.insert(out.end(), c.root.begin(), c.root.end());
+        out.insert(out.end(), c.records.begin(), c.records.end());
+        put<uint8_t>(out, uint8_t(c.morphs.size()));
+        for (int16_t w : c.morphs) put<int16_t>(out, w);
+        put<uint8_t>(out, uint8_t(c.clips.size()));
+        for (int k : c.clips) put<int32_t>(out, k);
+        put<uint64_t>(out, c.publisher_start_us);
+        for (double v : c.walk_center) put<double>(out, v);
+        put<double>(out, c.walk_radius);
+        put<double>(out, c.walk_speed);
+    }
+}
+
+std::string read_world_message(std::span<const uint8_t> bytes, const ServerAssets& assets, WorldHeader& h,
+                               std::vector<WorldCharacter>& chars) {
+    chars.clear();
+    if (bytes.size() > kWorldMaxMessage) return "message of " + std::to_string(bytes.size()) + " bytes";
+    Reader r{bytes};
+    const auto magic = r.take(4);
+    if (!r.ok || std::memcmp(magic.data(), kMagic, 4) != 0) return "not a world message";
+    const uint8_t version = r.get<uint8_t>();
+    r.get<uint8_t>();
+    if (version != kVersion) return "world message version " + std::to_string(version);
+    h.node = r.get<uint16_t>();
+    h.catalogue = r.get<uint64_t>();
+    h.tick = r.get<uint32_t>();
+    const size_t n = r.get<uint16_t>();
+    if (!r.ok) return "truncated header";
+    if (n > kWorldMaxCharacters) return std::to_string(n) + " characters";
+    if (h.catalogue != catalogue_hash(assets)) return "another catalogue";
+    chars.resize(n);
+    for (WorldCharacter& c : chars)
+        if (std::string why = read_character(r, assets, c); !why.empty()) return why;
+    if (r.at != bytes.size()) return std::to_string(bytes.size() - r.at) + " bytes after the last character";
+    return {};
+}
+
+}  // namespace progskin::net

@@ -1,0 +1,67 @@
+// world_message.h — the bytes a node of a world publishes on the bus for one
+// spatial cell and tick (docs/protocol.md "World bus"): its own characters in
+// that cell, each as the encoder already encoded it (bone records and root
+// block, opaque here), with what observers need to announce it. One message
+// per non-empty cell per tick. Pure functions over flat byte spans, no bus.
+//
+// Layout (little-endian):
+//   header  "PSKW" | version u8 (1) | 0 u8 | node u16 | catalogue u64 | tick u32 | count u16
+//   count x character:
+//     id u16 (the node's instance id) | asset u16 | epoch u8 | flags u8 (1: a player's)
+//     | bones u8 | record_size u8
+//     | root [ROOT_BYTES] | records [bones * record_size]
+//     | morphs u8 | morph weights i16 x morphs
+//     | clips u8 | clip indices i32 x clips | publisher_start_us u64
+//     | walk_center f64 x3 | walk_radius f64 | walk_speed f64
+// Decoding checks every count against the catalogue (bones and record size
+// of the asset, morphs, MAX_INSTANCE_CLIPS) and the message's length: a
+// message that does not parse to its last byte is refused whole.
+#pragma once
+#include <array>
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "control_messages.h"
+#include "scene.h"
+#include "wire.h"
+
+namespace progskin::net {
+
+inline constexpr size_t kWorldMaxCharacters = 4096;  // per message (a cell of one node)
+inline constexpr size_t kWorldMaxMessage = 1 << 20;  // bytes
+
+struct WorldCharacter {
+    uint16_t id = 0;  // the sending node's instance id
+    uint16_t asset = 0;
+    uint8_t epoch = 0;
+    bool published = false;  // a player's character (else the node's own, a clip or a game's)
+    std::array<uint8_t, ROOT_BYTES> root{};
+    std::span<const uint8_t> records;   // bones * record_size (into the message when decoded)
+    std::vector<int16_t> morphs;        // empty: none
+    std::vector<int> clips;             // announced to observers
+    uint64_t publisher_start_us = 0;
+    std::array<double, 3> walk_center{};
+    double walk_radius = 0, walk_speed = 0;
+};
+
+struct WorldHeader {
+    uint16_t node = 0;
+    uint64_t catalogue = 0;
+    uint32_t tick = 0;
+};
+
+// Appends one message to `out` (cleared first). O(bytes).
+void write_world_message(const WorldHeader& h, std::span<const WorldCharacter> chars, const ServerAssets& assets,
+                         std::vector<uint8_t>& out);
+// Reads a message; "" and `h`, `chars` filled (records point into `bytes`),
+// or what is wrong. O(bytes).
+std::string read_world_message(std::span<const uint8_t> bytes, const ServerAssets& assets, WorldHeader& h,
+                               std::vector<WorldCharacter>& chars);
+
+// The catalogue's identity: the asset ids in order (every node of a world
+// serves the same catalogue).
+uint64_t catalogue_hash(const ServerAssets& assets);
+
+}  // namespace progskin::net

@@ -1,0 +1,227 @@
+// test_net_world.cpp — one world across servers on a real nats-server
+// (server/world_bus.h, docs/deployment.md): a player on one node is seen by
+// a player on another; a node that stops takes its characters with it; a
+// nats-server restart is survived; a node of another catalogue is refused.
+#include <gtest/gtest.h>
+
+#include <netinet/in.h>
+#include <signal.h>
+#include <sys/socket.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <thread>
+
+#include "errors.h"
+#include "net_test_support.h"
+
+using namespace progskin;
+using namespace progskin::net;
+using namespace progskin::net::testing;
+
+namespace {
+
+bool have_nats_server() { return std::system("command -v nats-server >/dev/null 2>&1") == 0; }
+
+uint16_t free_port() {
+    const int s = ::socket(AF_INET, SOCK_STREAM, 0);
+    sockaddr_in a{};
+    a.sin_family = AF_INET;
+    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    socklen_t n = sizeof a;
+    ::bind(s, reinterpret_cast<sockaddr*>(&a), sizeof a);
+    ::getsockname(s, reinterpret_cast<sockaddr*>(&a), &n);
+    ::close(s);
+    return ntohs(a.sin_port);
+}
+
+bool accepts(uint16_t port) {
+    const int s = ::socket(AF_INET, SOCK_STREAM, 0);
+    sockaddr_in a{};
+    a.sin_family = AF_INET;
+    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    a.sin_port = htons(port);
+    const bool ok = ::connect(s, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0;
+    ::close(s);
+    return ok;
+}
+
+// A real nats-server on loopback, started and killed by the test.
+class NatsServer {
+public:
+    explicit NatsServer(uint16_t port) : port_(port) { start(); }
+    ~NatsServer() { stop(); }
+    void start() {
+        pid_ = ::fork();
+        if (pid_ == 0) {
+            const std::string p = std::to_string(port_);
+            ::execlp("nats-server", "nats-server", "-a", "127.0.0.1", "-p", p.c_str(), static_cast<char*>(nullptr));
+            ::_exit(127);
+        }
+        for (int i = 0; i < 200 && !accepts(port_); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    void stop() {
+        if (pid_ <= 0) return;
+        ::kill(pid_, SIGKILL);
+        ::waitpid(pid_, nullptr, 0);
+        pid_ = 0;
+    }
+    std::string url() const { return "nats://127.0.0.1:" + std::to_string(port_); }
+
+private:
+    uint16_t port_;
+    pid_t pid_ = 0;
+};
+
+ServerConfig node(const NatsServer& nats, const std::string& name) {
+    ServerConfig cfg;
+    cfg.nats_url = nats.url();
+    cfg.world_node = name;
+    cfg.world_name = "test" + std::to_string(::getpid());
+    return cfg;
+}
+
+ClientConfig client_config(const std::string& name) {
+    ClientConfig cfg;
+    cfg.name = name;
+    cfg.cache_dir = RunningServer::cache_dir();
+    return cfg;
+}
+
+// A player publishing the bind pose of a character of asset 0 (identity
+// skinning matrices) once its catalogue is ready.
+struct Publisher {
+    Client client;
+    int handle = -1;
+    double spawned_at = 0;  // Spawned (its instance known)
+    std::vector<Mat34> skin;
+    explicit Publisher(uint16_t port) : client(client_config("publisher")) { client.connect("127.0.0.1", port); }
+    void update() {
+        client.update(now_seconds());
+        if (handle < 0 && client.state() == ClientState::Streaming && !client.assets().empty() && client.assets()[0]) {
+            skin.assign(client.assets()[0]->character.joint_count(), Mat34::identity());
+            SpawnSpec spec;
+            spec.asset = 0;
+            spec.position = glm::vec3(1.0f, 0.0f, 2.0f);
+            handle = client.spawn(spec);
+        }
+        if (handle >= 0 && spawned_at == 0 && client.instance_of(handle) >= 0) spawned_at = now_seconds();
+        if (handle >= 0) client.publish(handle, RootPose{glm::dvec3(1.0, 0.0, 2.0)}, skin);
+    }
+};
+
+// The published character `observer` shows, or nullptr.
+const RemoteCharacter* published(const Client& observer) {
+    for (const RemoteCharacter& c : observer.characters())
+        if (c.shown && c.publisher.published) return &c;
+    return nullptr;
+}
+
+template <class Done>
+double run_until(double seconds, Done done, Publisher* p, Client& observer) {
+    const double start = now_seconds();
+    while (now_seconds() - start < seconds) {
+        if (p) p->update();
+        observer.update(now_seconds());
+        if (done()) return now_seconds() - start;
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    return -1;
+}
+
+// Largest difference of a shown palette from the identity (the bind pose published).
+double off_identity(const RemoteCharacter& c) {
+    double worst = 0;
+    for (const Mat34& m : c.palette)
+        for (int i = 0; i < 12; ++i) worst = std::max(worst, double(std::abs(m.m[i] - Mat34::identity().m[i])));
+    return worst;
+}
+
+}  // namespace
+
+// A player on node B is seen by a player on node A within 1 s of its spawn,
+// as published, at full detail; B stops: gone on A within 2 s.
+TEST(NetWorld, PlayersOnTwoNodesSeeEachOther) {
+    if (!have_nats_server()) GTEST_SKIP() << "nats-server not installed (apt-get install nats-server)";
+    NatsServer nats(free_port());
+    RunningServer a({}, node(nats, "alpha"));
+    auto b = std::make_unique<RunningServer>(std::vector<InstanceSpec>{}, node(nats, "beta"));
+    Client observer(client_config("observer"));
+    observer.connect("127.0.0.1", a.server->tcp_port());
+    Publisher p(b->server->tcp_port());
+    ASSERT_GE(run_until(10, [&] { return p.spawned_at > 0; }, &p, observer), 0) << p.client.error();
+    const double seen = run_until(3, [&] { return published(observer) != nullptr; }, &p, observer);
+    ASSERT_GE(seen, 0) << "not seen across nodes: " << observer.error();
+    const double after_spawn = now_seconds() - p.spawned_at;
+    EXPECT_LT(after_spawn, 1.0);
+    // Full detail at unlimited rate: the bind pose within the quantisation step.
+    run_until(1.0, [] { return false; }, &p, observer);
+    const RemoteCharacter* rc = published(observer);
+    ASSERT_NE(rc, nullptr);
+    EXPECT_EQ(rc->bones, rc->asset->skin.bone_count());
+    EXPECT_LT(off_identity(*rc), 2e-3);
+    EXPECT_NEAR(rc->root.position.x, 1.0, 1e-3);
+    EXPECT_NEAR(rc->root.position.z, 2.0, 1e-3);
+    // B's four clip characters are on A too, as the server's own (not published).
+    EXPECT_EQ(observer.characters().size(), 4u + 4u + 1u);
+    const ServerStats st = a.server->stats();
+    EXPECT_GT(st.world_messages_in, 0u);
+    EXPECT_EQ(st.world_malformed, 0u);
+    EXPECT_EQ(st.world_foreign, 5);
+    std::printf("seen on the other node %.3f s after its spawn; %llu bus messages, %llu bytes in on A\n", after_spawn,
+                (unsigned long long)st.world_messages_in, (unsigned long long)st.world_bytes_in);
+
+    b.reset();  // node B stops: its characters leave A's scene
+    const double gone = run_until(4, [&] { return observer.characters().size() == 4u; }, nullptr, observer);
+    EXPECT_GE(gone, 0) << observer.characters().size() << " characters left";
+    EXPECT_LT(gone, 2.0);
+    std::printf("node B stopped: its characters gone from A after %.3f s\n", gone);
+}
+
+// nats-server dies and comes back on the same port: the nodes reconnect and
+// the cross-node character is shown again within 3 s; A's own never stop.
+TEST(NetWorld, NatsServerRestartSurvived) {
+    if (!have_nats_server()) GTEST_SKIP() << "nats-server not installed (apt-get install nats-server)";
+    NatsServer nats(free_port());
+    RunningServer a({}, node(nats, "alpha"));
+    RunningServer b({}, node(nats, "beta"));
+    Client observer(client_config("observer"));
+    observer.connect("127.0.0.1", a.server->tcp_port());
+    Publisher p(b.server->tcp_port());
+    ASSERT_GE(run_until(10, [&] { return published(observer) != nullptr; }, &p, observer), 0);
+    nats.stop();
+    // Without the bus the foreign characters leave; A's own stream on.
+    EXPECT_GE(run_until(4, [&] { return published(observer) == nullptr; }, &p, observer), 0);
+    EXPECT_EQ(observer.state(), ClientState::Streaming);
+    EXPECT_GE(observer.characters().size(), 4u);
+    nats.start();
+    const double back = run_until(6, [&] { return published(observer) != nullptr; }, &p, observer);
+    EXPECT_GE(back, 0) << "cross-node streaming did not resume";
+    EXPECT_LT(back, 3.0);
+    EXPECT_TRUE(a.server->stats().world_connected);
+    std::printf("nats-server restarted: cross-node character shown again after %.3f s\n", back);
+}
+
+// A node serving another catalogue: its messages are refused and counted,
+// none of its characters enter the world.
+TEST(NetWorld, AnotherCatalogueIsRefused) {
+    if (!have_nats_server()) GTEST_SKIP() << "nats-server not installed (apt-get install nats-server)";
+    NatsServer nats(free_port());
+    RunningServer a({}, node(nats, "alpha"));
+    ServerConfig cfg = node(nats, "other");
+    cfg.bind_address = "127.0.0.1";
+    const std::vector<std::shared_ptr<ServerAsset>> one{default_assets()[0]};
+    Server other(cfg, one, default_instances(one));
+    std::thread t([&] { other.run(); });
+    Client observer(client_config("observer"));
+    observer.connect("127.0.0.1", a.server->tcp_port());
+    run_until(2, [] { return false; }, nullptr, observer);
+    const ServerStats st = a.server->stats();
+    EXPECT_GT(st.world_refused, 0u);
+    EXPECT_EQ(st.world_foreign, 0);
+    EXPECT_EQ(observer.characters().size(), 4u);  // A's own only
+    other.stop();
+    t.join();
+}
