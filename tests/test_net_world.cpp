@@ -16,6 +16,7 @@
 
 #include "errors.h"
 #include "net_test_support.h"
+#include "world_message.h"
 
 using namespace progskin;
 using namespace progskin::net;
@@ -224,4 +225,49 @@ TEST(NetWorld, AnotherCatalogueIsRefused) {
     EXPECT_EQ(observer.characters().size(), 4u);  // A's own only
     other.stop();
     t.join();
+}
+
+// The bus message (world_message.h): what is written reads back; every cut,
+// an extra byte, a wrong bone count or clip, another catalogue: refused whole.
+TEST(WorldMessage, RoundTripAndEveryMalformedMessageRefused) {
+    const ServerAssets& assets = default_assets();
+    WorldCharacter c;
+    c.id = 7;
+    c.asset = 0;
+    c.epoch = 3;
+    c.published = true;
+    const std::vector<uint8_t> records(size_t(assets[0]->bone_count()) * size_t(assets[0]->format.size()), 0x5a);
+    c.records = records;
+    c.clips = {0};
+    c.publisher_start_us = 123456789;
+    c.walk_radius = 2.5;
+    std::vector<uint8_t> bytes;
+    const WorldHeader h0{42, catalogue_hash(assets), 1000};
+    write_world_message(h0, std::span(&c, 1), assets, bytes);
+    WorldHeader h;
+    std::vector<WorldCharacter> got;
+    ASSERT_EQ(read_world_message(bytes, assets, h, got), "");
+    ASSERT_EQ(got.size(), 1u);
+    EXPECT_EQ(h.node, 42);
+    EXPECT_EQ(h.tick, 1000u);
+    EXPECT_EQ(got[0].id, 7);
+    EXPECT_EQ(got[0].epoch, 3);
+    EXPECT_TRUE(got[0].published);
+    EXPECT_TRUE(std::equal(records.begin(), records.end(), got[0].records.begin(), got[0].records.end()));
+    EXPECT_EQ(got[0].clips, std::vector<int>{0});
+    EXPECT_EQ(got[0].publisher_start_us, 123456789u);
+    EXPECT_EQ(got[0].walk_radius, 2.5);
+    for (size_t n = 0; n < bytes.size(); ++n)
+        EXPECT_NE(read_world_message(std::span(bytes).first(n), assets, h, got), "") << "cut at " << n;
+    std::vector<uint8_t> longer = bytes;
+    longer.push_back(0);
+    EXPECT_NE(read_world_message(longer, assets, h, got).find("after the last character"), std::string::npos);
+    std::vector<uint8_t> bad = bytes;
+    bad[4 + 2 + 2 + 8 + 4 + 2 + 2 + 2 + 1 + 1] ^= 1;  // the bone count
+    EXPECT_NE(read_world_message(bad, assets, h, got).find("bones"), std::string::npos);
+    write_world_message({42, catalogue_hash(assets) ^ 1, 1000}, std::span(&c, 1), assets, bytes);
+    EXPECT_EQ(read_world_message(bytes, assets, h, got), "another catalogue");
+    c.clips = {999};
+    write_world_message(h0, std::span(&c, 1), assets, bytes);
+    EXPECT_NE(read_world_message(bytes, assets, h, got).find("clip 999"), std::string::npos);
 }
