@@ -22,7 +22,7 @@ namespace {
 
 constexpr uint8_t kPrefix[6] = {0xfd, 0x70, 0x73, 0x6b, 0x77, 0x73};  // fd70:736b:7773::/48 ("psk" "ws")
 constexpr uint8_t kKindControl = 1, kKindDatagram = 2;
-constexpr size_t kMaxMessage = 1 + 4 + wire::MAX_CONTROL_MESSAGE;
+constexpr size_t kMaxMessage = 1 + 4 + MAX_CONTROL_MESSAGE;
 constexpr double kLingerSeconds = 2.0;  // a closed session's last messages
 
 PeerAddress web_address(uint64_t number) {
@@ -237,7 +237,7 @@ void WebEndpoint::on_message(const std::shared_ptr<Conn>& c) {
         c->control_bytes += pong.size();
         c->writes.push_back(std::move(pong));
     } else if (op == 2 && !payload.empty() && payload[0] == kKindDatagram) {
-        if (payload.size() - 1 > wire::MAX_DATAGRAM) return fail(c, "web: datagram too large", true);
+        if (payload.size() - 1 > MAX_DATAGRAM) return fail(c, "web: datagram too large", true);
         try {
             core_.on_datagram(payload.subspan(1), c->address, now_seconds(), sink_);
         } catch (const std::exception& e) {
@@ -245,7 +245,7 @@ void WebEndpoint::on_message(const std::shared_ptr<Conn>& c) {
         }
     } else if (op == 2 && payload.size() >= 5 && payload[0] == kKindControl) {
         uint32_t n = 0;
-        wire::read_length(payload.subspan(1, 4), n);
+        read_length(payload.subspan(1, 4), n);
         if (n != payload.size() - 5) return fail(c, "web: control length " + std::to_string(n) + " does not match", true);
         if (!c->stream->accept_length(n)) return pump(c);
         bool more = false;

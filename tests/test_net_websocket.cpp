@@ -122,7 +122,7 @@ void send_outbox(WsClient& ws, Outbox& out) {
     size_t at = 0;
     while (out.control.size() - at >= 4) {
         uint32_t n = 0;
-        wire::read_length({out.control.data() + at, 4}, n);
+        read_length({out.control.data() + at, 4}, n);
         if (out.control.size() - at < 4 + size_t(n)) break;
         ws.send(1, {out.control.data() + at, 4 + size_t(n)});
         at += 4 + n;
@@ -211,7 +211,7 @@ TEST(NetWebSocket, BadPeersAreDroppedWhileUdpStreams) {
     }
     {  // a datagram over MAX_DATAGRAM
         WsClient ws(s.server->web_port());
-        std::vector<uint8_t> b(wire::MAX_DATAGRAM + 1, 0);
+        std::vector<uint8_t> b(MAX_DATAGRAM + 1, 0);
         ws.send(2, b);
         EXPECT_TRUE(dropped(ws));
     }
