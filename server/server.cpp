@@ -33,6 +33,7 @@
 #include "errors.h"
 #include "server_core.h"
 #include "world_bus.h"
+#include "web_endpoint.h"
 
 namespace progskin::net {
 
@@ -83,16 +84,21 @@ udp::endpoint endpoint_of(const PeerAddress& p) {
 // tick's workers call at once (asio's socket objects are not safe to share
 // between threads; the descriptor is, and it stays open while a tick runs:
 // it is closed on the tick thread, between ticks).
+// Datagrams to a WebSocket session's synthetic address go to its connection
+// (WebEndpoint::send_datagram) instead.
 class UdpSink final : public DatagramSink {
 public:
     void set_descriptor(int fd) { fd_ = fd; }
+    void set_web(WebEndpoint* web) { web_ = web; }
     void send(std::span<const uint8_t> d, const PeerAddress& to) override {
+        if (web_ && WebEndpoint::is_web(to)) return web_->send_datagram(d, to);
         const udp::endpoint ep = endpoint_of(to);
         (void)::sendto(fd_, d.data(), d.size(), MSG_DONTWAIT | MSG_NOSIGNAL, ep.data(), socklen_t(ep.size()));
     }
 
 private:
     int fd_ = -1;
+    WebEndpoint* web_ = nullptr;
 };
 
 // The thread's name as top -H and debuggers show it (at most 15 characters).
@@ -162,6 +168,7 @@ struct Server::Impl {
     asio::steady_timer timer{tick_io};
     asio::steady_timer accept_timer{io};
     asio::steady_timer stop_timer{io};               // finish_stop
+    std::unique_ptr<WebEndpoint> web;                // ServerConfig::web_port >= 0 (control thread)
     bool stopping = false;                           // stop() ran (control thread)
     uint16_t tcp_port = 0, udp_port = 0;             // as bound (read from any thread)
     std::atomic<bool> pump_posted{false};            // a pump_all waits in io
@@ -189,6 +196,10 @@ struct Server::Impl {
         core.set_pool(pool.get());
         if (const ServerConfig& cfg = core.config(); !cfg.nats_url.empty())
             bus = std::make_unique<WorldBus>(WorldConfig{cfg.nats_url, cfg.world_node, cfg.world_name, cfg.world_cell}, core);
+        if (core.config().web_port >= 0) {
+            web = std::make_unique<WebEndpoint>(io, core, sink, core.config().bind_address, uint16_t(core.config().web_port));
+            sink.set_web(web.get());
+        }
     }
 
     // The core's lock (server_core.h): held for every call into the core.
@@ -409,6 +420,7 @@ struct Server::Impl {
         {
             auto lock = hold();
             for (auto& [id, c] : conns) writing = writing || (!c->closed && (c->writing || !c->stream->output().empty()));
+            writing = writing || (web && web->writing());
         }
         if (writing && std::chrono::steady_clock::now() < deadline) {
             stop_timer.expires_after(std::chrono::milliseconds(10));
@@ -420,6 +432,7 @@ struct Server::Impl {
             c->closed = true;
             c->sock.close(ig);
         }
+        if (web) web->close_all();
         io.stop();
     }
 
@@ -454,6 +467,7 @@ struct Server::Impl {
         {
             auto lock = hold();
             for (auto& [id, c] : conns) pump(c);
+            if (web) web->pump_all();
         }
         trim_memory();
     }
@@ -480,6 +494,7 @@ struct Server::Impl {
                 c->stream->goodbye(kShutdownReason, now);
                 pump(c);
             }
+            if (web) web->goodbye_all(kShutdownReason, now);
         }
         finish_stop(std::chrono::steady_clock::now() + std::chrono::milliseconds(int(kShutdownLingerSeconds * 1000)));
     }
@@ -546,11 +561,13 @@ int tick_threads(const ServerConfig& cfg) {
 
 uint16_t Server::tcp_port() const { return impl_->tcp_port; }
 uint16_t Server::udp_port() const { return impl_->udp_port; }
+uint16_t Server::web_port() const { return impl_->web ? impl_->web->port() : 0; }
 
 void Server::run() {
     Impl& m = *impl_;
     m.accept();
     m.receive();
+    if (m.web) m.web->start();
     m.next_tick = std::chrono::steady_clock::now();
     m.schedule_tick();  // the tick thread's first work, armed before it starts
     std::thread ticker;

@@ -58,6 +58,11 @@ struct ServerConfig {
     // (proto/crypto.h seal_datagram) with per-session keys sent in the Welcome;
     // unsealed or forged datagrams are dropped and counted.
     bool seal_datagrams = false;
+    // >= 0 (off by default, -1): a WebSocket endpoint for browsers at
+    // ws://bind_address:web_port/ws (0: an ephemeral port; web_endpoint.h,
+    // docs/protocol.md "WebSocket transport"). Plain ws:// only for now: not
+    // with tls_cert_file (ServerCore refuses the pair).
+    int web_port = -1;
     double asset_bytes_factor = 4.0;  // per-session download limit, x total asset bytes
     size_t max_queued_bytes = 1 << 20;  // per-session control output waiting to be written; more closes the session
     int max_per_address = 64;     // open TCP connections from one IP address (0: no limit)
@@ -130,6 +135,10 @@ struct ServerStats {
     uint64_t accept_errors = 0, backlog_closes = 0, handler_errors = 0;
     uint64_t tls_failures = 0;     // TLS handshakes that failed
     uint64_t tokens_refused = 0;   // connect tokens invalid, expired, for another server or replayed
+    // WebSocket transport (web_endpoint.h): connections accepted, closed for
+    // a malformed or oversized message or upgrade request, datagrams
+    // dropped because the connection's queue was full.
+    uint64_t web_sessions = 0, web_malformed = 0, web_datagrams_dropped = 0;
     double tick_seconds = 0;      // total time spent in ticks
     // Every refusal of a budget or admission limit, by reason (docs/protocol.md
     // "Limits"): characters_per_session, characters_per_address, spawn_invalid,
@@ -171,6 +180,7 @@ public:
 
     uint16_t tcp_port() const;
     uint16_t udp_port() const;
+    uint16_t web_port() const;  // 0 without a WebSocket endpoint
     void run();   // serves until stop()
     void stop();  // thread-safe
     // Thread-safe. Returns false (the previous pose stays) when a matrix is

@@ -40,6 +40,9 @@ ServerCore::ServerCore(ServerConfig c, ServerAssets a, std::vector<InstanceSpec>
     if (cfg_.tls_cert_file.empty() != cfg_.tls_key_file.empty())
         throw Error("server: TLS needs both a certificate and a private key file");
     if (cfg_.seal_datagrams && !tls()) throw Error("server: sealed datagrams need TLS (their keys travel in the Welcome)");
+    if (cfg_.web_port > 65535) throw Error("server: web port must be in [0, 65535]");
+    // Plain ws:// would carry the tokens and the session a TLS control channel protects: not until wss:// is done.
+    if (cfg_.web_port >= 0 && tls()) throw Error("server: the WebSocket endpoint is plain ws:// and not with TLS yet (run with --no-tls)");
     if (!cfg_.token_public_key.empty() && !cfg_.token.empty())
         throw Error("server: an access token and connect tokens both travel in Hello.token; configure one");
     if (!cfg_.token_public_key.empty()) {

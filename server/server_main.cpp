@@ -33,6 +33,8 @@ static const char* kUsage =
     "                    same number unless --udp-port is given\n"
     "  --udp-port P      UDP frame stream port\n"
     "  --bind ADDR       address to listen on (default 0.0.0.0)\n"
+    "  --web P           also serve browsers: a WebSocket endpoint at ws://ADDR:P/ws (plain\n"
+    "                    ws://, needs --no-tls for now; docs/browser.md)\n"
     "  --asset FILE ...  glTF/glb characters (progressive or plain; repeatable): every\n"
     "                    character of FILE, or FILE#N for character N only. Every file is\n"
     "                    checked before anything is built; all problems are listed together\n"
@@ -122,6 +124,7 @@ static int parse_options(int argc, char** argv, Options& o) {
                 return 0;
             } else if (a == "--port") cfg.port = cli::to_port(a, need(i));
             else if (a == "--udp-port") cfg.udp_port = cli::to_port(a, need(i));
+            else if (a == "--web") cfg.web_port = cli::to_port(a, need(i));
             else if (a == "--bind") cfg.bind_address = need(i);
             else if (a == "--asset") {
                 o.asset_paths.push_back(need(i));
@@ -200,6 +203,10 @@ static int check_options(const Options& o) {
         }
     if (o.no_tls && (!cfg.tls_cert_file.empty() || !cfg.tls_key_file.empty() || o.seal_asked || !o.tls_dir.empty())) {
         std::fprintf(stderr, "progskin-server: --no-tls excludes --tls-cert, --tls-key, --tls-dir and --seal-datagrams\n%s", kUsage);
+        return 2;
+    }
+    if (cfg.web_port >= 0 && !o.no_tls) {
+        std::fprintf(stderr, "progskin-server: --web is plain ws:// and needs --no-tls for now (wss:// is not done)\n%s", kUsage);
         return 2;
     }
     if (cfg.tls_cert_file.empty() != cfg.tls_key_file.empty()) {
@@ -343,6 +350,7 @@ int main(int argc, char** argv) {
         std::printf("progskin-server: listening on TCP %u, UDP %u, %zu instances, %.0f Hz%s\n", server.tcp_port(),
                     server.udp_port(), instances.size(), double(o.cfg.tick_rate),
                     o.no_tls ? ", plain TCP (no TLS)" : o.cfg.seal_datagrams ? ", TLS, sealed datagrams" : ", TLS");
+        if (server.web_port()) std::printf("progskin-server: WebSocket endpoint ws://%s:%u/ws\n", o.cfg.bind_address.c_str(), server.web_port());
         std::printf("progskin-server: %d tick thread%s%s\n", tick_threads(o.cfg), tick_threads(o.cfg) == 1 ? "" : "s",
                     tick_threads(o.cfg) == 1 ? " (connections on the same thread)" : " + 1 for connections");
         std::fflush(stdout);
