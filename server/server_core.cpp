@@ -298,27 +298,28 @@ std::string ServerCore::check_token(const flatbuffers::String* token, std::strin
 
 // The session a client -> server datagram names, when its token matches and
 // it is Welcomed or Streaming (and, sealed, the session whose key opened it).
-uint64_t ServerCore::datagram_session(const wire::Datagram& d) {
+// The session id and token a client -> server datagram names; false for the
+// server -> client bodies (Frame, BindAck, Challenge).
+static bool session_and_token(const wire::Datagram& d, uint64_t& id, uint64_t& token) {
     switch (d.body_type()) {
-        case wire::DatagramBody::Bind: return d.body_as_Bind()->session_id();
-        case wire::DatagramBody::ChallengeResponse: return d.body_as_ChallengeResponse()->session_id();
-        case wire::DatagramBody::Ack: return d.body_as_Ack()->session_id();
-        case wire::DatagramBody::Pose: return d.body_as_Pose()->session_id();
-        default: return 0;
+        case wire::DatagramBody::Bind: id = d.body_as_Bind()->session_id(), token = d.body_as_Bind()->token(); return true;
+        case wire::DatagramBody::ChallengeResponse:
+            id = d.body_as_ChallengeResponse()->session_id(), token = d.body_as_ChallengeResponse()->token();
+            return true;
+        case wire::DatagramBody::Ack: id = d.body_as_Ack()->session_id(), token = d.body_as_Ack()->token(); return true;
+        case wire::DatagramBody::Pose: id = d.body_as_Pose()->session_id(), token = d.body_as_Pose()->token(); return true;
+        default: return false;
     }
+}
+
+uint64_t ServerCore::datagram_session(const wire::Datagram& d) {
+    uint64_t id = 0, token = 0;
+    return session_and_token(d, id, token) ? id : 0;
 }
 
 ClientStream* ServerCore::route(const wire::Datagram& d, ClientStream* sealed_by) {
     uint64_t id = 0, token = 0;
-    switch (d.body_type()) {
-        case wire::DatagramBody::Bind: id = d.body_as_Bind()->session_id(), token = d.body_as_Bind()->token(); break;
-        case wire::DatagramBody::ChallengeResponse:
-            id = d.body_as_ChallengeResponse()->session_id(), token = d.body_as_ChallengeResponse()->token();
-            break;
-        case wire::DatagramBody::Ack: id = d.body_as_Ack()->session_id(), token = d.body_as_Ack()->token(); break;
-        case wire::DatagramBody::Pose: id = d.body_as_Pose()->session_id(), token = d.body_as_Pose()->token(); break;
-        default: return nullptr;  // Frame / BindAck / Challenge are server -> client only
-    }
+    if (!session_and_token(d, id, token)) return nullptr;
     auto it = sessions_.find(id);
     if (it == sessions_.end() || !it->second.stream->accepts(token)) return nullptr;
     ClientStream* s = it->second.stream.get();

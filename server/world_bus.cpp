@@ -213,7 +213,7 @@ void WorldBus::Impl::receive(double now) {
 // Another node's cell: each character into the scene (added when new).
 void WorldBus::Impl::take_cell(std::span<const uint8_t> bytes, double now) {
     WorldHeader h;
-    const std::string why = read_world_message(bytes, core.assets(), h, incoming);
+    const std::string why = read_world_message(bytes, core.assets(), catalogue, h, incoming);
     if (!why.empty()) {
         const bool other = why == "another catalogue";
         count([&](WorldStats& s) { ++(other ? s.refused : s.malformed); });

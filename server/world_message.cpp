@@ -124,6 +124,11 @@ void write_world_message(const WorldHeader& h, std::span<const WorldCharacter> c
 
 std::string read_world_message(std::span<const uint8_t> bytes, const ServerAssets& assets, WorldHeader& h,
                                std::vector<WorldCharacter>& chars) {
+    return read_world_message(bytes, assets, catalogue_hash(assets), h, chars);
+}
+
+std::string read_world_message(std::span<const uint8_t> bytes, const ServerAssets& assets, uint64_t catalogue,
+                               WorldHeader& h, std::vector<WorldCharacter>& chars) {
     chars.clear();
     if (bytes.size() > kWorldMaxMessage) return "message of " + std::to_string(bytes.size()) + " bytes";
     Reader r{bytes};
@@ -138,7 +143,7 @@ std::string read_world_message(std::span<const uint8_t> bytes, const ServerAsset
     const size_t n = r.get<uint16_t>();
     if (!r.ok) return "truncated header";
     if (n > kWorldMaxCharacters) return std::to_string(n) + " characters";
-    if (h.catalogue != catalogue_hash(assets)) return "another catalogue";
+    if (h.catalogue != catalogue) return "another catalogue";
     chars.resize(n);
     for (WorldCharacter& c : chars)
         if (std::string why = read_character(r, assets, c); !why.empty()) return why;

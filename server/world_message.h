@@ -59,6 +59,10 @@ void write_world_message(const WorldHeader& h, std::span<const WorldCharacter> c
 // or what is wrong. O(bytes).
 std::string read_world_message(std::span<const uint8_t> bytes, const ServerAssets& assets, WorldHeader& h,
                                std::vector<WorldCharacter>& chars);
+// The same against a catalogue hash already computed (catalogue_hash(assets)):
+// what a node calls for every message.
+std::string read_world_message(std::span<const uint8_t> bytes, const ServerAssets& assets, uint64_t catalogue,
+                               WorldHeader& h, std::vector<WorldCharacter>& chars);
 
 // The catalogue's identity: the asset ids in order (every node of a world
 // serves the same catalogue).

@@ -115,6 +115,28 @@ void expect_self_contained(const std::vector<uint8_t>& bytes, const fs::path& fi
     }
 }
 
+// A real server on loopback serving `assets` and `instances`, and one client
+// with its own (empty) cache in `dir` for `duration` seconds: its report.
+ClientReport stream_once(const std::vector<std::shared_ptr<ServerAsset>>& assets, const std::vector<InstanceSpec>& instances,
+                         const fs::path& dir, double duration, bool verify) {
+    ServerConfig cfg;
+    cfg.bind_address = "127.0.0.1";
+    cfg.port = 0;
+    Server server(cfg, assets, instances);
+    std::thread t([&] { server.run(); });
+    ClientOptions co;
+    co.host = "127.0.0.1";
+    co.port = server.tcp_port();
+    co.duration = duration;
+    co.verify = verify;
+    co.cache_dir = (dir / "client-cache").string();
+    ClientReport r;
+    EXPECT_NO_THROW(r = run_client(co));
+    server.stop();
+    t.join();
+    return r;
+}
+
 }  // namespace
 
 TEST(ExternalAssets, ServerServesOneSelfContainedGlbThatARealClientDisplays) {
@@ -135,21 +157,7 @@ TEST(ExternalAssets, ServerServesOneSelfContainedGlbThatARealClientDisplays) {
     std::vector<InstanceSpec> instances(2);
     instances[1].asset = 1;
     instances[1].position = glm::vec3(3.0f, 0.0f, 0.0f);
-    ServerConfig cfg;
-    cfg.bind_address = "127.0.0.1";
-    cfg.port = 0;
-    Server server(cfg, assets, instances);
-    std::thread t([&] { server.run(); });
-    ClientOptions co;
-    co.host = "127.0.0.1";
-    co.port = server.tcp_port();
-    co.duration = 2.0;
-    co.verify = true;
-    co.cache_dir = (dir / "client-cache").string();
-    ClientReport r;
-    EXPECT_NO_THROW(r = run_client(co));
-    server.stop();
-    t.join();
+    const ClientReport r = stream_once(assets, instances, dir, 2.0, true);
     EXPECT_TRUE(r.assets_failed.empty()) << r.assets_failed.front().second;
     EXPECT_EQ(r.asset_bytes_downloaded, assets[0]->bytes.size() + avatar->bytes.size());
     EXPECT_EQ(r.characters, 2);
@@ -161,7 +169,7 @@ TEST(ExternalAssets, ServerServesOneSelfContainedGlbThatARealClientDisplays) {
         }
     EXPECT_TRUE(avatar_shown);
     // The client's cached copy holds no reference to a file beside it.
-    expect_self_contained(read_bytes(cached_asset_path(co.cache_dir, avatar->name, avatar->id)), dir);
+    expect_self_contained(read_bytes(cached_asset_path((dir / "client-cache").string(), avatar->name, avatar->id)), dir);
 }
 
 TEST(ExternalAssets, WhatCannotBeEmbeddedIsRefusedNamingTheAssetAndTheUri) {
@@ -231,20 +239,7 @@ TEST(ExternalAssets, AClientThatCannotLoadOneAssetStreamsTheOthers) {
     std::vector<InstanceSpec> instances(2);
     instances[0].asset = 0;
     instances[1].asset = 1;
-    ServerConfig cfg;
-    cfg.bind_address = "127.0.0.1";
-    cfg.port = 0;
-    Server server(cfg, assets, instances);
-    std::thread t([&] { server.run(); });
-    ClientOptions co;
-    co.host = "127.0.0.1";
-    co.port = server.tcp_port();
-    co.duration = 1.5;
-    co.cache_dir = (dir / "client-cache").string();
-    ClientReport r;
-    EXPECT_NO_THROW(r = run_client(co));
-    server.stop();
-    t.join();
+    const ClientReport r = stream_once(assets, instances, dir, 1.5, false);
     ASSERT_EQ(r.assets_failed.size(), 1u);
     EXPECT_EQ(r.assets_failed[0].first, "avatar.gltf");
     EXPECT_NE(r.assets_failed[0].second.find("buffer.bin"), std::string::npos) << r.assets_failed[0].second;
