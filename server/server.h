@@ -75,6 +75,12 @@ struct ServerConfig {
     // owners with something to send (their items beyond it wait, and the
     // observer's rate does not grow for them; 0: no limit).
     double owner_share_kbps = 256;
+    // Per-character floor (Scheduler::set_floor): each character's own most
+    // valuable bones go first until it has this fraction of its part of the
+    // observer's budget (parts in proportion to size on screen); 0: the
+    // greedy alone, which may starve an almost still character in favour of
+    // moving ones (docs/performance.md "Per character").
+    double fair_floor = 0.5;
     // Asset bytes sent to one IP address, across its sessions and reconnects:
     // a bucket this deep refilled at this per minute (0: 64 x the catalogue's
     // bytes: 64 players behind one NAT joining at once for the first time).

@@ -65,6 +65,8 @@ static const char* kUsage =
     "  --max-characters-per-address N  players' characters from one IP address (default 32)\n"
     "  --owner-share-kbps N  what one session's characters may take of each other client's\n"
     "                    stream (default 256; 0: no limit)\n"
+    "  --fair-floor F    each character's own bones go first up to this fraction of its\n"
+    "                    part of a client's stream (0..1, default 0.5; 0: greedy only)\n"
     "  --asset-bytes-per-minute N  asset bytes per IP address, across reconnects (default:\n"
     "                    64 x the catalogue's bytes)\n"
     "  --max-handshakes N    connections before Hello at once (default 128; the oldest go)\n"
@@ -154,6 +156,7 @@ static int parse_options(int argc, char** argv, Options& o) {
             else if (a == "--max-per-address") cfg.max_per_address = cli::to_int(a, need(i));
             else if (a == "--max-characters-per-address") cfg.max_characters_per_address = cli::to_int(a, need(i));
             else if (a == "--owner-share-kbps") cfg.owner_share_kbps = cli::to_number(a, need(i));
+            else if (a == "--fair-floor") cfg.fair_floor = cli::to_number(a, need(i));
             else if (a == "--asset-bytes-per-minute") cfg.asset_bytes_per_minute = cli::to_number(a, need(i));
             else if (a == "--max-handshakes") cfg.max_handshakes = cli::to_int(a, need(i));
             else if (a == "--connects-per-second") cfg.connects_per_second = cli::to_number(a, need(i));
@@ -187,11 +190,18 @@ static int check_options(const Options& o) {
         std::fprintf(stderr, "progskin-server: --threads must be in [1, 256]\n%s", kUsage);
         return 2;
     }
-    if (!(cfg.tick_rate > 0 && cfg.tick_rate <= 240) || o.crowd < 0 || cfg.max_clients < 1 || cfg.max_kbps <= 0 ||
-        o.asset_options.scratch_bones < 1 || o.asset_options.scratch_bones > MAX_BONES) {
-        std::fprintf(stderr, "progskin-server: argument out of range\n%s", kUsage);
-        return 2;
-    }
+    const std::pair<const char*, bool> ranges[] = {
+        {"--tick-rate must be in (0, 240]", cfg.tick_rate > 0 && cfg.tick_rate <= 240},
+        {"--crowd must be >= 0", o.crowd >= 0},
+        {"--max-clients must be >= 1", cfg.max_clients >= 1},
+        {"--max-kbps must be > 0", cfg.max_kbps > 0},
+        {"--fair-floor must be in [0, 1]", cfg.fair_floor >= 0 && cfg.fair_floor <= 1},
+        {"--bones must be in [1, 255]", o.asset_options.scratch_bones >= 1 && o.asset_options.scratch_bones <= MAX_BONES}};
+    for (const auto& [what, ok] : ranges)
+        if (!ok) {
+            std::fprintf(stderr, "progskin-server: %s\n%s", what, kUsage);
+            return 2;
+        }
     const std::pair<const char*, double> budgets[] = {
         {"--max-per-address", cfg.max_per_address},   {"--max-characters-per-address", cfg.max_characters_per_address},
         {"--owner-share-kbps", cfg.owner_share_kbps}, {"--asset-bytes-per-minute", cfg.asset_bytes_per_minute},
