@@ -291,6 +291,10 @@ PSK_API psk_status psk_client_character_count(const psk_client* client, int* cou
 PSK_API psk_status psk_client_character(const psk_client* client, int index, psk_character* character);
 /* The character with this instance id: PSK_ERR_ARGUMENT when unknown. */
 PSK_API psk_status psk_client_find_character(const psk_client* client, int instance, psk_character* character);
+/* The character's id across a world of servers (the same on every node, never
+ * reused; instance ids are per server): *world_id, 0 from a server that sends
+ * none. PSK_ERR_ARGUMENT when no character has this instance id. */
+PSK_API psk_status psk_client_character_world_id(const psk_client* client, int instance, uint64_t* world_id);
 
 /* The server's catalogue (known once Connected). */
 PSK_API psk_status psk_client_asset_count(const psk_client* client, int* count);

@@ -389,6 +389,15 @@ psk_status psk_client_find_character(const psk_client* client, int instance, psk
     return ok();
 }
 
+psk_status psk_client_character_world_id(const psk_client* client, int instance, uint64_t* world_id) {
+    PSK_NEED(client);
+    PSK_NEED(world_id);
+    const RemoteCharacter* rc = client->client.character(instance);
+    if (!rc) return fail(PSK_ERR_ARGUMENT, "psk_client_character_world_id: no character " + std::to_string(instance));
+    *world_id = rc->world_id;
+    return ok();
+}
+
 psk_status psk_client_asset_count(const psk_client* client, int* count) {
     PSK_NEED(client);
     PSK_NEED(count);

@@ -115,7 +115,9 @@ struct PublisherInfo {
 };
 
 struct RemoteCharacter {
-    int instance = 0;                    // the server's instance id
+    int instance = 0;                    // the server's instance id (per server: frames use it)
+    uint64_t world_id = 0;               // the character's id across a world of servers, the same on every node
+                                         // (0 from a server that does not send one)
     const ClientAsset* asset = nullptr;  // character + progressive skin (lives as long as the Client)
     ClipInfo clip;                       // the clip it plays (server-driven), or announced by its publisher
     bool once = false;                   // the clip plays once and holds

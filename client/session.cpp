@@ -56,6 +56,7 @@ std::string read_instance(const wire::Instance& in, size_t catalogue_size, Remot
         rc.root.rotation = q / len;
     }
     rc.publisher.published = in.published();
+    rc.world_id = in.world_id();
     rc.publisher.start_us = in.publisher_start_us();
     if (in.walk_center()) rc.publisher.walk_center = {in.walk_center()->x(), in.walk_center()->y(), in.walk_center()->z()};
     rc.publisher.walk_radius = in.walk_radius();

@@ -57,7 +57,7 @@ inline constexpr size_t MAX_BATCH_INSTANCES = 1024;   // Instance tables per Ins
 inline constexpr size_t MAX_BATCH_REMOVED = 16000;    // ids per InstanceRemoved (32 KB)
 // The most bytes one Instance table (with MAX_INSTANCE_CLIPS clips) adds to
 // an InstanceAdded: InstanceAdded batches are cut by it (tests check it).
-inline constexpr size_t MAX_INSTANCE_TABLE_BYTES = 192 + 4 * MAX_INSTANCE_CLIPS;
+inline constexpr size_t MAX_INSTANCE_TABLE_BYTES = 208 + 4 * MAX_INSTANCE_CLIPS;
 
 // FNV-1a 64 of bytes: the asset id (content hash; not cryptographic).
 uint64_t content_hash(std::span<const uint8_t> bytes);

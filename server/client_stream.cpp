@@ -554,14 +554,21 @@ TickResult ClientStream::tick(const EncodedFrame& frame, double now, double dt, 
 // A chunk of one bone of a placed character: what the least useful pick costs.
 static constexpr size_t kSmallestChunk = WireCost::kChunk + 1 + ROOT_BYTES + RecordFormat::kPlainSize;
 
-void ClientStream::bound_candidates(size_t budget) {
-    const size_t most = std::min<size_t>(size_t(std::max(1, core_.config().max_candidates)), std::max<size_t>(64, budget / kSmallestChunk));
+void ClientStream::bound_candidates(size_t budget, uint32_t tick) {
+    const size_t most = std::min<size_t>(size_t(std::max(1, core_.config().max_candidates)),
+                                         std::max<size_t>(kMinCandidates, budget / kSmallestChunk));
     candidates_.clear();
     for (size_t i = 0; i < importance_.size(); ++i)
         if (importance_[i] > 0.0f) candidates_.push_back(i);
     if (candidates_.size() <= most) return;
-    // The `most` most important (ties: the lower id) keep theirs; O(instances).
-    auto more = [&](size_t a, size_t b) { return importance_[a] > importance_[b] || (importance_[a] == importance_[b] && a < b); };
+    // The `most` most important keep theirs; O(instances). Ties go in turn
+    // (an order that rotates with the tick), so that a crowd of equally
+    // important characters (no camera) shares the candidates over ticks
+    // instead of the lowest ids taking them every tick.
+    const size_t n = importance_.size(), turn = size_t(tick) % std::max<size_t>(1, n);
+    auto more = [&](size_t a, size_t b) {
+        return importance_[a] > importance_[b] || (importance_[a] == importance_[b] && (a + n - turn) % n < (b + n - turn) % n);
+    };
     std::nth_element(candidates_.begin(), candidates_.begin() + long(most), candidates_.end(), more);
     for (size_t c = most; c < candidates_.size(); ++c) importance_[candidates_[c]] = 0.0f;
 }
@@ -572,7 +579,7 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
 
 TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, DatagramSink& out, TickScratch& scratch) {
     update_importance(frame);
-    bound_candidates(budget);
+    bound_candidates(budget, frame.tick);
     if (selector_) {
         selector_(frame, budget, picks_);
     } else {

@@ -247,7 +247,8 @@ private:
     void update_importance(const EncodedFrame& frame);
     // Leaves importance only to the characters that can matter: at most
     // max_candidates, and no more than `budget` could carry a chunk of.
-    void bound_candidates(size_t budget);
+    void bound_candidates(size_t budget, uint32_t tick);
+    static constexpr size_t kMinCandidates = 128;  // whatever the budget (a client sees at least its nearest 128)
     bool refuse_message(const std::string& reason, const std::string& why);
 
     ServerCore& core_;

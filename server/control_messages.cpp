@@ -108,7 +108,7 @@ flatbuffers::Offset<wire::Instance> instance_table(flatbuffers::FlatBufferBuilde
     wire::DVec3 wc(sp.walk_center.x, sp.walk_center.y, sp.walk_center.z);
     auto vcl = fbb.CreateVector(clips);
     return wire::CreateInstance(fbb, uint16_t(id), uint16_t(sp.asset), &pos, vcl, start, end, sp.time_offset, sp.speed, sp.once,
-                                &rot, sp.owner != 0, sp.publisher_start_us, &wc, sp.walk_radius, sp.walk_speed);
+                                &rot, sp.owner != 0, sp.publisher_start_us, &wc, sp.walk_radius, sp.walk_speed, sp.world_id);
 }
 
 }  // namespace

@@ -1,6 +1,8 @@
 // frame_encoder.cpp — see frame_encoder.h.
 #include "frame_encoder.h"
 
+#include <random>
+
 #include <algorithm>
 #include <cmath>
 
@@ -11,6 +13,8 @@ namespace progskin::net {
 FrameEncoder::FrameEncoder(std::vector<std::shared_ptr<ServerAsset>> assets, std::vector<InstanceSpec> instances,
                            float tick_rate)
     : assets_(std::move(assets)), tick_rate_(tick_rate) {
+    std::random_device rd;
+    while (world_tag_ == 0) world_tag_ = rd() & 0xffffffu;
     size_t max_joints = 0;
     for (const auto& a : assets_) {
         stride_ = std::max(stride_, size_t(a->bone_count()) * size_t(a->format.size()));
@@ -75,6 +79,8 @@ int FrameEncoder::add_instance(const InstanceSpec& s) {
     slot.spec = s;
     slot.active = true;
     ++slot.generation;
+    if (slot.spec.world_id == 0)  // this node's tag | the slot's generation | the id: never the same twice in a process
+        slot.spec.world_id = uint64_t(world_tag_) << 40 | uint64_t(slot.generation & 0xffffffu) << 16 | uint64_t(id);
     slot.live = s.selection < 0;
     slot.has_pose = false;
     slot.records.assign(size_t(a.bone_count()) * size_t(a.format.size()), 0);

@@ -153,6 +153,7 @@ private:
     size_t morph_stride_ = 0;       // weights per slot (the largest streamed morph count)
     std::vector<float> weights_;    // sample_morph_weights scratch
     mutable std::mutex mutex_;      // slots_, free_, stats_
+    uint32_t world_tag_ = 0;        // random, 24 bits, nonzero: the high bits of this encoder's world ids
     std::vector<Slot> slots_;
     std::deque<int> free_;
     EncoderStats stats_;

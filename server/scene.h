@@ -109,6 +109,10 @@ struct InstanceSpec {
     uint64_t publisher_start_us = 0;
     glm::dvec3 walk_center{0.0};
     double walk_radius = 0, walk_speed = 0;
+    // The character's id across a world (control.fbs Instance.world_id): 0
+    // asks the encoder for one (FrameEncoder::add_instance); a foreign
+    // character keeps the one its own node gave it.
+    uint64_t world_id = 0;
 };
 
 // Lays out n instances cycling over assets and their clip selections, on a

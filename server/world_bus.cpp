@@ -4,6 +4,7 @@
 
 #include <nats/nats.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -203,6 +204,7 @@ void WorldBus::Impl::publish_own(const EncodedFrame& frame) {
         if (!e.valid || (i < is_foreign.size() && is_foreign[i]) || !core.encoder().spec_if_active(int(i), spec)) continue;
         WorldCharacter c;
         c.id = uint16_t(i);
+        c.world_id = spec.world_id;
         c.asset = uint16_t(e.asset);
         c.epoch = e.epoch;
         if (e.flags & CHUNK_ROOT) c.root = e.root;
@@ -257,8 +259,14 @@ void WorldBus::Impl::interest(double now) {
         }
         for (int64_t x = x0; x <= x1; ++x)
             for (int64_t z = z0; z <= z1; ++z) wanted.emplace_back(x, z);
-        if (wanted.size() > kMaxCellSubscriptions) all = true;
+        if (wanted.size() > 4 * kMaxCellSubscriptions) {  // clients close together want the same cells: count them once
+            std::sort(wanted.begin(), wanted.end());
+            wanted.erase(std::unique(wanted.begin(), wanted.end()), wanted.end());
+        }
     }
+    std::sort(wanted.begin(), wanted.end());
+    wanted.erase(std::unique(wanted.begin(), wanted.end()), wanted.end());
+    if (wanted.size() > kMaxCellSubscriptions) all = true;
     if (all) {
         if (!all_cells && !(all_cells = subscribe(cell_prefix + ">"))) count([](WorldStats& s) { ++s.subscribe_failed; });
         for (auto& [cell, sub] : cell_subs) unsubscribe(sub.first);
@@ -342,6 +350,7 @@ void WorldBus::Impl::take_cell(std::span<const uint8_t> bytes, double now) {
             sp.walk_radius = c.walk_radius;
             sp.walk_speed = c.walk_speed;
             sp.position = glm::vec3(decode_root(c.root.data()).position);
+            sp.world_id = c.world_id;  // its own node's: one id for the character on every node
             try {
                 it = foreign.emplace(key, Foreign{core.add_instance(sp), now, 0}).first;
             } catch (const Error&) {  // every instance id taken

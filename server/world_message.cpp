@@ -42,11 +42,12 @@ struct Reader {
 };
 
 constexpr uint8_t kMagic[4] = {'P', 'S', 'K', 'W'};
-constexpr uint8_t kVersion = 1;
+constexpr uint8_t kVersion = 2;  // 2: world_id
 
 // One character after the header; "" or what is wrong.
 std::string read_character(Reader& r, const ServerAssets& assets, WorldCharacter& c) {
     c.id = r.get<uint16_t>();
+    c.world_id = r.get<uint64_t>();
     c.asset = r.get<uint16_t>();
     c.epoch = r.get<uint8_t>();
     const uint8_t flags = r.get<uint8_t>();
@@ -54,6 +55,7 @@ std::string read_character(Reader& r, const ServerAssets& assets, WorldCharacter
     c.published = flags == 1;
     const int bones = r.get<uint8_t>(), rs = r.get<uint8_t>();
     if (!r.ok) return "truncated character";
+    if (c.world_id == 0) return "character without a world id";
     if (c.asset >= assets.size()) return "asset " + std::to_string(c.asset) + " not in the catalogue";
     const ServerAsset& a = *assets[c.asset];
     if (bones != a.bone_count() || rs != a.format.size())
@@ -104,6 +106,7 @@ void write_world_message(const WorldHeader& h, std::span<const WorldCharacter> c
     for (const WorldCharacter& c : chars) {
         const ServerAsset& a = *assets[c.asset];
         put<uint16_t>(out, c.id);
+        put<uint64_t>(out, c.world_id);
         put<uint16_t>(out, c.asset);
         put<uint8_t>(out, c.epoch);
         put<uint8_t>(out, c.published ? 1 : 0);

@@ -5,9 +5,9 @@
 // per non-empty cell per tick. Pure functions over flat byte spans, no bus.
 //
 // Layout (little-endian):
-//   header  "PSKW" | version u8 (1) | 0 u8 | node u16 | catalogue u64 | tick u32 | count u16
+//   header  "PSKW" | version u8 (2) | 0 u8 | node u16 | catalogue u64 | tick u32 | count u16
 //   count x character:
-//     id u16 (the node's instance id) | asset u16 | epoch u8 | flags u8 (1: a player's)
+//     id u16 (the node's instance id) | world_id u64 (nonzero) | asset u16 | epoch u8 | flags u8 (1: a player's)
 //     | bones u8 | record_size u8
 //     | root [ROOT_BYTES] | records [bones * record_size]
 //     | morphs u8 | morph weights i16 x morphs
@@ -34,6 +34,7 @@ inline constexpr size_t kWorldMaxMessage = 1 << 20;  // bytes
 
 struct WorldCharacter {
     uint16_t id = 0;  // the sending node's instance id
+    uint64_t world_id = 0;  // InstanceSpec::world_id (nonzero)
     uint16_t asset = 0;
     uint8_t epoch = 0;
     bool published = false;  // a player's character (else the node's own, a clip or a game's)

@@ -361,18 +361,26 @@ private:
                 rx_.erase(rx_.begin(), rx_.begin() + 4 + long(n));
                 return true;
             }
-            const bool pending = tls_ && SSL_pending(tls_->native_handle()) > 0;
-            const int left = int(std::chrono::duration_cast<std::chrono::milliseconds>(end - clock::now()).count());
-            pollfd p{sock_->native_handle(), POLLIN, 0};
-            if (!pending && ::poll(&p, 1, std::max(0, left)) <= 0) return false;
+            // What is already here first, without blocking: asio's TLS stream
+            // may hold whole records it read with an earlier one (neither the
+            // socket nor SSL_pending shows them), and a readable socket may
+            // carry no application data (a TLS 1.3 session ticket).
             uint8_t buf[16384];
-            asio::error_code ec;
+            asio::error_code ec, ig;
+            sock_->non_blocking(true, ig);
             const size_t got = tls_ ? tls_->read_some(asio::buffer(buf), ec) : sock_->read_some(asio::buffer(buf), ec);
-            if (ec) {
+            sock_->non_blocking(false, ig);
+            if (!ec) {
+                rx_.insert(rx_.end(), buf, buf + got);
+                continue;
+            }
+            if (ec != asio::error::would_block && ec != asio::error::try_again) {
                 closed_ = true;
                 return false;
             }
-            rx_.insert(rx_.end(), buf, buf + got);
+            const int left = int(std::chrono::duration_cast<std::chrono::milliseconds>(end - clock::now()).count());
+            pollfd p{sock_->native_handle(), POLLIN, 0};
+            if (left <= 0 || ::poll(&p, 1, left) <= 0) return false;
         }
     }
 

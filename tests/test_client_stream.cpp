@@ -457,6 +457,7 @@ TEST(ControlMessages, InstanceAddedBatchesFitTheControlLimit) {
     worst.walk_radius = 1;
     worst.walk_speed = 1;
     worst.publisher_start_us = ~0ull;
+    worst.world_id = ~0ull;
     std::vector<std::pair<int, InstanceSpec>> added;
     for (int i = 0; i < 4000; ++i) added.emplace_back(i, worst);
     flatbuffers::FlatBufferBuilder empty, one;

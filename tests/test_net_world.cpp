@@ -12,6 +12,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <set>
 #include <thread>
 
 #include "errors.h"
@@ -168,6 +169,19 @@ TEST(NetWorld, PlayersOnTwoNodesSeeEachOther) {
     EXPECT_NEAR(rc->root.position.z, 2.0, 1e-3);
     // B's four clip characters are on A too, as the server's own (not published).
     EXPECT_EQ(observer.characters().size(), 4u + 4u + 1u);
+    // One id across the world: the publisher's character has on A the world
+    // id B gave it (the publisher sees it as its own instance on B).
+    EXPECT_NE(rc->world_id, 0u);
+    std::set<uint64_t> ids;
+    for (const RemoteCharacter& c : observer.characters()) ids.insert(c.world_id);
+    EXPECT_EQ(ids.size(), observer.characters().size()) << "world ids are distinct";
+    EXPECT_EQ(ids.count(0), 0u);
+    Client b_observer(client_config("b-observer"));
+    b_observer.connect("127.0.0.1", b->server->tcp_port());
+    run_until(3, [&] { return published(b_observer) != nullptr; }, &p, b_observer);
+    const RemoteCharacter* on_b = published(b_observer);
+    ASSERT_NE(on_b, nullptr);
+    EXPECT_EQ(on_b->world_id, published(observer)->world_id) << "one character, one world id on both nodes";
     const ServerStats st = a.server->stats();
     EXPECT_GT(st.world_messages_in, 0u);
     EXPECT_EQ(st.world_malformed, 0u);
@@ -275,6 +289,7 @@ TEST(WorldMessage, RoundTripAndEveryMalformedMessageRefused) {
     const ServerAssets& assets = default_assets();
     WorldCharacter c;
     c.id = 7;
+    c.world_id = 0x123456000010007ull;
     c.asset = 0;
     c.epoch = 3;
     c.published = true;
@@ -293,6 +308,7 @@ TEST(WorldMessage, RoundTripAndEveryMalformedMessageRefused) {
     EXPECT_EQ(h.node, 42);
     EXPECT_EQ(h.tick, 1000u);
     EXPECT_EQ(got[0].id, 7);
+    EXPECT_EQ(got[0].world_id, 0x123456000010007ull);
     EXPECT_EQ(got[0].epoch, 3);
     EXPECT_TRUE(got[0].published);
     EXPECT_TRUE(std::equal(records.begin(), records.end(), got[0].records.begin(), got[0].records.end()));
@@ -305,8 +321,11 @@ TEST(WorldMessage, RoundTripAndEveryMalformedMessageRefused) {
     longer.push_back(0);
     EXPECT_NE(read_world_message(longer, assets, h, got).find("after the last character"), std::string::npos);
     std::vector<uint8_t> bad = bytes;
-    bad[4 + 2 + 2 + 8 + 4 + 2 + 2 + 2 + 1 + 1] ^= 1;  // the bone count
+    bad[4 + 2 + 2 + 8 + 4 + 2 + 2 + 8 + 2 + 1 + 1] ^= 1;  // the bone count (after id, world id, asset, epoch, flags)
     EXPECT_NE(read_world_message(bad, assets, h, got).find("bones"), std::string::npos);
+    bad = bytes;
+    std::fill_n(bad.begin() + 4 + 2 + 2 + 8 + 4 + 2 + 2, 8, uint8_t(0));  // the world id
+    EXPECT_NE(read_world_message(bad, assets, h, got).find("world id"), std::string::npos);
     write_world_message({42, catalogue_hash(assets) ^ 1, 1000}, std::span(&c, 1), assets, bytes);
     EXPECT_EQ(read_world_message(bytes, assets, h, got), "another catalogue");
     c.clips = {999};

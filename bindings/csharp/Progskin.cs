@@ -132,6 +132,7 @@ public static class Native {
     [DllImport(Lib)] public static extern Status psk_client_character_count(IntPtr c, out int n);
     [DllImport(Lib)] public static extern Status psk_client_character(IntPtr c, int index, out Character ch);
     [DllImport(Lib)] public static extern Status psk_client_find_character(IntPtr c, int instance, out Character ch);
+    [DllImport(Lib)] public static extern Status psk_client_character_world_id(IntPtr c, int instance, out ulong worldId);
     [DllImport(Lib)] public static extern Status psk_client_asset_count(IntPtr c, out int n);
     [DllImport(Lib)] public static extern Status psk_client_asset(IntPtr c, int index, out NativeAsset a);
     [DllImport(Lib)] public static extern Status psk_client_sample_clip(IntPtr c, int asset, int clip, double t, [Out] float[] o, int capacity);
@@ -248,6 +249,13 @@ public sealed class Client : IDisposable {
         Character c;
         Native.Check(Native.psk_client_character(H, index, out c));
         return c;
+    }
+
+    // The character's id across a world of servers (0 from a server that sends none).
+    public ulong WorldId(int instance) {
+        ulong w;
+        Native.Check(Native.psk_client_character_world_id(H, instance, out w));
+        return w;
     }
 
     public int AssetCount { get { int n; Native.Check(Native.psk_client_asset_count(H, out n)); return n; } }

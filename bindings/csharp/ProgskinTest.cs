@@ -50,6 +50,7 @@ static class ProgskinTest {
             ch.CopyPalette(buf);
             for (int k = 0; k < ch.bone_count * 12; ++k)
                 if (float.IsNaN(buf[k]) || float.IsInfinity(buf[k])) { Check(false, "palette not finite"); break; }
+            Check(c.WorldId(ch.instance) != 0, "character " + ch.instance + " world id");
             if (ch.Published) published = ch.instance;
             ++shown;
         }

@@ -132,6 +132,7 @@ _SIGNATURES = {
     "psk_client_character_count": (_I, [_P, _PI]),
     "psk_client_character": (_I, [_P, _I, ctypes.POINTER(_Character)]),
     "psk_client_find_character": (_I, [_P, _I, ctypes.POINTER(_Character)]),
+    "psk_client_character_world_id": (_I, [_P, _I, ctypes.POINTER(ctypes.c_uint64)]),
     "psk_client_asset_count": (_I, [_P, _PI]),
     "psk_client_asset": (_I, [_P, _I, ctypes.POINTER(_Asset)]),
     "psk_client_sample_clip": (_I, [_P, _I, _I, ctypes.c_double, c_float_p, _I]),
@@ -306,6 +307,12 @@ class Client:
 
     def characters(self):
         return [self.character(i) for i in range(self.character_count())]
+
+    def world_id(self, instance):
+        """The character's id across a world of servers (0 from a server that sends none)."""
+        v = ctypes.c_uint64()
+        _check(_lib().psk_client_character_world_id(self._h, instance, ctypes.byref(v)))
+        return v.value
 
     def asset_count(self):
         return self._int(_lib().psk_client_asset_count)

@@ -40,6 +40,7 @@ def shown(c):
         assert ch.palette is not None and len(ch.palette) == ch.bone_count * 12, ch.instance
         assert 1 <= ch.bones <= ch.bone_count
         assert all(math.isfinite(v) for v in ch.palette)
+        assert c.world_id(ch.instance) != 0, ch.instance
         out.append(ch)
     return out
 

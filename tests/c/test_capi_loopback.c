@@ -90,6 +90,11 @@ static int count_shown(psk_client* c, int* published) {
                 break;
             }
         CHECK(ch.asset >= 0, "character %d: asset %d", (int)ch.instance, (int)ch.asset);
+        {
+            uint64_t world_id = 0;
+            CHECK(psk_client_character_world_id(c, ch.instance, &world_id) == PSK_OK && world_id != 0,
+                  "character %d: world id %llu", (int)ch.instance, (unsigned long long)world_id);
+        }
         if (ch.published) *published = ch.instance;
         ++shown;
     }
