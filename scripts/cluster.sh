@@ -14,7 +14,9 @@
 #   scripts/cluster.sh [--nodes N] [--players N] [--duration S] [--max-kbps K]
 #                      [--delay-ms D] [--threads T] [--asset NAME|INDEX]
 #                      [--walk R] [--spacing D] [--see K] [--connect-rate N]
-#                      [--json FILE] [--build DIR]
+#                      [--server-args "ARGS"] [--json FILE] [--build DIR]
+# --server-args: more progskin-server options for every node (e.g.
+# "--owner-share-kbps 0 --threads 2").
 #
 # Exit status: the loadgen's (0: every player joined and streamed to the end).
 set -euo pipefail
@@ -28,6 +30,7 @@ DELAY=100
 THREADS=""
 ASSET=CesiumMan.glb
 LGOPTS=()
+SERVER_ARGS=()
 JSON=""
 while (($#)); do
   case "$1" in
@@ -40,8 +43,9 @@ while (($#)); do
     --asset) ASSET=$2; shift 2;;
     --walk|--spacing|--see|--connect-rate|--settle) LGOPTS+=("$1" "$2"); shift 2;;
     --json) JSON=$2; shift 2;;
+    --server-args) read -r -a SERVER_ARGS <<<"$2"; shift 2;;
     --build) BUILD=$2; shift 2;;
-    -h|--help) sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
+    -h|--help) sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
     *) echo "cluster.sh: unknown argument $1" >&2; exit 2;;
   esac
 done
@@ -78,7 +82,8 @@ for k in $(seq 1 "$NODES"); do
   NODEOPT=()
   ((NODES > 1)) && NODEOPT=(--node "n$k")
   # Every node shares the TLS pair of $TMP/tls (one pin for all); room for every player.
-  psk_start_server --no-scene --max-clients $((PLAYERS + 16)) --stats-every 1 "${NATSOPT[@]}" "${NODEOPT[@]}" "${THREADOPT[@]}"
+  psk_start_server --no-scene --max-clients $((PLAYERS + 16)) --stats-every 1 "${NATSOPT[@]}" "${NODEOPT[@]}" "${THREADOPT[@]}" \
+    "${SERVER_ARGS[@]}"
   mv "$TMP/server.out" "$TMP/node$k.out"
   mv "$TMP/server.err" "$TMP/node$k.err"
   NODE_PIDS+=("$SERVER_PID")
@@ -122,7 +127,7 @@ print(f"{'starved players / pairs of':34s} {s['players']:8d} {s['pairs']:8d} {s[
 print(f"{'loadgen CPU share / late turns':34s} {r['loadgen']['cpu_share']:8.2f} {r['loadgen']['late_turns']:8.3f}")
 if r["error"]:
     print(f"error: {r['error']}")
-keys = ["sessions", "mean_tick_ms", "cpu_share", "datagrams_per_s", "sent_kbps", "poses_per_s", "world_out_msgs_per_s",
+keys = ["sessions", "ticks_per_s", "mean_tick_ms", "cpu_share", "datagrams_per_s", "sent_kbps", "poses_per_s", "world_out_msgs_per_s",
         "world_out_bytes_per_s", "world_in_msgs_per_s", "world_in_bytes_per_s", "world_dropped"]
 print(f"{'node':6s}" + "".join(f"{k:>22s}" for k in keys))
 for k in range(1, nodes + 1):
@@ -140,4 +145,7 @@ for k in range(1, nodes + 1):
     mean = {x: sum(w[x] for w in win) / len(win) for x in keys}
     print(f"n{k:<5d}" + "".join(f"{mean[x]:22.2f}" for x in keys))
 EOF
+for k in $(seq 1 "$NODES"); do
+  sed -n 's/^progskin-server: \(refusals:.*\)/n'"$k"' \1/p; s/^progskin-server: \(world bus:.*\)/n'"$k"' \1/p' "$TMP/node$k.err"
+done
 exit $RC
