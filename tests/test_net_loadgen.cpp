@@ -16,6 +16,7 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
+#include "alloc_counter.h"  // the one source file of this executable that includes it
 #include "loadgen.h"
 #include "net_test_support.h"
 
@@ -69,10 +70,22 @@ void expect_report_fields(const LoadReport& r, const LoadOptions& o) {
     EXPECT_EQ(j["players"], o.players);
 }
 
+// The loadgen thread's allocations in the measurement window (alloc_counter.h).
+void count_window(bool start) {
+    if (start) alloc_counter::allocations = 0;
+    alloc_counter::counting = start;
+}
+
 TEST(NetLoadgen, TwentyPlayersOnOneNodeSeeEachOther) {
     Node node;
-    const LoadOptions o = options({node.address()}, 20);
+    LoadOptions o = options({node.address()}, 20);
+    o.on_window = count_window;
     const LoadReport r = run_loadgen(o);
+    // Steady state: no allocation per player turn (reads, acks, poses, the sink).
+    std::printf("loadgen thread: %ld allocations in %llu player turns of the window\n", alloc_counter::allocations,
+                (unsigned long long)r.turns);
+    EXPECT_GT(r.turns, 20u * 30u * 2u);
+    EXPECT_EQ(alloc_counter::allocations, 0);
     SCOPED_TRACE(report_table(r, o));
     EXPECT_TRUE(r.ok) << r.error;
     EXPECT_EQ(r.joined, 20);

@@ -181,13 +181,16 @@ struct Shared {
     uint64_t bones_sum = 0, bones_n = 0, records = 0, bad_records = 0;
     double decoded_check = 0;  // the decoded rotations summed (keeps the decoding from being optimised away)
     bool step_set = false;
-    // the shared pose: per asset index, sampled once per loop turn
+    // The shared poses: per asset index, the clip sampled once at the tick
+    // rate over its loop (at most kMaxFrames), each player publishing the
+    // frame of its time: nothing sampled or allocated per turn.
     struct Pose {
+        std::vector<Mat34> table;  // frames x joints
+        size_t joints = 0, frames = 0;
+        double start = 0;
         ClipSelection sel;
-        std::vector<glm::dmat4> mats;
-        std::vector<Mat34> skin;
-        double at = -1;
     };
+    static constexpr size_t kMaxFrames = 3600;
     std::vector<Pose> poses;
     uint64_t start_us = 0;
     uint64_t late = 0, turns = 0;
@@ -199,21 +202,26 @@ struct Shared {
         return int(gz * grid + gx);
     }
     glm::dvec3 spot(int i) const { return {double(i % grid) * step, 0.0, double(i / grid) * step}; }
-    const Pose& pose(const ClientAsset& a, int index, double now) {
+    // The skinning matrices of asset `index` at `now` (its loop's frame).
+    std::span<const Mat34> pose(const ClientAsset& a, int index, double now) {
         if (poses.size() <= size_t(index)) poses.resize(size_t(index) + 1);
         Pose& p = poses[size_t(index)];
-        if (p.mats.empty()) {
+        if (p.table.empty()) {
             p.sel = select_clips(a.character, opt.clip);
-            p.mats.resize(a.character.joint_count());
-            p.skin.resize(a.character.joint_count());
+            p.joints = a.character.joint_count();
+            p.start = p.sel.start;
+            const double length = std::max(0.0, double(p.sel.end - p.sel.start));
+            p.frames = std::clamp<size_t>(size_t(std::ceil(length * opt.tick_rate)), 1, kMaxFrames);
+            p.table.resize(p.frames * p.joints);
+            std::vector<glm::dmat4> mats(p.joints);
+            for (size_t f = 0; f < p.frames; ++f) {
+                sample_skinning_matrices(a.character, p.sel, p.start + double(f) / opt.tick_rate, mats);
+                for (size_t j = 0; j < p.joints; ++j) p.table[f * p.joints + j] = Mat34::from_glm(mats[j]);
+            }
         }
-        if (std::fabs(now - p.at) > 0.001) {
-            const double t = now - double(start_us) * 1e-6;
-            sample_skinning_matrices(a.character, p.sel, p.sel.looped(t), p.mats);
-            for (size_t j = 0; j < p.mats.size(); ++j) p.skin[j] = Mat34::from_glm(p.mats[j]);
-            p.at = now;
-        }
-        return p;
+        const double u = p.sel.looped(now - double(start_us) * 1e-6) - p.start;
+        const size_t f = std::min(p.frames - 1, size_t(std::max(0.0, u * opt.tick_rate)));
+        return {p.table.data() + f * p.joints, p.joints};
     }
 };
 
@@ -510,12 +518,12 @@ void Player::turn(double now) {
             joined_at = now;
         }
         const ClientAsset& a = *session.assets()[size_t(asset)];
-        const Shared::Pose& p = sh.pose(a, asset, now);
+        const std::span<const Mat34> skin = sh.pose(a, asset, now);
         const double t = now - double(sh.start_us) * 1e-6;
         const double diag = a.diagonal;
         RootPose root = walk_root(center, sh.opt.walk * diag, sh.opt.walk > 0 ? 0.75 * diag : 0.0, t);
         root.source_us = uint64_t(now * 1e6);
-        session.publish(handle, root, p.skin, false, {});
+        session.publish(handle, root, skin, false, {});
     }
     if (sh.in_window && (++turns % std::max(1, int(sh.opt.tick_rate / 10))) == 0) sample_display(now);
     flush();
@@ -708,12 +716,14 @@ LoadReport run_loadgen(const LoadOptions& opt, const std::atomic<bool>* stop) {
                 p->streamed_window = p->joined && p->session.running();
                 for (Obs& o : p->obs) o.max_gap = 0;
             }
+            if (opt.on_window) opt.on_window(true);
         }
         if (sh.in_window && now >= sh.window_start + opt.duration) {
             sh.in_window = false;
             sh.window_done = true;
             sh.window_end = now;
             rep.cpu_seconds = cpu_now() - cpu_start;
+            if (opt.on_window) opt.on_window(false);
             break;
         }
         if (opt.progress_s > 0 && now >= next_progress) {
@@ -808,6 +818,7 @@ LoadReport run_loadgen(const LoadOptions& opt, const std::atomic<bool>* stop) {
     rep.cross_receipt_ms = sh.cross_receipt.summary();
     rep.cross_display_ms = sh.cross_display.summary();
     rep.late_turns = sh.turns ? double(sh.late) / double(sh.turns) : 0;
+    rep.turns = sh.turns;
     for (auto& p : players)
         if (p->session.running()) {
             p->session.close("loadgen done");

@@ -7,11 +7,13 @@
 // its Bind came from; one socket per player), all on ONE thread and ONE
 // asio io_context, no thread per player. Each player spawns one character
 // of the catalogue, walks it around its own spot of a square grid, publishes
-// its pose every tick (the clip sampled once per asset per loop turn and
-// shared by every player), receives frames, acknowledges them (the session)
+// its pose every tick (the clip's loop sampled once per asset at the tick
+// rate, at most 3,600 frames, and shared by every player: each publishes the
+// frame of its time), receives frames, acknowledges them (the session)
 // and decodes every record received (decode_bone), but keeps no pose history
 // and skins nothing (the session's FrameSink: no InstanceView per remote
-// character). The decoded assets are shared between the players.
+// character). The decoded assets are shared between the players. Nothing is
+// allocated per player turn once steady (tests/test_net_loadgen.cpp counts).
 //
 // What it measures, in the measurement window (after every player joined,
 // plus `settle` seconds):
@@ -69,6 +71,9 @@ struct LoadOptions {
     double connect_timeout = 20;
     double progress_s = 5;               // progress line period on stderr (0: none)
     bool verbose = false;
+    // Called on the loadgen's thread when the measurement window starts
+    // (true) and ends (false); tests count allocations in between.
+    void (*on_window)(bool start) = nullptr;
 
     static constexpr int kMaxPlayers = 4000;
 };
@@ -103,6 +108,7 @@ struct LoadReport {
     uint64_t poses_sent = 0, poses_refused = 0, spawn_refused = 0;
     double cpu_seconds = 0;            // this process (user + system) over the window
     double late_turns = 0;             // share of player updates more than one tick late
+    uint64_t turns = 0;                // player updates in the window
 };
 
 // Runs the whole load (connect, spawn, stream, measure) and returns the
