@@ -124,7 +124,7 @@ for k in ("receipt", "display", "cross_node_receipt", "cross_node_display"):
     print(f"{(k.replace('_', ' ') + ' ms p50/p99/max'):34s} {L[k]['p50']:8.1f} {L[k]['p99']:8.1f} {L[k]['max']:8.1f}  ({L[k]['samples']} samples)")
 s = r["starved"]
 print(f"{'starved players / pairs of':34s} {s['players']:8d} {s['pairs']:8d} {s['of_pairs']:8d}  (longest gap {s['max_gap_ms']:.0f} ms)")
-print(f"{'loadgen CPU share / late turns':34s} {r['loadgen']['cpu_share']:8.2f} {r['loadgen']['late_turns']:8.3f}")
+print(f"{'loadgen CPU share / late / us per turn':34s} {r['loadgen']['cpu_share']:8.2f} {r['loadgen']['late_turns']:8.3f} {r['loadgen'].get('cpu_us_per_turn', 0):8.1f}")
 if r["error"]:
     print(f"error: {r['error']}")
 keys = ["sessions", "ticks_per_s", "mean_tick_ms", "cpu_share", "datagrams_per_s", "sent_kbps", "poses_per_s", "world_out_msgs_per_s",

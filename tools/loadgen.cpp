@@ -874,7 +874,9 @@ std::string report_json(const LoadReport& r, const LoadOptions& o) {
     j["poses"] = {{"sent", r.poses_sent}, {"refused", r.poses_refused}};
     j["loadgen"] = {{"cpu_seconds", r.cpu_seconds},
                     {"cpu_share", r.window_seconds > 0 ? r.cpu_seconds / r.window_seconds : 0.0},
-                    {"late_turns", r.late_turns}};
+                    {"late_turns", r.late_turns},
+                    {"turns", r.turns},
+                    {"cpu_us_per_turn", r.turns ? 1e6 * r.cpu_seconds / double(r.turns) : 0.0}};
     return j.dump(2) + "\n";
 }
 
@@ -912,8 +914,9 @@ std::string report_table(const LoadReport& r, const LoadOptions& o) {
                   (unsigned long long)r.malformed, (unsigned long long)r.duplicates, r.loss_mean,
                   (unsigned long long)r.poses_sent, (unsigned long long)r.poses_refused);
     s += b;
-    std::snprintf(b, sizeof b, "loadgen CPU %.2f s over the window (%.0f %% of a core), %.1f %% of turns late\n", r.cpu_seconds,
-                  r.window_seconds > 0 ? 100.0 * r.cpu_seconds / r.window_seconds : 0.0, 100.0 * r.late_turns);
+    std::snprintf(b, sizeof b, "loadgen CPU %.2f s over the window (%.0f %% of a core; %.1f us per player turn), %.1f %% of turns late\n",
+                  r.cpu_seconds, r.window_seconds > 0 ? 100.0 * r.cpu_seconds / r.window_seconds : 0.0,
+                  r.turns ? 1e6 * r.cpu_seconds / double(r.turns) : 0.0, 100.0 * r.late_turns);
     s += b;
     if (!r.ok) s += "FAILED: " + r.error + "\n";
     return s;
