@@ -19,6 +19,7 @@
 #include "alloc_counter.h"  // the one source file of this executable that includes it
 #include "loadgen.h"
 #include "net_test_support.h"
+#include "run_command.h"
 
 using namespace progskin;
 using namespace progskin::net;
@@ -124,6 +125,29 @@ TEST(NetLoadgen, ServerRefusalIsReportedNotHidden) {
     EXPECT_FALSE(r.errors.empty());
     EXPECT_FALSE(r.error.empty());
     expect_report_fields(r, o);
+}
+
+// The program: --help, exit 2 on bad arguments, a JSON report and exit 1
+// when the server cannot be reached.
+TEST(NetLoadgen, ProgramArgumentsAndReportOnFailure) {
+    const std::string exe = std::string(PROGSKIN_BIN_DIR) + "/tools/progskin-loadgen";
+    const CmdResult help = run(exe + " --help");
+    EXPECT_EQ(help.code, 0);
+    EXPECT_NE(help.out.find("--players"), std::string::npos);
+    for (const char* bad : {"--players 0", "--players 4001", "--duration -1", "--bogus", "--report xml --no-tls",
+                            "--server nohost --no-tls", "--players 2" /* TLS with nothing to trust */, "--no-tls --pin ab",
+                            "--addresses 300 --no-tls"}) {
+        const CmdResult r = run(exe + " " + bad);
+        EXPECT_EQ(r.code, 2) << bad << "\n" << r.out;
+    }
+    // Nothing listens on port 1: every player fails; the report says so.
+    const CmdResult r = run("(" + exe + " --no-tls --server 127.0.0.1:1 --players 3 --duration 1 --connect-timeout 2 "
+                                        "--progress 0 --report json 2>/dev/null)");
+    EXPECT_EQ(r.code, 1);
+    const auto j = nlohmann::json::parse(r.out);
+    EXPECT_FALSE(j["ok"].get<bool>());
+    EXPECT_FALSE(j["error"].get<std::string>().empty());
+    EXPECT_EQ(j["failed"], 3);
 }
 
 bool have_nats_server() { return std::system("command -v nats-server >/dev/null 2>&1") == 0; }
