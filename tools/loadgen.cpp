@@ -570,7 +570,9 @@ double cpu_now() {
 
 }  // namespace
 
-LoadReport run_loadgen(const LoadOptions& opt, const std::atomic<bool>* stop) {
+namespace {
+
+void check_options(const LoadOptions& opt) {
     if (opt.servers.empty()) throw Error("no server given");
     if (opt.players < 1 || opt.players > LoadOptions::kMaxPlayers)
         throw Error("players must be in 1.." + std::to_string(LoadOptions::kMaxPlayers));
@@ -581,63 +583,107 @@ LoadReport run_loadgen(const LoadOptions& opt, const std::atomic<bool>* stop) {
     if (!(opt.max_kbps >= 0) || !(opt.delay_ms >= 0 && opt.delay_ms <= 5000) || !(opt.walk >= 0 && opt.walk <= 1000) ||
         !(opt.spacing > 0 && opt.spacing <= 1000) || opt.see < 0 || !(opt.starve_s > 0) || opt.addresses > 250)
         throw Error("an option is out of range");
+}
 
+// The TLS client context every player's stream shares (pin or CA as progskin-client).
+void setup_tls(const LoadOptions& opt, Shared& sh) {
+    for (char ch : opt.pin_sha256)
+        if (ch != ':') sh.pin.push_back(char(std::tolower(static_cast<unsigned char>(ch))));
+    if (!sh.pin.empty() && (sh.pin.size() != 64 || sh.pin.find_first_not_of("0123456789abcdef") != std::string::npos))
+        throw Error("the pinned certificate fingerprint must be 64 hex digits (SHA-256)");
+    if (opt.ca_file.empty() && sh.pin.empty() && !opt.insecure)
+        throw Error("TLS needs a way to trust the server's certificate: --ca, --pin or --insecure");
+    sh.ssl_ctx = std::make_unique<asio::ssl::context>(asio::ssl::context::tls_client);
+    sh.ssl_ctx->set_options(asio::ssl::context::default_workarounds | asio::ssl::context::no_sslv2 |
+                            asio::ssl::context::no_sslv3 | asio::ssl::context::no_tlsv1 | asio::ssl::context::no_tlsv1_1);
+    if (!opt.ca_file.empty()) {
+        asio::error_code ec;
+        sh.ssl_ctx->load_verify_file(opt.ca_file, ec);
+        if (ec) throw Error("cannot read the CA file " + opt.ca_file + ": " + ec.message());
+        sh.ssl_ctx->set_verify_mode(asio::ssl::verify_peer);
+    } else {
+        sh.ssl_ctx->set_verify_mode(asio::ssl::verify_none);  // pinned or insecure: checked after the handshake
+    }
+}
+
+// One run: the players, the loop, the window, the report.
+class Run {
+public:
+    Run(const LoadOptions& o, const std::atomic<bool>* stop) : opt(o), stop_(stop), sh(o) {
+        check_options(opt);
+        rep.players = opt.players;
+        rep.nodes = int(opt.servers.size());
+        sh.grid = int(std::ceil(std::sqrt(double(opt.players))));
+        sh.start_us = uint64_t(now_seconds() * 1e6);
+        if (opt.tls) setup_tls(opt, sh);
+        make_players();
+        layout_nearest();
+    }
+    LoadReport run() {
+        loop();
+        summarise();
+        for (auto& p : players)
+            if (p->session.running()) {
+                p->session.close("loadgen done");
+                p->flush();
+            }
+        sh.io.poll();
+        return rep;
+    }
+
+private:
+    const LoadOptions& opt;
+    const std::atomic<bool>* stop_;
+    Shared sh;
     LoadReport rep;
-    rep.players = opt.players;
-    rep.nodes = int(opt.servers.size());
-    Shared sh(opt);
-    sh.grid = int(std::ceil(std::sqrt(double(opt.players))));
-    sh.start_us = uint64_t(now_seconds() * 1e6);
-
-    bool loopback = true;
-    for (const auto& s : opt.servers) loopback = loopback && s.host.rfind("127.", 0) == 0;
-    const int addresses = opt.addresses >= 0 ? opt.addresses : loopback ? std::min(250, (opt.players + 15) / 16) : 0;
-    rep.addresses = addresses;
-
-    if (opt.tls) {
-        for (char ch : opt.pin_sha256)
-            if (ch != ':') sh.pin.push_back(char(std::tolower(static_cast<unsigned char>(ch))));
-        if (!sh.pin.empty() && (sh.pin.size() != 64 || sh.pin.find_first_not_of("0123456789abcdef") != std::string::npos))
-            throw Error("the pinned certificate fingerprint must be 64 hex digits (SHA-256)");
-        if (opt.ca_file.empty() && sh.pin.empty() && !opt.insecure)
-            throw Error("TLS needs a way to trust the server's certificate: --ca, --pin or --insecure");
-        sh.ssl_ctx = std::make_unique<asio::ssl::context>(asio::ssl::context::tls_client);
-        sh.ssl_ctx->set_options(asio::ssl::context::default_workarounds | asio::ssl::context::no_sslv2 |
-                                asio::ssl::context::no_sslv3 | asio::ssl::context::no_tlsv1 | asio::ssl::context::no_tlsv1_1);
-        if (!opt.ca_file.empty()) {
-            asio::error_code ec;
-            sh.ssl_ctx->load_verify_file(opt.ca_file, ec);
-            if (ec) throw Error("cannot read the CA file " + opt.ca_file + ": " + ec.message());
-            sh.ssl_ctx->set_verify_mode(asio::ssl::verify_peer);
-        } else {
-            sh.ssl_ctx->set_verify_mode(asio::ssl::verify_none);  // pinned or insecure: checked after the handshake
-        }
-    }
-
-    ClientConfig cfg;
-    cfg.tls = opt.tls;
-    cfg.insecure = opt.insecure;
-    cfg.token = opt.token;
-    cfg.cache_dir = opt.cache_dir;
-    cfg.max_kbps = opt.max_kbps;
-    cfg.delay_ms = opt.delay_ms;
-    cfg.max_delay_ms = opt.delay_ms;
-    cfg.connect_timeout = opt.connect_timeout;
     std::vector<std::unique_ptr<Player>> players;
-    players.reserve(size_t(opt.players));
-    for (int i = 0; i < opt.players; ++i) {
-        cfg.name = "loadgen" + std::to_string(i);
-        auto p = std::make_unique<Player>(sh, i, i % rep.nodes, cfg, sh.io);
-        if (addresses > 0) {
-            p->use_source = true;
-            p->source = asio::ip::address_v4((127u << 24) | uint32_t(2 + i % addresses));
-        }
-        players.push_back(std::move(p));
+    int see = 0, started = 0;
+    double t0 = 0, period = 0, all_joined_at = 0, cpu_start = 0, next_progress = 0;
+
+    template <class... A>
+    void log(const char* fmt, A... args) {
+        std::fprintf(stderr, "progskin-loadgen: %6.1f s  ", now_seconds() - t0);
+        std::fprintf(stderr, fmt, args...);
+        std::fputc('\n', stderr);
     }
-    // Nearest sets by spot (the grid): the `see` closest others.
-    const int see = std::min(opt.see, opt.players - 1);
-    rep.see = see;
-    {
+    template <class Pred>
+    int count(Pred pred) const {
+        int n = 0;
+        for (const auto& p : players) n += pred(*p) ? 1 : 0;
+        return n;
+    }
+
+    // Every player, on its node (round-robin) and source address.
+    void make_players() {
+        bool loopback = true;
+        for (const auto& s : opt.servers) loopback = loopback && s.host.rfind("127.", 0) == 0;
+        const int addresses = opt.addresses >= 0 ? opt.addresses : loopback ? std::min(250, (opt.players + 15) / 16) : 0;
+        rep.addresses = addresses;
+        ClientConfig cfg;
+        cfg.tls = opt.tls;
+        cfg.insecure = opt.insecure;
+        cfg.token = opt.token;
+        cfg.cache_dir = opt.cache_dir;
+        cfg.max_kbps = opt.max_kbps;
+        cfg.delay_ms = opt.delay_ms;
+        cfg.max_delay_ms = opt.delay_ms;
+        cfg.connect_timeout = opt.connect_timeout;
+        players.reserve(size_t(opt.players));
+        for (int i = 0; i < opt.players; ++i) {
+            cfg.name = "loadgen" + std::to_string(i);
+            auto p = std::make_unique<Player>(sh, i, i % rep.nodes, cfg, sh.io);
+            if (addresses > 0) {
+                p->use_source = true;
+                p->source = asio::ip::address_v4((127u << 24) | uint32_t(2 + i % addresses));
+            }
+            players.push_back(std::move(p));
+        }
+    }
+
+    // Each player's nearest set: the `see` closest others by grid spot.
+    void layout_nearest() {
+        see = std::min(opt.see, opt.players - 1);
+        rep.see = see;
         std::vector<std::pair<double, int>> d(size_t(opt.players));
         for (int i = 0; i < opt.players; ++i) {
             const glm::dvec3 ci(double(i % sh.grid), 0, double(i / sh.grid));
@@ -646,43 +692,25 @@ LoadReport run_loadgen(const LoadOptions& opt, const std::atomic<bool>* stop) {
                 d[size_t(j)] = {j == i ? 1e300 : glm::length(ci - cj), j};
             }
             std::partial_sort(d.begin(), d.begin() + see, d.end());
-            for (int k = 0; k < see; ++k) players[size_t(i)]->nearest.push_back(d[size_t(k)].second);
-            std::sort(players[size_t(i)]->nearest.begin(), players[size_t(i)]->nearest.end());
+            auto& n = players[size_t(i)]->nearest;
+            for (int k = 0; k < see; ++k) n.push_back(d[size_t(k)].second);
+            std::sort(n.begin(), n.end());
         }
     }
 
-    const double t0 = now_seconds();
-    const double period = 1.0 / opt.tick_rate;
-    const double join_deadline = t0 + opt.connect_timeout + double(opt.players) / opt.connect_rate + 30.0;
-    double next_progress = t0 + opt.progress_s, all_joined_at = 0, cpu_start = 0;
-    int started = 0;
-    auto log = [&](const char* fmt, auto... args) {
-        std::fprintf(stderr, "progskin-loadgen: %6.1f s  ", now_seconds() - t0);
-        std::fprintf(stderr, fmt, args...);
-        std::fputc('\n', stderr);
-    };
-    auto count = [&](auto pred) {
-        int n = 0;
-        for (const auto& p : players) n += pred(*p) ? 1 : 0;
-        return n;
-    };
-    for (;;) {
-        if (stop && stop->load()) {
-            rep.error = "stopped";
-            break;
-        }
-        sh.io.poll();
-        sh.io.restart();
-        const double now = now_seconds();
-        // Start players: the first alone until its assets are in the cache.
+    // Starts players at connect_rate, the first alone until its assets are cached.
+    void start_players(double now) {
         const bool first_ready = players[0]->handle >= 0 || players[0]->failed;
         while (started < opt.players && (started == 0 || (first_ready && now - t0 >= double(started) / opt.connect_rate))) {
             Player& p = *players[size_t(started)];
             p.next_turn = now + period * double(started % 97) / 97.0;
             p.start(now);
-            ++started;
-            if (started == 1) break;
+            if (++started == 1) break;
         }
+    }
+
+    // The turns that are due; returns when the next one is.
+    double turns(double now) {
         double next_due = now + 0.001;
         for (int i = 0; i < started; ++i) {
             Player& p = *players[size_t(i)];
@@ -699,64 +727,101 @@ LoadReport run_loadgen(const LoadOptions& opt, const std::atomic<bool>* stop) {
             p.next_turn = std::max(p.next_turn + period, now);
             p.turn(now);
         }
-        const int joined = count([](const Player& p) { return p.joined; });
-        const int failed = count([](const Player& p) { return p.failed; });
-        if (!all_joined_at && started == opt.players && (joined + failed == opt.players || now > join_deadline)) {
-            all_joined_at = now;
-            rep.join_seconds = now - t0;
-            log("%d of %d players joined (%d failed); measuring in %.1f s", joined, opt.players, failed, opt.settle);
-        }
-        if (all_joined_at && !sh.in_window && !sh.window_done && now >= all_joined_at + opt.settle) {
-            sh.in_window = true;
-            sh.window_start = now;
-            cpu_start = cpu_now();
-            sh.late = sh.turns = 0;
-            for (auto& p : players) {
-                p->bytes_at_start = p->session.stats(now).wire_bytes;
-                p->streamed_window = p->joined && p->session.running();
-                for (Obs& o : p->obs) o.max_gap = 0;
-            }
-            if (opt.on_window) opt.on_window(true);
-        }
-        if (sh.in_window && now >= sh.window_start + opt.duration) {
-            sh.in_window = false;
-            sh.window_done = true;
-            sh.window_end = now;
-            rep.cpu_seconds = cpu_now() - cpu_start;
-            if (opt.on_window) opt.on_window(false);
-            break;
-        }
-        if (opt.progress_s > 0 && now >= next_progress) {
-            next_progress = now + opt.progress_s;
-            log("%d started, %d streaming, %d failed, %llu receipt samples, p99 %.1f ms%s", started, joined, failed,
-                (unsigned long long)(sh.receipt.n + sh.cross_receipt.n), std::max(sh.receipt.at(0.99), sh.cross_receipt.at(0.99)),
-                sh.in_window ? " (measuring)" : "");
-        }
-        if (!all_joined_at && started == opt.players && failed == opt.players) {
-            rep.error = "every player failed";
-            break;
-        }
-        const double wait = next_due - now_seconds();
-        if (wait > 0) std::this_thread::sleep_for(std::chrono::duration<double>(std::min(wait, 0.001)));
+        return next_due;
     }
 
-    // ----------------------------------------------------------- report --
-    const double end = sh.window_end > 0 ? sh.window_end : now_seconds();
-    rep.window_seconds = sh.window_done ? sh.window_end - sh.window_start : 0;
-    std::vector<double> rates;
-    double seen_sum = 0, bones_sum = 0, loss_sum = 0;
-    uint64_t bones_n = 0;
-    rep.seen_min = see;
-    for (auto& pp : players) {
-        Player& p = *pp;
+    void open_window(double now) {
+        sh.in_window = true;
+        sh.window_start = now;
+        cpu_start = cpu_now();
+        sh.late = sh.turns = 0;
+        for (auto& p : players) {
+            p->bytes_at_start = p->session.stats(now).wire_bytes;
+            p->streamed_window = p->joined && p->session.running();
+            for (Obs& o : p->obs) o.max_gap = 0;
+        }
+        if (opt.on_window) opt.on_window(true);
+    }
+
+    void close_window(double now) {
+        sh.in_window = false;
+        sh.window_done = true;
+        sh.window_end = now;
+        rep.cpu_seconds = cpu_now() - cpu_start;
+        if (opt.on_window) opt.on_window(false);
+    }
+
+    // Until the window has passed, every player failed, or stop.
+    void loop() {
+        t0 = now_seconds();
+        period = 1.0 / opt.tick_rate;
+        next_progress = t0 + opt.progress_s;
+        const double join_deadline = t0 + opt.connect_timeout + double(opt.players) / opt.connect_rate + 30.0;
+        for (;;) {
+            if (stop_ && stop_->load()) {
+                rep.error = "stopped";
+                return;
+            }
+            sh.io.poll();
+            sh.io.restart();
+            const double now = now_seconds();
+            start_players(now);
+            const double next_due = turns(now);
+            const int joined = count([](const Player& p) { return p.joined; });
+            const int failed = count([](const Player& p) { return p.failed; });
+            if (!all_joined_at && started == opt.players && (joined + failed == opt.players || now > join_deadline)) {
+                all_joined_at = now;
+                rep.join_seconds = now - t0;
+                log("%d of %d players joined (%d failed); measuring in %.1f s", joined, opt.players, failed, opt.settle);
+            }
+            if (all_joined_at && !sh.in_window && !sh.window_done && now >= all_joined_at + opt.settle) open_window(now);
+            if (sh.in_window && now >= sh.window_start + opt.duration) return close_window(now);
+            if (opt.progress_s > 0 && now >= next_progress) {
+                next_progress = now + opt.progress_s;
+                log("%d started, %d streaming, %d failed, %llu receipt samples, p99 %.1f ms%s", started, joined, failed,
+                    (unsigned long long)(sh.receipt.n + sh.cross_receipt.n),
+                    std::max(sh.receipt.at(0.99), sh.cross_receipt.at(0.99)), sh.in_window ? " (measuring)" : "");
+            }
+            if (!all_joined_at && started == opt.players && failed == opt.players) {
+                rep.error = "every player failed";
+                return;
+            }
+            const double wait = next_due - now_seconds();
+            if (wait > 0) std::this_thread::sleep_for(std::chrono::duration<double>(std::min(wait, 0.001)));
+        }
+    }
+
+    // Player p's nearest-set pairs in the window (see loadgen.h "starved"); true when one starved.
+    bool pairs_of(const Player& p) {
+        bool starved = false;
+        for (int q : p.nearest) {
+            const Player& pub = *players[size_t(q)];
+            if (!pub.streamed_window || !pub.session.running()) continue;
+            ++rep.pairs;
+            const Obs* o = nullptr;
+            for (const Obs& x : p.obs)
+                if (x.publisher == q) o = &x;
+            double gap = rep.window_seconds;
+            if (o && o->last_arrival >= sh.window_start) gap = std::max(o->max_gap, sh.window_end - o->last_arrival);
+            rep.max_gap_ms = std::max(rep.max_gap_ms, gap * 1000.0);
+            if (gap > opt.starve_s) {
+                ++rep.starved_pairs;
+                starved = true;
+            }
+        }
+        return starved;
+    }
+
+    // One player's counts into the report; its rate when it streamed the whole window.
+    void add_player(Player& p, double end, std::vector<double>& rates, double& loss_sum) {
         const ClientStats st = p.session.stats(end);
         rep.joined += p.joined ? 1 : 0;
+        const std::string who = "player " + std::to_string(p.index) + " (" + node_name(opt, p.node) + "): ";
         if (p.failed || p.session.phase() == SessionPhase::Failed) {
             ++rep.failed;
-            if (rep.errors.size() < 20)
-                rep.errors.push_back("player " + std::to_string(p.index) + " (" + node_name(opt, p.node) + "): " + p.session.error());
+            if (rep.errors.size() < 20) rep.errors.push_back(who + p.session.error());
         } else if (!p.joined && rep.errors.size() < 20) {
-            rep.errors.push_back("player " + std::to_string(p.index) + " (" + node_name(opt, p.node) + "): never streamed");
+            rep.errors.push_back(who + "never streamed");
         }
         rep.frames += st.datagrams;
         rep.malformed += st.malformed;
@@ -767,72 +832,61 @@ LoadReport run_loadgen(const LoadOptions& opt, const std::atomic<bool>* stop) {
         if (sh.window_done && p.streamed_window && p.session.running()) {
             p.kbps = double(st.wire_bytes - p.bytes_at_start) * 8.0 / 1000.0 / rep.window_seconds;
             rates.push_back(p.kbps);
+            rep.starved_players += pairs_of(p) ? 1 : 0;
         }
-        int seen = 0;
-        bool starved = false;
-        for (const Obs& o : p.obs) {
-            if (!o.nearest) continue;
-            seen += o.seen ? 1 : 0;
-            bones_sum += double(o.show);
-            ++bones_n;
-        }
-        // Pairs: nearest-set characters whose publisher streamed the whole window too.
-        if (sh.window_done && p.streamed_window && p.session.running()) {
-            for (int q : p.nearest) {
-                const Player& pub = *players[size_t(q)];
-                if (!pub.streamed_window || !pub.session.running()) continue;
-                ++rep.pairs;
-                const Obs* o = nullptr;
-                for (const Obs& x : p.obs)
-                    if (x.publisher == q) o = &x;
-                double gap = rep.window_seconds;
-                if (o && o->last_arrival >= sh.window_start)
-                    gap = std::max(o->max_gap, sh.window_end - o->last_arrival);
-                rep.max_gap_ms = std::max(rep.max_gap_ms, gap * 1000.0);
-                if (gap > opt.starve_s) {
-                    ++rep.starved_pairs;
-                    starved = true;
-                }
+    }
+
+    void summarise() {
+        const double end = sh.window_end > 0 ? sh.window_end : now_seconds();
+        rep.window_seconds = sh.window_done ? sh.window_end - sh.window_start : 0;
+        std::vector<double> rates;
+        double seen_sum = 0, bones_sum = 0, loss_sum = 0;
+        uint64_t bones_n = 0;
+        rep.seen_min = see;
+        for (auto& pp : players) {
+            add_player(*pp, end, rates, loss_sum);
+            int seen = 0;
+            for (const Obs& o : pp->obs) {
+                if (!o.nearest) continue;
+                seen += o.seen ? 1 : 0;
+                bones_sum += double(o.show);
+                ++bones_n;
             }
+            rep.seen_min = std::min(rep.seen_min, seen);
+            seen_sum += seen;
         }
-        rep.starved_players += starved ? 1 : 0;
-        rep.seen_min = std::min(rep.seen_min, seen);
-        seen_sum += seen;
-    }
-    rep.seen_mean = seen_sum / double(opt.players);
-    rep.all_seen = rep.seen_min == see;
-    rep.bones_nearest_mean = bones_n ? bones_sum / double(bones_n) : 0;
-    rep.bones_mean = sh.bones_n ? double(sh.bones_sum) / double(sh.bones_n) : 0;
-    rep.loss_mean = loss_sum / double(opt.players);
-    rep.records = sh.records;
-    rep.bad_records = sh.bad_records;
-    if (!rates.empty()) {
-        rep.rate_kbps_min = *std::min_element(rates.begin(), rates.end());
-        rep.rate_kbps_max = *std::max_element(rates.begin(), rates.end());
-        double s = 0;
-        for (double r : rates) s += r;
-        rep.rate_kbps_mean = s / double(rates.size());
-    }
-    rep.receipt_ms = sh.receipt.summary();
-    rep.display_ms = sh.display.summary();
-    rep.cross_receipt_ms = sh.cross_receipt.summary();
-    rep.cross_display_ms = sh.cross_display.summary();
-    rep.late_turns = sh.turns ? double(sh.late) / double(sh.turns) : 0;
-    rep.turns = sh.turns;
-    for (auto& p : players)
-        if (p->session.running()) {
-            p->session.close("loadgen done");
-            p->flush();
+        rep.seen_mean = seen_sum / double(opt.players);
+        rep.all_seen = rep.seen_min == see;
+        rep.bones_nearest_mean = bones_n ? bones_sum / double(bones_n) : 0;
+        rep.bones_mean = sh.bones_n ? double(sh.bones_sum) / double(sh.bones_n) : 0;
+        rep.loss_mean = loss_sum / double(opt.players);
+        rep.records = sh.records;
+        rep.bad_records = sh.bad_records;
+        if (!rates.empty()) {
+            rep.rate_kbps_min = *std::min_element(rates.begin(), rates.end());
+            rep.rate_kbps_max = *std::max_element(rates.begin(), rates.end());
+            double s = 0;
+            for (double r : rates) s += r;
+            rep.rate_kbps_mean = s / double(rates.size());
         }
-    sh.io.poll();
-    if (rep.error.empty()) {
-        if (rep.failed > 0) rep.error = std::to_string(rep.failed) + " player(s) failed: " + rep.errors.front();
-        else if (rep.joined < opt.players) rep.error = std::to_string(opt.players - rep.joined) + " player(s) never streamed";
-        else if (!sh.window_done) rep.error = "no measurement window";
+        rep.receipt_ms = sh.receipt.summary();
+        rep.display_ms = sh.display.summary();
+        rep.cross_receipt_ms = sh.cross_receipt.summary();
+        rep.cross_display_ms = sh.cross_display.summary();
+        rep.late_turns = sh.turns ? double(sh.late) / double(sh.turns) : 0;
+        rep.turns = sh.turns;
+        if (rep.error.empty()) {
+            if (rep.failed > 0) rep.error = std::to_string(rep.failed) + " player(s) failed: " + rep.errors.front();
+            else if (rep.joined < opt.players) rep.error = std::to_string(opt.players - rep.joined) + " player(s) never streamed";
+            else if (!sh.window_done) rep.error = "no measurement window";
+        }
+        rep.ok = rep.error.empty();
     }
-    rep.ok = rep.error.empty();
-    return rep;
-}
+};
+
+}  // namespace
+
+LoadReport run_loadgen(const LoadOptions& opt, const std::atomic<bool>* stop) { return Run(opt, stop).run(); }
 
 static nlohmann::json pct(const Percentiles& p) {
     return {{"samples", p.samples}, {"p50", p.p50}, {"p99", p.p99}, {"max", p.max}};
