@@ -17,7 +17,7 @@
 // (docs/metrics.md §2), RMS and max over all characters and displayed ticks, % of
 // each character's rest diagonal. Rate: docs/metrics.md §3 (payload + 28 per datagram).
 //
-// usage: bench_net_rd [--asset FILE...] [--clip SPEC] [--crowd N] [benchmark flags]
+// usage: bench_net_rd [--asset FILE...] [--clip SPEC] [--crowd N] [--fair-floor F] [benchmark flags]
 //   --asset: characters (default assets/Fox.glb assets/CesiumMan.glb; FILE#N
 //   for character N); --clip: the clip selection every asset plays (default:
 //   each asset's default training set, one instance per clip group in the
@@ -55,6 +55,7 @@ struct Options {
                                        std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb"};
     std::string clip;  // empty: each asset's default training set
     int crowd = 24;
+    double fair_floor = ServerConfig{}.fair_floor;  // --fair-floor: the server's per-character floor
 };
 Options g_options;
 
@@ -152,7 +153,9 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
     const Assets& assets = m == Method::LeafLod ? leaf_assets() : progressive_assets();
     // The server's session core without sockets: the same tick (importance,
     // selection or a baseline's picks, packing, rate), at a fixed rate.
-    ServerCore core(ServerConfig{}, assets, specs);
+    ServerConfig config;
+    config.fair_floor = g_options.fair_floor;
+    ServerCore core(config, assets, specs);
     auto client = ClientStream::detached(core, 1, cap_kbps);
     // The all-bones baseline needs room for one whole character per datagram;
     // every method gets that bucket depth (the same pacing for all).
@@ -355,6 +358,14 @@ bool parse_options(int argc, char** argv) {
             while (i + 1 < argc && argv[i + 1][0] != '-') g_options.assets.push_back(argv[++i]);
         } else if (a == "--clip" && i + 1 < argc) {
             g_options.clip = argv[++i];
+        } else if (a == "--fair-floor" && i + 1 < argc) {
+            char* end = nullptr;
+            const double f = std::strtod(argv[++i], &end);
+            if (*end || !(f >= 0 && f <= 1)) {
+                std::fprintf(stderr, "bench_net_rd: --fair-floor needs a number in [0, 1] (got %s)\n", argv[i]);
+                return false;
+            }
+            g_options.fair_floor = f;
         } else if (a == "--crowd" && i + 1 < argc) {
             char* end = nullptr;
             const long n = std::strtol(argv[++i], &end, 10);
@@ -374,10 +385,11 @@ bool parse_options(int argc, char** argv) {
 int main(int argc, char** argv) {
     for (int i = 1; i < argc; ++i)
         if (!std::strcmp(argv[i], "--help")) {
-            std::printf("usage: bench_net_rd [--asset FILE...] [--clip SPEC] [--crowd N] [--benchmark_* flags]\n"
+            std::printf("usage: bench_net_rd [--asset FILE...] [--clip SPEC] [--crowd N] [--fair-floor F] [--benchmark_* flags]\n"
                         "  --asset  characters (default assets/Fox.glb assets/CesiumMan.glb; FILE#N: character N)\n"
                         "  --clip   clip selection every asset plays (default: each asset's clip groups)\n"
-                        "  --crowd  instances of the crowd scene (default 24)\n");
+                        "  --crowd  instances of the crowd scene (default 24)\n"
+                        "  --fair-floor  the scheduler's per-character floor, 0..1 (default: the server's)\n");
             return 0;
         }
     benchmark::Initialize(&argc, argv);

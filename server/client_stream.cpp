@@ -508,6 +508,32 @@ void ClientStream::update_importance(const EncodedFrame& frame) {
     compute_importance(view_, frame, core_.assets(), id_, importance_);
     for (size_t i = 0; i < importance_.size(); ++i)
         if (i >= known_.size() || known_[i] != frame.instances[i].generation) importance_[i] = 0.0f;
+    // Beyond the view radius from every centre: not seen (O(instances x centres)).
+    const double r = core_.config().view_radius;
+    centres_.clear();
+    if (r <= 0 || !view_centres(frame, centres_)) return;
+    for (size_t i = 0; i < importance_.size(); ++i) {
+        if (importance_[i] <= 0.0f) continue;
+        const glm::dvec3& w = frame.instances[i].world;
+        bool near = false;
+        for (const glm::dvec3& c : centres_)
+            near = near || (w.x - c.x) * (w.x - c.x) + (w.z - c.z) * (w.z - c.z) <= r * r;
+        if (!near) importance_[i] = 0.0f;
+    }
+}
+
+bool ClientStream::view_centres(const EncodedFrame& frame, std::vector<glm::dvec3>& out) const {
+    if (view_.has_camera) {
+        out.push_back(glm::dvec3(view_.camera));
+        return true;
+    }
+    bool any = false;
+    for (const EncodedInstance& e : frame.instances)
+        if (e.active && e.owner == id_) {
+            out.push_back(e.world);
+            any = true;
+        }
+    return any;
 }
 
 TickResult ClientStream::tick(const EncodedFrame& frame, double now, double dt, DatagramSink& out) {
@@ -552,6 +578,7 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
     } else {
         const ServerConfig& cfg = core_.config();
         scheduler_.set_shares(core_.owner_groups(), cfg.owner_share_kbps > 0 ? size_t(cfg.owner_share_kbps * 125.0 / cfg.tick_rate) : 0);
+        scheduler_.set_floor(cfg.fair_floor);
         scheduler_.select(frame, core_.assets(), importance_, budget, cfg.tick_rate, picks_);
         if (scheduler_.limited()) rate_.mark_limited();
     }

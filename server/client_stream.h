@@ -202,6 +202,10 @@ public:
     // -------------------------------------------- tuning (benchmarks) --
     RateController& rate() { return rate_; }
     void set_view(ViewSpec v) { view_ = std::move(v); }
+    // Where this client looks from (ServerConfig::view_radius): its camera,
+    // else the world positions of its own characters in `frame`. Appends to
+    // `out`; false when it has neither (it sees every character).
+    bool view_centres(const EncodedFrame& frame, std::vector<glm::dvec3>& out) const;
     // Picks within a budget instead of the scheduler (bench_net_rd's
     // baselines); the scheduler is then neither asked nor told.
     using Selector = std::function<void(const EncodedFrame& frame, size_t budget, std::vector<Pick>& out)>;
@@ -277,6 +281,7 @@ private:
     Scheduler scheduler_;
     Selector selector_;
     ViewSpec view_;
+    std::vector<glm::dvec3> centres_;  // update_importance's (view_radius)
     std::vector<float> importance_;
     std::vector<Pick> picks_;
     std::vector<uint32_t> known_;    // per instance slot: generation announced to this client (0: none)

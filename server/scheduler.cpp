@@ -283,7 +283,7 @@ void Scheduler::offer_chain(size_t i, uint32_t age) {
         chain.push_back(pt);
     }
     if (chain.size() >= 2 && chain[1].value > 0) {
-        heap_.push_back({chain[1].value / double(chain[1].bytes + header_[i]), int(i), 1, age, true, false});
+        push({chain[1].value / double(chain[1].bytes + header_[i]), int(i), 1, age, true, false});
         chain_next_[i] = 1;
     }
 }
@@ -311,7 +311,7 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
         offer_unpaid(int(i), stale);
         // The morph item: on its own only once bone 0 was sent (its chunk needs show >= 1).
         if (morph_[i].value > 0 && st.bone_tick[0] != 0)
-            heap_.push_back({morph_[i].value / double(morph_[i].bytes + header_[i]), int(i), 0, stale, false, false, true});
+            push({morph_[i].value / double(morph_[i].bytes + header_[i]), int(i), 0, stale, false, false, true});
         offer_chain(i, stale);
     }
 }
@@ -325,12 +325,49 @@ void Scheduler::take_greedily(size_t budget, size_t payload) {
         const Step s = heap_.back();
         heap_.pop_back();
         const size_t inst = size_t(s.instance);
+        if (s.floor && spent_[inst] >= floor_bytes_[inst]) {  // its floor is spent: it waits its turn by ratio
+            push(s);
+            continue;
+        }
         if (!s.paid && paid_[inst]) continue;  // offered again at its records-only ratio
         const size_t header = paid_[inst] ? 0 : header_[inst];
         if (s.morph) take_morph(s, header, budget, payload);
         else if (s.chain) take_chain_step(s, header, budget, payload);
         else take_segment(s, header, budget, payload);
     }
+}
+
+void Scheduler::push(Step s) {
+    const size_t i = size_t(s.instance);
+    s.floor = spent_[i] < floor_bytes_[i];
+    heap_.push_back(s);
+    std::push_heap(heap_.begin(), heap_.end());
+}
+
+void Scheduler::charge(size_t inst, size_t bytes, size_t& payload) {
+    payload += bytes;
+    spent_[inst] += bytes;
+}
+
+// Parts in proportion to importance x diagonal (the character's size on
+// screen in pixels; 1000 for every character without a view), over the
+// instances with something to send; O(instances).
+void Scheduler::set_floors(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
+                           std::span<const float> importance, size_t budget) {
+    const size_t n = frame.instances.size();
+    spent_.assign(n, 0);
+    floor_bytes_.assign(n, 0);
+    if (floor_fraction_ <= 0) return;
+    double total = 0;
+    for (size_t i = 0; i < n; ++i)
+        if (frame.instances[i].valid && importance[i] > 0.0f && !current_[i])
+            total += double(importance[i]) * assets[size_t(frame.instances[i].asset)]->diagonal;
+    const size_t overhead = WireCost::datagrams(budget) * (WireCost::kFrameOverhead + UDP_IP_OVERHEAD);
+    if (total <= 0 || budget <= overhead) return;
+    const double part = floor_fraction_ * double(budget - overhead) / total;
+    for (size_t i = 0; i < n; ++i)
+        if (frame.instances[i].valid && importance[i] > 0.0f && !current_[i])
+            floor_bytes_[i] = size_t(part * double(importance[i]) * assets[size_t(frame.instances[i].asset)]->diagonal);
 }
 
 // Whether instance `inst`'s group may take `bytes` more this tick (taking
@@ -351,7 +388,7 @@ void Scheduler::take_morph(const Step& s, size_t header, size_t budget, size_t& 
     const size_t inst = size_t(s.instance);
     MorphItem& mi = morph_[inst];
     if (mi.chosen || WireCost::wire(payload + mi.bytes + header) > budget || !share_allows(inst, mi.bytes + header)) return;
-    payload += mi.bytes + header;
+    charge(inst, mi.bytes + header, payload);
     mi.chosen = true;
     if (!paid_[inst]) pay(s.instance, s.age);
 }
@@ -373,14 +410,13 @@ void Scheduler::take_chain_step(const Step& s, size_t header, size_t budget, siz
         }
         return;
     }
-    payload += bytes;
+    charge(inst, bytes, payload);
     for (int q = p0.end; q < p1.end; ++q) items_[inst][size_t(q)].chosen = true;
     if (!paid_[inst]) pay(s.instance, s.age);
     if (size_t(s.step) + 1 < chain.size()) {
         const double r = step_ratio(chain, s.step + 1);
         if (r > 0) {
-            heap_.push_back({r, s.instance, s.step + 1, s.age, true, true});
-            std::push_heap(heap_.begin(), heap_.end());
+            push({r, s.instance, s.step + 1, s.age, true, true});
             chain_next_[inst] = s.step + 1;
         }
     }
@@ -391,7 +427,7 @@ void Scheduler::take_segment(const Step& s, size_t header, size_t budget, size_t
     SegItem& it = items_[inst][size_t(s.step)];
     if (s.single) {  // an unshown segment on its own: the next one follows it if it goes
         if (it.chosen || WireCost::wire(payload + it.bytes + header) > budget || !share_allows(inst, it.bytes + header)) return;
-        payload += it.bytes + header;
+        charge(inst, it.bytes + header, payload);
         it.chosen = true;
         if (!paid_[inst]) pay(s.instance, s.age);
         offer_single(s.instance, s.age);
@@ -411,7 +447,7 @@ void Scheduler::take_segment(const Step& s, size_t header, size_t budget, size_t
         }
         return;
     }
-    payload += bytes;
+    charge(inst, bytes, payload);
     it.chosen = true;
     if (!paid_[inst]) pay(s.instance, s.age);
     else offer_paid(s.instance, s.age);
@@ -509,9 +545,11 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         // instances, and the greedy within their shares for the groups over
         // them. Not limited (the rate does not grow for what a share holds).
         pick_everything(frame, importance, true, out);
+        set_floors(frame, assets, importance, budget);
         offer_items(frame, assets, importance, tick_rate, true);
         take_greedily(budget, take_stale_roots(frame, budget, free_payload));
     } else {
+        set_floors(frame, assets, importance, budget);
         offer_items(frame, assets, importance, tick_rate, false);
         take_greedily(budget, take_stale_roots(frame, budget, 0));
         limited_ = left_something();
@@ -540,8 +578,7 @@ void Scheduler::offer_unpaid(int instance, uint32_t age) {
         }
     }
     if (best < 0) return;
-    heap_.push_back({best_ratio, instance, best, age, false, false});
-    std::push_heap(heap_.begin(), heap_.end());
+    push({best_ratio, instance, best, age, false, false});
 }
 
 void Scheduler::offer_single(int instance, uint32_t age) {
@@ -553,8 +590,7 @@ void Scheduler::offer_single(int instance, uint32_t age) {
     const double header = paid_[i] ? 0.0 : double(header_[i]);
     Step st{items[u].value / (double(items[u].bytes) + header), instance, int(u), age, false, paid_[i] != 0};
     st.single = true;
-    heap_.push_back(st);
-    std::push_heap(heap_.begin(), heap_.end());
+    push(st);
 }
 
 size_t Scheduler::take_stale_roots(const EncodedFrame& frame, size_t budget, size_t payload) {
@@ -579,7 +615,7 @@ size_t Scheduler::take_stale_roots(const EncodedFrame& frame, size_t budget, siz
             if (group_spent_[g] > 0 && group_spent_[g] + bytes > share_now_) continue;
             group_spent_[g] += bytes;
         }
-        payload += bytes;
+        charge(i, bytes, payload);
         it.chosen = true;
         if (!paid_[i]) pay(int(i), age);
     }
@@ -600,12 +636,10 @@ void Scheduler::pay(int instance, uint32_t age) {
     order_at_[i] = 0;
     offer_paid(instance, age);
     if (morph_[i].value > 0 && !morph_[i].chosen) {
-        heap_.push_back({morph_[i].value / double(morph_[i].bytes), instance, 0, age, false, true, true});
-        std::push_heap(heap_.begin(), heap_.end());
+        push({morph_[i].value / double(morph_[i].bytes), instance, 0, age, false, true, true});
     }
     if (const int c = chain_next_[i]; c > 0) {
-        heap_.push_back({step_ratio(chain_[i], c), instance, c, age, true, true});
-        std::push_heap(heap_.begin(), heap_.end());
+        push({step_ratio(chain_[i], c), instance, c, age, true, true});
     } else if (chain_tried_[i]) {
         offer_single(instance, age);  // its hull step did not fit: the segments one at a time, header paid
     }
@@ -619,8 +653,7 @@ void Scheduler::offer_paid(int instance, uint32_t age) {
     while (at < order.size() && items[size_t(order[at])].chosen) ++at;
     if (at == order.size()) return;
     const SegItem& it = items[size_t(order[at++])];
-    heap_.push_back({it.value / double(it.bytes), instance, order[at - 1], age, false, true});
-    std::push_heap(heap_.begin(), heap_.end());
+    push({it.value / double(it.bytes), instance, order[at - 1], age, false, true});
 }
 
 void Scheduler::sent(std::span<const Pick> picks, uint32_t tick) {

@@ -75,6 +75,12 @@ struct ServerConfig {
     // owners with something to send (their items beyond it wait, and the
     // observer's rate does not grow for them; 0: no limit).
     double owner_share_kbps = 256;
+    // Per-character floor (Scheduler::set_floor): each character's own most
+    // valuable bones go first until it has this fraction of its part of the
+    // observer's budget (parts in proportion to size on screen); 0: the
+    // greedy alone, which may starve an almost still character in favour of
+    // moving ones (docs/performance.md "Per character").
+    double fair_floor = 0.5;
     // Asset bytes sent to one IP address, across its sessions and reconnects:
     // a bucket this deep refilled at this per minute (0: 64 x the catalogue's
     // bytes: 64 players behind one NAT joining at once for the first time).
@@ -108,6 +114,13 @@ struct ServerConfig {
     std::string world_node = "node";   // this node's name in the world's logs
     std::string world_name = "default";
     double world_cell = 16.0;          // side of a bus cell, world units
+    // A client sees the characters within this horizontal distance (world
+    // units, x and z) of its view centre: its View's camera, else its own
+    // published characters (the nearest of them); a client with neither sees
+    // every character. 0: no limit. In a world, a node subscribes only to
+    // the bus cells within this distance of its clients' centres (interest
+    // management, docs/deployment.md); with 0 it takes every cell.
+    double view_radius = 0;
 };
 
 // The tick threads a configuration asks for: ServerConfig::threads, or the
@@ -125,6 +138,7 @@ struct ServerStats {
     uint64_t world_messages_out = 0, world_bytes_out = 0, world_messages_in = 0, world_bytes_in = 0;
     uint64_t world_dropped = 0, world_malformed = 0, world_refused = 0, world_publish_failed = 0;
     int world_foreign = 0;
+    int world_cells = 0;  // bus cells subscribed now (-1: every cell)
     bool world_connected = false;
     uint64_t unverified_bytes_in = 0, unverified_bytes_out = 0;  // from addresses not bound / to them (Challenges only)
     uint64_t malformed_control = 0, asset_bytes_sent = 0;

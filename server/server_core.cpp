@@ -66,6 +66,19 @@ ServerStats ServerCore::stats() const {
     return s;
 }
 
+int ServerCore::view_centres(std::vector<glm::dvec3>& out) {
+    std::lock_guard lock(mutex_);
+    const EncodedFrame& frame = encoder_.frame();
+    int clients = 0;
+    for (const auto& [id, entry] : sessions_) {
+        const SessionState st = entry.stream->state();
+        if (st != SessionState::Welcomed && st != SessionState::Streaming) continue;
+        if (!entry.stream->view_centres(frame, out)) return -1;
+        ++clients;
+    }
+    return clients;
+}
+
 int ServerCore::add_instance(const InstanceSpec& spec) {
     const int id = encoder_.add_instance(spec);
     ++instances_version_;

@@ -119,6 +119,11 @@ public:
 
     // --------------------------------------------------------------- world --
     int add_instance(const InstanceSpec& spec);  // thread-safe; every session is told at the next tick
+    // Where this node's clients look from (ClientStream::view_centres) in the
+    // last encoded frame, for interest management (world_bus.h): appended to
+    // `out`. Returns the number of Welcomed or Streaming clients, or -1 when
+    // one of them has no centre (it sees everything). Takes mutex().
+    int view_centres(std::vector<glm::dvec3>& out);
     void remove_instance(int id);                // thread-safe
     uint64_t instances_version() const { return instances_version_.load(); }
     template <class F>

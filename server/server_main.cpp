@@ -59,6 +59,9 @@ static const char* kUsage =
     "  --node NAME       this node's name in the world's logs (default: node)\n"
     "  --world NAME      the world's name, its bus subjects (default: default)\n"
     "  --world-cell M    side of a bus cell in world units (default 16)\n"
+    "  --view-radius M   clients see the characters within M world units of their camera\n"
+    "                    (else of their own characters); a world node subscribes only to\n"
+    "                    the bus cells within it (default 0: everything)\n"
     "  --max-clients N   (default 256)\n"
     "  --max-kbps N      per-client rate ceiling in kbit/s (default 50000)\n"
     "  Budgets (what one player may cost the others; docs/protocol.md \"Security\"):\n"
@@ -66,6 +69,8 @@ static const char* kUsage =
     "  --max-characters-per-address N  players' characters from one IP address (default 32)\n"
     "  --owner-share-kbps N  what one session's characters may take of each other client's\n"
     "                    stream (default 256; 0: no limit)\n"
+    "  --fair-floor F    each character's own bones go first up to this fraction of its\n"
+    "                    part of a client's stream (0..1, default 0.5; 0: greedy only)\n"
     "  --asset-bytes-per-minute N  asset bytes per IP address, across reconnects (default:\n"
     "                    64 x the catalogue's bytes)\n"
     "  --max-handshakes N    connections before Hello at once (default 128; the oldest go)\n"
@@ -154,11 +159,13 @@ static int parse_options(int argc, char** argv, Options& o) {
             else if (a == "--node") cfg.world_node = need(i);
             else if (a == "--world") cfg.world_name = need(i);
             else if (a == "--world-cell") cfg.world_cell = cli::to_number(a, need(i));
+            else if (a == "--view-radius") cfg.view_radius = cli::to_number(a, need(i));
             else if (a == "--max-clients") cfg.max_clients = cli::to_int(a, need(i));
             else if (a == "--max-kbps") cfg.max_kbps = cli::to_number(a, need(i));
             else if (a == "--max-per-address") cfg.max_per_address = cli::to_int(a, need(i));
             else if (a == "--max-characters-per-address") cfg.max_characters_per_address = cli::to_int(a, need(i));
             else if (a == "--owner-share-kbps") cfg.owner_share_kbps = cli::to_number(a, need(i));
+            else if (a == "--fair-floor") cfg.fair_floor = cli::to_number(a, need(i));
             else if (a == "--asset-bytes-per-minute") cfg.asset_bytes_per_minute = cli::to_number(a, need(i));
             else if (a == "--max-handshakes") cfg.max_handshakes = cli::to_int(a, need(i));
             else if (a == "--connects-per-second") cfg.connects_per_second = cli::to_number(a, need(i));
@@ -197,11 +204,20 @@ static int check_options(const Options& o) {
         std::fprintf(stderr, "progskin-server: --threads must be in [1, 256]\n%s", kUsage);
         return 2;
     }
-    if (!(cfg.tick_rate > 0 && cfg.tick_rate <= 240) || o.crowd < 0 || cfg.max_clients < 1 || cfg.max_kbps <= 0 ||
-        o.asset_options.scratch_bones < 1 || o.asset_options.scratch_bones > MAX_BONES) {
-        std::fprintf(stderr, "progskin-server: argument out of range\n%s", kUsage);
-        return 2;
-    }
+    const std::pair<const char*, bool> ranges[] = {
+        {"--tick-rate must be in (0, 240]", cfg.tick_rate > 0 && cfg.tick_rate <= 240},
+        {"--crowd must be >= 0", o.crowd >= 0},
+        {"--max-clients must be >= 1", cfg.max_clients >= 1},
+        {"--max-kbps must be > 0", cfg.max_kbps > 0},
+        {"--fair-floor must be in [0, 1]", cfg.fair_floor >= 0 && cfg.fair_floor <= 1},
+        {"--view-radius must be >= 0", cfg.view_radius >= 0},
+        {"--world-cell must be > 0", cfg.world_cell > 0},
+        {"--bones must be in [1, 255]", o.asset_options.scratch_bones >= 1 && o.asset_options.scratch_bones <= MAX_BONES}};
+    for (const auto& [what, ok] : ranges)
+        if (!ok) {
+            std::fprintf(stderr, "progskin-server: %s\n%s", what, kUsage);
+            return 2;
+        }
     const std::pair<const char*, double> budgets[] = {
         {"--max-per-address", cfg.max_per_address},   {"--max-characters-per-address", cfg.max_characters_per_address},
         {"--owner-share-kbps", cfg.owner_share_kbps}, {"--asset-bytes-per-minute", cfg.asset_bytes_per_minute},
@@ -351,11 +367,13 @@ static void report(const ServerStats& st) {
     if (st.world_messages_out + st.world_messages_in > 0)
         std::fprintf(stderr,
                      "progskin-server: world bus: %llu messages (%llu bytes) out, %llu (%llu bytes) in, %llu dropped, "
-                     "%llu malformed, %llu of another catalogue, %llu publish failures, %d foreign characters now\n",
+                     "%llu malformed, %llu of another catalogue, %llu publish failures, %d foreign characters now, "
+                     "cells subscribed %s\n",
                      (unsigned long long)st.world_messages_out, (unsigned long long)st.world_bytes_out,
                      (unsigned long long)st.world_messages_in, (unsigned long long)st.world_bytes_in,
                      (unsigned long long)st.world_dropped, (unsigned long long)st.world_malformed,
-                     (unsigned long long)st.world_refused, (unsigned long long)st.world_publish_failed, st.world_foreign);
+                     (unsigned long long)st.world_refused, (unsigned long long)st.world_publish_failed, st.world_foreign,
+                     st.world_cells < 0 ? "all" : std::to_string(st.world_cells).c_str());
     std::string refusals;
     for (const auto& [reason, n] : st.refusals) refusals += " " + reason + " " + std::to_string(n);
     std::fprintf(stderr, "progskin-server: refusals:%s\n", refusals.empty() ? " none" : refusals.c_str());

@@ -4,7 +4,10 @@
 
 #include <nats/nats.h>
 
+#include <atomic>
+#include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
 #include <cstring>
 #include <random>
@@ -35,8 +38,12 @@ struct WorldBus::Impl {
     uint64_t catalogue = 0;
     natsOptions* opts = nullptr;
     natsConnection* nc = nullptr;
-    natsSubscription* cells = nullptr;
+    natsSubscription* all_cells = nullptr;              // `cell.>`: every cell (no view radius, or a client sees all)
+    std::map<std::pair<int64_t, int64_t>, std::pair<natsSubscription*, double>> cell_subs;  // cell -> (sub, last wanted)
     natsSubscription* hellos = nullptr;
+    double next_interest = 0;
+    std::vector<glm::dvec3> centres;                    // interest()'s scratch
+    std::vector<std::pair<int64_t, int64_t>> wanted;
     std::string cell_prefix, hello_subject;
 
     // libnats threads -> tick thread
@@ -46,6 +53,14 @@ struct WorldBus::Impl {
 
     mutable std::mutex stats_mutex;
     WorldStats st;
+
+    // Shutting down: libnats may still call back on its threads until the
+    // connection's closed callback; they do nothing once `closing` is set,
+    // and the destructor waits for `closed` before the Impl goes.
+    std::atomic<bool> closing{false};
+    std::mutex closed_mutex;
+    std::condition_variable closed_cv;
+    bool closed = false;
 
     struct Foreign {
         int local = -1;
@@ -60,6 +75,8 @@ struct WorldBus::Impl {
     std::vector<uint8_t> out;                   // one message being written
     std::map<std::pair<int64_t, int64_t>, std::vector<WorldCharacter>> by_cell;
     std::vector<WorldCharacter> incoming;
+    uint64_t dropped_said = 0;  // dropped messages already said (receive)
+    double next_drop_report = 0;
 
     Impl(WorldConfig c, ServerCore& k) : cfg(std::move(c)), core(k) {
         std::random_device rd;
@@ -78,9 +95,13 @@ struct WorldBus::Impl {
     // ------------------------------------------------------- libnats side --
     static void on_message(natsConnection*, natsSubscription* sub, natsMsg* msg, void* closure) {
         auto* self = static_cast<Impl*>(closure);
+        if (self->closing) {
+            natsMsg_Destroy(msg);
+            return;
+        }
         const int n = natsMsg_GetDataLength(msg);
         const auto* data = reinterpret_cast<const uint8_t*>(natsMsg_GetData(msg));
-        const uint8_t kind = sub == self->hellos ? 1 : 0;
+        const uint8_t kind = sub == self->hellos ? 1 : 0;  // (a cell's subscription may come and go: not compared)
         {
             std::lock_guard lock(self->queue_mutex);
             if (self->queue.size() < kQueueMessages && self->queued_bytes + size_t(n) <= kQueueBytes && n >= 0 &&
@@ -99,15 +120,23 @@ struct WorldBus::Impl {
     }
     static void on_disconnected(natsConnection*, void* closure) {
         auto* self = static_cast<Impl*>(closure);
+        if (self->closing) return;
         self->count([](WorldStats& s) { s.connected = false; });
         say("lost the bus (" + self->cfg.url + "); reconnecting, local streaming goes on");
     }
     static void on_reconnected(natsConnection*, void* closure) {
         auto* self = static_cast<Impl*>(closure);
+        if (self->closing) return;
         self->count([](WorldStats& s) { s.connected = true; });
         say("reconnected to the bus (" + self->cfg.url + ")");
     }
     static void on_connected(natsConnection*, void* closure) { on_reconnected(nullptr, closure); }
+    static void on_closed(natsConnection*, void* closure) {
+        auto* self = static_cast<Impl*>(closure);
+        std::lock_guard lock(self->closed_mutex);
+        self->closed = true;
+        self->closed_cv.notify_all();
+    }
 
     void connect() {
         auto check = [](natsStatus s, const char* what) {
@@ -123,14 +152,13 @@ struct WorldBus::Impl {
         check(natsOptions_SetNoEcho(opts, true), "no echo");  // never our own messages back
         check(natsOptions_SetDisconnectedCB(opts, on_disconnected, this), "callback");
         check(natsOptions_SetReconnectedCB(opts, on_reconnected, this), "callback");
+        check(natsOptions_SetClosedCB(opts, on_closed, this), "callback");
         check(natsOptions_SetRetryOnFailedConnect(opts, true, on_connected, this), "retry");
         const natsStatus s = natsConnection_Connect(&nc, opts);
         if (s != NATS_OK && s != NATS_NOT_YET_CONNECTED) check(s, ("cannot connect to " + cfg.url).c_str());
         if (s == NATS_OK) count([](WorldStats& w) { w.connected = true; });
-        check(natsConnection_Subscribe(&cells, nc, (cell_prefix + ">").c_str(), on_message, this), "subscribe");
         check(natsConnection_Subscribe(&hellos, nc, hello_subject.c_str(), on_message, this), "subscribe");
-        for (natsSubscription* sub : {cells, hellos})
-            check(natsSubscription_SetPendingLimits(sub, int(kQueueMessages), int(kQueueBytes)), "pending limits");
+        check(natsSubscription_SetPendingLimits(hellos, int(kQueueMessages), int(kQueueBytes)), "pending limits");
         say("node " + cfg.node + " joins world " + cfg.world + " on " + cfg.url + (s == NATS_OK ? "" : " (not up yet: retrying)"));
     }
 
@@ -144,6 +172,19 @@ struct WorldBus::Impl {
     }
 
     // ------------------------------------------------------- tick side --
+    void interest(double now);
+    natsSubscription* subscribe(const std::string& subject) {
+        natsSubscription* sub = nullptr;
+        if (natsConnection_Subscribe(&sub, nc, subject.c_str(), on_message, this) != NATS_OK) return nullptr;
+        natsSubscription_SetPendingLimits(sub, int(kQueueMessages), int(kQueueBytes));
+        return sub;
+    }
+    static void unsubscribe(natsSubscription*& sub) {
+        if (!sub) return;
+        natsSubscription_Unsubscribe(sub);
+        natsSubscription_Destroy(sub);
+        sub = nullptr;
+    }
     void publish_own(const EncodedFrame& frame);
     void receive(double now);
     void take_cell(std::span<const uint8_t> bytes, double now);
@@ -192,12 +233,75 @@ void WorldBus::Impl::publish_own(const EncodedFrame& frame) {
     }
 }
 
+// Interest management, every kInterestPeriod: the cells within the view
+// radius of this node's clients' centres (ServerCore::view_centres), each a
+// subscription of its own, kept kInterestLinger after it was last wanted (a
+// character walking along a cell edge does not make it come and go); every
+// cell (one wildcard subscription) without a radius, when a client has no
+// centre, or beyond kMaxCellSubscriptions. No client: no cell.
+void WorldBus::Impl::interest(double now) {
+    if (now < next_interest) return;
+    next_interest = now + kInterestPeriod;
+    const double r = core.config().view_radius;
+    centres.clear();
+    wanted.clear();
+    const int clients = core.view_centres(centres);  // -1: a client sees everything
+    bool all = r <= 0 ? clients != 0 : clients < 0;  // without a radius: every cell while anybody is connected
+    for (const glm::dvec3& c : centres) {
+        if (all || r <= 0) break;
+        const int64_t x0 = int64_t(std::floor((c.x - r) / cfg.cell_size)), x1 = int64_t(std::floor((c.x + r) / cfg.cell_size));
+        const int64_t z0 = int64_t(std::floor((c.z - r) / cfg.cell_size)), z1 = int64_t(std::floor((c.z + r) / cfg.cell_size));
+        if ((x1 - x0 + 1) * (z1 - z0 + 1) > int64_t(kMaxCellSubscriptions)) {
+            all = true;
+            break;
+        }
+        for (int64_t x = x0; x <= x1; ++x)
+            for (int64_t z = z0; z <= z1; ++z) wanted.emplace_back(x, z);
+        if (wanted.size() > kMaxCellSubscriptions) all = true;
+    }
+    if (all) {
+        if (!all_cells && !(all_cells = subscribe(cell_prefix + ">"))) count([](WorldStats& s) { ++s.subscribe_failed; });
+        for (auto& [cell, sub] : cell_subs) unsubscribe(sub.first);
+        cell_subs.clear();
+    } else {
+        for (const auto& cell : wanted) {
+            auto [it, fresh] = cell_subs.try_emplace(cell, nullptr, now);
+            it->second.second = now;
+            if (fresh && !(it->second.first = subscribe(cell_prefix + std::to_string(cell.first) + "." + std::to_string(cell.second)))) {
+                count([](WorldStats& s) { ++s.subscribe_failed; });
+                cell_subs.erase(it);
+            }
+        }
+        for (auto it = cell_subs.begin(); it != cell_subs.end();) {
+            if (now - it->second.second > kInterestLinger) {
+                unsubscribe(it->second.first);
+                it = cell_subs.erase(it);
+            } else {
+                ++it;
+            }
+        }
+        unsubscribe(all_cells);
+    }
+    count([&](WorldStats& s) { s.cells = all_cells ? -1 : int(cell_subs.size()); });
+}
+
 void WorldBus::Impl::receive(double now) {
     std::deque<std::vector<uint8_t>> got;
     {
         std::lock_guard lock(queue_mutex);
         got.swap(queue);
         queued_bytes = 0;
+    }
+    // Fell behind (the queue was full, messages dropped): say so, at most every 5 s.
+    if (now >= next_drop_report) {
+        uint64_t dropped = 0;
+        count([&](WorldStats& s) { dropped = s.dropped; });
+        if (dropped > dropped_said) {
+            say("fell behind on the bus: " + std::to_string(dropped - dropped_said) +
+                " messages dropped (foreign characters show older poses or go)");
+            dropped_said = dropped;
+            next_drop_report = now + 5.0;
+        }
     }
     for (const auto& m : got) {
         count([&](WorldStats& s) {
@@ -308,16 +412,23 @@ WorldBus::WorldBus(WorldConfig cfg, ServerCore& core) : impl_(std::make_unique<I
 
 WorldBus::~WorldBus() {
     if (!impl_) return;
-    for (natsSubscription* s : {impl_->cells, impl_->hellos})
+    impl_->closing = true;
+    for (auto& [cell, sub] : impl_->cell_subs) natsSubscription_Destroy(sub.first);
+    for (natsSubscription* s : {impl_->all_cells, impl_->hellos})
         if (s) natsSubscription_Destroy(s);
     if (impl_->nc) {
         natsConnection_Close(impl_->nc);
+        // The closed callback is libnats' last: after it no callback holds the Impl.
+        std::unique_lock lock(impl_->closed_mutex);
+        impl_->closed_cv.wait_for(lock, std::chrono::seconds(5), [&] { return impl_->closed; });
+        lock.unlock();
         natsConnection_Destroy(impl_->nc);
     }
     if (impl_->opts) natsOptions_Destroy(impl_->opts);
 }
 
 void WorldBus::after_tick(const EncodedFrame& frame, double now) {
+    impl_->interest(now);
     impl_->receive(now);
     impl_->expire(now);
     impl_->publish_own(frame);

@@ -9,6 +9,10 @@
 // when none of its messages came for 1.5 s (its node died or it left).
 // Every second a hello on `progskin.<world>.hello` names the node and its
 // catalogue; messages of another catalogue are refused and counted.
+// Interest management: with a view radius (ServerConfig::view_radius) the
+// node subscribes only to the cells within it of its clients' view centres,
+// re-evaluated every 0.1 s; without one, to every cell while it has clients;
+// with no client, to none.
 //
 // Threads: libnats delivers on its own threads; a message is copied into a
 // bounded queue (kQueueMessages, kQueueBytes: beyond, dropped and counted)
@@ -43,7 +47,9 @@ struct WorldStats {
     uint64_t messages_out = 0, bytes_out = 0, publish_failed = 0;
     uint64_t messages_in = 0, bytes_in = 0, dropped = 0, malformed = 0, refused = 0;
     uint64_t foreign_added = 0, foreign_removed = 0;
+    uint64_t subscribe_failed = 0;
     int foreign = 0, nodes_seen = 0;
+    int cells = 0;  // cell subscriptions now (-1: every cell)
     bool connected = false;
 };
 
@@ -64,6 +70,10 @@ public:
 
     static constexpr size_t kQueueMessages = 1024, kQueueBytes = 16 << 20;
     static constexpr double kForeignTimeout = 1.5;
+    // Interest management (ServerConfig::view_radius): recomputed this often,
+    // a cell kept this long after last wanted, beyond this many cells every cell.
+    static constexpr double kInterestPeriod = 0.1, kInterestLinger = 2.0;
+    static constexpr size_t kMaxCellSubscriptions = 256;
 
     struct Impl;  // libnats callbacks reach it
 

@@ -87,6 +87,9 @@ TEST(NetCli, HelpAndExitCodes) {
         {"progskin-server --threads 0", "--threads"},
         {"progskin-server --threads 257", "--threads"},
         {"progskin-server --threads 2x", "--threads"},
+        {"progskin-server --fair-floor 1.5", "--fair-floor"},
+        {"progskin-server --tick-rate 0", "--tick-rate"},
+        {"progskin-server --max-clients 0", "--max-clients"},
         {"progskin-attack --server 127.0.0.1:7777 --posers -1", "--posers"},
     };
     for (const auto& [cmd, option] : bad_values) {

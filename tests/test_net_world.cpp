@@ -98,6 +98,7 @@ struct Publisher {
     int handle = -1;
     double spawned_at = 0;  // Spawned (its instance known)
     std::vector<Mat34> skin;
+    glm::dvec3 at{1.0, 0.0, 2.0};  // where it stands
     explicit Publisher(uint16_t port) : client(client_config("publisher")) { client.connect("127.0.0.1", port); }
     void update() {
         client.update(now_seconds());
@@ -105,11 +106,11 @@ struct Publisher {
             skin.assign(client.assets()[0]->character.joint_count(), Mat34::identity());
             SpawnSpec spec;
             spec.asset = 0;
-            spec.position = glm::vec3(1.0f, 0.0f, 2.0f);
+            spec.position = glm::vec3(at);
             handle = client.spawn(spec);
         }
         if (handle >= 0 && spawned_at == 0 && client.instance_of(handle) >= 0) spawned_at = now_seconds();
-        if (handle >= 0) client.publish(handle, RootPose{glm::dvec3(1.0, 0.0, 2.0)}, skin);
+        if (handle >= 0) client.publish(handle, RootPose{at}, skin);
     }
 };
 
@@ -179,6 +180,47 @@ TEST(NetWorld, PlayersOnTwoNodesSeeEachOther) {
     EXPECT_GE(gone, 0) << observer.characters().size() << " characters left";
     EXPECT_LT(gone, 2.0);
     std::printf("node B stopped: its characters gone from A after %.3f s\n", gone);
+}
+
+// Interest management (ServerConfig::view_radius): node A subscribes only to
+// the cells near its observer's camera. A player on B standing 1.4 km away
+// is not on A; the observer moves its camera there: shown within 1 s; back:
+// gone again (its cell unsubscribed after the linger, the character after
+// the foreign timeout).
+TEST(NetWorld, InterestFollowsTheObserversView) {
+    if (!have_nats_server()) GTEST_SKIP() << "nats-server not installed (apt-get install nats-server)";
+    NatsServer nats(free_port());
+    ServerConfig ca = node(nats, "alpha"), cb = node(nats, "beta");
+    ca.view_radius = cb.view_radius = 30.0;
+    RunningServer a({}, ca);
+    RunningServer b({}, cb);
+    Client observer(client_config("observer"));
+    observer.connect("127.0.0.1", a.server->tcp_port());
+    ViewSpec home;
+    home.has_camera = true;
+    home.camera = glm::vec3(0.0f, 1.5f, -5.0f);
+    observer.set_view(home);
+    Publisher p(b.server->tcp_port());
+    p.at = glm::dvec3(1000.0, 0.0, 1000.0);
+    ASSERT_GE(run_until(10, [&] { return p.spawned_at > 0; }, &p, observer), 0) << p.client.error();
+    EXPECT_LT(run_until(1.5, [&] { return published(observer) != nullptr; }, &p, observer), 0)
+        << "a player 1.4 km from the observer's camera reached node A";
+    ServerStats st = a.server->stats();
+    EXPECT_GT(st.world_cells, 0) << "A subscribes to the cells around its observer";
+    EXPECT_LE(st.world_cells, 25) << "(30 m around one camera: at most 5 x 5 cells of 16 m)";
+    ViewSpec there = home;
+    there.camera = glm::vec3(1000.0f, 1.5f, 990.0f);
+    observer.set_view(there);
+    const double seen = run_until(3, [&] { return published(observer) != nullptr; }, &p, observer);
+    EXPECT_GE(seen, 0) << "the camera moved to the player: not shown";
+    EXPECT_LT(seen, 1.0);
+    observer.set_view(home);
+    const double gone = run_until(8, [&] { return published(observer) == nullptr; }, &p, observer);
+    EXPECT_GE(gone, 0) << "the camera went home: the far player still shown";
+    st = a.server->stats();
+    EXPECT_GT(st.world_cells, 0);
+    std::printf("interest: far player shown %.3f s after the camera moved to it, gone %.3f s after it left; %d cells now\n",
+                seen, gone, st.world_cells);
 }
 
 // nats-server dies and comes back on the same port: the nodes reconnect and

@@ -438,3 +438,43 @@ TEST(Scheduler, ALivePoseNotChangedIsNotSentAgainUntilItsHoldRunsOut) {
     ASSERT_FALSE(r.picks.empty());
     EXPECT_EQ(r.picks[0].k, s.bones(0));
 }
+
+// The per-character floor (Scheduler::set_floor): under a budget far below
+// what the scene needs, the pure greedy (floor 0) gives the almost still Fox
+// (Survey, instance 0 of the default scene) less than half of its equal part
+// of the stream, moving its bytes to the running characters; with floor 0.5
+// each character, the Fox included, gets at least about half of its part
+// (less the datagram overhead), and nothing goes over the budget.
+TEST(Scheduler, EveryCharacterGetsItsFloorOfTheBudget) {
+    auto payload_per_tick = [](double floor) {
+        Session s(default_instances(fox_and_cesium()));
+        s.sched.set_floor(floor);
+        const size_t budget = 600;  // wire bytes per tick (144 kbit/s at 30 Hz), far below the scene's need
+        std::vector<double> bytes(s.specs.size(), 0.0);
+        const int ticks = 90;
+        for (uint32_t t = 1; t <= uint32_t(ticks); ++t) {
+            const Session::Tick r = s.tick(t, budget);
+            EXPECT_LE(r.wire, budget) << "tick " << t;
+            const EncodedFrame& f = s.enc.encode(t);
+            std::set<int> headed;
+            for (const Pick& p : r.picks) {
+                const EncodedInstance& e = f.instances[size_t(p.instance)];
+                if (headed.insert(p.instance).second) bytes[size_t(p.instance)] += double(WireCost::header(e));
+                bytes[size_t(p.instance)] += double(std::max(0, p.k - p.first)) * double(e.record_size) + double(morph_block_bytes(p.morphs));
+            }
+        }
+        for (double& b : bytes) b /= ticks;
+        return bytes;
+    };
+    const Session probe(default_instances(fox_and_cesium()));
+    ASSERT_EQ(probe.specs.size(), 4u);
+    ASSERT_EQ(probe.specs[0].asset, 0);
+    ASSERT_EQ(probe.specs[0].selection, 0);  // the Fox's Survey
+    const double part = double(600 - WireCost::datagrams(600) * (WireCost::kFrameOverhead + UDP_IP_OVERHEAD)) / 4.0;
+    const std::vector<double> greedy = payload_per_tick(0.0);
+    const std::vector<double> floored = payload_per_tick(0.5);
+    EXPECT_LT(greedy[0], 0.5 * part) << "the greedy alone already serves the still Fox its floor: the test shows nothing";
+    for (size_t i = 0; i < floored.size(); ++i)
+        EXPECT_GE(floored[i], 0.45 * part) << "instance " << i << " under its floor (part " << part << " bytes a tick)";
+    EXPECT_GT(floored[0], greedy[0]);
+}
