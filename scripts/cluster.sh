@@ -14,6 +14,7 @@
 #   scripts/cluster.sh [--nodes N] [--players N] [--duration S] [--max-kbps K]
 #                      [--delay-ms D] [--threads T] [--asset NAME|INDEX]
 #                      [--walk R] [--spacing D] [--see K] [--connect-rate N]
+#                      [--placement round-robin|bands]
 #                      [--server-args "ARGS"] [--json FILE] [--build DIR]
 # --server-args: more progskin-server options for every node (e.g.
 # "--owner-share-kbps 0 --threads 2").
@@ -41,11 +42,11 @@ while (($#)); do
     --delay-ms) DELAY=$2; shift 2;;
     --threads) THREADS=$2; shift 2;;
     --asset) ASSET=$2; shift 2;;
-    --walk|--spacing|--see|--connect-rate|--settle) LGOPTS+=("$1" "$2"); shift 2;;
+    --walk|--spacing|--see|--connect-rate|--settle|--placement) LGOPTS+=("$1" "$2"); shift 2;;
     --json) JSON=$2; shift 2;;
     --server-args) read -r -a SERVER_ARGS <<<"$2"; shift 2;;
     --build) BUILD=$2; shift 2;;
-    -h|--help) sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
+    -h|--help) sed -n '2,23p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
     *) echo "cluster.sh: unknown argument $1" >&2; exit 2;;
   esac
 done
@@ -116,7 +117,7 @@ try:
 except Exception as e:
     print(f"cluster.sh: no loadgen report ({e})", file=sys.stderr); sys.exit(0)
 L = r["latency_ms"]
-print(f"players {r['players']} on {r['nodes']} node(s): {r['joined']} joined, {r['failed']} failed; window {r['window_seconds']:.1f} s")
+print(f"players {r['players']} on {r['nodes']} node(s) ({r.get('placement', '')}, {r.get('grid_step', 0):.2f} units apart): {r['joined']} joined, {r['failed']} failed; window {r['window_seconds']:.1f} s")
 print(f"{'rate kbit/s mean/min/max':34s} {r['rate_kbps']['mean']:8.1f} {r['rate_kbps']['min']:8.1f} {r['rate_kbps']['max']:8.1f}")
 print(f"{'bones per chunk / nearest mean':34s} {r['bones']['mean']:8.1f} {r['bones']['nearest_mean']:8.1f}")
 print(f"{'nearest seen min/mean of':34s} {r['nearest']['seen_min']:8d} {r['nearest']['seen_mean']:8.1f} {r['nearest']['see']:8d}")

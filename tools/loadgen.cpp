@@ -196,6 +196,11 @@ struct Shared {
     uint64_t late = 0, turns = 0;
 
     explicit Shared(const LoadOptions& o) : opt(o) {}
+    // The node of player i (LoadOptions::bands).
+    int node_of(int i) const {
+        const int nodes = int(opt.servers.size());
+        return opt.bands ? int(int64_t(i) * nodes / opt.players) : i % nodes;
+    }
     int player_at(const glm::dvec3& c) const {
         const long gx = std::lround(c.x / step), gz = std::lround(c.z / step);
         if (gx < 0 || gz < 0 || gx >= grid || gz >= grid) return -1;
@@ -413,7 +418,7 @@ void Player::on_character(int id, const RemoteCharacter* rc) {
     const int p = sh.player_at(rc->publisher.walk_center);
     if (p < 0 || p == index) return;  // not ours, or this player's own
     o.publisher = p;
-    o.cross = (p % int(sh.opt.servers.size())) != node;
+    o.cross = sh.node_of(p) != node;
     o.nearest = std::find(nearest.begin(), nearest.end(), p) != nearest.end();
 }
 
@@ -671,7 +676,7 @@ private:
         players.reserve(size_t(opt.players));
         for (int i = 0; i < opt.players; ++i) {
             cfg.name = "loadgen" + std::to_string(i);
-            auto p = std::make_unique<Player>(sh, i, i % rep.nodes, cfg, sh.io);
+            auto p = std::make_unique<Player>(sh, i, sh.node_of(i), cfg, sh.io);
             if (addresses > 0) {
                 p->use_source = true;
                 p->source = asio::ip::address_v4((127u << 24) | uint32_t(2 + i % addresses));
@@ -875,6 +880,7 @@ private:
         rep.cross_display_ms = sh.cross_display.summary();
         rep.late_turns = sh.turns ? double(sh.late) / double(sh.turns) : 0;
         rep.turns = sh.turns;
+        rep.grid_step = sh.step;
         if (rep.error.empty()) {
             if (rep.failed > 0) rep.error = std::to_string(rep.failed) + " player(s) failed: " + rep.errors.front();
             else if (rep.joined < opt.players) rep.error = std::to_string(opt.players - rep.joined) + " player(s) never streamed";
@@ -903,6 +909,8 @@ std::string report_json(const LoadReport& r, const LoadOptions& o) {
     j["players"] = r.players;
     j["nodes"] = r.nodes;
     j["source_addresses"] = r.addresses;
+    j["placement"] = o.bands ? "bands" : "round-robin";
+    j["grid_step"] = r.grid_step;
     j["joined"] = r.joined;
     j["failed"] = r.failed;
     j["join_seconds"] = r.join_seconds;

@@ -63,6 +63,11 @@ struct LoadOptions {
     double walk = 0.5;                   // walk radius, bounding-box diagonals (0: standing)
     double spacing = 2;                  // grid step between players' spots, diagonals
     int see = 100;                       // the nearest others each player must see (starved)
+    // How players are spread over the nodes: round-robin (player i on node
+    // i mod nodes: most neighbours are on other nodes) or bands (the grid's
+    // rows cut in one band per node: neighbours on the same node but at the
+    // bands' edges, as a world placing players by region would).
+    bool bands = false;
     double starve_s = 1.0;
     double connect_rate = 100;           // players started per second
     int addresses = -1;                  // source addresses 127.0.0.2..; -1: auto (loopback: one per 16 players)
@@ -87,6 +92,7 @@ struct LoadReport {
     bool ok = false;
     std::string error;                 // why not ok (first failure), empty when ok
     int players = 0, nodes = 0, addresses = 0;
+    double grid_step = 0;              // world units between two players' spots
     int joined = 0;                    // players that reached Streaming with their character spawned
     int failed = 0;                    // players whose session failed (refused, lost, timed out...)
     std::vector<std::string> errors;   // the first failures, "player N (node): why"

@@ -35,6 +35,8 @@ static const char* kUsage =
     "  --walk R             walk a circle of R bounding-box diagonals (default 0.5; 0: stand)\n"
     "  --spacing D          grid step between players' spots, in diagonals (default 2)\n"
     "  --see K              each player's nearest K others must reach it (starved; default 100)\n"
+    "  --placement P        round-robin (default: player i on node i mod nodes) or bands (the\n"
+    "                       grid's rows cut in one band per node, neighbours mostly on one node)\n"
     "  --starve-s S         a nearest character silent longer than S starves (default 1)\n"
     "  --connect-rate N     players started per second (default 100)\n"
     "  --addresses N        source addresses 127.0.0.2..127.0.0.(N+1), players spread over them\n"
@@ -82,6 +84,11 @@ int main(int argc, char** argv) {
             else if (a == "--walk") o.walk = cli::to_number(a, need());
             else if (a == "--spacing") o.spacing = cli::to_number(a, need());
             else if (a == "--see") o.see = cli::to_int(a, need());
+            else if (a == "--placement") {
+                const std::string v = need();
+                if (v != "round-robin" && v != "bands") throw cli::UsageError("--placement takes round-robin or bands, not " + v);
+                o.bands = v == "bands";
+            }
             else if (a == "--starve-s") o.starve_s = cli::to_number(a, need());
             else if (a == "--connect-rate") o.connect_rate = cli::to_number(a, need());
             else if (a == "--addresses") o.addresses = cli::to_int(a, need());
