@@ -1,6 +1,7 @@
 // loadgen.h — progskin-loadgen's simulation (issue 26 item 4): N simulated
 // players in one process against one progskin-server or a world of nodes
-// (players spread round-robin over them). Each player is a ClientSession
+// (players spread round-robin over them, or in bands: LoadOptions::bands).
+// Each player is a ClientSession
 // (client/session.h, the real client's protocol core) behind a light shell:
 // its own TCP connection (TLS as progskin-client: --pin / --ca / --insecure, or
 // plain) and its own UDP socket (the server binds a session to the address
