@@ -466,7 +466,9 @@ void ClientSession::on_asset_chunk(const wire::AssetChunk& ch, double now) {
 
 void ClientSession::asset_loaded(size_t i, const std::string& path) {
     try {
-        assets_[i] = load_client_asset(welcome_->assets()->Get(flatbuffers::uoffset_t(i)), path);
+        const wire::Asset* a = welcome_->assets()->Get(flatbuffers::uoffset_t(i));
+        assets_[i] = hooks_.load_asset ? hooks_.load_asset(a, path) : load_client_asset(a, path);
+        if (!assets_[i]) throw Error("not loaded");
     } catch (const std::exception& e) {
         // One asset this client cannot load costs its characters only: the others stream on.
         catalogue_[i].failed = true;
@@ -513,10 +515,17 @@ bool ClientSession::on_instance_added(const wire::Instance& in) {
 
 void ClientSession::make_view(size_t id) {
     Remote& r = remotes_[id];
-    if (r.view) return;
+    if (r.view || r.announced) return;
     const auto& a = assets_[size_t(r.asset)];
     for (int c : r.rc.clip.selection.clips)
         if (size_t(c) >= a->character.clips.size()) return fail(FailReason::BadServerData, "server sent an unknown clip index");
+    if (hooks_.frame_sink) {  // no pose history, no palette: the sink takes the frames
+        r.rc.asset = a.get();
+        r.announced = true;
+        raise(ClientEvent::Type::CharacterAdded, r.rc.instance, r.asset);
+        hooks_.frame_sink->on_character(int(id), &r.rc);
+        return;
+    }
     r.view = std::make_unique<InstanceView>(a, r.rc.clip, cfg_.blend_frames, tick_rate_);
     targets_[id] = {&r.view->buffer(), a->format.size()};
     r.rc.asset = a.get();
@@ -529,6 +538,7 @@ void ClientSession::remove_remote(int id) {
     if (id < 0 || size_t(id) >= remotes_.size() || !remotes_[size_t(id)].active) return;
     Remote& r = remotes_[size_t(id)];
     if (r.announced) raise(ClientEvent::Type::CharacterRemoved, id, r.asset);
+    if (r.announced && hooks_.frame_sink) hooks_.frame_sink->on_character(id, nullptr);
     r = Remote{};
     targets_[size_t(id)] = {};
     shown_dirty_ = true;
@@ -589,7 +599,7 @@ void ClientSession::handle_frame(const wire::Datagram& d, size_t n, double t) {
         ++st_.duplicates;
         return;
     }
-    const FrameApplied a = apply_frame(*f, targets_);
+    const FrameApplied a = hooks_.frame_sink ? sink_frame(*f, t) : apply_frame(*f, targets_);
     if (!a.read) {
         ++st_.malformed;
         return;
@@ -619,6 +629,39 @@ void ClientSession::handle_frame(const wire::Datagram& d, size_t n, double t) {
     if (st_.per_second_bytes.size() <= bin) st_.per_second_bytes.resize(bin + 1, 0.0);
     st_.per_second_bytes[bin] += double(n + UDP_IP_OVERHEAD);
     tick_offset_ = std::max(tick_offset_, double(f->tick()) - t * tick_rate_);
+}
+
+// A frame read for the FrameSink (session.h): the checks of apply_frame
+// (read_frame, and show within the asset's bones), no pose buffer.
+FrameApplied ClientSession::sink_frame(const wire::Frame& f, double arrival) {
+    FrameApplied r;
+    auto asset_of = [&](uint16_t i) -> const ClientAsset* {
+        return i < remotes_.size() && remotes_[i].announced ? remotes_[i].rc.asset : nullptr;
+    };
+    auto record_size = [&](uint16_t i) -> int {
+        const ClientAsset* a = asset_of(i);
+        return a ? a->format.size() : 0;
+    };
+    // Pass 0: show within every chunk's asset (read_frame checks the rest).
+    if (f.chunks())
+        for (const wire::Chunk* c : *f.chunks()) {
+            const ClientAsset* a = asset_of(c->instance());
+            if (a && c->show() > a->skin.bone_count()) return r;
+            if (!a) ++r.unknown_chunks;
+        }
+    FrameSink& sink = *hooks_.frame_sink;
+    auto on_chunk = [&](const wire::Chunk& c, const uint8_t* root, const uint8_t*) {
+        sink.on_chunk(c.instance(), f.tick(), c.show(), root, arrival);
+    };
+    auto run = [&](uint16_t i, int first, int count, int, const uint8_t* rec) {
+        const int rs = record_size(i);
+        r.record_bytes += size_t(count) * size_t(rs);
+        ++r.applied;
+        sink.on_run(i, first, count, rec, rs);
+    };
+    r.read = read_frame(f, record_size, run, on_chunk);
+    if (!r.read) r.unknown_chunks = 0;
+    return r;
 }
 
 // -------------------------------------------------------------- update --
@@ -716,8 +759,13 @@ ClientStats ClientSession::stats(double now) const {
 // so the display interpolates rather than holds; it changes by at most
 // 25% of the elapsed time (the clock runs at 0.75x..1.25x while it
 // adapts), up to max_delay_ms.
+double ClientSession::display_tick(double now) const {
+    if (!window_.started) return std::numeric_limits<double>::quiet_NaN();
+    return now * tick_rate_ + tick_offset_ - delay_ticks_;
+}
+
 void ClientSession::display(double now) {
-    if (shown_dirty_) {
+    if (shown_dirty_ && !hooks_.frame_sink) {
         shown_.clear();
         shown_ids_.clear();
         for (const auto& r : remotes_)
@@ -737,6 +785,7 @@ void ClientSession::display(double now) {
     st_.delay_ms = std::max(st_.delay_ms, delay_ticks_ / tick_rate_ * 1000.0);
     double d = now * tick_rate_ + tick_offset_ - delay_ticks_;
     if (cfg_.snap_to_ticks) d = std::floor(d);
+    if (hooks_.frame_sink) return;  // the clock only: no palettes
     for (size_t k = 0; k < shown_.size(); ++k) {
         InstanceView& v = *remotes_[size_t(shown_ids_[k])].view;
         RemoteCharacter& rc = shown_[k];

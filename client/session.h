@@ -27,6 +27,7 @@
 // their capacity).
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <span>
@@ -111,6 +112,41 @@ protected:
     ~DatagramSource() = default;
 };
 
+// ------------------------------------------------------------ hooks ---
+// For a shell that runs many sessions in one process (tools/loadgen.h:
+// progskin-loadgen's simulated players). A session with a FrameSink keeps no
+// pose history and builds no palette for its remote characters (no
+// InstanceView: 48 frames of every bone of every character it knows, some
+// 150 KB each, which 1,000 players seeing 1,000 characters could not hold):
+// characters() stays empty, CharacterAdded / CharacterRemoved are still
+// raised, and every received frame, read and checked as always
+// (proto/frame_reader.h read_frame: lengths, masks, record sizes; a chunk
+// whose show exceeds its asset's bones makes the frame malformed), goes to the
+// sink chunk by chunk. Acks, Stats, loss, rate, the display clock
+// (display_tick) run as without it.
+class FrameSink {
+public:
+    // A remote character announced with its asset ready (rc: its instance,
+    // asset, clip, publisher), or removed (rc == nullptr).
+    virtual void on_character(int instance, const RemoteCharacter* rc) = 0;
+    // One chunk of a received frame of a known character, before its runs:
+    // the frame's tick, the bones to show, the root block (ROOT_BYTES, or
+    // nullptr), the datagram's arrival (the clock of update's now).
+    virtual void on_chunk(int instance, uint32_t tick, int show, const uint8_t* root, double arrival) = 0;
+    // A run of `count` records (record_size bytes each) of bones first.. of
+    // that chunk, as received (not yet decoded).
+    virtual void on_run(int instance, int first, int count, const uint8_t* records, int record_size) = 0;
+
+protected:
+    ~FrameSink() = default;
+};
+struct SessionHooks {
+    FrameSink* frame_sink = nullptr;  // see FrameSink; nullptr: pose buffers and palettes (a game client)
+    // Loads a catalogue asset from its cache file (default: load_client_asset);
+    // a shell of many sessions shares one decoded asset between them by id.
+    std::function<std::shared_ptr<ClientAsset>(const wire::Asset*, const std::string& path)> load_asset;
+};
+
 enum class SessionPhase : uint8_t {
     Idle,            // before start()
     OpeningChannel,  // TCP connect under way (the shell)
@@ -129,6 +165,8 @@ public:
     // (importing an asset), on the clock of every `now` (tests pass theirs).
     ClientSession(ClientConfig cfg, Outbox& out, double (*clock)() = now_seconds);
     ~ClientSession();
+    // Before start(): see SessionHooks.
+    void set_hooks(SessionHooks hooks) { hooks_ = std::move(hooks); }
     ClientSession(const ClientSession&) = delete;
     ClientSession& operator=(const ClientSession&) = delete;
 
@@ -182,6 +220,10 @@ public:
     const std::vector<std::shared_ptr<ClientAsset>>& assets() const { return assets_; }
     const std::vector<std::string>& asset_names() const { return asset_names_; }
     double tick_rate() const { return tick_rate_; }
+    // The server tick displayed at `now` (the display clock: newest frame's
+    // tick less the adaptive delay, as of the last update); NaN before the
+    // first frame.
+    double display_tick(double now) const;
     ClientStats stats(double now) const;
     void set_view(const ViewSpec& view);
     void set_max_kbps(double kbps);
@@ -245,6 +287,7 @@ private:
     void remove_remote(int id);
     void on_spawned(const wire::Spawned& m);
     void handle_frame(const wire::Datagram& d, size_t wire_bytes, double t);
+    FrameApplied sink_frame(const wire::Frame& f, double arrival);
     bool stream_checks(double now);
     void send_ack(double now);
     void send_stats(double now);
@@ -254,6 +297,7 @@ private:
     Own* find_own(int handle);
 
     ClientConfig cfg_;
+    SessionHooks hooks_;
     Outbox& out_;
     double (*clock_)();
     SessionPhase phase_ = SessionPhase::Idle;

@@ -12,6 +12,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <string>
+#include <sys/resource.h>
 #include <thread>
 #include <vector>
 
@@ -88,6 +89,9 @@ static const char* kUsage =
     "  --seal-datagrams  seal every datagram with per-session keys (default with TLS)\n"
     "  --no-seal-datagrams  TLS without sealed datagrams\n"
     "  --duration S      stop after S seconds (default: run until SIGINT/SIGTERM)\n"
+    "  --stats-every S   every S seconds a line on stderr of what the last S seconds cost:\n"
+    "                    sessions, ticks, mean tick, process CPU, datagrams and kbit/s sent,\n"
+    "                    world bus messages and bytes per second each way (key=value pairs)\n"
     "  --verbose         log sessions on stderr\n"
     "  --help\n"
     "Exit codes: 0 ok, 1 runtime error, 2 bad arguments.\n";
@@ -105,6 +109,7 @@ struct Options {
     int crowd = 0;
     int threads = -1;  // -1: not given (the machine's cores)
     double duration = 0;
+    double stats_every = 0;  // 0: no periodic stats line
     bool no_scene = false, once = false;
     bool no_tls = false, seal = true, seal_asked = false;
     std::string tls_dir;
@@ -174,6 +179,7 @@ static int parse_options(int argc, char** argv, Options& o) {
             else if (a == "--no-tls") o.no_tls = true;
             else if (a == "--tls-dir") o.tls_dir = need(i);
             else if (a == "--duration") o.duration = cli::to_number(a, need(i));
+            else if (a == "--stats-every") o.stats_every = cli::to_number(a, need(i));
             else if (a == "--verbose") cfg.verbose = true;
             else {
                 std::fprintf(stderr, "progskin-server: unknown argument %s\n%s", a.c_str(), kUsage);
@@ -190,6 +196,10 @@ static int parse_options(int argc, char** argv, Options& o) {
 // Ranges and combinations parse_options cannot see alone; 2 when wrong, else -1.
 static int check_options(const Options& o) {
     const ServerConfig& cfg = o.cfg;
+    if (!(o.stats_every >= 0 && o.stats_every <= 3600)) {
+        std::fprintf(stderr, "progskin-server: --stats-every must be in [0, 3600]\n%s", kUsage);
+        return 2;
+    }
     if (o.threads != -1 && (o.threads < 1 || o.threads > 256)) {
         std::fprintf(stderr, "progskin-server: --threads must be in [1, 256]\n%s", kUsage);
         return 2;
@@ -284,17 +294,58 @@ static bool load_assets(Options& o, const char* argv0, std::vector<std::shared_p
     return true;
 }
 
+static double process_cpu_seconds() {
+    rusage u{};
+    ::getrusage(RUSAGE_SELF, &u);
+    return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) + 1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
+// --stats-every: one line of what the last `dt` seconds cost (a and b: the
+// stats at its ends; cpu: process CPU seconds in it).
+static void stats_line(const ServerStats& a, const ServerStats& b, double dt, double cpu) {
+    const double ticks = double(b.ticks - a.ticks);
+    std::fprintf(stderr,
+                 "progskin-server: stats seconds=%.2f sessions=%llu ticks_per_s=%.2f mean_tick_ms=%.3f cpu_share=%.3f "
+                 "datagrams_per_s=%.1f sent_kbps=%.1f poses_per_s=%.1f world_out_msgs_per_s=%.1f world_out_bytes_per_s=%.0f "
+                 "world_in_msgs_per_s=%.1f world_in_bytes_per_s=%.0f world_dropped=%llu world_foreign=%d\n",
+                 dt, (unsigned long long)b.sessions_active, ticks / dt,
+                 ticks > 0 ? 1000.0 * (b.tick_seconds - a.tick_seconds) / ticks : 0.0, cpu / dt,
+                 double(b.datagrams_sent - a.datagrams_sent) / dt, double(b.wire_bytes_sent - a.wire_bytes_sent) * 8 / 1000 / dt,
+                 double(b.poses_received - a.poses_received) / dt, double(b.world_messages_out - a.world_messages_out) / dt,
+                 double(b.world_bytes_out - a.world_bytes_out) / dt, double(b.world_messages_in - a.world_messages_in) / dt,
+                 double(b.world_bytes_in - a.world_bytes_in) / dt, (unsigned long long)(b.world_dropped - a.world_dropped),
+                 b.world_foreign);
+}
+
 // Serves until SIGINT/SIGTERM (on_signal, installed by the caller before it
-// announces the server) or `duration` seconds (0: no limit).
-static void serve(Server& server, double duration) {
+// announces the server) or `duration` seconds (0: no limit); with
+// stats_every, a stats line that often.
+static void serve(Server& server, double duration, double stats_every) {
     std::thread stopper;
     std::atomic<bool> done{false};
-    if (duration > 0) {
-        stopper = std::thread([&server, &done, duration] {
-            auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(duration);
-            while (!done && std::chrono::steady_clock::now() < end)
+    if (duration > 0 || stats_every > 0) {
+        stopper = std::thread([&server, &done, duration, stats_every] {
+            using clock = std::chrono::steady_clock;
+            const auto start = clock::now();
+            auto end = start + std::chrono::duration<double>(duration > 0 ? duration : 1e9);
+            auto next = start + std::chrono::duration<double>(stats_every);
+            ServerStats last = server.stats();
+            double last_cpu = process_cpu_seconds();
+            auto last_at = start;
+            while (!done && clock::now() < end) {
                 std::this_thread::sleep_for(std::chrono::milliseconds(20));
-            server.stop();
+                if (stats_every > 0 && clock::now() >= next) {
+                    const auto now = clock::now();
+                    const ServerStats st = server.stats();
+                    const double cpu = process_cpu_seconds();
+                    stats_line(last, st, std::chrono::duration<double>(now - last_at).count(), cpu - last_cpu);
+                    last = st;
+                    last_cpu = cpu;
+                    last_at = now;
+                    next += std::chrono::duration<double>(stats_every);
+                }
+            }
+            if (!done) server.stop();
         });
     }
     server.run();
@@ -372,7 +423,7 @@ int main(int argc, char** argv) {
         std::printf("progskin-server: %d tick thread%s%s\n", tick_threads(o.cfg), tick_threads(o.cfg) == 1 ? "" : "s",
                     tick_threads(o.cfg) == 1 ? " (connections on the same thread)" : " + 1 for connections");
         std::fflush(stdout);
-        serve(server, o.duration);
+        serve(server, o.duration, o.stats_every);
         report(server.stats());
         return 0;
     } catch (const std::exception& e) {
