@@ -115,8 +115,8 @@ struct WebEndpoint::Conn {
 };
 
 WebEndpoint::WebEndpoint(asio::io_context& io, ServerCore& core, DatagramSink& sink, const std::string& bind_address,
-                         uint16_t port)
-    : io_(io), core_(core), sink_(sink), acceptor_(io) {
+                         uint16_t port, const std::string& web_root)
+    : io_(io), core_(core), sink_(sink), acceptor_(io), files_(web_root) {
     asio::error_code ec;
     const tcp::endpoint ep(asio::ip::make_address(bind_address, ec), port);
     if (!ec) acceptor_.open(ep.protocol(), ec);
@@ -139,48 +139,93 @@ void WebEndpoint::accept() {
         if (!ec) {
             asio::error_code ig;
             s.set_option(tcp::no_delay(true), ig);
-            const auto remote = s.remote_endpoint(ig).address();
-            if (!ig) {
+            std::lock_guard lock(core_.mutex());
+            if (pending_.size() >= kMaxPending) {  // too many waiting for their request: closed at once
+                core_.refused("web_too_many_pending");
+                s.close(ig);
+            } else {
                 auto c = std::make_shared<Conn>(std::move(s), io_);
-                std::lock_guard lock(core_.mutex());
-                c->stream = core_.open(peer_ip(remote), now_seconds());
-                core_.count([](ServerStats& st) { ++st.web_sessions; });
-                if (c->stream->state() != SessionState::AwaitHello) {  // refused: closed without a word
-                    c->closed = true;
-                    c->sock.close(ig);
-                    asio::post(io_, [this, id = c->stream->id()] {
-                        std::lock_guard l(core_.mutex());
-                        core_.erase(id, now_seconds());
-                    });
-                } else {
-                    c->address = web_address(next_number_++);
-                    conns_[c->stream->id()] = c;
-                    by_number_[number_of(c->address)] = c;
-                    handshake(c);
-                }
+                pending_[c.get()] = c;
+                c->linger.expires_after(std::chrono::milliseconds(int(kRequestSeconds * 1000)));
+                c->linger.async_wait([this, c](asio::error_code e) {
+                    if (e) return;
+                    std::lock_guard l(core_.mutex());
+                    if (!c->upgraded && !c->closed) drop_pending(c, false);
+                });
+                handshake(c);
             }
         }
         accept();
     });
 }
 
-// The HTTP upgrade (GET /ws, Upgrade: websocket, a key), answered 101; then frames.
+void WebEndpoint::drop_pending(const std::shared_ptr<Conn>& c, bool malformed) {
+    if (malformed) core_.count([](ServerStats& st) { ++st.web_malformed; });
+    c->closed = true;
+    c->linger.cancel();
+    asio::error_code ig;
+    c->sock.shutdown(tcp::socket::shutdown_both, ig);
+    c->sock.close(ig);
+    pending_.erase(c.get());
+}
+
+// The request: GET /ws with Upgrade: websocket and a key opens a session and
+// is answered 101 (then frames); another GET or HEAD is answered from the
+// static files and closed; anything else 404 or 405, closed and counted.
 void WebEndpoint::handshake(const std::shared_ptr<Conn>& c) {
     asio::async_read_until(c->sock, c->request, "\r\n\r\n", [this, c](asio::error_code ec, size_t n) {
         std::lock_guard lock(core_.mutex());
         if (c->closed) return;
-        if (ec) return fail(c, "web handshake: " + ec.message(), ec == asio::error::not_found, true);
+        if (ec) return drop_pending(c, ec == asio::error::not_found);  // not_found: over kMaxRequestBytes
         const std::string req(asio::buffers_begin(c->request.data()), asio::buffers_begin(c->request.data()) + std::ptrdiff_t(n));
         c->request.consume(n);
         const std::string key = header(req, "sec-websocket-key");
         std::string upgrade = header(req, "upgrade");
         std::transform(upgrade.begin(), upgrade.end(), upgrade.begin(), [](unsigned char ch) { return char(std::tolower(ch)); });
+        if (upgrade.empty() && c->request.size() == 0) {  // a plain HTTP request: a static file
+            const size_t sp1 = req.find(' '), sp2 = sp1 == std::string::npos ? sp1 : req.find(' ', sp1 + 1);
+            const size_t eol = req.find("\r\n");
+            if (sp1 == std::string::npos || sp2 == std::string::npos || sp2 > eol) return drop_pending(c, true);
+            int status = 0;
+            auto bytes = std::make_shared<std::vector<uint8_t>>(
+                files_.respond(req.substr(0, sp1), req.substr(sp1 + 1, sp2 - sp1 - 1), status));
+            if (status == 200) core_.count([](ServerStats& st) { ++st.web_files_served; });
+            asio::async_write(c->sock, asio::buffer(*bytes), [this, c, bytes](asio::error_code, size_t) {
+                std::lock_guard l(core_.mutex());
+                if (!c->closed) drop_pending(c, false);
+            });
+            return;
+        }
         if (req.rfind("GET /ws ", 0) != 0 || upgrade != "websocket" || key.empty() || c->request.size() != 0) {
             const std::string no = "HTTP/1.1 404 Not Found\r\nContent-Length: 0\r\nConnection: close\r\n\r\n";
             asio::error_code ig;
             asio::write(c->sock, asio::buffer(no), ig);  // small: fits the socket's buffer
-            return fail(c, "web handshake: not a WebSocket request for /ws", true);
+            return drop_pending(c, true);
         }
+        // A WebSocket: one session, as a TCP connection is.
+        pending_.erase(c.get());
+        c->linger.cancel();
+        asio::error_code ig;
+        const auto remote = c->sock.remote_endpoint(ig).address();
+        if (ig) {
+            c->closed = true;
+            c->sock.close(ig);
+            return;
+        }
+        c->stream = core_.open(peer_ip(remote), now_seconds());
+        core_.count([](ServerStats& st) { ++st.web_sessions; });
+        if (c->stream->state() != SessionState::AwaitHello) {  // refused: closed without a word
+            c->closed = true;
+            c->sock.close(ig);
+            asio::post(io_, [this, id = c->stream->id()] {
+                std::lock_guard l(core_.mutex());
+                core_.erase(id, now_seconds());
+            });
+            return;
+        }
+        c->address = web_address(next_number_++);
+        conns_[c->stream->id()] = c;
+        by_number_[number_of(c->address)] = c;
         const std::string ok = "HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
                                "Sec-WebSocket-Accept: " + websocket_accept(key) + "\r\n\r\n";
         c->writes.emplace_back(ok.begin(), ok.end());
@@ -398,6 +443,12 @@ bool WebEndpoint::writing() const {
 void WebEndpoint::close_all() {
     asio::error_code ig;
     acceptor_.close(ig);
+    for (auto& [p, c] : pending_) {
+        c->closed = true;
+        c->linger.cancel();
+        c->sock.close(ig);
+    }
+    pending_.clear();
     for (auto& [id, c] : conns_) {
         c->closed = true;
         c->sock.close(ig);

@@ -10,7 +10,12 @@
 // that the UDP socket (IPv4 only) can never see; the shell's sink hands
 // datagrams to such addresses to send_datagram instead of sendto.
 //
-// Bounds: an incoming message at most 1 + 4 + MAX_CONTROL_MESSAGE bytes
+// Any other GET (or HEAD) is answered from the read-only static files of
+// ServerConfig::web_root (web_files.h: the browser client's page), one
+// response and the connection closed; such a connection opens no session.
+//
+// Bounds: at most kMaxPending connections waiting for their request (more
+// are closed at once), each for at most kRequestSeconds; an incoming message at most 1 + 4 + MAX_CONTROL_MESSAGE bytes
 // (a control message) or 1 + MAX_DATAGRAM (a datagram), else the connection
 // is closed and counted (web_malformed); the HTTP upgrade request at most
 // kMaxRequestBytes. Outgoing: datagrams waiting for one connection at most
@@ -31,6 +36,7 @@
 #include <asio.hpp>
 
 #include "server_core.h"
+#include "web_files.h"
 
 namespace progskin::net {
 
@@ -38,8 +44,12 @@ class WebEndpoint {
 public:
     static constexpr size_t kMaxRequestBytes = 8192;
     static constexpr size_t kMaxQueuedDatagramBytes = 256 * 1024;
+    static constexpr size_t kMaxPending = 64;        // connections before their request is handled
+    static constexpr double kRequestSeconds = 10.0;  // to send the request (and receive a file)
     // Binds bind_address:port (0: ephemeral); throws Error.
-    WebEndpoint(asio::io_context& io, ServerCore& core, DatagramSink& sink, const std::string& bind_address, uint16_t port);
+    // web_root: the static files' folder (web_files.h), or empty.
+    WebEndpoint(asio::io_context& io, ServerCore& core, DatagramSink& sink, const std::string& bind_address, uint16_t port,
+                const std::string& web_root = {});
     ~WebEndpoint();
     uint16_t port() const { return port_; }
     void start();  // accepting
@@ -60,6 +70,8 @@ public:
 private:
     void accept();
     void handshake(const std::shared_ptr<Conn>& c);
+    // Before the upgrade (no session yet): the connection closed, counted when malformed.
+    void drop_pending(const std::shared_ptr<Conn>& c, bool malformed);
     void read_frame(const std::shared_ptr<Conn>& c);
     void on_message(const std::shared_ptr<Conn>& c);
     void pump(const std::shared_ptr<Conn>& c);
@@ -76,6 +88,8 @@ private:
     uint64_t next_number_ = 1;
     std::map<uint64_t, std::shared_ptr<Conn>> by_number_;  // by address number; changed only with the core held
     std::map<uint64_t, std::shared_ptr<Conn>> conns_;          // by session id
+    std::map<Conn*, std::shared_ptr<Conn>> pending_;           // before the request is handled (no session)
+    WebFiles files_;
 };
 
 // RFC 6455 pieces, shared with the tests' client: Sec-WebSocket-Accept for a

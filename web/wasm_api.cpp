@@ -78,7 +78,10 @@ struct Published {
     glm::dvec3 center{0.0};
     double radius = 0, speed = 0;
     std::vector<glm::dmat4> mats;
-    std::vector<Mat34> skin;
+    std::vector<Mat34> skin;     // joint order (what publish sends)
+    std::vector<Mat34> palette;  // progressive order (what the page draws: the server never sends a player its own)
+    RootPose root;
+    bool posed = false;
 };
 
 // An asset as the page sets up its mesh: the vertex stream with at most 4
@@ -184,6 +187,10 @@ void publish_all(psk_web* w, double now) {
         RootPose root = walk_root(p.center, p.radius, p.speed, t);
         root.source_us = p.start_us + uint64_t(t * 1e6);
         w->session->publish(p.handle, root, p.skin, false, {});
+        p.palette.resize(a->skin.order.size());
+        for (size_t b = 0; b < p.palette.size(); ++b) p.palette[b] = p.skin[size_t(a->skin.order[b])];
+        p.root = root;
+        p.posed = true;
     }
 }
 
@@ -481,5 +488,38 @@ EMSCRIPTEN_KEEPALIVE int pskw_spawn_clip(psk_web* w, int asset, int clip, double
 // The instance a spawned handle got (-1 until the server's Spawned).
 EMSCRIPTEN_KEEPALIVE int pskw_instance_of(psk_web* w, int handle) { return w->session->instance_of(handle); }
 EMSCRIPTEN_KEEPALIVE int pskw_published_count(psk_web* w) { return int(w->published.size()); }
+
+// The page's own characters, k in [0, pskw_published_count): the server
+// never streams a player its own characters back, so the page draws them
+// from the pose it publishes. Instance (-1 until spawned), asset, palette
+// (progressive order, 12 floats per bone; nullptr until first published),
+// its size, and the root (as pskw_character_root, the last value 1).
+EMSCRIPTEN_KEEPALIVE int pskw_own_instance(psk_web* w, int k) {
+    if (k < 0 || size_t(k) >= w->published.size()) return -1;
+    return w->session->instance_of(w->published[size_t(k)].handle);
+}
+EMSCRIPTEN_KEEPALIVE int pskw_own_asset(psk_web* w, int k) {
+    if (k < 0 || size_t(k) >= w->published.size()) return -1;
+    return w->published[size_t(k)].asset;
+}
+EMSCRIPTEN_KEEPALIVE int pskw_own_palette_size(psk_web* w, int k) {
+    if (k < 0 || size_t(k) >= w->published.size() || !w->published[size_t(k)].posed) return 0;
+    return int(w->published[size_t(k)].palette.size());
+}
+EMSCRIPTEN_KEEPALIVE const float* pskw_own_palette(psk_web* w, int k) {
+    if (k < 0 || size_t(k) >= w->published.size() || !w->published[size_t(k)].posed) return nullptr;
+    return w->published[size_t(k)].palette.data()->m;
+}
+EMSCRIPTEN_KEEPALIVE const float* pskw_own_root(psk_web* w, int k) {
+    if (k < 0 || size_t(k) >= w->published.size() || !w->published[size_t(k)].posed) return nullptr;
+    const RootPose& r = w->published[size_t(k)].root;
+    for (int i = 0; i < 3; ++i) w->root[i] = float(r.position[i]);
+    w->root[3] = r.rotation.x;
+    w->root[4] = r.rotation.y;
+    w->root[5] = r.rotation.z;
+    w->root[6] = r.rotation.w;
+    w->root[7] = 1.0f;
+    return w->root;
+}
 
 }  // extern "C"
