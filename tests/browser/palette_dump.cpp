@@ -8,7 +8,7 @@
 //
 //   progskin_palette_dump HOST PORT SECONDS EVERY [MAX_KBPS]
 //   {"instance":I,"tick":T,"bones":K,"palette":[12 floats per bone...]}
-//   {"summary":{"seconds":S,"wire_bytes":N,"characters":C,"bones_mean":B,"state":"streaming"}}
+//   {"summary":{"seconds":S,"wire_bytes":N,"characters":C,"bones_mean":B,"first_shown_after":S,"loss":L,"datagrams":N}}
 // Exit 1 when the client failed (the reason on stderr), 2 for bad arguments.
 #include <chrono>
 #include <cmath>
@@ -79,9 +79,9 @@ int main(int argc, char** argv) {
     }
     const ClientStats st = client.stats();
     std::printf("{\"summary\":{\"seconds\":%.3f,\"wire_bytes\":%llu,\"characters\":%zu,\"bones_mean\":%.3f,"
-                "\"first_shown_after\":%.3f}}\n",
+                "\"first_shown_after\":%.3f,\"loss\":%.6f,\"datagrams\":%llu}}\n",
                 st.seconds, (unsigned long long)st.wire_bytes, shown, bones_n ? bones_sum / double(bones_n) : 0.0,
-                first < 0 ? -1.0 : first - start);
+                first < 0 ? -1.0 : first - start, st.loss, (unsigned long long)st.datagrams);
     client.close();
     return 0;
 }
