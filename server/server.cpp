@@ -198,7 +198,7 @@ struct Server::Impl {
             bus = std::make_unique<WorldBus>(WorldConfig{cfg.nats_url, cfg.world_node, cfg.world_name, cfg.world_cell}, core);
         if (core.config().web_port >= 0) {
             web = std::make_unique<WebEndpoint>(io, core, sink, core.config().bind_address, uint16_t(core.config().web_port),
-                                                core.config().web_root);
+                                                core.config().web_root, tls_ctx.get());
             sink.set_web(web.get());
         }
     }

@@ -59,9 +59,9 @@ struct ServerConfig {
     // unsealed or forged datagrams are dropped and counted.
     bool seal_datagrams = false;
     // >= 0 (off by default, -1): a WebSocket endpoint for browsers at
-    // ws://bind_address:web_port/ws (0: an ephemeral port; web_endpoint.h,
-    // docs/protocol.md "WebSocket transport"). Plain ws:// only for now: not
-    // with tls_cert_file (ServerCore refuses the pair).
+    // ws://bind_address:web_port/ws, or wss:// with TLS (tls_cert_file: the
+    // same certificate as the control channel); 0: an ephemeral port
+    // (web_endpoint.h, docs/protocol.md "WebSocket transport").
     int web_port = -1;
     // The folder whose files the web port also serves to HTTP GET (the
     // browser client's page, web_files.h); empty: none (404 saying so).

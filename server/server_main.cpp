@@ -35,9 +35,9 @@ static const char* kUsage =
     "                    same number unless --udp-port is given\n"
     "  --udp-port P      UDP frame stream port\n"
     "  --bind ADDR       address to listen on (default 0.0.0.0)\n"
-    "  --web P           also serve browsers: a WebSocket endpoint at ws://ADDR:P/ws (plain\n"
-    "                    ws://, needs --no-tls for now; docs/browser.md) and the browser\n"
-    "                    client's page at http://ADDR:P/\n"
+    "  --web P           also serve browsers: a WebSocket endpoint at wss://ADDR:P/ws and the\n"
+    "                    browser client's page at https://ADDR:P/ (the control channel's\n"
+    "                    certificate), or ws:// and http:// with --no-tls (docs/browser.md)\n"
     "  --web-root DIR    the page's folder (default: share/progskin/web of the installed\n"
     "                    package, else the build tree's web/ from scripts/build_web.sh)\n"
     "  --asset FILE ...  glTF/glb characters (progressive or plain; repeatable): every\n"
@@ -212,10 +212,6 @@ static int check_options(const Options& o) {
         std::fprintf(stderr, "progskin-server: --no-tls excludes --tls-cert, --tls-key, --tls-dir and --seal-datagrams\n%s", kUsage);
         return 2;
     }
-    if (cfg.web_port >= 0 && !o.no_tls) {
-        std::fprintf(stderr, "progskin-server: --web is plain ws:// and needs --no-tls for now (wss:// is not done)\n%s", kUsage);
-        return 2;
-    }
     if (!o.web_root.empty() && cfg.web_port < 0) {
         std::fprintf(stderr, "progskin-server: --web-root needs --web\n%s", kUsage);
         return 2;
@@ -368,9 +364,10 @@ int main(int argc, char** argv) {
                     server.udp_port(), instances.size(), double(o.cfg.tick_rate),
                     o.no_tls ? ", plain TCP (no TLS)" : o.cfg.seal_datagrams ? ", TLS, sealed datagrams" : ", TLS");
         if (server.web_port()) {
-            std::printf("progskin-server: WebSocket endpoint ws://%s:%u/ws\n", o.cfg.bind_address.c_str(), server.web_port());
+            const char* s = o.no_tls ? "" : "s";
+            std::printf("progskin-server: WebSocket endpoint ws%s://%s:%u/ws\n", s, o.cfg.bind_address.c_str(), server.web_port());
             if (!o.cfg.web_root.empty())
-                std::printf("progskin-server: browser page http://%s:%u/ from %s\n", o.cfg.bind_address.c_str(),
+                std::printf("progskin-server: browser page http%s://%s:%u/ from %s\n", s, o.cfg.bind_address.c_str(),
                             server.web_port(), o.cfg.web_root.c_str());
             else
                 std::printf("progskin-server: no browser page to serve (scripts/build_web.sh builds it; --web-root DIR)\n");

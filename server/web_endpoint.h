@@ -1,12 +1,14 @@
 // web_endpoint.h — the WebSocket transport for browser clients (issue 28;
 // docs/protocol.md "WebSocket transport", docs/browser.md): a listener on
-// ServerConfig::web_port serving RFC 6455 at the path /ws, plain ws:// (not
-// with TLS yet: ServerCore refuses web_port with a TLS control channel). One
+// ServerConfig::web_port serving RFC 6455 at the path /ws: plain ws://, or
+// wss:// when the server has TLS (the control channel's certificate; every
+// connection's TLS handshake first, within kRequestSeconds). One
 // WebSocket connection is one server session (the same ServerCore /
 // ClientStream as a TCP client). Binary messages only, the first byte the
 // kind: 1 = one control message framed as on TCP (4-byte length, body),
 // 2 = one datagram as on UDP. The session's datagram "address" is a
 // synthetic IPv6 address (fd70:736b:7773::/48 + a connection number, port 0)
+// whose datagrams are never sealed (ClientStream::never_seal),
 // that the UDP socket (IPv4 only) can never see; the shell's sink hands
 // datagrams to such addresses to send_datagram instead of sendto.
 //
@@ -34,6 +36,7 @@
 #include <span>
 
 #include <asio.hpp>
+#include <asio/ssl.hpp>
 
 #include "server_core.h"
 #include "web_files.h"
@@ -47,9 +50,10 @@ public:
     static constexpr size_t kMaxPending = 64;        // connections before their request is handled
     static constexpr double kRequestSeconds = 10.0;  // to send the request (and receive a file)
     // Binds bind_address:port (0: ephemeral); throws Error.
-    // web_root: the static files' folder (web_files.h), or empty.
+    // web_root: the static files' folder (web_files.h), or empty. tls: the
+    // control channel's TLS context (wss:// and https://), or nullptr (ws://).
     WebEndpoint(asio::io_context& io, ServerCore& core, DatagramSink& sink, const std::string& bind_address, uint16_t port,
-                const std::string& web_root = {});
+                const std::string& web_root = {}, asio::ssl::context* tls = nullptr);
     ~WebEndpoint();
     uint16_t port() const { return port_; }
     void start();  // accepting
@@ -89,6 +93,7 @@ private:
     std::map<uint64_t, std::shared_ptr<Conn>> by_number_;  // by address number; changed only with the core held
     std::map<uint64_t, std::shared_ptr<Conn>> conns_;          // by session id
     std::map<Conn*, std::shared_ptr<Conn>> pending_;           // before the request is handled (no session)
+    asio::ssl::context* tls_ = nullptr;
     WebFiles files_;
 };
 

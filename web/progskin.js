@@ -129,9 +129,9 @@ function meshFor(inst, a, nb) {
 }
 
 // ---------------------------------------------------------- frame loop --
-let framesDisplayed = 0, wasmSeconds = 0, wasmFrames = 0;
+let framesDisplayed = 0, wasmSeconds = 0, wasmFrames = 0, lastFrameAt = 0;
 let shownCount = 0, bonesMean = 0, frameSerial = 0, ownShown = 0;
-const recorded = [];  // {instance, tick, bones, palette} of every record_every-th tick
+const recorded = [];  // {instance, tick, bones, palette, gap_ms (since the frame before)} of every record_every-th tick
 const MAX_RECORDED = 4000;
 let lastStats = null, lastStatsAt = 0;
 
@@ -183,7 +183,8 @@ function frame() {
             if (Math.abs(tick - Math.round(tick)) < 1e-6 && Math.round(tick) % recordEvery === 0 &&
                 recorded.length < MAX_RECORDED &&
                 !recorded.some((x) => x.instance === inst && x.tick === Math.round(tick)))
-                recorded.push({ instance: inst, tick: Math.round(tick), bones, palette: Array.from(pal) });
+                recorded.push({ instance: inst, tick: Math.round(tick), bones, palette: Array.from(pal),
+                                gap_ms: t0 - lastFrameAt });
         }
     }
     // The page's own characters, from the pose it publishes (keys below 0).
@@ -203,6 +204,7 @@ function frame() {
             }
         }
     }
+    lastFrameAt = t0;
     wasmSeconds += (performance.now() - t0) / 1000;
     ++wasmFrames;
     shownCount = shown;

@@ -9,7 +9,8 @@
 //   progskin_palette_dump HOST PORT SECONDS EVERY [MAX_KBPS]
 //   {"instance":I,"tick":T,"bones":K,"palette":[12 floats per bone...]}
 //   {"summary":{"seconds":S,"wire_bytes":N,"characters":C,"bones_mean":B,"first_shown_after":S,"loss":L,"datagrams":N}}
-// Exit 1 when the client failed (the reason on stderr), 2 for bad arguments.
+// PROGSKIN_PIN set: TLS, trusting the certificate with that SHA-256;
+// PROGSKIN_CACHE: the asset cache. Exit 1 when the client failed (the reason on stderr), 2 for bad arguments.
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -44,6 +45,10 @@ int main(int argc, char** argv) {
     cfg.snap_to_ticks = true;
     cfg.max_kbps = kbps;
     if (const char* c = std::getenv("PROGSKIN_CACHE")) cfg.cache_dir = c;
+    if (const char* pin = std::getenv("PROGSKIN_PIN"); pin && *pin) {  // a TLS server: its certificate's SHA-256
+        cfg.tls = true;
+        cfg.pin_sha256 = pin;
+    }
     Client client(cfg);
     client.connect(argv[1], uint16_t(port));
     std::set<std::pair<int, long>> done;
