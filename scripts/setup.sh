@@ -16,6 +16,15 @@ if ((${#missing[@]})); then
   $SUDO apt-get update -qq
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${missing[@]}" >/dev/null
 fi
+# Node.js and npm (the browser client's three.js, its test, the glTF
+# validator): Debian's, unless a node is already installed (another
+# distribution of it, e.g. NodeSource's, conflicts with Debian's npm package).
+if ! command -v node >/dev/null 2>&1 || ! command -v npm >/dev/null 2>&1; then
+  echo "setup: installing nodejs npm" >&2
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq nodejs npm >/dev/null
+fi
 # The Khronos glTF validator for tests/test_gltf_validator.cpp (npm, pinned in
 # scripts/gltf_validator/package.json); the test skips, saying so, without it.
 validator_dir="$(cd "$(dirname "$0")" && pwd)/gltf_validator"

@@ -228,7 +228,7 @@ function frameCamera(box, diag) {
     }
     const d = camTarget.size / (2 * Math.tan(THREE.MathUtils.degToRad(camera.fov) / 2)) * 1.1;
     camera.position.set(camTarget.c.x, camTarget.c.y + 0.45 * d + 0.3 * diag, camTarget.c.z + d);
-    camera.lookAt(camTarget.c.x, camTarget.c.y + 0.3 * diag, camTarget.c.z);
+    camera.lookAt(camTarget.c.x, camTarget.c.y + 0.15 * d, camTarget.c.z);  // the characters below the panel
     camera.near = d / 100;
     camera.far = d * 100;
     camera.updateProjectionMatrix();
