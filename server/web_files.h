@@ -24,7 +24,7 @@ namespace progskin::net {
 class WebFiles {
 public:
     static constexpr size_t kMaxTarget = 256;
-    static constexpr uint64_t kMaxFileBytes = uint64_t(32) << 20;
+    static constexpr uint64_t kMaxFileBytes = uint64_t(8) << 20;  // the wasm is 0.9 MB, three.core.js 1.4 MB
     // root: the folder served; empty: none (every file request is 404, saying
     // how to build the page). Throws Error when root is given and is not a folder.
     explicit WebFiles(const std::string& root);

@@ -235,7 +235,6 @@ function frameCamera(box, diag) {
 }
 
 function wasmStats() {
-    const s = heapF32; void s;
     const p = M._pskw_stats(w, now());
     return Array.from(new Float64Array(M.HEAPF64.buffer, p, 12));
 }
@@ -339,5 +338,13 @@ window.progskin = {
         return out;
     },
 };
+// Leaving the page: the session's Goodbye, so the server frees it at once.
+window.addEventListener('pagehide', () => {
+    const reason = 'page closed', len = M.lengthBytesUTF8(reason) + 1, p = M._malloc(len);
+    M.stringToUTF8(reason, p, len);
+    M._pskw_close(w, p);
+    M._free(p);
+    flush();
+});
 connect();
 requestAnimationFrame(frame);
