@@ -33,17 +33,6 @@ namespace progskin::net {
 using asio::ip::tcp;
 using asio::ip::udp;
 
-RootPose walk_root(const glm::dvec3& center, double radius, double speed, double t) {
-    RootPose r;
-    r.position = center;
-    if (!(radius > 0) || !(speed > 0)) return r;
-    const double a = speed * t / radius;  // radians around the circle
-    r.position += glm::dvec3(radius * std::cos(a), 0.0, radius * std::sin(a));
-    // Facing along the circle: +Z turned to the tangent (-sin a, 0, cos a).
-    r.rotation = glm::angleAxis(float(-a), glm::vec3(0.0f, 1.0f, 0.0f));
-    return r;
-}
-
 namespace {
 
 // Receives one datagram with the kernel's arrival time (SO_TIMESTAMPNS), so

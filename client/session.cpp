@@ -346,6 +346,7 @@ void ClientSession::on_welcome(const wire::Welcome* w, double now) {
     tick_rate_ = w->tick_rate();
     if (!(tick_rate_ > 0 && tick_rate_ <= 1000)) return fail(FailReason::BadServerData, "server sent a bad tick rate");
     if (const auto* keys = w->datagram_keys(); keys && keys->size() > 0) {
+        if (!crypto::available()) return fail(FailReason::Config, crypto::UNAVAILABLE);
         if (!cfg_.tls) return fail(FailReason::BadServerData, "server sent datagram keys over an unencrypted channel");
         if (keys->size() != 2 * crypto::KEY_BYTES) return fail(FailReason::BadServerData, "server sent datagram keys of the wrong size");
         crypto::Key down{}, up{};

@@ -35,6 +35,8 @@ static_assert(crypto_sign_BYTES == SIGNATURE_BYTES);
 
 }  // namespace
 
+bool available() { return true; }
+
 void init() {
     if (sodium_init() < 0) throw Error("libsodium could not be initialised");
 }

@@ -32,6 +32,14 @@ namespace progskin::net::crypto {
 // Initialises libsodium (idempotent, thread-safe); throws Error if it cannot.
 void init();
 
+// Whether this build has libsodium (crypto.cpp: true). A build with the CMake
+// option PROGSKIN_CRYPTO=OFF (the WebAssembly client, web/) links
+// crypto_none.cpp instead: false, and every function below that needs
+// libsodium throws Error("sealed datagrams need libsodium, not built into
+// this client"); a client then fails a keyed Welcome with that reason.
+bool available();
+inline constexpr const char* UNAVAILABLE = "sealed datagrams need libsodium, not built into this client";
+
 inline constexpr size_t KEY_BYTES = 32;         // AEAD key
 inline constexpr size_t SEAL_OVERHEAD = 8 + 16; // sequence + tag
 inline constexpr uint64_t REPLAY_WINDOW = 256;

@@ -7,7 +7,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/build.sh
-ctest --test-dir build --output-on-failure -j"$(nproc)"
+# PROGSKIN_REQUIRE_BROWSER: Browser.Loopback fails rather than skips when
+# chromium or the page (build/web) is missing.
+PROGSKIN_REQUIRE_BROWSER=1 ctest --test-dir build --output-on-failure -j"$(nproc)"
 rm -rf build/install build/example-out-of-tree build/install-check
 cmake --install build --prefix build/install >/dev/null
 cmake -S examples -B build/example-out-of-tree -DCMAKE_PREFIX_PATH="$PWD/build/install" >/dev/null

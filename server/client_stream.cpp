@@ -213,7 +213,7 @@ bool ClientStream::on_hello(const wire::Hello& h, double now) {
     const double cap = h.max_kbps() ? std::min(double(h.max_kbps()), cfg.max_kbps) : cfg.max_kbps;
     rate_ = RateController(cap, std::min(cap, cfg.initial_kbps));
     scheduler_.reset(0);
-    if (cfg.seal_datagrams) {
+    if (cfg.seal_datagrams && !never_seal_) {
         tx_key_ = crypto::random_key();
         rx_key_ = crypto::random_key();
         sealer_ = std::make_unique<crypto::Sealer>(tx_key_);

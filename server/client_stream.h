@@ -175,6 +175,11 @@ public:
     // Opens a sealed datagram with this session's key; false when it does not
     // seal, or the datagram is forged, replayed or unsealed.
     bool open_sealed(std::span<const uint8_t> wire, std::vector<uint8_t>& plain);
+    bool sealed() const { return opener_ != nullptr; }  // keys were sent in the Welcome
+    // A WebSocket session (web_endpoint.h): its datagrams travel inside the
+    // connection (TLS with wss://) and are never sealed, even with
+    // ServerConfig::seal_datagrams (its Welcome carries no keys). Before Hello.
+    void never_seal() { never_seal_ = true; }
     // A verified datagram for this session (ServerCore::on_datagram checked
     // the id and token): Bind -> Challenge (or BindAck from the bound address),
     // ChallengeResponse -> bound, Ack -> rate, Pose -> the owned character.
@@ -273,6 +278,7 @@ private:
     // seal_datagrams: server -> client and client -> server keys (sent in the Welcome).
     crypto::Key tx_key_{}, rx_key_{};
     std::unique_ptr<crypto::Sealer> sealer_;
+    bool never_seal_ = false;
     std::unique_ptr<crypto::Opener> opener_;
     uint32_t seq_ = 0;
     RateController rate_;

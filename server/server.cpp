@@ -197,7 +197,8 @@ struct Server::Impl {
         if (const ServerConfig& cfg = core.config(); !cfg.nats_url.empty())
             bus = std::make_unique<WorldBus>(WorldConfig{cfg.nats_url, cfg.world_node, cfg.world_name, cfg.world_cell}, core);
         if (core.config().web_port >= 0) {
-            web = std::make_unique<WebEndpoint>(io, core, sink, core.config().bind_address, uint16_t(core.config().web_port));
+            web = std::make_unique<WebEndpoint>(io, core, sink, core.config().bind_address, uint16_t(core.config().web_port),
+                                                core.config().web_root, tls_ctx.get());
             sink.set_web(web.get());
         }
     }

@@ -59,10 +59,14 @@ struct ServerConfig {
     // unsealed or forged datagrams are dropped and counted.
     bool seal_datagrams = false;
     // >= 0 (off by default, -1): a WebSocket endpoint for browsers at
-    // ws://bind_address:web_port/ws (0: an ephemeral port; web_endpoint.h,
-    // docs/protocol.md "WebSocket transport"). Plain ws:// only for now: not
-    // with tls_cert_file (ServerCore refuses the pair).
+    // ws://bind_address:web_port/ws, or wss:// with TLS (tls_cert_file: the
+    // same certificate as the control channel); 0: an ephemeral port
+    // (web_endpoint.h, docs/protocol.md "WebSocket transport").
     int web_port = -1;
+    // The folder whose files the web port also serves to HTTP GET (the
+    // browser client's page, web_files.h); empty: none (404 saying so).
+    // progskin-server fills it from --web-root or WebFiles::find_root.
+    std::string web_root;
     double asset_bytes_factor = 4.0;  // per-session download limit, x total asset bytes
     size_t max_queued_bytes = 1 << 20;  // per-session control output waiting to be written; more closes the session
     int max_per_address = 64;     // open TCP connections from one IP address (0: no limit)
@@ -149,10 +153,11 @@ struct ServerStats {
     uint64_t accept_errors = 0, backlog_closes = 0, handler_errors = 0;
     uint64_t tls_failures = 0;     // TLS handshakes that failed
     uint64_t tokens_refused = 0;   // connect tokens invalid, expired, for another server or replayed
-    // WebSocket transport (web_endpoint.h): connections accepted, closed for
-    // a malformed or oversized message or upgrade request, datagrams
-    // dropped because the connection's queue was full.
-    uint64_t web_sessions = 0, web_malformed = 0, web_datagrams_dropped = 0;
+    // WebSocket transport (web_endpoint.h): sessions opened (upgrades
+    // accepted), connections closed for a malformed or oversized message or
+    // request, datagrams dropped because the connection's queue was full,
+    // static files served (200s, web_files.h).
+    uint64_t web_sessions = 0, web_malformed = 0, web_datagrams_dropped = 0, web_files_served = 0;
     double tick_seconds = 0;      // total time spent in ticks
     // Every refusal of a budget or admission limit, by reason (docs/protocol.md
     // "Limits"): characters_per_session, characters_per_address, spawn_invalid,

@@ -7,6 +7,7 @@
 #include <sodium.h>
 
 #include "errors.h"
+#include "web_endpoint.h"
 
 namespace progskin::net {
 
@@ -41,8 +42,7 @@ ServerCore::ServerCore(ServerConfig c, ServerAssets a, std::vector<InstanceSpec>
         throw Error("server: TLS needs both a certificate and a private key file");
     if (cfg_.seal_datagrams && !tls()) throw Error("server: sealed datagrams need TLS (their keys travel in the Welcome)");
     if (cfg_.web_port > 65535) throw Error("server: web port must be in [0, 65535]");
-    // Plain ws:// would carry the tokens and the session a TLS control channel protects: not until wss:// is done.
-    if (cfg_.web_port >= 0 && tls()) throw Error("server: the WebSocket endpoint is plain ws:// and not with TLS yet (run with --no-tls)");
+    // With TLS the WebSocket endpoint is wss:// with the same certificate (web_endpoint.h).
     if (!cfg_.token_public_key.empty() && !cfg_.token.empty())
         throw Error("server: an access token and connect tokens both travel in Hello.token; configure one");
     if (!cfg_.token_public_key.empty()) {
@@ -353,7 +353,10 @@ void ServerCore::on_datagram(std::span<const uint8_t> bytes, const PeerAddress& 
     // last Ack crossing the Goodbye): dropped, counted apart from attacks.
     auto late = [&] { count([&](ServerStats& st) { ++st.late_datagrams; }); };
     ClientStream* sealed_by = nullptr;  // seal_datagrams: the session whose key opened it
-    if (cfg_.seal_datagrams) {
+    // A WebSocket session's datagrams come through its connection, never
+    // sealed (ClientStream::never_seal); one naming a sealed session is refused below.
+    const bool web = WebEndpoint::is_web(from);
+    if (cfg_.seal_datagrams && !web) {
         auto it = sessions_.find(crypto::sealed_session_id(bytes));
         if (it == sessions_.end() && closed_recently(crypto::sealed_session_id(bytes), now)) return late();
         if (it == sessions_.end() || !it->second.stream->open_sealed(bytes, opened_))
@@ -365,7 +368,7 @@ void ServerCore::on_datagram(std::span<const uint8_t> bytes, const PeerAddress& 
     if (!d) return reject(true);
     ClientStream* s = route(*d, sealed_by);
     if (!s && !sealed_by && closed_recently(datagram_session(*d), now)) return late();
-    if (!s) return reject(false);
+    if (!s || (web && s->sealed())) return reject(false);
     const DatagramVerdict v = s->on_datagram(*d, bytes.size(), from, now, out);
     if (v != DatagramVerdict::accepted) reject(v == DatagramVerdict::malformed);
 }

@@ -11,6 +11,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
 #include <string>
 #include <sys/resource.h>
 #include <thread>
@@ -20,6 +21,7 @@
 #include "errors.h"
 #include "server.h"
 #include "tls_identity.h"
+#include "web_files.h"
 #include "wire.h"
 
 using namespace progskin;
@@ -34,8 +36,11 @@ static const char* kUsage =
     "                    same number unless --udp-port is given\n"
     "  --udp-port P      UDP frame stream port\n"
     "  --bind ADDR       address to listen on (default 0.0.0.0)\n"
-    "  --web P           also serve browsers: a WebSocket endpoint at ws://ADDR:P/ws (plain\n"
-    "                    ws://, needs --no-tls for now; docs/browser.md)\n"
+    "  --web P           also serve browsers: a WebSocket endpoint at wss://ADDR:P/ws and the\n"
+    "                    browser client's page at https://ADDR:P/ (the control channel's\n"
+    "                    certificate), or ws:// and http:// with --no-tls (docs/browser.md)\n"
+    "  --web-root DIR    the page's folder (default: share/progskin/web of the installed\n"
+    "                    package, else the build tree's web/ from scripts/build_web.sh)\n"
     "  --asset FILE ...  glTF/glb characters (progressive or plain; repeatable): every\n"
     "                    character of FILE, or FILE#N for character N only. Every file is\n"
     "                    checked before anything is built; all problems are listed together\n"
@@ -113,6 +118,7 @@ struct Options {
     bool no_scene = false, once = false;
     bool no_tls = false, seal = true, seal_asked = false;
     std::string tls_dir;
+    std::string web_root;  // --web-root
 };
 
 // Reads argv into `o`. Returns -1 to go on, else the exit code (0: --help, 2: bad arguments).
@@ -135,6 +141,7 @@ static int parse_options(int argc, char** argv, Options& o) {
             } else if (a == "--port") cfg.port = cli::to_port(a, need(i));
             else if (a == "--udp-port") cfg.udp_port = cli::to_port(a, need(i));
             else if (a == "--web") cfg.web_port = cli::to_port(a, need(i));
+            else if (a == "--web-root") o.web_root = need(i);
             else if (a == "--bind") cfg.bind_address = need(i);
             else if (a == "--asset") {
                 o.asset_paths.push_back(need(i));
@@ -231,8 +238,13 @@ static int check_options(const Options& o) {
         std::fprintf(stderr, "progskin-server: --no-tls excludes --tls-cert, --tls-key, --tls-dir and --seal-datagrams\n%s", kUsage);
         return 2;
     }
-    if (cfg.web_port >= 0 && !o.no_tls) {
-        std::fprintf(stderr, "progskin-server: --web is plain ws:// and needs --no-tls for now (wss:// is not done)\n%s", kUsage);
+    if (!o.web_root.empty() && cfg.web_port < 0) {
+        std::fprintf(stderr, "progskin-server: --web-root needs --web\n%s", kUsage);
+        return 2;
+    }
+    if (!o.web_root.empty() && !std::filesystem::is_regular_file(std::filesystem::path(o.web_root) / "index.html")) {
+        std::fprintf(stderr, "progskin-server: --web-root %s: no index.html there (scripts/build_web.sh builds build/web)\n",
+                     o.web_root.c_str());
         return 2;
     }
     if (cfg.tls_cert_file.empty() != cfg.tls_key_file.empty()) {
@@ -383,6 +395,7 @@ int main(int argc, char** argv) {
     Options o;
     if (int rc = parse_options(argc, argv, o); rc >= 0) return rc;
     if (int rc = check_options(o); rc >= 0) return rc;
+    if (o.cfg.web_port >= 0) o.cfg.web_root = WebFiles::find_root(o.web_root, "/proc/self/exe");
     std::string tls_line;  // printed with the listening line
     try {
         tls_line = setup_tls(o);
@@ -419,7 +432,15 @@ int main(int argc, char** argv) {
         std::printf("progskin-server: listening on TCP %u, UDP %u, %zu instances, %.0f Hz%s\n", server.tcp_port(),
                     server.udp_port(), instances.size(), double(o.cfg.tick_rate),
                     o.no_tls ? ", plain TCP (no TLS)" : o.cfg.seal_datagrams ? ", TLS, sealed datagrams" : ", TLS");
-        if (server.web_port()) std::printf("progskin-server: WebSocket endpoint ws://%s:%u/ws\n", o.cfg.bind_address.c_str(), server.web_port());
+        if (server.web_port()) {
+            const char* s = o.no_tls ? "" : "s";
+            std::printf("progskin-server: WebSocket endpoint ws%s://%s:%u/ws\n", s, o.cfg.bind_address.c_str(), server.web_port());
+            if (!o.cfg.web_root.empty())
+                std::printf("progskin-server: browser page http%s://%s:%u/ from %s\n", s, o.cfg.bind_address.c_str(),
+                            server.web_port(), o.cfg.web_root.c_str());
+            else
+                std::printf("progskin-server: no browser page to serve (scripts/build_web.sh builds it; --web-root DIR)\n");
+        }
         std::printf("progskin-server: %d tick thread%s%s\n", tick_threads(o.cfg), tick_threads(o.cfg) == 1 ? "" : "s",
                     tick_threads(o.cfg) == 1 ? " (connections on the same thread)" : " + 1 for connections");
         std::fflush(stdout);

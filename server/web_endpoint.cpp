@@ -97,6 +97,7 @@ void websocket_frame(std::span<const uint8_t> payload, uint8_t kind, const uint8
 
 struct WebEndpoint::Conn {
     tcp::socket sock;
+    std::unique_ptr<asio::ssl::stream<tcp::socket&>> tls;  // wss:// (the endpoint has a TLS context)
     std::shared_ptr<ClientStream> stream;
     PeerAddress address;
     asio::streambuf request{kMaxRequestBytes};
@@ -114,9 +115,23 @@ struct WebEndpoint::Conn {
     Conn(tcp::socket s, asio::io_context& io) : sock(std::move(s)), linger(io) {}
 };
 
+namespace {
+// The connection's byte stream: TLS over the socket for wss://, else the socket.
+template <class Buffers, class Handler>
+void read_all(WebEndpoint::Conn& c, const Buffers& b, Handler&& h) {
+    if (c.tls) asio::async_read(*c.tls, b, std::forward<Handler>(h));
+    else asio::async_read(c.sock, b, std::forward<Handler>(h));
+}
+template <class Buffers, class Handler>
+void write_all(WebEndpoint::Conn& c, const Buffers& b, Handler&& h) {
+    if (c.tls) asio::async_write(*c.tls, b, std::forward<Handler>(h));
+    else asio::async_write(c.sock, b, std::forward<Handler>(h));
+}
+}  // namespace
+
 WebEndpoint::WebEndpoint(asio::io_context& io, ServerCore& core, DatagramSink& sink, const std::string& bind_address,
-                         uint16_t port)
-    : io_(io), core_(core), sink_(sink), acceptor_(io) {
+                         uint16_t port, const std::string& web_root, asio::ssl::context* tls)
+    : io_(io), core_(core), sink_(sink), acceptor_(io), tls_(tls), files_(web_root) {
     asio::error_code ec;
     const tcp::endpoint ep(asio::ip::make_address(bind_address, ec), port);
     if (!ec) acceptor_.open(ep.protocol(), ec);
@@ -139,24 +154,32 @@ void WebEndpoint::accept() {
         if (!ec) {
             asio::error_code ig;
             s.set_option(tcp::no_delay(true), ig);
-            const auto remote = s.remote_endpoint(ig).address();
-            if (!ig) {
+            std::lock_guard lock(core_.mutex());
+            if (pending_.size() >= kMaxPending) {  // too many waiting for their request: closed at once
+                core_.refused("web_too_many_pending");
+                s.close(ig);
+            } else {
                 auto c = std::make_shared<Conn>(std::move(s), io_);
-                std::lock_guard lock(core_.mutex());
-                c->stream = core_.open(peer_ip(remote), now_seconds());
-                core_.count([](ServerStats& st) { ++st.web_sessions; });
-                if (c->stream->state() != SessionState::AwaitHello) {  // refused: closed without a word
-                    c->closed = true;
-                    c->sock.close(ig);
-                    asio::post(io_, [this, id = c->stream->id()] {
-                        std::lock_guard l(core_.mutex());
-                        core_.erase(id, now_seconds());
-                    });
-                } else {
-                    c->address = web_address(next_number_++);
-                    conns_[c->stream->id()] = c;
-                    by_number_[number_of(c->address)] = c;
+                pending_[c.get()] = c;
+                c->linger.expires_after(std::chrono::milliseconds(int(kRequestSeconds * 1000)));
+                c->linger.async_wait([this, c](asio::error_code e) {
+                    if (e) return;
+                    std::lock_guard l(core_.mutex());
+                    if (!c->upgraded && !c->closed) drop_pending(c, false);
+                });
+                if (!tls_) {
                     handshake(c);
+                } else {  // wss:// (and https:// for the files): the TLS handshake first, within kRequestSeconds
+                    c->tls = std::make_unique<asio::ssl::stream<tcp::socket&>>(c->sock, *tls_);
+                    c->tls->async_handshake(asio::ssl::stream_base::server, [this, c](asio::error_code e) {
+                        std::lock_guard l(core_.mutex());
+                        if (c->closed) return;
+                        if (e) {
+                            core_.count([](ServerStats& st) { ++st.tls_failures; });
+                            return drop_pending(c, false);
+                        }
+                        handshake(c);
+                    });
                 }
             }
         }
@@ -164,23 +187,77 @@ void WebEndpoint::accept() {
     });
 }
 
-// The HTTP upgrade (GET /ws, Upgrade: websocket, a key), answered 101; then frames.
+void WebEndpoint::drop_pending(const std::shared_ptr<Conn>& c, bool malformed) {
+    if (malformed) core_.count([](ServerStats& st) { ++st.web_malformed; });
+    c->closed = true;
+    c->linger.cancel();
+    asio::error_code ig;
+    c->sock.shutdown(tcp::socket::shutdown_both, ig);
+    c->sock.close(ig);
+    pending_.erase(c.get());
+}
+
+// The request: GET /ws with Upgrade: websocket and a key opens a session and
+// is answered 101 (then frames); another GET or HEAD is answered from the
+// static files and closed; anything else 404 or 405, closed and counted.
 void WebEndpoint::handshake(const std::shared_ptr<Conn>& c) {
-    asio::async_read_until(c->sock, c->request, "\r\n\r\n", [this, c](asio::error_code ec, size_t n) {
+    auto on_request = [this, c](asio::error_code ec, size_t n) {
         std::lock_guard lock(core_.mutex());
         if (c->closed) return;
-        if (ec) return fail(c, "web handshake: " + ec.message(), ec == asio::error::not_found, true);
+        if (ec) return drop_pending(c, ec == asio::error::not_found);  // not_found: over kMaxRequestBytes
         const std::string req(asio::buffers_begin(c->request.data()), asio::buffers_begin(c->request.data()) + std::ptrdiff_t(n));
         c->request.consume(n);
         const std::string key = header(req, "sec-websocket-key");
         std::string upgrade = header(req, "upgrade");
         std::transform(upgrade.begin(), upgrade.end(), upgrade.begin(), [](unsigned char ch) { return char(std::tolower(ch)); });
-        if (req.rfind("GET /ws ", 0) != 0 || upgrade != "websocket" || key.empty() || c->request.size() != 0) {
-            const std::string no = "HTTP/1.1 404 Not Found\r\nContent-Length: 0\r\nConnection: close\r\n\r\n";
-            asio::error_code ig;
-            asio::write(c->sock, asio::buffer(no), ig);  // small: fits the socket's buffer
-            return fail(c, "web handshake: not a WebSocket request for /ws", true);
+        if (upgrade.empty() && c->request.size() == 0) {  // a plain HTTP request: a static file
+            const size_t sp1 = req.find(' '), sp2 = sp1 == std::string::npos ? sp1 : req.find(' ', sp1 + 1);
+            const size_t eol = req.find("\r\n");
+            if (sp1 == std::string::npos || sp2 == std::string::npos || sp2 > eol) return drop_pending(c, true);
+            int status = 0;
+            auto bytes = std::make_shared<std::vector<uint8_t>>(
+                files_.respond(req.substr(0, sp1), req.substr(sp1 + 1, sp2 - sp1 - 1), status));
+            if (status == 200) core_.count([](ServerStats& st) { ++st.web_files_served; });
+            write_all(*c, asio::buffer(*bytes), [this, c, bytes](asio::error_code, size_t) {
+                std::lock_guard l(core_.mutex());
+                if (!c->closed) drop_pending(c, false);
+            });
+            return;
         }
+        if (req.rfind("GET /ws ", 0) != 0 || upgrade != "websocket" || key.empty() || c->request.size() != 0) {
+            static const std::string no = "HTTP/1.1 404 Not Found\r\nContent-Length: 0\r\nConnection: close\r\n\r\n";
+            core_.count([](ServerStats& st) { ++st.web_malformed; });
+            write_all(*c, asio::buffer(no), [this, c](asio::error_code, size_t) {
+                std::lock_guard l(core_.mutex());
+                if (!c->closed) drop_pending(c, false);
+            });
+            return;
+        }
+        // A WebSocket: one session, as a TCP connection is.
+        pending_.erase(c.get());
+        c->linger.cancel();
+        asio::error_code ig;
+        const auto remote = c->sock.remote_endpoint(ig).address();
+        if (ig) {
+            c->closed = true;
+            c->sock.close(ig);
+            return;
+        }
+        c->stream = core_.open(peer_ip(remote), now_seconds());
+        c->stream->never_seal();  // its datagrams travel inside this connection
+        core_.count([](ServerStats& st) { ++st.web_sessions; });
+        if (c->stream->state() != SessionState::AwaitHello) {  // refused: closed without a word
+            c->closed = true;
+            c->sock.close(ig);
+            asio::post(io_, [this, id = c->stream->id()] {
+                std::lock_guard l(core_.mutex());
+                core_.erase(id, now_seconds());
+            });
+            return;
+        }
+        c->address = web_address(next_number_++);
+        conns_[c->stream->id()] = c;
+        by_number_[number_of(c->address)] = c;
         const std::string ok = "HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
                                "Sec-WebSocket-Accept: " + websocket_accept(key) + "\r\n\r\n";
         c->writes.emplace_back(ok.begin(), ok.end());
@@ -188,12 +265,14 @@ void WebEndpoint::handshake(const std::shared_ptr<Conn>& c) {
         c->upgraded = true;
         pump(c);
         read_frame(c);
-    });
+    };
+    if (c->tls) asio::async_read_until(*c->tls, c->request, "\r\n\r\n", on_request);
+    else asio::async_read_until(c->sock, c->request, "\r\n\r\n", on_request);
 }
 
 // One frame: a client's, masked, unfragmented, binary (or ping, pong, close).
 void WebEndpoint::read_frame(const std::shared_ptr<Conn>& c) {
-    asio::async_read(c->sock, asio::buffer(c->head, 2), [this, c](asio::error_code ec, size_t) {
+    read_all(*c, asio::buffer(c->head, 2), [this, c](asio::error_code ec, size_t) {
         std::lock_guard lock(core_.mutex());
         if (c->closed) return;
         if (ec) return fail(c, "web read: " + ec.message(), false, true);
@@ -201,7 +280,7 @@ void WebEndpoint::read_frame(const std::shared_ptr<Conn>& c) {
         if ((c->head[0] & 0xf0) != 0x80 || !(c->head[1] & 0x80) || (op != 2 && op != 8 && op != 9 && op != 10))
             return fail(c, "web: not a masked unfragmented binary frame", true);
         const size_t extra = (len7 == 126 ? 2 : len7 == 127 ? 8 : 0) + 4;
-        asio::async_read(c->sock, asio::buffer(c->head + 2, extra), [this, c, op, len7, extra](asio::error_code ec2, size_t) {
+        read_all(*c, asio::buffer(c->head + 2, extra), [this, c, op, len7, extra](asio::error_code ec2, size_t) {
             std::lock_guard lock2(core_.mutex());
             if (c->closed) return;
             if (ec2) return fail(c, "web read: " + ec2.message(), false, true);
@@ -213,7 +292,7 @@ void WebEndpoint::read_frame(const std::shared_ptr<Conn>& c) {
             }
             c->message.resize(size_t(n) + 1);
             c->message[0] = op;  // the opcode, then the payload
-            asio::async_read(c->sock, asio::buffer(c->message.data() + 1, size_t(n)), [this, c, extra](asio::error_code ec3, size_t) {
+            read_all(*c, asio::buffer(c->message.data() + 1, size_t(n)), [this, c, extra](asio::error_code ec3, size_t) {
                 std::lock_guard lock3(core_.mutex());
                 if (c->closed) return;
                 if (ec3) return fail(c, "web read: " + ec3.message(), false, true);
@@ -324,7 +403,7 @@ void WebEndpoint::pump(const std::shared_ptr<Conn>& c) {
 
 void WebEndpoint::write_next(const std::shared_ptr<Conn>& c) {
     c->writing = true;
-    asio::async_write(c->sock, asio::buffer(c->writes.front()), [this, c](asio::error_code ec, size_t) {
+    write_all(*c, asio::buffer(c->writes.front()), [this, c](asio::error_code ec, size_t) {
         std::lock_guard lock(core_.mutex());
         c->writing = false;
         if (c->closed) return;
@@ -398,6 +477,12 @@ bool WebEndpoint::writing() const {
 void WebEndpoint::close_all() {
     asio::error_code ig;
     acceptor_.close(ig);
+    for (auto& [p, c] : pending_) {
+        c->closed = true;
+        c->linger.cancel();
+        c->sock.close(ig);
+    }
+    pending_.clear();
     for (auto& [id, c] : conns_) {
         c->closed = true;
         c->sock.close(ig);

@@ -1,16 +1,23 @@
 // web_endpoint.h — the WebSocket transport for browser clients (issue 28;
 // docs/protocol.md "WebSocket transport", docs/browser.md): a listener on
-// ServerConfig::web_port serving RFC 6455 at the path /ws, plain ws:// (not
-// with TLS yet: ServerCore refuses web_port with a TLS control channel). One
+// ServerConfig::web_port serving RFC 6455 at the path /ws: plain ws://, or
+// wss:// when the server has TLS (the control channel's certificate; every
+// connection's TLS handshake first, within kRequestSeconds). One
 // WebSocket connection is one server session (the same ServerCore /
 // ClientStream as a TCP client). Binary messages only, the first byte the
 // kind: 1 = one control message framed as on TCP (4-byte length, body),
 // 2 = one datagram as on UDP. The session's datagram "address" is a
 // synthetic IPv6 address (fd70:736b:7773::/48 + a connection number, port 0)
+// whose datagrams are never sealed (ClientStream::never_seal),
 // that the UDP socket (IPv4 only) can never see; the shell's sink hands
 // datagrams to such addresses to send_datagram instead of sendto.
 //
-// Bounds: an incoming message at most 1 + 4 + MAX_CONTROL_MESSAGE bytes
+// Any other GET (or HEAD) is answered from the read-only static files of
+// ServerConfig::web_root (web_files.h: the browser client's page), one
+// response and the connection closed; such a connection opens no session.
+//
+// Bounds: at most kMaxPending connections waiting for their request (more
+// are closed at once), each for at most kRequestSeconds; an incoming message at most 1 + 4 + MAX_CONTROL_MESSAGE bytes
 // (a control message) or 1 + MAX_DATAGRAM (a datagram), else the connection
 // is closed and counted (web_malformed); the HTTP upgrade request at most
 // kMaxRequestBytes. Outgoing: datagrams waiting for one connection at most
@@ -29,8 +36,10 @@
 #include <span>
 
 #include <asio.hpp>
+#include <asio/ssl.hpp>
 
 #include "server_core.h"
+#include "web_files.h"
 
 namespace progskin::net {
 
@@ -38,8 +47,13 @@ class WebEndpoint {
 public:
     static constexpr size_t kMaxRequestBytes = 8192;
     static constexpr size_t kMaxQueuedDatagramBytes = 256 * 1024;
+    static constexpr size_t kMaxPending = 64;        // connections before their request is handled
+    static constexpr double kRequestSeconds = 10.0;  // to send the request (and receive a file)
     // Binds bind_address:port (0: ephemeral); throws Error.
-    WebEndpoint(asio::io_context& io, ServerCore& core, DatagramSink& sink, const std::string& bind_address, uint16_t port);
+    // web_root: the static files' folder (web_files.h), or empty. tls: the
+    // control channel's TLS context (wss:// and https://), or nullptr (ws://).
+    WebEndpoint(asio::io_context& io, ServerCore& core, DatagramSink& sink, const std::string& bind_address, uint16_t port,
+                const std::string& web_root = {}, asio::ssl::context* tls = nullptr);
     ~WebEndpoint();
     uint16_t port() const { return port_; }
     void start();  // accepting
@@ -60,6 +74,8 @@ public:
 private:
     void accept();
     void handshake(const std::shared_ptr<Conn>& c);
+    // Before the upgrade (no session yet): the connection closed, counted when malformed.
+    void drop_pending(const std::shared_ptr<Conn>& c, bool malformed);
     void read_frame(const std::shared_ptr<Conn>& c);
     void on_message(const std::shared_ptr<Conn>& c);
     void pump(const std::shared_ptr<Conn>& c);
@@ -76,6 +92,9 @@ private:
     uint64_t next_number_ = 1;
     std::map<uint64_t, std::shared_ptr<Conn>> by_number_;  // by address number; changed only with the core held
     std::map<uint64_t, std::shared_ptr<Conn>> conns_;          // by session id
+    std::map<Conn*, std::shared_ptr<Conn>> pending_;           // before the request is handled (no session)
+    asio::ssl::context* tls_ = nullptr;
+    WebFiles files_;
 };
 
 // RFC 6455 pieces, shared with the tests' client: Sec-WebSocket-Accept for a

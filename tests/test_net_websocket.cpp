@@ -9,10 +9,14 @@
 
 #include <asio.hpp>
 #include <deque>
+#include <filesystem>
+#include <fstream>
 
+#include "errors.h"
 #include "net_test_support.h"
 #include "session.h"
 #include "web_endpoint.h"
+#include "web_files.h"
 #include "wire.h"
 
 using namespace progskin;
@@ -238,4 +242,86 @@ TEST(NetWebSocket, BadPeersAreDroppedWhileUdpStreams) {
     EXPECT_EQ(report.characters, 4);
     EXPECT_GE(report.datagrams, 60u);
     EXPECT_EQ(report.malformed, 0u);
+}
+
+namespace {
+// One raw HTTP request on a fresh connection; the whole response (the server closes).
+std::string http(uint16_t port, const std::string& request) {
+    asio::io_context io;
+    tcp::socket s(io);
+    s.connect({asio::ip::make_address("127.0.0.1"), port});
+    asio::write(s, asio::buffer(request));
+    std::string out;
+    asio::error_code ec;
+    char buf[65536];
+    for (;;) {
+        const size_t n = s.read_some(asio::buffer(buf), ec);
+        if (ec) break;
+        out.append(buf, n);
+    }
+    return out;
+}
+std::string get(uint16_t port, const std::string& target) {
+    return http(port, "GET " + target + " HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
+}
+}  // namespace
+
+// The web port also serves the page's static files (web_files.h): index.html
+// for "/", the wasm as application/wasm, HEAD without a body; "..", escapes,
+// hidden files, symbolic links out of the root and other methods refused;
+// no session is opened for a file request; the WebSocket still works beside.
+TEST(NetWebSocket, StaticFilesServedReadOnlyAndBounded) {
+    namespace fs = std::filesystem;
+    const fs::path root = fs::path(RunningServer::cache_dir()) / "web-root";
+    fs::remove_all(root);
+    fs::create_directories(root / "sub");
+    std::ofstream(root / "index.html") << "<!doctype html><title>t</title>";
+    std::ofstream(root / "client.wasm") << std::string("\0asm\1\0\0\0", 8);
+    std::ofstream(root / "sub" / "x.js") << "export {};";
+    std::ofstream(root / ".hidden") << "secret";
+    std::ofstream(root.parent_path() / "outside.txt") << "outside";
+    std::error_code ec;
+    fs::create_symlink(root.parent_path() / "outside.txt", root / "escape.txt", ec);
+    ASSERT_FALSE(ec) << ec.message();
+
+    ServerConfig cfg = web_config();
+    cfg.web_root = root.string();
+    RunningServer s({}, cfg);
+    const uint16_t port = s.server->web_port();
+    std::string r = get(port, "/");
+    EXPECT_EQ(r.rfind("HTTP/1.1 200 OK\r\n", 0), 0u) << r;
+    EXPECT_NE(r.find("Content-Type: text/html; charset=utf-8\r\n"), std::string::npos) << r;
+    EXPECT_NE(r.find("<!doctype html>"), std::string::npos);
+    r = get(port, "/client.wasm?v=1");
+    EXPECT_EQ(r.rfind("HTTP/1.1 200 OK\r\n", 0), 0u) << r;
+    EXPECT_NE(r.find("Content-Type: application/wasm\r\n"), std::string::npos) << r;
+    EXPECT_NE(r.find("Content-Length: 8\r\n"), std::string::npos) << r;
+    r = get(port, "/sub/x.js");
+    EXPECT_NE(r.find("Content-Type: text/javascript; charset=utf-8\r\n"), std::string::npos) << r;
+    r = http(port, "HEAD /index.html HTTP/1.1\r\n\r\n");
+    EXPECT_EQ(r.rfind("HTTP/1.1 200 OK\r\n", 0), 0u) << r;
+    EXPECT_EQ(r.find("<!doctype"), std::string::npos) << "HEAD has no body";
+    for (const char* bad : {"/../outside.txt", "/sub/../index.html", "/%2e%2e/outside.txt", "/.hidden", "//index.html",
+                            "/a\\b", "index.html"})
+        EXPECT_EQ(get(port, bad).rfind("HTTP/1.1 400 ", 0), 0u) << bad;
+    EXPECT_EQ(get(port, "/escape.txt").rfind("HTTP/1.1 404 ", 0), 0u) << "a link out of the root";
+    EXPECT_EQ(get(port, "/missing.js").rfind("HTTP/1.1 404 ", 0), 0u);
+    EXPECT_EQ(get(port, "/" + std::string(300, 'a')).rfind("HTTP/1.1 400 ", 0), 0u) << "target over kMaxTarget";
+    EXPECT_EQ(http(port, "POST /index.html HTTP/1.1\r\nContent-Length: 0\r\n\r\n").rfind("HTTP/1.1 405 ", 0), 0u);
+    // A request over kMaxRequestBytes: closed, counted.
+    EXPECT_EQ(http(port, "GET /" + std::string(WebEndpoint::kMaxRequestBytes, 'a')), "");
+
+    WsClient ws(port);  // the WebSocket beside the files
+    EXPECT_NE(ws.response().find("101 Switching Protocols"), std::string::npos) << ws.response();
+    const ServerStats st = s.server->stats();
+    EXPECT_EQ(st.web_files_served, 4u);  // /, wasm, x.js, HEAD (none of the refusals)
+    EXPECT_EQ(st.web_sessions, 1u);      // only the WebSocket opened a session
+    EXPECT_EQ(st.web_malformed, 1u);     // the oversized request
+
+    // Without a root every file is 404 saying how to build the page.
+    int status = 0;
+    const auto none = WebFiles("").respond("GET", "/index.html", status);
+    EXPECT_EQ(status, 404);
+    EXPECT_NE(std::string(none.begin(), none.end()).find("scripts/build_web.sh"), std::string::npos);
+    EXPECT_THROW(WebFiles((root / "index.html").string()), Error);
 }
