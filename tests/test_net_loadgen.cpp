@@ -18,6 +18,7 @@
 
 #include "alloc_counter.h"  // the one source file of this executable that includes it
 #include "loadgen.h"
+#include "nats_test_support.h"
 #include "net_test_support.h"
 #include "run_command.h"
 
@@ -150,41 +151,10 @@ TEST(NetLoadgen, ProgramArgumentsAndReportOnFailure) {
     EXPECT_EQ(j["failed"], 3);
 }
 
-bool have_nats_server() { return std::system("command -v nats-server >/dev/null 2>&1") == 0; }
-
-uint16_t free_port() {
-    const int s = ::socket(AF_INET, SOCK_STREAM, 0);
-    sockaddr_in a{};
-    a.sin_family = AF_INET;
-    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    socklen_t n = sizeof a;
-    ::bind(s, reinterpret_cast<sockaddr*>(&a), sizeof a);
-    ::getsockname(s, reinterpret_cast<sockaddr*>(&a), &n);
-    ::close(s);
-    return ntohs(a.sin_port);
-}
-
-bool accepts(uint16_t port) {
-    const int s = ::socket(AF_INET, SOCK_STREAM, 0);
-    sockaddr_in a{};
-    a.sin_family = AF_INET;
-    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    a.sin_port = htons(port);
-    const bool ok = ::connect(s, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0;
-    ::close(s);
-    return ok;
-}
-
 TEST(NetLoadgen, WorldOfTwoNodesCrossNodeLatency) {
     if (!have_nats_server()) GTEST_SKIP() << "nats-server is not installed";
-    const uint16_t port = free_port();
-    const pid_t nats = ::fork();
-    if (nats == 0) {
-        const std::string p = std::to_string(port);
-        ::execlp("nats-server", "nats-server", "-a", "127.0.0.1", "-p", p.c_str(), static_cast<char*>(nullptr));
-        ::_exit(127);
-    }
-    for (int i = 0; i < 200 && !accepts(port); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    NatsServer nats(free_port());
+    const uint16_t port = nats.port();
     LoadReport r;
     LoadOptions o;
     {
@@ -199,8 +169,7 @@ TEST(NetLoadgen, WorldOfTwoNodesCrossNodeLatency) {
         o = options({a.address(), b.address()}, 12);
         r = run_loadgen(o);
     }
-    ::kill(nats, SIGKILL);
-    ::waitpid(nats, nullptr, 0);
+    nats.stop();
     SCOPED_TRACE(report_table(r, o));
     EXPECT_TRUE(r.ok) << r.error;
     EXPECT_EQ(r.joined, 12);

@@ -16,6 +16,7 @@
 #include <thread>
 
 #include "errors.h"
+#include "nats_test_support.h"
 #include "net_test_support.h"
 #include "world_message.h"
 
@@ -24,58 +25,6 @@ using namespace progskin::net;
 using namespace progskin::net::testing;
 
 namespace {
-
-bool have_nats_server() { return std::system("command -v nats-server >/dev/null 2>&1") == 0; }
-
-uint16_t free_port() {
-    const int s = ::socket(AF_INET, SOCK_STREAM, 0);
-    sockaddr_in a{};
-    a.sin_family = AF_INET;
-    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    socklen_t n = sizeof a;
-    ::bind(s, reinterpret_cast<sockaddr*>(&a), sizeof a);
-    ::getsockname(s, reinterpret_cast<sockaddr*>(&a), &n);
-    ::close(s);
-    return ntohs(a.sin_port);
-}
-
-bool accepts(uint16_t port) {
-    const int s = ::socket(AF_INET, SOCK_STREAM, 0);
-    sockaddr_in a{};
-    a.sin_family = AF_INET;
-    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    a.sin_port = htons(port);
-    const bool ok = ::connect(s, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0;
-    ::close(s);
-    return ok;
-}
-
-// A real nats-server on loopback, started and killed by the test.
-class NatsServer {
-public:
-    explicit NatsServer(uint16_t port) : port_(port) { start(); }
-    ~NatsServer() { stop(); }
-    void start() {
-        pid_ = ::fork();
-        if (pid_ == 0) {
-            const std::string p = std::to_string(port_);
-            ::execlp("nats-server", "nats-server", "-a", "127.0.0.1", "-p", p.c_str(), static_cast<char*>(nullptr));
-            ::_exit(127);
-        }
-        for (int i = 0; i < 200 && !accepts(port_); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
-    }
-    void stop() {
-        if (pid_ <= 0) return;
-        ::kill(pid_, SIGKILL);
-        ::waitpid(pid_, nullptr, 0);
-        pid_ = 0;
-    }
-    std::string url() const { return "nats://127.0.0.1:" + std::to_string(port_); }
-
-private:
-    uint16_t port_;
-    pid_t pid_ = 0;
-};
 
 ServerConfig node(const NatsServer& nats, const std::string& name) {
     ServerConfig cfg;
