@@ -376,7 +376,7 @@ bool Scheduler::share_allows(size_t inst, size_t bytes) {
     const uint32_t g = group_of(inst);
     if (g == 0) return true;
     if (group_spent_.size() <= g) group_spent_.resize(size_t(g) + 1, 0);
-    if (group_spent_[g] + bytes > share_now_) {
+    if (group_spent_[g] + bytes > credit_of(g)) {
         share_left_[inst] = 1;
         return false;
     }
@@ -526,6 +526,16 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     }
     owners += full > grouped;
     share_now_ = owners ? std::min(share_bytes_, budget / owners) : share_bytes_;
+    // Each group's credit: its share every tick, kept up to one chunk's
+    // worth (kShareDepth) when the share is thinner than that, so that many
+    // owners of an equal thin share each send a chunk every few ticks
+    // rather than none ever (200 one-character players at 256 kbit/s: 5
+    // bytes a tick each).
+    if (group_credit_.size() < group_full_.size()) group_credit_.resize(group_full_.size(), 0);
+    for (size_t g = 1; g < group_full_.size(); ++g) {
+        const size_t depth = std::max(share_now_, std::min(group_full_[g], kShareDepth));
+        group_credit_[g] = std::min(group_credit_[g] + share_now_, depth);
+    }
     // What the shares let through: a group's payload beyond its share never goes.
     size_t free_payload = full, shared = 0;
     bool over = false;
@@ -554,6 +564,8 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         take_greedily(budget, take_stale_roots(frame, budget, 0));
         limited_ = left_something();
     }
+    for (size_t g = 1; g < group_spent_.size() && g < group_credit_.size(); ++g)
+        group_credit_[g] -= std::min(group_credit_[g], group_spent_[g]);
     chosen_picks(out);
     std::stable_sort(out.begin(), out.end(), by_importance);
     return estimate(frame, out);
@@ -612,7 +624,7 @@ size_t Scheduler::take_stale_roots(const EncodedFrame& frame, size_t budget, siz
         const uint32_t g = group_of(i);
         if (g > 0) {
             if (group_spent_.size() <= g) group_spent_.resize(size_t(g) + 1, 0);
-            if (group_spent_[g] > 0 && group_spent_[g] + bytes > share_now_) continue;
+            if (group_spent_[g] > 0 && group_spent_[g] + bytes > credit_of(g)) continue;
             group_spent_[g] += bytes;
         }
         charge(i, bytes, payload);

@@ -268,6 +268,12 @@ private:
     size_t share_now_ = 0;  // this tick's: share_bytes_, at most budget / owners with content
     std::vector<size_t> group_spent_;
     std::vector<uint8_t> share_left_;
+    // Per group: payload it may take this tick (its share each tick, kept
+    // up to kShareDepth across ticks when the share is thinner); what it
+    // takes is spent at the end of select.
+    std::vector<size_t> group_credit_;
+    static constexpr size_t kShareDepth = 512;
+    size_t credit_of(uint32_t g) const { return g < group_credit_.size() ? std::max(group_credit_[g], share_now_) : share_now_; }
 };
 
 }  // namespace progskin::net
