@@ -408,6 +408,47 @@ TEST(Scheduler, OneOwnersCharactersTakeAtMostTheirShare) {
     }
 }
 
+// Many owners, each with a share thinner than any chunk (a crowd of
+// one-character players): the share is a credit kept from tick to tick
+// (Scheduler::kShareDepth), so every owner's character goes every few ticks
+// instead of only the few the greedy pass reaches first, and over the
+// window no owner takes more than its share per tick plus one depth.
+TEST(Scheduler, ThinSharesAreKeptAcrossTicksSoEveryOwnerSends) {
+    Session s(40);
+    std::vector<uint32_t> group(s.specs.size());
+    for (size_t i = 0; i < group.size(); ++i) group[i] = uint32_t(i + 1);  // one owner per instance
+    const size_t share = 12;  // bytes per tick: less than a chunk header and one record
+    s.sched.set_shares(group, share);
+    const int ticks = 90;
+    std::vector<size_t> taken(s.specs.size(), 0);
+    std::vector<int> sent_ticks(s.specs.size(), 0);
+    for (uint32_t t = 1; t <= uint32_t(ticks); ++t) {
+        const EncodedFrame& f = s.enc.encode(t);
+        std::vector<Pick> picks;
+        s.sched.select(f, s.assets, s.importance, 4000, 30.0f, picks);
+        std::map<int, size_t> bytes;
+        for (const Pick& p : picks) {
+            const EncodedInstance& e = f.instances[size_t(p.instance)];
+            if (!bytes.count(p.instance)) bytes[p.instance] = WireCost::header(e);
+            bytes[p.instance] += size_t(std::max(0, p.k - p.first)) * size_t(e.record_size) + morph_block_bytes(p.morphs);
+        }
+        for (const auto& [i, b] : bytes) {
+            taken[size_t(i)] += b;
+            sent_ticks[size_t(i)] += b > 0;
+        }
+        s.sched.sent(picks, t);
+    }
+    for (size_t i = 0; i < s.specs.size(); ++i) {
+        EXPECT_GE(sent_ticks[i], 2) << "instance " << i << " (its own owner) sent in " << sent_ticks[i] << " of " << ticks << " ticks";
+        EXPECT_LE(taken[i], share * size_t(ticks) + 512) << "instance " << i;
+    }
+    size_t total = 0;
+    for (size_t b : taken) total += b;
+    std::printf("thin shares: %zu bytes per tick of a %zu share x %zu owners\n", total / ticks, share, taken.size());
+    // The stream fills what the shares allow (without the credit: 46 of 480).
+    EXPECT_GE(total / size_t(ticks), share * taken.size() * 8 / 10);
+}
+
 // A live character posed once and never again: sent whole once, then
 // nothing until its hold runs out, then refreshed (a static character costs
 // its observers one frame per hold, not one per tick).
