@@ -4,7 +4,7 @@ set -euo pipefail
 PKGS=(build-essential cmake pkg-config libasio-dev libflatbuffers-dev flatbuffers-compiler
       libglm-dev libeigen3-dev libtinygltf-dev nlohmann-json3-dev libgtest-dev libbenchmark-dev
       libegl-dev libgl-dev libegl-mesa0 libgl1-mesa-dri libstb-dev gnuplot-nox libsodium-dev libssl-dev
-      libhwy-dev mono-mcs mono-runtime libnats-dev nats-server
+      libhwy-dev mono-mcs mono-runtime libnats-dev nats-server openssl
       emscripten chromium)  # the browser client (scripts/build_web.sh) and its test (docs/browser.md)
 missing=()
 for p in "${PKGS[@]}"; do

@@ -115,6 +115,8 @@ struct ServerConfig {
     // One world across servers (docs/deployment.md): non-empty, the NATS
     // server this node joins (nats://HOST:PORT; needs a build with libnats).
     std::string nats_url;
+    // TLS to the NATS server (WorldConfig): CA file, this node's certificate and key.
+    std::string nats_ca_file, nats_cert_file, nats_key_file;
     std::string world_node = "node";   // this node's name in the world's logs
     std::string world_name = "default";
     double world_cell = 16.0;          // side of a bus cell, world units

@@ -58,9 +58,13 @@ static const char* kUsage =
     "                    machine's cores). With more than 1, connections (TLS handshakes,\n"
     "                    control messages, asset downloads) also get a thread of their own\n"
     "                    and never delay a tick; 1: one thread for everything\n"
-    "  --nats URL        join a world of servers on this NATS server (nats://HOST:PORT):\n"
-    "                    this node's characters go on the bus by spatial cell, the other\n"
-    "                    nodes' come into this scene (docs/deployment.md)\n"
+    "  --nats URL        join a world of servers on this NATS server (nats://HOST:PORT, or\n"
+    "                    tls://HOST:PORT for TLS): this node's characters go on the bus by\n"
+    "                    spatial cell, the other nodes' come into this scene (docs/deployment.md)\n"
+    "  --nats-ca FILE    TLS to the NATS server, trusting the certificates in this PEM file\n"
+    "                    (default with tls://: the system's trust store)\n"
+    "  --nats-cert FILE  this node's TLS certificate for a NATS server that verifies its\n"
+    "  --nats-key FILE   clients (nats-server --tlsverify); they go together\n"
     "  --node NAME       this node's name in the world's logs (default: node)\n"
     "  --world NAME      the world's name, its bus subjects (default: default)\n"
     "  --world-cell M    side of a bus cell in world units (default 16)\n"
@@ -163,6 +167,9 @@ static int parse_options(int argc, char** argv, Options& o) {
             else if (a == "--tick-rate") cfg.tick_rate = float(cli::to_number(a, need(i)));
             else if (a == "--threads") o.threads = cli::to_int(a, need(i));
             else if (a == "--nats") cfg.nats_url = need(i);
+            else if (a == "--nats-ca") cfg.nats_ca_file = need(i);
+            else if (a == "--nats-cert") cfg.nats_cert_file = need(i);
+            else if (a == "--nats-key") cfg.nats_key_file = need(i);
             else if (a == "--node") cfg.world_node = need(i);
             else if (a == "--world") cfg.world_name = need(i);
             else if (a == "--world-cell") cfg.world_cell = cli::to_number(a, need(i));
@@ -251,6 +258,21 @@ static int check_options(const Options& o) {
         std::fprintf(stderr, "progskin-server: --tls-cert and --tls-key go together\n%s", kUsage);
         return 2;
     }
+    if (cfg.nats_cert_file.empty() != cfg.nats_key_file.empty()) {
+        std::fprintf(stderr, "progskin-server: --nats-cert and --nats-key go together\n%s", kUsage);
+        return 2;
+    }
+    if (cfg.nats_url.empty() && !(cfg.nats_ca_file.empty() && cfg.nats_cert_file.empty())) {
+        std::fprintf(stderr, "progskin-server: --nats-ca, --nats-cert and --nats-key need --nats\n%s", kUsage);
+        return 2;
+    }
+    // Checked before any asset is built (a missing file found after a long build wastes it).
+    for (const auto& [name, file] : {std::pair<const char*, const std::string&>{"--nats-ca", cfg.nats_ca_file},
+                                     {"--nats-cert", cfg.nats_cert_file}, {"--nats-key", cfg.nats_key_file}})
+        if (!file.empty() && !std::filesystem::is_regular_file(file)) {
+            std::fprintf(stderr, "progskin-server: %s %s: no such file\n", name, file.c_str());
+            return 2;
+        }
     return -1;
 }
 

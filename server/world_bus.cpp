@@ -151,12 +151,37 @@ struct WorldBus::Impl {
         check(natsOptions_SetReconnectWait(opts, 250), "reconnect wait");
         check(natsOptions_SetReconnectBufSize(opts, 8 << 20), "reconnect buffer");
         check(natsOptions_SetNoEcho(opts, true), "no echo");  // never our own messages back
+        const bool secure = cfg.url.rfind("tls://", 0) == 0 || !cfg.ca_file.empty() || !cfg.cert_file.empty();
+        if (secure) {
+            check(natsOptions_SetSecure(opts, true), "TLS (a libnats built without TLS?)");
+            if (!cfg.ca_file.empty())
+                check(natsOptions_LoadCATrustedCertificates(opts, cfg.ca_file.c_str()), ("CA file " + cfg.ca_file).c_str());
+            if (!cfg.cert_file.empty())
+                check(natsOptions_LoadCertificatesChain(opts, cfg.cert_file.c_str(), cfg.key_file.c_str()),
+                      ("certificate " + cfg.cert_file + " and key " + cfg.key_file).c_str());
+        }
         check(natsOptions_SetDisconnectedCB(opts, on_disconnected, this), "callback");
         check(natsOptions_SetReconnectedCB(opts, on_reconnected, this), "callback");
         check(natsOptions_SetClosedCB(opts, on_closed, this), "callback");
-        check(natsOptions_SetRetryOnFailedConnect(opts, true, on_connected, this), "retry");
-        const natsStatus s = natsConnection_Connect(&nc, opts);
-        if (s != NATS_OK && s != NATS_NOT_YET_CONNECTED) check(s, ("cannot connect to " + cfg.url).c_str());
+        // First try once: a NATS server that is up but refuses this node (TLS
+        // required or not trusted, authorisation) is an error at start, not
+        // a retry for ever; one that is not up yet is retried in the background.
+        natsStatus s = natsConnection_Connect(&nc, opts);
+        if (s == NATS_NO_SERVER) {
+            check(natsOptions_SetRetryOnFailedConnect(opts, true, on_connected, this), "retry");
+            s = natsConnection_Connect(&nc, opts);
+        }
+        if (s != NATS_OK && s != NATS_NOT_YET_CONNECTED) {
+            const char* detail = nats_GetLastError(nullptr);
+            throw Error("world bus: cannot join " + cfg.url + ": " + natsStatus_GetText(s) +
+                        (detail && *detail ? std::string(" (") + detail + ")" : std::string()) +
+                        (s == NATS_SSL_ERROR ? "; is its certificate signed by --nats-ca?"
+                         : s == NATS_SECURE_CONNECTION_REQUIRED ? "; it needs TLS: tls://HOST:PORT and --nats-ca"
+                         : s == NATS_SECURE_CONNECTION_WANTED ? "; it does not offer TLS: nats://HOST:PORT"
+                         : s == NATS_PROTOCOL_ERROR && secure && cfg.cert_file.empty()
+                             ? "; does it verify its clients' certificates (--nats-cert, --nats-key)?"
+                             : ""));
+        }
         if (s == NATS_OK) count([](WorldStats& w) { w.connected = true; });
         check(natsConnection_Subscribe(&hellos, nc, hello_subject.c_str(), on_message, this), "subscribe");
         check(natsSubscription_SetPendingLimits(hellos, int(kQueueMessages), int(kQueueBytes)), "pending limits");

@@ -37,7 +37,12 @@ class ServerCore;
 struct EncodedFrame;
 
 struct WorldConfig {
-    std::string url;            // nats://HOST:PORT
+    std::string url;            // nats://HOST:PORT, or tls://HOST:PORT (TLS)
+    // TLS to the NATS server (on with a tls:// URL or any of these): the PEM
+    // certificates that sign its certificate (else the system's trust
+    // store, as libnats loads it), and this node's own certificate and key
+    // when the NATS server verifies its clients (nats-server --tlsverify).
+    std::string ca_file, cert_file, key_file;
     std::string node = "node";  // this node's name (logs, hello)
     std::string world = "default";
     double cell_size = 16.0;    // metres (world units) per cell side

@@ -12,6 +12,7 @@
 #include <cstdlib>
 #include <string>
 #include <thread>
+#include <vector>
 
 namespace progskin::net::testing {
 
@@ -47,7 +48,8 @@ inline bool accepts(uint16_t port) {
 // make a restart.
 class NatsServer {
 public:
-    explicit NatsServer(uint16_t port) : port_(port) { start(); }
+    // args: more nats-server options (e.g. --tls --tlscert FILE --tlskey FILE).
+    explicit NatsServer(uint16_t port, std::vector<std::string> args = {}) : port_(port), args_(std::move(args)) { start(); }
     ~NatsServer() { stop(); }
     NatsServer(const NatsServer&) = delete;
     NatsServer& operator=(const NatsServer&) = delete;
@@ -55,7 +57,10 @@ public:
         pid_ = ::fork();
         if (pid_ == 0) {
             const std::string p = std::to_string(port_);
-            ::execlp("nats-server", "nats-server", "-a", "127.0.0.1", "-p", p.c_str(), static_cast<char*>(nullptr));
+            std::vector<const char*> argv{"nats-server", "-a", "127.0.0.1", "-p", p.c_str()};
+            for (const std::string& a : args_) argv.push_back(a.c_str());
+            argv.push_back(nullptr);
+            ::execvp("nats-server", const_cast<char* const*>(argv.data()));
             ::_exit(127);
         }
         for (int i = 0; i < 200 && !accepts(port_); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
@@ -71,6 +76,7 @@ public:
 
 private:
     uint16_t port_;
+    std::vector<std::string> args_;
     pid_t pid_ = 0;
 };
 

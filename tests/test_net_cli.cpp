@@ -90,6 +90,9 @@ TEST(NetCli, HelpAndExitCodes) {
         {"progskin-server --fair-floor 1.5", "--fair-floor"},
         {"progskin-server --tick-rate 0", "--tick-rate"},
         {"progskin-server --max-clients 0", "--max-clients"},
+        {"progskin-server --nats tls://127.0.0.1:1 --nats-cert only.pem", "--nats-key"},
+        {"progskin-server --nats tls://127.0.0.1:1 --nats-ca /nonexistent/ca.pem", "--nats-ca /nonexistent/ca.pem: no such file"},
+        {"progskin-server --nats-ca ca.pem", "need --nats"},
         {"progskin-attack --server 127.0.0.1:7777 --posers -1", "--posers"},
     };
     for (const auto& [cmd, option] : bad_values) {

@@ -12,12 +12,14 @@
 
 #include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <set>
 #include <thread>
 
 #include "errors.h"
 #include "nats_test_support.h"
 #include "net_test_support.h"
+#include "tls_identity.h"
 #include "world_message.h"
 
 using namespace progskin;
@@ -143,6 +145,68 @@ TEST(NetWorld, PlayersOnTwoNodesSeeEachOther) {
     EXPECT_GE(gone, 0) << observer.characters().size() << " characters left";
     EXPECT_LT(gone, 2.0);
     std::printf("node B stopped: its characters gone from A after %.3f s\n", gone);
+}
+
+// TLS everywhere (docs/deployment.md): a nats-server that requires TLS and
+// verifies its clients' certificates. Nodes with its CA and their own
+// certificate form one world (a player on B seen on A); a node without a
+// certificate, or trusting another CA, is refused at start with the reason.
+TEST(NetWorld, TlsToTheBus) {
+    if (!have_nats_server()) GTEST_SKIP() << "nats-server not installed (apt-get install nats-server)";
+    const std::string dir = RunningServer::cache_dir() + "/nats-tls-" + std::to_string(::getpid());
+    const TlsIdentity bus_id = ensure_self_signed(dir + "/bus");
+    // The nodes' client certificate (extended key usage clientAuth, which the
+    // development identity's serverAuth certificate is not).
+    TlsIdentity node_id;
+    node_id.cert_path = dir + "/node-cert.pem";
+    node_id.key_path = dir + "/node-key.pem";
+    const std::string make = "openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:P-256 -nodes -days 2 -subj /CN=node"
+                             " -addext extendedKeyUsage=clientAuth -keyout " + node_id.key_path + " -out " +
+                             node_id.cert_path + " >/dev/null 2>&1";
+    ASSERT_EQ(std::system(make.c_str()), 0) << make;
+    NatsServer nats(free_port(), {"--tlsverify", "--tlscert", bus_id.cert_path, "--tlskey", bus_id.key_path, "--tlscacert",
+                                  node_id.cert_path});
+    const std::string url = "tls://127.0.0.1:" + std::to_string(nats.port());
+    auto tls_node = [&](const std::string& name) {
+        ServerConfig cfg = node(nats, name);
+        cfg.nats_url = url;
+        cfg.nats_ca_file = bus_id.cert_path;
+        cfg.nats_cert_file = node_id.cert_path;
+        cfg.nats_key_file = node_id.key_path;
+        return cfg;
+    };
+    const std::vector<std::shared_ptr<ServerAsset>> assets = default_assets();
+    auto refused = [&](ServerConfig cfg) -> std::string {
+        cfg.bind_address = "127.0.0.1";
+        try {
+            Server s(cfg, assets, {});
+        } catch (const Error& e) {
+            return e.what();
+        }
+        return "";
+    };
+    ServerConfig no_cert = tls_node("no-cert");
+    no_cert.nats_cert_file.clear();
+    no_cert.nats_key_file.clear();
+    EXPECT_NE(refused(no_cert).find("cannot join " + url), std::string::npos) << refused(no_cert);
+    ServerConfig other_ca = tls_node("other-ca");
+    other_ca.nats_ca_file = node_id.cert_path;
+    const std::string why = refused(other_ca);
+    EXPECT_NE(why.find("SSL"), std::string::npos) << why;
+    EXPECT_NE(why.find("--nats-ca"), std::string::npos) << why;
+    ServerConfig plain = node(nats, "plain");  // nats:// to a server that requires TLS: refused, not retried
+    EXPECT_NE(refused(plain).find("cannot join"), std::string::npos) << refused(plain);
+
+    RunningServer a({}, tls_node("alpha"));
+    RunningServer b(std::vector<InstanceSpec>{}, tls_node("beta"));
+    Client observer(client_config("observer"));
+    observer.connect("127.0.0.1", a.server->tcp_port());
+    Publisher p(b.server->tcp_port());
+    ASSERT_GE(run_until(10, [&] { return p.spawned_at > 0; }, &p, observer), 0) << p.client.error();
+    const double seen = run_until(3, [&] { return published(observer) != nullptr; }, &p, observer);
+    EXPECT_GE(seen, 0) << "not seen across nodes over TLS: " << observer.error();
+    EXPECT_GT(a.server->stats().world_messages_in, 0u);
+    std::filesystem::remove_all(dir);
 }
 
 // Interest management (ServerConfig::view_radius): node A subscribes only to
