@@ -608,6 +608,7 @@ ServerStats Server::stats() const {
         st.world_messages_in = w.messages_in;
         st.world_bytes_in = w.bytes_in;
         st.world_dropped = w.dropped;
+        st.world_superseded = w.superseded;
         st.world_malformed = w.malformed;
         st.world_refused = w.refused;
         st.world_publish_failed = w.publish_failed;

@@ -143,6 +143,7 @@ struct ServerStats {
     // the other nodes' characters in this scene now.
     uint64_t world_messages_out = 0, world_bytes_out = 0, world_messages_in = 0, world_bytes_in = 0;
     uint64_t world_dropped = 0, world_malformed = 0, world_refused = 0, world_publish_failed = 0;
+    uint64_t world_superseded = 0;  // cell messages skipped for a newer one of the same cell (node behind)
     int world_foreign = 0;
     int world_cells = 0;  // bus cells subscribed now (-1: every cell)
     bool world_connected = false;

@@ -401,12 +401,13 @@ static void report(const ServerStats& st) {
     if (st.world_messages_out + st.world_messages_in > 0)
         std::fprintf(stderr,
                      "progskin-server: world bus: %llu messages (%llu bytes) out, %llu (%llu bytes) in, %llu dropped, "
+                     "%llu superseded, "
                      "%llu malformed, %llu of another catalogue, %llu publish failures, %d foreign characters now, "
                      "cells subscribed %s\n",
                      (unsigned long long)st.world_messages_out, (unsigned long long)st.world_bytes_out,
                      (unsigned long long)st.world_messages_in, (unsigned long long)st.world_bytes_in,
-                     (unsigned long long)st.world_dropped, (unsigned long long)st.world_malformed,
-                     (unsigned long long)st.world_refused, (unsigned long long)st.world_publish_failed, st.world_foreign,
+                     (unsigned long long)st.world_dropped, (unsigned long long)st.world_superseded,
+                     (unsigned long long)st.world_malformed, (unsigned long long)st.world_refused, (unsigned long long)st.world_publish_failed, st.world_foreign,
                      st.world_cells < 0 ? "all" : std::to_string(st.world_cells).c_str());
     std::string refusals;
     for (const auto& [reason, n] : st.refusals) refusals += " " + reason + " " + std::to_string(n);

@@ -12,6 +12,8 @@
 #include <cstdio>
 #include <cstring>
 #include <random>
+#include <string_view>
+#include <unordered_set>
 
 #include "bone_codec.h"
 #include "errors.h"
@@ -49,7 +51,9 @@ struct WorldBus::Impl {
 
     // libnats threads -> tick thread
     std::mutex queue_mutex;
-    std::deque<std::vector<uint8_t>> queue;  // first byte: 0 cell message, 1 hello
+    // First byte: 0 cell message, 1 hello; then the subject's hash (8 bytes,
+    // the cell), then the message.
+    std::deque<std::vector<uint8_t>> queue;
     size_t queued_bytes = 0;
 
     mutable std::mutex stats_mutex;
@@ -77,6 +81,8 @@ struct WorldBus::Impl {
     std::map<std::pair<int64_t, int64_t>, std::vector<WorldCharacter>> by_cell;
     std::vector<WorldCharacter> incoming;
     uint64_t dropped_said = 0;  // dropped messages already said (receive)
+    uint64_t superseded_said = 0;
+    std::unordered_set<uint64_t> newest;  // receive()'s scratch: (sender, cell) keys seen
     double next_drop_report = 0;
 
     Impl(WorldConfig c, ServerCore& k) : cfg(std::move(c)), core(k) {
@@ -107,9 +113,11 @@ struct WorldBus::Impl {
             std::lock_guard lock(self->queue_mutex);
             if (self->queue.size() < kQueueMessages && self->queued_bytes + size_t(n) <= kQueueBytes && n >= 0 &&
                 size_t(n) <= kWorldMaxMessage) {
-                std::vector<uint8_t> m(size_t(n) + 1);
+                std::vector<uint8_t> m(size_t(n) + kQueuedHeader);
                 m[0] = kind;
-                if (n) std::memcpy(m.data() + 1, data, size_t(n));
+                const uint64_t cell = std::hash<std::string_view>{}(natsMsg_GetSubject(msg));
+                std::memcpy(m.data() + 1, &cell, 8);
+                if (n) std::memcpy(m.data() + kQueuedHeader, data, size_t(n));
                 self->queued_bytes += m.size();
                 self->queue.push_back(std::move(m));
                 natsMsg_Destroy(msg);
@@ -325,23 +333,45 @@ void WorldBus::Impl::receive(double now) {
         got.swap(queue);
         queued_bytes = 0;
     }
+    // A node behind the bus (more than one message of a sender's cell since
+    // the last tick) takes only the newest of each: each message holds the
+    // whole cell of its sender at its tick, so the older ones are superseded
+    // (a character that left the cell is in its new cell's message). The
+    // work per tick is then bounded by the cells, not by the backlog.
+    newest.clear();
+    for (size_t i = got.size(); i-- > 0;) {
+        std::vector<uint8_t>& m = got[i];
+        if (m[0] != 0 || m.size() < kQueuedHeader + 8 || std::memcmp(m.data() + kQueuedHeader, "PSKW", 4) != 0) continue;
+        uint64_t cell;
+        std::memcpy(&cell, m.data() + 1, 8);
+        const uint64_t node = uint64_t(m[kQueuedHeader + 6]) | uint64_t(m[kQueuedHeader + 7]) << 8;
+        if (!newest.insert(cell ^ (node * 0x9E3779B97F4A7C15ull)).second) {
+            m.clear();  // superseded
+            count([](WorldStats& s) { ++s.superseded; });
+        }
+    }
     // Fell behind (the queue was full, messages dropped): say so, at most every 5 s.
     if (now >= next_drop_report) {
         uint64_t dropped = 0;
         count([&](WorldStats& s) { dropped = s.dropped; });
-        if (dropped > dropped_said) {
+        uint64_t superseded = 0;
+        count([&](WorldStats& s) { superseded = s.superseded; });
+        if (dropped > dropped_said || superseded > superseded_said) {
             say("fell behind on the bus: " + std::to_string(dropped - dropped_said) +
-                " messages dropped (foreign characters show older poses or go)");
+                " messages dropped (foreign characters show older poses or go), " +
+                std::to_string(superseded - superseded_said) + " skipped for a newer one of the same cell");
             dropped_said = dropped;
+            superseded_said = superseded;
             next_drop_report = now + 5.0;
         }
     }
     for (const auto& m : got) {
+        if (m.empty()) continue;  // superseded
         count([&](WorldStats& s) {
             ++s.messages_in;
-            s.bytes_in += m.size() - 1;
+            s.bytes_in += m.size() - kQueuedHeader;
         });
-        const std::span<const uint8_t> body(m.data() + 1, m.size() - 1);
+        const std::span<const uint8_t> body(m.data() + kQueuedHeader, m.size() - kQueuedHeader);
         if (m[0] == 1) take_hello(body);
         else take_cell(body, now);
     }

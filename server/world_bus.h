@@ -51,6 +51,7 @@ struct WorldConfig {
 struct WorldStats {
     uint64_t messages_out = 0, bytes_out = 0, publish_failed = 0;
     uint64_t messages_in = 0, bytes_in = 0, dropped = 0, malformed = 0, refused = 0;
+    uint64_t superseded = 0;  // cell messages skipped for a newer one of the same sender and cell (behind)
     uint64_t foreign_added = 0, foreign_removed = 0;
     uint64_t subscribe_failed = 0;
     int foreign = 0, nodes_seen = 0;
@@ -74,6 +75,7 @@ public:
     WorldStats stats() const;
 
     static constexpr size_t kQueueMessages = 1024, kQueueBytes = 16 << 20;
+    static constexpr size_t kQueuedHeader = 9;  // per queued message: kind, the subject's hash
     static constexpr double kForeignTimeout = 1.5;
     // Interest management (ServerConfig::view_radius): recomputed this often,
     // a cell kept this long after last wanted, beyond this many cells every cell.

@@ -3,6 +3,7 @@
 // a player on another; a node that stops takes its characters with it; a
 // nats-server restart is survived; a node of another catalogue is refused.
 #include <gtest/gtest.h>
+#include <nats/nats.h>
 
 #include <netinet/in.h>
 #include <signal.h>
@@ -207,6 +208,60 @@ TEST(NetWorld, TlsToTheBus) {
     EXPECT_GE(seen, 0) << "not seen across nodes over TLS: " << observer.error();
     EXPECT_GT(a.server->stats().world_messages_in, 0u);
     std::filesystem::remove_all(dir);
+}
+
+// A node behind the bus: another node's 200 messages of one cell arrive
+// between two of its ticks; it takes only the newest of them (each holds
+// the sender's whole cell), counts the rest as superseded, and shows the
+// character at the newest message's pose. Every message is accounted for.
+TEST(NetWorld, ABehindNodeTakesTheNewestMessageOfEachCell) {
+    if (!have_nats_server()) GTEST_SKIP() << "nats-server not installed (apt-get install nats-server)";
+    NatsServer nats(free_port());
+    const ServerConfig cfg = node(nats, "alpha");
+    RunningServer a({}, cfg);
+    Client observer(client_config("observer"));
+    observer.connect("127.0.0.1", a.server->tcp_port());
+    ASSERT_GE(run_until(10, [&] { return observer.characters().size() == 4u; }, nullptr, observer), 0) << observer.error();
+    run_until(0.5, [] { return false; }, nullptr, observer);  // A subscribes to the cells (interest, every 0.1 s)
+
+    natsConnection* nc = nullptr;
+    ASSERT_EQ(natsConnection_ConnectTo(&nc, nats.url().c_str()), NATS_OK);
+    const ServerAssets& assets = default_assets();  // A's catalogue
+    const ServerAsset& asset = *assets[0];
+    std::vector<uint8_t> records(size_t(asset.bone_count()) * size_t(asset.format.size()));
+    WorldCharacter c;
+    c.id = 9;
+    c.world_id = 0x777000000010009ull;
+    c.asset = 0;
+    c.published = true;
+    std::vector<uint8_t> bytes;
+    const int n = 200;
+    for (int t = 1; t <= n; ++t) {
+        // The bind pose moved up by t millimetres: the newest is the last.
+        BonePose p;
+        p.t = glm::vec3(0.0f, 0.001f * float(t), 0.0f);
+        for (int b = 0; b < asset.bone_count(); ++b) encode_bone(p, asset.format, records.data() + size_t(b) * size_t(asset.format.size()));
+        c.records = records;
+        ASSERT_TRUE(encode_root(RootPose{glm::dvec3(1.0, 0.0, 1.0)}, c.root.data()));
+        write_world_message(WorldHeader{4242, catalogue_hash(assets), uint32_t(t)}, std::span(&c, 1), assets, bytes);
+        const std::string subject = "progskin." + cfg.world_name + ".cell.0.0";
+        ASSERT_EQ(natsConnection_Publish(nc, subject.c_str(), bytes.data(), int(bytes.size())), NATS_OK);
+    }
+    ASSERT_EQ(natsConnection_Flush(nc), NATS_OK);
+    const double seen = run_until(3, [&] { return published(observer) != nullptr; }, nullptr, observer);
+    ASSERT_GE(seen, 0) << "the flooding node's character not shown";
+    run_until(0.5, [] { return false; }, nullptr, observer);
+    const ServerStats st = a.server->stats();
+    EXPECT_EQ(st.world_messages_in + st.world_superseded + st.world_dropped, uint64_t(n)) << "every message accounted for";
+    EXPECT_GT(st.world_superseded, uint64_t(n) / 2) << "most were behind a newer one: " << st.world_messages_in << " taken";
+    EXPECT_EQ(st.world_malformed, 0u);
+    // Shown at the newest pose (200 mm up), not an older one.
+    const RemoteCharacter* rc = published(observer);
+    ASSERT_NE(rc, nullptr);
+    EXPECT_NEAR(rc->palette[0].m[7], 0.2, 2e-3);
+    std::printf("%llu of %d messages taken, %llu superseded, %llu dropped\n", (unsigned long long)st.world_messages_in, n,
+                (unsigned long long)st.world_superseded, (unsigned long long)st.world_dropped);
+    natsConnection_Destroy(nc);
 }
 
 // Interest management (ServerConfig::view_radius): node A subscribes only to
