@@ -96,6 +96,15 @@ function geometryOf(a) {
     const ni = M._pskw_asset_index_count(w, a);
     if (ni > 0) g.setIndex(new THREE.Uint32BufferAttribute(new Uint32Array(M.HEAPU32.buffer, M._pskw_asset_indices(w, a), ni).slice(), 1));
     if (!np) g.computeVertexNormals();
+    // Morph targets: position deltas (relative), weighted each frame by the
+    // streamed weights before the GPU skins (glTF's order).
+    const nm = M._pskw_asset_morph_count(w, a);
+    if (nm > 0) {
+        g.morphAttributes.position = [];
+        for (let t = 0; t < nm; ++t)
+            g.morphAttributes.position.push(new THREE.Float32BufferAttribute(heapF32(M._pskw_asset_morph_deltas(w, a, t), nv * 3).slice(), 3));
+        g.morphTargetsRelative = true;
+    }
     geometries.set(a, g);
     return g;
 }
@@ -146,7 +155,7 @@ function frame() {
     const box = new THREE.Box3();
     let maxDiag = 0;
     // Places one character: its mesh (made on first sight), the palette as bone matrices, the root.
-    const place = (key, a, nb, palPtr, rootPtr) => {
+    const place = (key, a, nb, palPtr, rootPtr, morphPtr = 0, nMorph = 0) => {
         const s = meshFor(key, a, nb);
         if (!s || s.nb !== nb) return null;
         s.seen = frameSerial;
@@ -160,6 +169,11 @@ function frame() {
             bm[o + 12] = pal[p + 3]; bm[o + 13] = pal[p + 7]; bm[o + 14] = pal[p + 11]; bm[o + 15] = 1;
         }
         s.skeleton.boneTexture.needsUpdate = true;
+        const inf = s.mesh.morphTargetInfluences;
+        if (inf) {
+            const wts = morphPtr && nMorph > 0 ? heapF32(morphPtr, nMorph) : null;
+            for (let k = 0; k < inf.length; ++k) inf[k] = wts && k < nMorph ? wts[k] : 0;
+        }
         const r = heapF32(rootPtr, 8);
         s.mesh.position.set(r[0], r[1], r[2]);
         s.mesh.quaternion.set(r[3], r[4], r[5], r[6]);
@@ -173,7 +187,8 @@ function frame() {
         const a = M._pskw_character_asset(w, i);
         const nb = M._pskw_character_palette_size(w, i);
         if (a < 0 || !M._pskw_character_shown(w, i)) continue;
-        const pal = place(inst, a, nb, M._pskw_character_palette(w, i), M._pskw_character_root(w, i));
+        const pal = place(inst, a, nb, M._pskw_character_palette(w, i), M._pskw_character_root(w, i),
+                          M._pskw_character_morph_weights(w, i), M._pskw_character_morph_count(w, i));
         if (!pal) continue;
         const bones = M._pskw_character_bones(w, i);
         ++shown;
@@ -334,7 +349,13 @@ window.progskin = {
                        shown: !!M._pskw_character_shown(w, i), bones: M._pskw_character_bones(w, i),
                        tick: M._pskw_character_tick(w, i),
                        root: Array.from(heapF32(M._pskw_character_root(w, i), 3)),
-                       player: !!heapF32(M._pskw_character_root(w, i), 8)[7] });
+                       player: !!heapF32(M._pskw_character_root(w, i), 8)[7],
+                       // the session's morph weights and what the page's mesh applies
+                       morphs: M._pskw_character_morph_count(w, i) > 0
+                           ? Array.from(heapF32(M._pskw_character_morph_weights(w, i), M._pskw_character_morph_count(w, i))) : [],
+                       influences: shownByInstance.has(M._pskw_character_instance(w, i)) &&
+                                   shownByInstance.get(M._pskw_character_instance(w, i)).mesh.morphTargetInfluences
+                           ? Array.from(shownByInstance.get(M._pskw_character_instance(w, i)).mesh.morphTargetInfluences) : [] });
         return out;
     },
 };

@@ -94,6 +94,10 @@ struct MeshData {
     std::vector<float> weights4;
     std::vector<float> inverse_binds;  // 12 per bone, progressive order
     std::vector<int32_t> order, parents;
+    // Per morph target (at most MAX_MORPHS, the weights streamed): its
+    // position deltas, dense (3 floats per vertex; three.js morphAttributes
+    // with morphTargetsRelative).
+    std::vector<std::vector<float>> morph_deltas;
 };
 
 }  // namespace
@@ -173,6 +177,14 @@ MeshData* mesh_of(psk_web* w, int a) {
     }
     m.order.assign(s.order.begin(), s.order.end());
     m.parents.assign(s.parents.begin(), s.parents.end());
+    const size_t targets = std::min<size_t>(c.morphs.size(), MAX_MORPHS);
+    m.morph_deltas.assign(targets, std::vector<float>(n * 3, 0.0f));
+    for (size_t t = 0; t < targets; ++t) {
+        const MorphTarget& mt = c.morphs[t];
+        for (size_t k = 0; k < mt.vertices.size() && k < mt.position_deltas.size(); ++k)
+            if (mt.vertices[k] < n)
+                for (int d = 0; d < 3; ++d) m.morph_deltas[t][size_t(mt.vertices[k]) * 3 + size_t(d)] = mt.position_deltas[k][d];
+    }
     m.built = true;
     return &m;
 }
@@ -348,6 +360,16 @@ EMSCRIPTEN_KEEPALIVE double pskw_character_tick(psk_web* w, int i) {
     const RemoteCharacter* c = character_at(w, i);
     return c ? c->display_tick : -1;
 }
+// Morph weights displayed (one per morph target of the asset, as
+// pskw_asset_morph_count; apply before skinning), valid until the next update.
+EMSCRIPTEN_KEEPALIVE int pskw_character_morph_count(psk_web* w, int i) {
+    const RemoteCharacter* c = character_at(w, i);
+    return c ? int(std::min<size_t>(c->morph_weights.size(), MAX_MORPHS)) : 0;
+}
+EMSCRIPTEN_KEEPALIVE const float* pskw_character_morph_weights(psk_web* w, int i) {
+    const RemoteCharacter* c = character_at(w, i);
+    return c && !c->morph_weights.empty() ? c->morph_weights.data() : nullptr;
+}
 // World root: position x y z, rotation x y z w, and 1 when its publisher
 // announced it (a player's character), else 0.
 EMSCRIPTEN_KEEPALIVE const float* pskw_character_root(psk_web* w, int i) {
@@ -405,6 +427,16 @@ EMSCRIPTEN_KEEPALIVE const uint16_t* pskw_asset_joints4(psk_web* w, int a) {
 EMSCRIPTEN_KEEPALIVE const float* pskw_asset_weights4(psk_web* w, int a) {
     MeshData* m = mesh_of(w, a);
     return m ? m->weights4.data() : nullptr;
+}
+// Morph targets (at most MAX_MORPHS) and each one's position deltas, dense:
+// 3 floats per vertex of the asset's vertex stream.
+EMSCRIPTEN_KEEPALIVE int pskw_asset_morph_count(psk_web* w, int a) {
+    MeshData* m = mesh_of(w, a);
+    return m ? int(m->morph_deltas.size()) : 0;
+}
+EMSCRIPTEN_KEEPALIVE const float* pskw_asset_morph_deltas(psk_web* w, int a, int t) {
+    MeshData* m = mesh_of(w, a);
+    return m && t >= 0 && size_t(t) < m->morph_deltas.size() ? m->morph_deltas[size_t(t)].data() : nullptr;
 }
 // The progressive skin: B bones, the Character joint of each (joint order),
 // progressive parents, and inverse binds (12 floats per bone, progressive order).

@@ -21,6 +21,10 @@
 //        [--chromium /usr/bin/chromium] [--characters N] [--max-kbps N] [--seconds S] [--crowd N]
 //        [--tls 1]   (a TLS server with its self-signed certificate: https:// and wss://,
 //                     chromium told to accept it, the native client pinning it)
+//        [--asset FILE --morphs 1]  (the server serves FILE, a character with morph
+//                     targets; the checks are then: every character shown, its mesh's
+//                     morphTargetInfluences equal to the session's streamed weights in every
+//                     sample, the weights moving, a screenshot)
 // Exit 0 pass, 1 fail, 77 skipped (chromium or the page missing, unless
 // PROGSKIN_REQUIRE_BROWSER=1, then 1), 2 bad arguments.
 import { spawn } from 'node:child_process';
@@ -30,7 +34,8 @@ import os from 'node:os';
 import path from 'node:path';
 
 const SKIP = 77;
-const args = { chromium: '/usr/bin/chromium', characters: '4', 'max-kbps': '0', seconds: '8', crowd: '', tls: '0' };
+const args = { chromium: '/usr/bin/chromium', characters: '4', 'max-kbps': '0', seconds: '8', crowd: '', tls: '0', asset: '',
+               morphs: '0' };
 for (let i = 2; i < process.argv.length; ++i) {
     const a = process.argv[i];
     if (a === '--help') {
@@ -77,7 +82,7 @@ process.on('exit', cleanup);
 
 // ------------------------------------------------------------- server --
 function startServer() {
-    const extra = args.crowd ? ['--crowd', args.crowd] : [];
+    const extra = [...(args.crowd ? ['--crowd', args.crowd] : []), ...(args.asset ? ['--asset', args.asset] : [])];
     const tls = args.tls === '1' ? ['--tls-dir', path.join(tmp, 'tls')] : ['--no-tls'];
     const p = spawn(args.server, [...tls, '--port', '0', '--bind', '127.0.0.1', '--web', '0', '--web-root', args['web-root'],
                                   '--cache', path.join(tmp, 'server-cache'), '--duration', '300', ...extra],
@@ -188,6 +193,31 @@ try {
     console.log('characters: ' + JSON.stringify(await page.evaluate(() => window.progskin.characters())));
     check(all, `all ${expected} characters shown in the page ${shownAfter.toFixed(2)} s after loading it (deadline 30 s)`);
     if (!all) throw new Error('the page shows nothing to compare');
+    if (args.morphs === '1') {
+        // Morph targets: the page's meshes apply the session's weights.
+        let samples = 0, mismatched = 0, lo = Infinity, hi = -Infinity, targets = 0;
+        for (let k = 0; k < 40; ++k) {
+            await new Promise((r) => setTimeout(r, 50));
+            for (const c of await page.evaluate(() => window.progskin.characters())) {
+                if (!c.shown || c.morphs.length === 0) continue;
+                ++samples;
+                targets = Math.max(targets, c.morphs.length);
+                if (c.influences.length !== c.morphs.length ||
+                    c.morphs.some((x, i) => Math.abs(x - c.influences[i]) > 1e-6)) ++mismatched;
+                for (const x of c.morphs) { lo = Math.min(lo, x); hi = Math.max(hi, x); }
+            }
+        }
+        console.log(`morphs: ${samples} samples of up to ${targets} weights, ${mismatched} not applied as streamed, weights from ${lo.toFixed(3)} to ${hi.toFixed(3)}`);
+        check(samples > 0 && targets > 0, `characters with morph weights shown (${samples} samples, ${targets} targets)`);
+        check(mismatched === 0, `the page's morphTargetInfluences equal the streamed weights (${mismatched} of ${samples} samples differ)`);
+        check(hi - lo > 0.05, `the weights move (${lo.toFixed(3)} .. ${hi.toFixed(3)})`);
+        const shot = path.join(args.out, 'browser_morphs.png');
+        fs.mkdirSync(args.out, { recursive: true });
+        const drawn = await drawnFraction(page);
+        await page.screenshot({ path: shot });
+        check(drawn > 0.001, `screenshot ${shot}: ${(100 * drawn).toFixed(2)} % of the pixels drawn`);
+        throw Object.assign(new Error('morph checks done'), { done: true });
+    }
 
     // Frames displayed per second over a few seconds, and the per-frame wasm cost.
     const f0 = await page.evaluate(() => window.progskin.details());
@@ -298,8 +328,12 @@ try {
     if (failures) console.log(logs.join('\n'));
     exitCode = failures ? 1 : 0;
 } catch (e) {
-    console.error(`test_browser: ${e.stack || e}`);
-    exitCode = 1;
+    if (e && e.done) {  // a mode that ends early (--morphs 1)
+        exitCode = failures ? 1 : 0;
+    } else {
+        console.error(`test_browser: ${e.stack || e}`);
+        exitCode = 1;
+    }
 } finally {
     await browser.close();
 }
