@@ -150,8 +150,12 @@ void Scheduler::track_slots(const EncodedFrame& frame) {
         order_.resize(n);
         order_at_.resize(n, 0);
         morph_.resize(n);
+        current_.resize(n, 0);
+        spent_.resize(n, 0);
+        floor_bytes_.resize(n, 0);
+        share_left_.resize(n, 0);
     }
-    for (size_t i = 0; i < n; ++i)
+    for (const uint32_t i : active_)
         if (generation_[i] != frame.instances[i].generation) {
             generation_[i] = frame.instances[i].generation;
             state_[i] = State{};
@@ -163,12 +167,11 @@ void Scheduler::track_slots(const EncodedFrame& frame) {
 size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                               std::span<const float> importance) {
     size_t full = 0;
-    current_.assign(frame.instances.size(), 0);
     std::fill(group_full_.begin(), group_full_.end(), 0);
-    for (size_t i = 0; i < frame.instances.size(); ++i) {
+    for (const uint32_t i : active_) {
         const auto& e = frame.instances[i];
         morph_[i] = MorphItem{};
-        if (!e.valid || importance[i] <= 0.0f) continue;
+        current_[i] = 0;
         const ServerAsset& a = *assets[size_t(e.asset)];
         if (state_[i].bone_tick.size() != size_t(a.bone_count())) state_[i].bone_tick.assign(size_t(a.bone_count()), 0);
         morph_item(i, frame, a, double(importance[i]) * double(importance[i]) * double(a.character.vertex_count()));
@@ -198,9 +201,10 @@ bool Scheduler::up_to_date(size_t i, const EncodedFrame& frame) const {
 // The fast path: every bone and due weight of every important instance.
 void Scheduler::pick_everything(const EncodedFrame& frame, std::span<const float> importance, bool except_over_share,
                                 std::vector<Pick>& out) {
-    for (size_t i = 0; i < frame.instances.size(); ++i) {
+    (void)importance;
+    for (const uint32_t i : active_) {
         const auto& e = frame.instances[i];
-        if (e.valid && importance[i] > 0.0f && !current_[i] && !(except_over_share && over_share(i))) {
+        if (!current_[i] && !(except_over_share && over_share(i))) {
             out.push_back({int(i), e.bone_count, e.bone_count});
             out.back().morphs = morph_[i].mask;
             morph_[i].chosen = true;
@@ -293,10 +297,10 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
                             std::span<const float> importance, float tick_rate, bool only_over_share) {
     const double to30 = 30.0 / std::max(1.0f, tick_rate);
     heap_.clear();
-    for (size_t i = 0; i < frame.instances.size(); ++i) {
+    for (const uint32_t i : active_) {
         items_[i].clear();
         const auto& e = frame.instances[i];
-        if (!e.valid || importance[i] <= 0.0f || current_[i] || (only_over_share && !over_share(i))) continue;
+        if (current_[i] || (only_over_share && !over_share(i))) continue;
         const ServerAsset& a = *assets[size_t(e.asset)];
         paid_[i] = 0;
         chain_next_[i] = 0;
@@ -354,20 +358,16 @@ void Scheduler::charge(size_t inst, size_t bytes, size_t& payload) {
 // instances with something to send; O(instances).
 void Scheduler::set_floors(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                            std::span<const float> importance, size_t budget) {
-    const size_t n = frame.instances.size();
-    spent_.assign(n, 0);
-    floor_bytes_.assign(n, 0);
+    for (const uint32_t i : active_) spent_[i] = floor_bytes_[i] = 0;
     if (floor_fraction_ <= 0) return;
     double total = 0;
-    for (size_t i = 0; i < n; ++i)
-        if (frame.instances[i].valid && importance[i] > 0.0f && !current_[i])
-            total += double(importance[i]) * assets[size_t(frame.instances[i].asset)]->diagonal;
+    for (const uint32_t i : active_)
+        if (!current_[i]) total += double(importance[i]) * assets[size_t(frame.instances[i].asset)]->diagonal;
     const size_t overhead = WireCost::datagrams(budget) * (WireCost::kFrameOverhead + UDP_IP_OVERHEAD);
     if (total <= 0 || budget <= overhead) return;
     const double part = floor_fraction_ * double(budget - overhead) / total;
-    for (size_t i = 0; i < n; ++i)
-        if (frame.instances[i].valid && importance[i] > 0.0f && !current_[i])
-            floor_bytes_[i] = size_t(part * double(importance[i]) * assets[size_t(frame.instances[i].asset)]->diagonal);
+    for (const uint32_t i : active_)
+        if (!current_[i]) floor_bytes_[i] = size_t(part * double(importance[i]) * assets[size_t(frame.instances[i].asset)]->diagonal);
 }
 
 // Whether instance `inst`'s group may take `bytes` more this tick (taking
@@ -456,7 +456,7 @@ void Scheduler::take_segment(const Step& s, size_t header, size_t budget, size_t
 // Something was left unsent (zero-value bones too, so that the rate
 // estimate keeps probing up to the full rate, where everything goes).
 bool Scheduler::left_something() const {
-    for (size_t i = 0; i < items_.size(); ++i) {
+    for (const uint32_t i : active_) {
         if (share_left_[i]) continue;  // its owner's share, not the rate, held it back
         if (morph_[i].value > 0 && !morph_[i].chosen) return true;
         for (const SegItem& it : items_[i])
@@ -468,7 +468,7 @@ bool Scheduler::left_something() const {
 // Picks: the chosen segments of each instance merged into ranges; show = the
 // prefix of segments shown from now on (chosen now or refreshed within the hold).
 void Scheduler::chosen_picks(std::vector<Pick>& out) const {
-    for (size_t i = 0; i < items_.size(); ++i) {
+    for (const uint32_t i : active_) {
         const auto& items = items_[i];
         int show = 0;
         for (const SegItem& it : items) {
@@ -504,6 +504,13 @@ size_t Scheduler::estimate(const EncodedFrame& frame, std::span<const Pick> pick
 size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                          std::span<const float> importance, size_t budget, float tick_rate, std::vector<Pick>& out) {
     out.clear();
+    // The instances this tick weighs (valid, importance > 0), ascending:
+    // every per-instance pass below walks them only, so a client's tick
+    // costs O(its candidates), not O(the world's instances), beyond this
+    // one pass over the importance.
+    active_.clear();
+    for (size_t i = 0; i < importance.size() && i < frame.instances.size(); ++i)
+        if (importance[i] > 0.0f && frame.instances[i].valid) active_.push_back(uint32_t(i));
     track_slots(frame);
     auto by_importance = [&](const Pick& a, const Pick& b) {
         return importance[a.instance] > importance[b.instance] ||
@@ -514,7 +521,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     const size_t full = morph_items(frame, assets, importance);
     limited_ = false;
     if (full == 0) return 0;
-    share_left_.assign(frame.instances.size(), 0);
+    for (const uint32_t i : active_) share_left_[i] = 0;
     std::fill(group_spent_.begin(), group_spent_.end(), 0);
     // The share this tick: the configured one, and no more than an equal part
     // of the budget among the owners with something to send (the server's
@@ -607,7 +614,7 @@ void Scheduler::offer_single(int instance, uint32_t age) {
 
 size_t Scheduler::take_stale_roots(const EncodedFrame& frame, size_t budget, size_t payload) {
     stale_.clear();
-    for (size_t i = 0; i < items_.size(); ++i) {
+    for (const size_t i : active_) {
         if (items_[i].empty() || items_[i][0].chosen) continue;  // not offered this tick (or up to date)
         const uint32_t t = state_[i].bone_tick.empty() ? 0 : state_[i].bone_tick[0];
         const uint32_t age = t == 0 ? UINT32_MAX : frame.tick - t;

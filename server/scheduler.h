@@ -241,6 +241,10 @@ private:
     std::vector<size_t> order_at_;                  // per instance: next in order_ to offer
     std::vector<MorphItem> morph_;                  // per instance
     std::vector<uint8_t> current_;                  // per instance: up_to_date this tick
+    // This tick's instances (valid, importance > 0), ascending: the only
+    // ones any per-instance pass reads or writes (per-instance arrays hold
+    // stale values for the others).
+    std::vector<uint32_t> active_;
     std::vector<Step> heap_;
     // Offers step s (its floor flag set from its instance's spending).
     void push(Step s);
