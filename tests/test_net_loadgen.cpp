@@ -123,9 +123,31 @@ TEST(NetLoadgen, ServerRefusalIsReportedNotHidden) {
     const LoadReport r = run_loadgen(o);
     EXPECT_FALSE(r.ok);
     EXPECT_GE(r.failed, 1);
+    EXPECT_GE(r.retried, r.failed);  // each refused player tried again before it counted as failed
     EXPECT_FALSE(r.errors.empty());
     EXPECT_FALSE(r.error.empty());
     expect_report_fields(r, o);
+}
+
+// Players refused at first (the server's new-connection rate per address:
+// a bucket of 8, refilled at 1 per second; 12 players from one address)
+// start again after a backoff, as game clients would: all join, none
+// failed, the restarts counted.
+TEST(NetLoadgen, RefusedPlayersStartAgainAndJoin) {
+    ServerConfig cfg;
+    cfg.connects_per_second = 1;
+    Node node(cfg);
+    LoadOptions o = options({node.address()}, 12);
+    o.addresses = 1;
+    o.retries = 5;  // 0.5 + 1 + 2 + 4 + 8 s of backoff at most: the bucket refills 4 in time
+    o.connect_timeout = 5;
+    const LoadReport r = run_loadgen(o);
+    SCOPED_TRACE(report_table(r, o));
+    EXPECT_TRUE(r.ok) << r.error;
+    EXPECT_EQ(r.joined, 12);
+    EXPECT_EQ(r.failed, 0);
+    EXPECT_GE(r.retried, 4);  // at least the 4 beyond the bucket
+    std::printf("12 players, 8 connections in the bucket: %d restarts, all joined in %.1f s\n", r.retried, r.join_seconds);
 }
 
 // The program: --help, exit 2 on bad arguments, a JSON report and exit 1
@@ -137,7 +159,7 @@ TEST(NetLoadgen, ProgramArgumentsAndReportOnFailure) {
     EXPECT_NE(help.out.find("--players"), std::string::npos);
     for (const char* bad : {"--players 0", "--players 4001", "--duration -1", "--bogus", "--report xml --no-tls",
                             "--server nohost --no-tls", "--players 2" /* TLS with nothing to trust */, "--no-tls --pin ab",
-                            "--addresses 300 --no-tls"}) {
+                            "--addresses 300 --no-tls", "--retries 11 --no-tls"}) {
         const CmdResult r = run(exe + " " + bad);
         EXPECT_EQ(r.code, 2) << bad << "\n" << r.out;
     }

@@ -23,6 +23,7 @@
 #include <openssl/evp.h>
 #include <openssl/ssl.h>
 #include <openssl/x509.h>
+#include <random>
 #include <thread>
 
 #include "asset_cache.h"
@@ -131,6 +132,8 @@ struct Player final : DatagramSource, FrameSink {
     int handle = -1, instance = -1, asset = -1;
     glm::dvec3 center{0.0};
     bool started = false, joined = false, failed = false;
+    int attempt = 0;              // restarts so far (LoadOptions::retries)
+    double restart_at = -1;       // a replacement waiting to start (>= 0)
     double next_turn = 0, joined_at = 0;
     int turns = 0;
     std::vector<int> nearest;  // player indices of its nearest set
@@ -585,6 +588,7 @@ void check_options(const LoadOptions& opt) {
         throw Error("duration must be in (0, 86400] s, settle in [0, 600] s");
     if (!(opt.tick_rate > 0 && opt.tick_rate <= 240)) throw Error("tick rate must be in (0, 240]");
     if (!(opt.connect_rate > 0 && opt.connect_rate <= 10000)) throw Error("connect rate must be in (0, 10000]");
+    if (opt.retries < 0 || opt.retries > 10) throw Error("retries must be in 0..10");
     if (!(opt.max_kbps >= 0) || !(opt.delay_ms >= 0 && opt.delay_ms <= 5000) || !(opt.walk >= 0 && opt.walk <= 1000) ||
         !(opt.spacing > 0 && opt.spacing <= 1000) || opt.see < 0 || !(opt.starve_s > 0) || opt.addresses > 250)
         throw Error("an option is out of range");
@@ -642,6 +646,11 @@ private:
     Shared sh;
     LoadReport rep;
     std::vector<std::unique_ptr<Player>> players;
+    // Players replaced by a restart: kept until the end, as asio handlers
+    // may still refer to them (each returns at once: its session is over).
+    std::vector<std::unique_ptr<Player>> replaced;
+    ClientConfig cfg_;
+    std::mt19937 jitter_{12345};
     int see = 0, started = 0;
     double t0 = 0, period = 0, all_joined_at = 0, cpu_start = 0, next_progress = 0;
 
@@ -674,6 +683,7 @@ private:
         cfg.max_delay_ms = opt.delay_ms;
         cfg.connect_timeout = opt.connect_timeout;
         players.reserve(size_t(opt.players));
+        cfg_ = cfg;
         for (int i = 0; i < opt.players; ++i) {
             cfg.name = "loadgen" + std::to_string(i);
             auto p = std::make_unique<Player>(sh, i, sh.node_of(i), cfg, sh.io);
@@ -719,8 +729,18 @@ private:
         double next_due = now + 0.001;
         for (int i = 0; i < started; ++i) {
             Player& p = *players[size_t(i)];
+            if (p.restart_at >= 0) {  // a replacement waiting for its start
+                if (now >= p.restart_at) {
+                    p.restart_at = -1;
+                    p.start(now);
+                } else {
+                    next_due = std::min(next_due, p.restart_at);
+                }
+                continue;
+            }
             if (!p.session.running()) {
                 if (!p.failed && p.session.phase() == SessionPhase::Failed) p.failed = true;
+                if (p.failed && !p.joined && p.attempt < opt.retries && !sh.in_window && !sh.window_done) restart(i, now);
                 continue;
             }
             if (now < p.next_turn) {
@@ -733,6 +753,30 @@ private:
             p.turn(now);
         }
         return next_due;
+    }
+
+    // Player i failed before streaming: a fresh player (session, sockets) in
+    // its place, started after a backoff of 0.5 s x 2^attempt, +-25 %.
+    void restart(int i, double now) {
+        std::unique_ptr<Player>& slot = players[size_t(i)];
+        Player& old = *slot;
+        asio::error_code ig;  // its sockets closed now (pending handlers end: its session is over)
+        old.tcp_sock.close(ig);
+        old.udp_sock.close(ig);
+        if (opt.verbose) log("player %d failed (%s): starting it again", i, old.session.error().c_str());
+        cfg_.name = "loadgen" + std::to_string(i);
+        auto p = std::make_unique<Player>(sh, i, old.node, cfg_, sh.io);
+        p->use_source = old.use_source;
+        p->source = old.source;
+        p->nearest = old.nearest;
+        p->next_turn = old.next_turn;
+        p->attempt = old.attempt + 1;
+        p->started = true;
+        const double backoff = 0.5 * double(1 << std::min(old.attempt, 6));
+        p->restart_at = now + backoff * std::uniform_real_distribution<double>(0.75, 1.25)(jitter_);
+        replaced.push_back(std::move(slot));
+        slot = std::move(p);
+        ++rep.retried;
     }
 
     void open_window(double now) {
@@ -783,7 +827,8 @@ private:
             if (sh.in_window && now >= sh.window_start + opt.duration) return close_window(now);
             if (opt.progress_s > 0 && now >= next_progress) {
                 next_progress = now + opt.progress_s;
-                log("%d started, %d streaming, %d failed, %llu receipt samples, p99 %.1f ms%s", started, joined, failed,
+                log("%d started, %d streaming, %d failed, %d restarts, %llu receipt samples, p99 %.1f ms%s", started, joined,
+                    failed, rep.retried,
                     (unsigned long long)(sh.receipt.n + sh.cross_receipt.n),
                     std::max(sh.receipt.at(0.99), sh.cross_receipt.at(0.99)), sh.in_window ? " (measuring)" : "");
             }
@@ -913,6 +958,7 @@ std::string report_json(const LoadReport& r, const LoadOptions& o) {
     j["grid_step"] = r.grid_step;
     j["joined"] = r.joined;
     j["failed"] = r.failed;
+    j["retried"] = r.retried;
     j["join_seconds"] = r.join_seconds;
     j["window_seconds"] = r.window_seconds;
     j["tick_rate"] = o.tick_rate;
@@ -946,8 +992,8 @@ std::string report_table(const LoadReport& r, const LoadOptions& o) {
     char b[2048];
     std::string s;
     std::snprintf(b, sizeof b,
-                  "players %d on %d node(s) from %d source address(es): %d joined, %d failed (join %.1f s, window %.1f s)\n",
-                  r.players, r.nodes, r.addresses, r.joined, r.failed, r.join_seconds, r.window_seconds);
+                  "players %d on %d node(s) from %d source address(es): %d joined, %d failed, %d restarts (join %.1f s, window %.1f s)\n",
+                  r.players, r.nodes, r.addresses, r.joined, r.failed, r.retried, r.join_seconds, r.window_seconds);
     s += b;
     std::snprintf(b, sizeof b, "%-22s %10s %10s %10s\n", "", "mean/p50", "min/p99", "max");
     s += b;

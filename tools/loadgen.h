@@ -75,6 +75,10 @@ struct LoadOptions {
     bool tls = true, insecure = false;
     std::string ca_file, pin_sha256, token, cache_dir;
     double connect_timeout = 20;
+    // A player whose session fails before it streams (refused while the
+    // server is busy, a TLS handshake cut, no answer) starts again this
+    // many times, as a game client would, after 0.5, 1, 2, ... s (jittered).
+    int retries = 2;                     // 0..10
     double progress_s = 5;               // progress line period on stderr (0: none)
     bool verbose = false;
     // Called on the loadgen's thread when the measurement window starts
@@ -95,7 +99,8 @@ struct LoadReport {
     int players = 0, nodes = 0, addresses = 0;
     double grid_step = 0;              // world units between two players' spots
     int joined = 0;                    // players that reached Streaming with their character spawned
-    int failed = 0;                    // players whose session failed (refused, lost, timed out...)
+    int failed = 0;                    // players whose session failed (refused, lost, timed out...), after their retries
+    int retried = 0;                   // restarts of players that failed before streaming (LoadOptions::retries)
     std::vector<std::string> errors;   // the first failures, "player N (node): why"
     double join_seconds = 0;           // from the first start to the last join
     double window_seconds = 0;

@@ -50,6 +50,8 @@ static const char* kUsage =
     "  --cache DIR          asset cache (default ~/.cache/progskin); the first player\n"
     "                       downloads, the others start once it has\n"
     "  --connect-timeout S  per player (default 20)\n"
+    "  --retries N          a player that fails before it streams starts again up to N times\n"
+    "                       (after 0.5, 1, 2, ... s), as a game client would (0..10, default 2)\n"
     "  --progress S         a progress line on stderr every S seconds (default 5; 0: none)\n"
     "  --report json|text   the report on stdout (default text), written even on failure\n"
     "  --help\n"
@@ -100,6 +102,7 @@ int main(int argc, char** argv) {
             else if (a == "--token") o.token = need();
             else if (a == "--cache") o.cache_dir = need();
             else if (a == "--connect-timeout") o.connect_timeout = cli::to_number(a, need());
+            else if (a == "--retries") o.retries = cli::to_int(a, need());
             else if (a == "--progress") o.progress_s = cli::to_number(a, need());
             else if (a == "--report") {
                 report = need();
@@ -119,6 +122,7 @@ int main(int argc, char** argv) {
         if (o.see > LoadOptions::kMaxPlayers) throw cli::UsageError("--see must be at most 4000");
         if (o.addresses > 250) throw cli::UsageError("--addresses must be at most 250");
         if (!(o.connect_timeout > 0 && o.connect_timeout <= 600)) throw cli::UsageError("--connect-timeout must be in (0, 600]");
+        if (o.retries < 0 || o.retries > 10) throw cli::UsageError("--retries must be in 0..10");
         if (!(o.progress_s <= 3600)) throw cli::UsageError("--progress must be at most 3600");
         if (!o.tls && (!o.pin_sha256.empty() || !o.ca_file.empty() || o.insecure))
             throw cli::UsageError("--no-tls excludes --pin, --ca and --insecure");
