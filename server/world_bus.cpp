@@ -34,6 +34,28 @@ void say(const std::string& s) { std::fprintf(stderr, "progskin-server: world: %
 
 }  // namespace
 
+// The NATS URL(s) as logs may show them: the credentials of each
+// (nats://USER:PASSWORD@HOST or nats://TOKEN@HOST) replaced by "***".
+std::string redact_nats_url(const std::string& urls) {
+    std::string out;
+    size_t start = 0;
+    for (;;) {
+        const size_t end = std::min(urls.find(',', start), urls.size());
+        std::string u = urls.substr(start, end - start);
+        const size_t scheme = u.find("://"), at = u.rfind('@');
+        if (scheme != std::string::npos && at != std::string::npos && at > scheme + 3) u.replace(scheme + 3, at - scheme - 3, "***");
+        out += u;
+        if (end == urls.size()) break;
+        out += ',';
+        start = end + 1;
+    }
+    return out;
+}
+
+namespace {
+
+}  // namespace
+
 struct WorldBus::Impl {
     WorldConfig cfg;
     ServerCore& core;
@@ -131,13 +153,13 @@ struct WorldBus::Impl {
         auto* self = static_cast<Impl*>(closure);
         if (self->closing) return;
         self->count([](WorldStats& s) { s.connected = false; });
-        say("lost the bus (" + self->cfg.url + "); reconnecting, local streaming goes on");
+        say("lost the bus (" + redact_nats_url(self->cfg.url) + "); reconnecting, local streaming goes on");
     }
     static void on_reconnected(natsConnection*, void* closure) {
         auto* self = static_cast<Impl*>(closure);
         if (self->closing) return;
         self->count([](WorldStats& s) { s.connected = true; });
-        say("reconnected to the bus (" + self->cfg.url + ")");
+        say("reconnected to the bus (" + redact_nats_url(self->cfg.url) + ")");
     }
     static void on_connected(natsConnection*, void* closure) { on_reconnected(nullptr, closure); }
     static void on_closed(natsConnection*, void* closure) {
@@ -152,7 +174,7 @@ struct WorldBus::Impl {
             if (s != NATS_OK) throw Error(std::string("world bus: ") + what + ": " + natsStatus_GetText(s));
         };
         check(natsOptions_Create(&opts), "options");
-        check(natsOptions_SetURL(opts, cfg.url.c_str()), ("bad URL " + cfg.url).c_str());
+        check(natsOptions_SetURL(opts, cfg.url.c_str()), ("bad URL " + redact_nats_url(cfg.url)).c_str());
         check(natsOptions_SetName(opts, ("progskin " + cfg.node).c_str()), "name");
         check(natsOptions_SetAllowReconnect(opts, true), "reconnect");
         check(natsOptions_SetMaxReconnect(opts, -1), "reconnect");
@@ -181,7 +203,7 @@ struct WorldBus::Impl {
         }
         if (s != NATS_OK && s != NATS_NOT_YET_CONNECTED) {
             const char* detail = nats_GetLastError(nullptr);
-            throw Error("world bus: cannot join " + cfg.url + ": " + natsStatus_GetText(s) +
+            throw Error("world bus: cannot join " + redact_nats_url(cfg.url) + ": " + natsStatus_GetText(s) +
                         (detail && *detail ? std::string(" (") + detail + ")" : std::string()) +
                         (s == NATS_SSL_ERROR ? "; is its certificate signed by --nats-ca?"
                          : s == NATS_SECURE_CONNECTION_REQUIRED ? "; it needs TLS: tls://HOST:PORT and --nats-ca"
@@ -193,7 +215,7 @@ struct WorldBus::Impl {
         if (s == NATS_OK) count([](WorldStats& w) { w.connected = true; });
         check(natsConnection_Subscribe(&hellos, nc, hello_subject.c_str(), on_message, this), "subscribe");
         check(natsSubscription_SetPendingLimits(hellos, int(kQueueMessages), int(kQueueBytes)), "pending limits");
-        say("node " + cfg.node + " joins world " + cfg.world + " on " + cfg.url + (s == NATS_OK ? "" : " (not up yet: retrying)"));
+        say("node " + cfg.node + " joins world " + cfg.world + " on " + redact_nats_url(cfg.url) + (s == NATS_OK ? "" : " (not up yet: retrying)"));
     }
 
     void publish(const std::string& subject, const std::vector<uint8_t>& bytes) {

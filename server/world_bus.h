@@ -48,6 +48,10 @@ struct WorldConfig {
     double cell_size = 16.0;    // metres (world units) per cell side
 };
 
+// The NATS URL(s) (comma-separated) with each one's credentials
+// (USER:PASSWORD@ or TOKEN@) replaced by "***", for logs and errors.
+std::string redact_nats_url(const std::string& urls);
+
 struct WorldStats {
     uint64_t messages_out = 0, bytes_out = 0, publish_failed = 0;
     uint64_t messages_in = 0, bytes_in = 0, dropped = 0, malformed = 0, refused = 0;

@@ -21,6 +21,7 @@
 #include "nats_test_support.h"
 #include "net_test_support.h"
 #include "tls_identity.h"
+#include "world_bus.h"
 #include "world_message.h"
 
 using namespace progskin;
@@ -262,6 +263,35 @@ TEST(NetWorld, ABehindNodeTakesTheNewestMessageOfEachCell) {
     std::printf("%llu of %d messages taken, %llu superseded, %llu dropped\n", (unsigned long long)st.world_messages_in, n,
                 (unsigned long long)st.world_superseded, (unsigned long long)st.world_dropped);
     natsConnection_Destroy(nc);
+}
+
+// A NATS server with a user and password (nats://USER:PASSWORD@HOST:PORT,
+// as libnats reads it): a node with them joins; one with a wrong password is
+// refused at start; no log or error shows the password.
+TEST(NetWorld, CredentialsInTheUrlAndNeverInTheLogs) {
+    if (!have_nats_server()) GTEST_SKIP() << "nats-server not installed (apt-get install nats-server)";
+    EXPECT_EQ(redact_nats_url("nats://node:s3cret@10.0.0.1:4222,tls://tok@10.0.0.2:4222,nats://10.0.0.3:4222"),
+              "nats://***@10.0.0.1:4222,tls://***@10.0.0.2:4222,nats://10.0.0.3:4222");
+    NatsServer nats(free_port(), {"--user", "node", "--pass", "s3cret-pw"});
+    ServerConfig good = node(nats, "alpha");
+    good.nats_url = "nats://node:s3cret-pw@127.0.0.1:" + std::to_string(nats.port());
+    ServerConfig bad = good;
+    bad.nats_url = "nats://node:wrong-pw@127.0.0.1:" + std::to_string(nats.port());
+    bad.bind_address = "127.0.0.1";
+    std::string why;
+    try {
+        Server s(bad, default_assets(), {});
+    } catch (const Error& e) {
+        why = e.what();
+    }
+    EXPECT_NE(why.find("cannot join nats://***@127.0.0.1"), std::string::npos) << why;
+    EXPECT_EQ(why.find("wrong-pw"), std::string::npos) << why;
+    RunningServer a({}, good);
+    Client observer(client_config("observer"));
+    observer.connect("127.0.0.1", a.server->tcp_port());
+    ASSERT_GE(run_until(10, [&] { return observer.characters().size() == 4u; }, nullptr, observer), 0) << observer.error();
+    run_until(1.5, [] { return false; }, nullptr, observer);
+    EXPECT_GT(a.server->stats().world_messages_out, 0u) << "the node publishes on the bus it joined";
 }
 
 // Interest management (ServerConfig::view_radius): node A subscribes only to
