@@ -52,10 +52,6 @@ std::string redact_nats_url(const std::string& urls) {
     return out;
 }
 
-namespace {
-
-}  // namespace
-
 struct WorldBus::Impl {
     WorldConfig cfg;
     ServerCore& core;
@@ -197,7 +193,7 @@ struct WorldBus::Impl {
         // required or not trusted, authorisation) is an error at start, not
         // a retry for ever; one that is not up yet is retried in the background.
         natsStatus s = natsConnection_Connect(&nc, opts);
-        if (s == NATS_NO_SERVER) {
+        if (s == NATS_NO_SERVER || s == NATS_TIMEOUT) {  // not up (or not answering) yet
             check(natsOptions_SetRetryOnFailedConnect(opts, true, on_connected, this), "retry");
             s = natsConnection_Connect(&nc, opts);
         }
