@@ -614,6 +614,7 @@ ServerStats Server::stats() const {
         st.world_publish_failed = w.publish_failed;
         st.world_foreign = w.foreign;
         st.world_cells = w.cells;
+        st.world_cells_shed = w.cells_shed;
         st.world_connected = w.connected;
     }
     return st;

@@ -146,6 +146,7 @@ struct ServerStats {
     uint64_t world_superseded = 0;  // cell messages skipped for a newer one of the same cell (node behind)
     int world_foreign = 0;
     int world_cells = 0;  // bus cells subscribed now (-1: every cell)
+    int world_cells_shed = 0;  // cells wanted but not followed now (the node fell behind: the farthest shed)
     bool world_connected = false;
     uint64_t unverified_bytes_in = 0, unverified_bytes_out = 0;  // from addresses not bound / to them (Challenges only)
     uint64_t malformed_control = 0, asset_bytes_sent = 0;

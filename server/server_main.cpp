@@ -408,7 +408,10 @@ static void report(const ServerStats& st) {
                      (unsigned long long)st.world_messages_in, (unsigned long long)st.world_bytes_in,
                      (unsigned long long)st.world_dropped, (unsigned long long)st.world_superseded,
                      (unsigned long long)st.world_malformed, (unsigned long long)st.world_refused, (unsigned long long)st.world_publish_failed, st.world_foreign,
-                     st.world_cells < 0 ? "all" : std::to_string(st.world_cells).c_str());
+                     st.world_cells < 0 ? "all"
+                     : st.world_cells_shed > 0
+                         ? (std::to_string(st.world_cells) + " (" + std::to_string(st.world_cells_shed) + " shed: behind)").c_str()
+                         : std::to_string(st.world_cells).c_str());
     std::string refusals;
     for (const auto& [reason, n] : st.refusals) refusals += " " + reason + " " + std::to_string(n);
     std::fprintf(stderr, "progskin-server: refusals:%s\n", refusals.empty() ? " none" : refusals.c_str());

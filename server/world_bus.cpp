@@ -63,6 +63,12 @@ struct WorldBus::Impl {
     std::map<std::pair<int64_t, int64_t>, std::pair<natsSubscription*, double>> cell_subs;  // cell -> (sub, last wanted)
     natsSubscription* hellos = nullptr;
     double next_interest = 0;
+    // Falling behind (messages dropped since the last interest pass): the
+    // node follows only the nearest cell_limit cells it wants, halved at
+    // each pass that saw drops, grown back by a quarter each second without.
+    size_t cell_limit = kMaxCellSubscriptions;
+    uint64_t dropped_seen = 0;
+    double next_grow = 0, next_shed_report = 0;
     std::vector<glm::dvec3> centres;                    // interest()'s scratch
     std::vector<std::pair<int64_t, int64_t>> wanted;
     std::string cell_prefix, hello_subject;
@@ -318,6 +324,44 @@ void WorldBus::Impl::interest(double now) {
     std::sort(wanted.begin(), wanted.end());
     wanted.erase(std::unique(wanted.begin(), wanted.end()), wanted.end());
     if (wanted.size() > kMaxCellSubscriptions) all = true;
+    // Behind: fewer cells, the nearest to the clients' centres first.
+    uint64_t dropped = 0;
+    count([&](WorldStats& s) { dropped = s.dropped; });
+    if (dropped > dropped_seen && !all && !wanted.empty()) {
+        cell_limit = std::max<size_t>(1, std::min(cell_limit, wanted.size()) / 2);
+        next_grow = now + 1.0;
+    } else if (now >= next_grow && cell_limit < kMaxCellSubscriptions) {
+        cell_limit = std::min(kMaxCellSubscriptions, cell_limit + std::max<size_t>(1, cell_limit / 4));
+        next_grow = now + 1.0;
+    }
+    dropped_seen = dropped;
+    size_t shed = 0;
+    if (!all && wanted.size() > cell_limit) {
+        auto distance = [&](const std::pair<int64_t, int64_t>& cell) {
+            const double cx = (double(cell.first) + 0.5) * cfg.cell_size, cz = (double(cell.second) + 0.5) * cfg.cell_size;
+            double best = 1e300;
+            for (const glm::dvec3& c : centres) best = std::min(best, (c.x - cx) * (c.x - cx) + (c.z - cz) * (c.z - cz));
+            return best;
+        };
+        std::nth_element(wanted.begin(), wanted.begin() + long(cell_limit), wanted.end(),
+                         [&](const auto& a, const auto& b) { return distance(a) < distance(b); });
+        shed = wanted.size() - cell_limit;
+        wanted.resize(cell_limit);
+        std::sort(wanted.begin(), wanted.end());
+        for (auto it = cell_subs.begin(); it != cell_subs.end();) {  // the shed ones go now, not after the linger
+            if (!std::binary_search(wanted.begin(), wanted.end(), it->first)) {
+                unsubscribe(it->second.first);
+                it = cell_subs.erase(it);
+            } else {
+                ++it;
+            }
+        }
+        if (now >= next_shed_report) {
+            say("fell behind on the bus: following the nearest " + std::to_string(cell_limit) + " of " +
+                std::to_string(cell_limit + shed) + " cells its clients want");
+            next_shed_report = now + 5.0;
+        }
+    }
     if (all) {
         if (!all_cells && !(all_cells = subscribe(cell_prefix + ">"))) count([](WorldStats& s) { ++s.subscribe_failed; });
         for (auto& [cell, sub] : cell_subs) unsubscribe(sub.first);
@@ -341,7 +385,10 @@ void WorldBus::Impl::interest(double now) {
         }
         unsubscribe(all_cells);
     }
-    count([&](WorldStats& s) { s.cells = all_cells ? -1 : int(cell_subs.size()); });
+    count([&](WorldStats& s) {
+        s.cells = all_cells ? -1 : int(cell_subs.size());
+        s.cells_shed = int(shed);
+    });
 }
 
 void WorldBus::Impl::receive(double now) {

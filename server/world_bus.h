@@ -60,6 +60,7 @@ struct WorldStats {
     uint64_t subscribe_failed = 0;
     int foreign = 0, nodes_seen = 0;
     int cells = 0;  // cell subscriptions now (-1: every cell)
+    int cells_shed = 0;  // cells its clients want that it does not follow now (behind: the farthest shed)
     bool connected = false;
 };
 

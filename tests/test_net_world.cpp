@@ -294,6 +294,65 @@ TEST(NetWorld, CredentialsInTheUrlAndNeverInTheLogs) {
     EXPECT_GT(a.server->stats().world_messages_out, 0u) << "the node publishes on the bus it joined";
 }
 
+// A node so far behind that its bus queue overflows follows fewer cells
+// (the nearest to its clients' view first) until it keeps up, then grows
+// back: 3,000 messages flood a cell near the observer at once; the node
+// sheds the farthest half of the 196 cells its observer wants, keeps the
+// flooded (nearest) one, and follows all of them again within seconds.
+TEST(NetWorld, ABehindNodeFollowsFewerCellsThenAllAgain) {
+    if (!have_nats_server()) GTEST_SKIP() << "nats-server not installed (apt-get install nats-server)";
+    NatsServer nats(free_port());
+    ServerConfig cfg = node(nats, "alpha");
+    cfg.view_radius = 100.0;  // 14 x 14 cells of 16 around the camera
+    RunningServer a({}, cfg);
+    Client observer(client_config("observer"));
+    observer.connect("127.0.0.1", a.server->tcp_port());
+    ViewSpec v;
+    v.has_camera = true;
+    v.camera = glm::vec3(1.0f, 1.5f, 1.0f);
+    observer.set_view(v);
+    ASSERT_GE(run_until(10, [&] { return a.server->stats().world_cells == 196; }, nullptr, observer), 0)
+        << a.server->stats().world_cells << " cells";
+
+    natsConnection* nc = nullptr;
+    ASSERT_EQ(natsConnection_ConnectTo(&nc, nats.url().c_str()), NATS_OK);
+    const ServerAssets& assets = default_assets();
+    const ServerAsset& asset = *assets[0];
+    std::vector<uint8_t> records(size_t(asset.bone_count()) * size_t(asset.format.size()));
+    for (int b = 0; b < asset.bone_count(); ++b) encode_bone(BonePose{}, asset.format, records.data() + size_t(b) * size_t(asset.format.size()));
+    WorldCharacter c;
+    c.id = 5;
+    c.world_id = 0x888000000010005ull;
+    c.asset = 0;
+    c.published = true;
+    c.records = records;
+    ASSERT_TRUE(encode_root(RootPose{glm::dvec3(2.0, 0.0, 2.0)}, c.root.data()));
+    std::vector<uint8_t> bytes;
+    const std::string subject = "progskin." + cfg.world_name + ".cell.0.0";
+    for (int t = 1; t <= 3000; ++t) {
+        write_world_message(WorldHeader{4343, catalogue_hash(assets), uint32_t(t)}, std::span(&c, 1), assets, bytes);
+        ASSERT_EQ(natsConnection_Publish(nc, subject.c_str(), bytes.data(), int(bytes.size())), NATS_OK);
+    }
+    ASSERT_EQ(natsConnection_Flush(nc), NATS_OK);
+    int fewest = 196, most_shed = 0;
+    run_until(1.0, [&] {
+        const ServerStats st = a.server->stats();
+        fewest = std::min(fewest, st.world_cells);
+        most_shed = std::max(most_shed, st.world_cells_shed);
+        return false;
+    }, nullptr, observer);
+    const ServerStats st = a.server->stats();
+    EXPECT_GT(st.world_dropped, 0u) << "the flood overflowed the bus queue";
+    EXPECT_GT(most_shed, 0) << "a node behind sheds cells";
+    EXPECT_LE(fewest, 98) << "the farthest half shed";
+    EXPECT_NE(published(observer), nullptr) << "the flooded cell, the nearest, is still followed";
+    const double back = run_until(8, [&] { return a.server->stats().world_cells == 196; }, nullptr, observer);
+    EXPECT_GE(back, 0) << "all 196 cells followed again; now " << a.server->stats().world_cells;
+    std::printf("flood: %llu dropped, %llu superseded, cells down to %d (%d shed), all 196 again %.1f s later\n",
+                (unsigned long long)st.world_dropped, (unsigned long long)st.world_superseded, fewest, most_shed, back);
+    natsConnection_Destroy(nc);
+}
+
 // Interest management (ServerConfig::view_radius): node A subscribes only to
 // the cells near its observer's camera. A player on B standing 1.4 km away
 // is not on A; the observer moves its camera there: shown within 1 s; back:
