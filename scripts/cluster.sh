@@ -16,8 +16,11 @@
 #                      [--walk R] [--spacing D] [--see K] [--connect-rate N]
 #                      [--placement round-robin|bands]
 #                      [--server-args "ARGS"] [--json FILE] [--build DIR]
+#                      [--nats-tls]
 # --server-args: more progskin-server options for every node (e.g.
 # "--owner-share-kbps 0 --threads 2").
+# --nats-tls: the bus over TLS (a self-signed pair made with openssl in the
+# run's folder; nats-server --tls, the nodes tls:// with --nats-ca).
 #
 # Exit status: the loadgen's (0: every player joined and streamed to the end).
 set -euo pipefail
@@ -33,6 +36,7 @@ ASSET=CesiumMan.glb
 LGOPTS=()
 SERVER_ARGS=()
 JSON=""
+NATS_TLS=0
 while (($#)); do
   case "$1" in
     --nodes) NODES=$2; shift 2;;
@@ -46,6 +50,7 @@ while (($#)); do
     --json) JSON=$2; shift 2;;
     --server-args) read -r -a SERVER_ARGS <<<"$2"; shift 2;;
     --build) BUILD=$2; shift 2;;
+    --nats-tls) NATS_TLS=1; shift;;
     -h|--help) sed -n '2,23p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
     *) echo "cluster.sh: unknown argument $1" >&2; exit 2;;
   esac
@@ -69,10 +74,20 @@ free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",
 NATSOPT=()
 if ((NODES > 1)); then
   NATS_PORT=$(free_port)
-  nats-server -a 127.0.0.1 -p "$NATS_PORT" >"$TMP/nats.log" 2>&1 &
+  NATS_TLSOPT=()
+  SCHEME=nats
+  if ((NATS_TLS)); then
+    command -v openssl >/dev/null || { echo "cluster.sh: --nats-tls needs openssl (apt-get install openssl)" >&2; exit 1; }
+    openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:P-256 -nodes -days 2 -subj /CN=bus \
+      -addext "subjectAltName=IP:127.0.0.1" -keyout "$TMP/bus-key.pem" -out "$TMP/bus.pem" >/dev/null 2>&1
+    NATS_TLSOPT=(--tls --tlscert "$TMP/bus.pem" --tlskey "$TMP/bus-key.pem")
+    SCHEME=tls
+  fi
+  nats-server -a 127.0.0.1 -p "$NATS_PORT" "${NATS_TLSOPT[@]}" >"$TMP/nats.log" 2>&1 &
   PIDS+=($!)
   for _ in $(seq 1 100); do (echo >/dev/tcp/127.0.0.1/"$NATS_PORT") 2>/dev/null && break; sleep 0.05; done
-  NATSOPT=(--nats "nats://127.0.0.1:$NATS_PORT" --world "cluster$$")
+  NATSOPT=(--nats "$SCHEME://127.0.0.1:$NATS_PORT" --world "cluster$$")
+  ((NATS_TLS)) && NATSOPT+=(--nats-ca "$TMP/bus.pem")
 fi
 
 THREADOPT=()
