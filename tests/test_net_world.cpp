@@ -223,7 +223,9 @@ TEST(NetWorld, ABehindNodeTakesTheNewestMessageOfEachCell) {
     Client observer(client_config("observer"));
     observer.connect("127.0.0.1", a.server->tcp_port());
     ASSERT_GE(run_until(10, [&] { return observer.characters().size() == 4u; }, nullptr, observer), 0) << observer.error();
-    run_until(0.5, [] { return false; }, nullptr, observer);  // A subscribes to the cells (interest, every 0.1 s)
+    // A subscribes to the cells (interest, every 0.1 s); the subscription
+    // reaches nats-server asynchronously.
+    run_until(1.0, [] { return false; }, nullptr, observer);
 
     natsConnection* nc = nullptr;
     ASSERT_EQ(natsConnection_ConnectTo(&nc, nats.url().c_str()), NATS_OK);
@@ -313,6 +315,9 @@ TEST(NetWorld, ABehindNodeFollowsFewerCellsThenAllAgain) {
     observer.set_view(v);
     ASSERT_GE(run_until(10, [&] { return a.server->stats().world_cells == 196; }, nullptr, observer), 0)
         << a.server->stats().world_cells << " cells";
+    // The node's subscriptions reach nats-server asynchronously: give them
+    // time to be in place before the flood (else it goes to nobody).
+    run_until(1.0, [] { return false; }, nullptr, observer);
 
     natsConnection* nc = nullptr;
     ASSERT_EQ(natsConnection_ConnectTo(&nc, nats.url().c_str()), NATS_OK);
