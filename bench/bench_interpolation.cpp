@@ -32,6 +32,7 @@
 #include "errors.h"
 #include "gltf_import.h"
 #include "pose.h"
+#include "skinning.h"
 
 using namespace progskin;
 
@@ -55,21 +56,19 @@ BonePose mul(const BonePose& a, const BonePose& b) {
     return c;
 }
 
+// The character's vertices skinned with these poses (skinning.h SkinningJob).
 void skin(const Character& c, const std::vector<BonePose>& poses, std::vector<glm::vec3>& out) {
     std::vector<Mat34> m(poses.size());
     for (size_t j = 0; j < poses.size(); ++j) m[j] = compose(poses[j]);
-    out.assign(c.vertex_count(), glm::vec3(0.0f));
-    for (size_t v = 0; v < c.vertex_count(); ++v) {
-        const glm::vec3 x = c.positions[v];
-        for (int i = 0; i < c.influences; ++i) {
-            const float w = c.weights[v * size_t(c.influences) + size_t(i)];
-            if (w == 0.0f) continue;
-            const Mat34& a = m[c.joints[v * size_t(c.influences) + size_t(i)]];
-            out[v] += w * glm::vec3(a.m[0] * x.x + a.m[1] * x.y + a.m[2] * x.z + a.m[3],
-                                    a.m[4] * x.x + a.m[5] * x.y + a.m[6] * x.z + a.m[7],
-                                    a.m[8] * x.x + a.m[9] * x.y + a.m[10] * x.z + a.m[11]);
-        }
-    }
+    out.resize(c.vertex_count());
+    SkinningJob job;
+    job.positions = c.positions;
+    job.joints = c.joints;
+    job.weights = c.weights;
+    job.influences = job.max_influences = c.influences;
+    job.palette = m;
+    job.out_positions = out;
+    job.run();
 }
 
 constexpr int kMethods = 5;

@@ -199,9 +199,8 @@ bool Scheduler::up_to_date(size_t i, const EncodedFrame& frame) const {
 }
 
 // The fast path: every bone and due weight of every important instance.
-void Scheduler::pick_everything(const EncodedFrame& frame, std::span<const float> importance, bool except_over_share,
+void Scheduler::pick_everything(const EncodedFrame& frame, bool except_over_share,
                                 std::vector<Pick>& out) {
-    (void)importance;
     for (const uint32_t i : active_) {
         const auto& e = frame.instances[i];
         if (!current_[i] && !(except_over_share && over_share(i))) {
@@ -553,7 +552,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
             shared += share_now_;
         }
     if (!over && WireCost::wire(full) <= budget) {
-        pick_everything(frame, importance, false, out);
+        pick_everything(frame, false, out);
         std::sort(out.begin(), out.end(), by_importance);
         return WireCost::wire(full);
     }
@@ -561,7 +560,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
         // All but what the shares hold back fits: everything of the other
         // instances, and the greedy within their shares for the groups over
         // them. Not limited (the rate does not grow for what a share holds).
-        pick_everything(frame, importance, true, out);
+        pick_everything(frame, true, out);
         set_floors(frame, assets, importance, budget);
         offer_items(frame, assets, importance, tick_rate, true);
         take_greedily(budget, take_stale_roots(frame, budget, free_payload));

@@ -200,7 +200,7 @@ private:
     size_t morph_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                        std::span<const float> importance);
     // except_over_share: not the instances of groups over their share.
-    void pick_everything(const EncodedFrame& frame, std::span<const float> importance, bool except_over_share,
+    void pick_everything(const EncodedFrame& frame, bool except_over_share,
                          std::vector<Pick>& out);
     // only_over_share: the instances of groups over their share only.
     void offer_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,

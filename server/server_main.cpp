@@ -398,6 +398,8 @@ static void report(const ServerStats& st) {
                  (unsigned long long)st.poses_received, (unsigned long long)st.poses_stale,
                  (unsigned long long)st.poses_rate_limited, (unsigned long long)st.poses_out_of_range,
                  st.ticks ? 1000.0 * st.tick_seconds / double(st.ticks) : 0.0);
+    std::string cells = st.world_cells < 0 ? "all" : std::to_string(st.world_cells);
+    if (st.world_cells_shed > 0) cells += " (" + std::to_string(st.world_cells_shed) + " shed: behind)";
     if (st.world_messages_out + st.world_messages_in > 0)
         std::fprintf(stderr,
                      "progskin-server: world bus: %llu messages (%llu bytes) out, %llu (%llu bytes) in, %llu dropped, "
@@ -408,10 +410,7 @@ static void report(const ServerStats& st) {
                      (unsigned long long)st.world_messages_in, (unsigned long long)st.world_bytes_in,
                      (unsigned long long)st.world_dropped, (unsigned long long)st.world_superseded,
                      (unsigned long long)st.world_malformed, (unsigned long long)st.world_refused, (unsigned long long)st.world_publish_failed, st.world_foreign,
-                     st.world_cells < 0 ? "all"
-                     : st.world_cells_shed > 0
-                         ? (std::to_string(st.world_cells) + " (" + std::to_string(st.world_cells_shed) + " shed: behind)").c_str()
-                         : std::to_string(st.world_cells).c_str());
+                     cells.c_str());
     std::string refusals;
     for (const auto& [reason, n] : st.refusals) refusals += " " + reason + " " + std::to_string(n);
     std::fprintf(stderr, "progskin-server: refusals:%s\n", refusals.empty() ? " none" : refusals.c_str());

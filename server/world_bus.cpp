@@ -55,6 +55,7 @@ std::string redact_nats_url(const std::string& urls) {
 struct WorldBus::Impl {
     WorldConfig cfg;
     ServerCore& core;
+    std::string shown_url;  // cfg.url as logs show it (redact_nats_url)
     uint16_t node_id = 0;
     uint64_t catalogue = 0;
     natsOptions* opts = nullptr;
@@ -71,6 +72,7 @@ struct WorldBus::Impl {
     double next_grow = 0, next_shed_report = 0;
     std::vector<glm::dvec3> centres;                    // interest()'s scratch
     std::vector<std::pair<int64_t, int64_t>> wanted;
+    std::vector<std::pair<double, std::pair<int64_t, int64_t>>> by_distance;  // interest()'s scratch when shedding
     std::string cell_prefix, hello_subject;
 
     // libnats threads -> tick thread
@@ -109,7 +111,7 @@ struct WorldBus::Impl {
     std::unordered_set<uint64_t> newest;  // receive()'s scratch: (sender, cell) keys seen
     double next_drop_report = 0;
 
-    Impl(WorldConfig c, ServerCore& k) : cfg(std::move(c)), core(k) {
+    Impl(WorldConfig c, ServerCore& k) : cfg(std::move(c)), core(k), shown_url(redact_nats_url(cfg.url)) {
         std::random_device rd;
         while (node_id == 0) node_id = uint16_t(rd());
         catalogue = catalogue_hash(core.assets());
@@ -155,13 +157,13 @@ struct WorldBus::Impl {
         auto* self = static_cast<Impl*>(closure);
         if (self->closing) return;
         self->count([](WorldStats& s) { s.connected = false; });
-        say("lost the bus (" + redact_nats_url(self->cfg.url) + "); reconnecting, local streaming goes on");
+        say("lost the bus (" + self->shown_url + "); reconnecting, local streaming goes on");
     }
     static void on_reconnected(natsConnection*, void* closure) {
         auto* self = static_cast<Impl*>(closure);
         if (self->closing) return;
         self->count([](WorldStats& s) { s.connected = true; });
-        say("reconnected to the bus (" + redact_nats_url(self->cfg.url) + ")");
+        say("reconnected to the bus (" + self->shown_url + ")");
     }
     static void on_connected(natsConnection*, void* closure) { on_reconnected(nullptr, closure); }
     static void on_closed(natsConnection*, void* closure) {
@@ -176,7 +178,7 @@ struct WorldBus::Impl {
             if (s != NATS_OK) throw Error(std::string("world bus: ") + what + ": " + natsStatus_GetText(s));
         };
         check(natsOptions_Create(&opts), "options");
-        check(natsOptions_SetURL(opts, cfg.url.c_str()), ("bad URL " + redact_nats_url(cfg.url)).c_str());
+        check(natsOptions_SetURL(opts, cfg.url.c_str()), ("bad URL " + shown_url).c_str());
         check(natsOptions_SetName(opts, ("progskin " + cfg.node).c_str()), "name");
         check(natsOptions_SetAllowReconnect(opts, true), "reconnect");
         check(natsOptions_SetMaxReconnect(opts, -1), "reconnect");
@@ -205,7 +207,7 @@ struct WorldBus::Impl {
         }
         if (s != NATS_OK && s != NATS_NOT_YET_CONNECTED) {
             const char* detail = nats_GetLastError(nullptr);
-            throw Error("world bus: cannot join " + redact_nats_url(cfg.url) + ": " + natsStatus_GetText(s) +
+            throw Error("world bus: cannot join " + shown_url + ": " + natsStatus_GetText(s) +
                         (detail && *detail ? std::string(" (") + detail + ")" : std::string()) +
                         (s == NATS_SSL_ERROR ? "; is its certificate signed by --nats-ca?"
                          : s == NATS_SECURE_CONNECTION_REQUIRED ? "; it needs TLS: tls://HOST:PORT and --nats-ca"
@@ -217,7 +219,7 @@ struct WorldBus::Impl {
         if (s == NATS_OK) count([](WorldStats& w) { w.connected = true; });
         check(natsConnection_Subscribe(&hellos, nc, hello_subject.c_str(), on_message, this), "subscribe");
         check(natsSubscription_SetPendingLimits(hellos, int(kQueueMessages), int(kQueueBytes)), "pending limits");
-        say("node " + cfg.node + " joins world " + cfg.world + " on " + redact_nats_url(cfg.url) + (s == NATS_OK ? "" : " (not up yet: retrying)"));
+        say("node " + cfg.node + " joins world " + cfg.world + " on " + shown_url + (s == NATS_OK ? "" : " (not up yet: retrying)"));
     }
 
     void publish(const std::string& subject, const std::vector<uint8_t>& bytes) {
@@ -337,16 +339,18 @@ void WorldBus::Impl::interest(double now) {
     dropped_seen = dropped;
     size_t shed = 0;
     if (!all && wanted.size() > cell_limit) {
-        auto distance = [&](const std::pair<int64_t, int64_t>& cell) {
+        // Each cell's squared distance to the nearest centre, once.
+        by_distance.clear();
+        for (const auto& cell : wanted) {
             const double cx = (double(cell.first) + 0.5) * cfg.cell_size, cz = (double(cell.second) + 0.5) * cfg.cell_size;
             double best = 1e300;
             for (const glm::dvec3& c : centres) best = std::min(best, (c.x - cx) * (c.x - cx) + (c.z - cz) * (c.z - cz));
-            return best;
-        };
-        std::nth_element(wanted.begin(), wanted.begin() + long(cell_limit), wanted.end(),
-                         [&](const auto& a, const auto& b) { return distance(a) < distance(b); });
+            by_distance.emplace_back(best, cell);
+        }
+        std::nth_element(by_distance.begin(), by_distance.begin() + long(cell_limit), by_distance.end());
         shed = wanted.size() - cell_limit;
         wanted.resize(cell_limit);
+        for (size_t k = 0; k < cell_limit; ++k) wanted[k] = by_distance[k].second;
         std::sort(wanted.begin(), wanted.end());
         for (auto it = cell_subs.begin(); it != cell_subs.end();) {  // the shed ones go now, not after the linger
             if (!std::binary_search(wanted.begin(), wanted.end(), it->first)) {

@@ -95,6 +95,37 @@ double off_identity(const RemoteCharacter& c) {
     return worst;
 }
 
+// Another node of the world as the test's own libnats peer: publishes n
+// messages of one player's character (node id `node`, asset 0) to cell 0.0
+// at once, message t (1..n) with the bind pose raised t x rise, standing at
+// `at`. False when the connection or a publish fails.
+bool flood_cell(const NatsServer& nats, const std::string& world, uint16_t node, int n, float rise, glm::dvec3 at) {
+    natsConnection* nc = nullptr;
+    if (natsConnection_ConnectTo(&nc, nats.url().c_str()) != NATS_OK) return false;
+    const ServerAssets& assets = default_assets();  // the nodes' catalogue
+    const ServerAsset& asset = *assets[0];
+    std::vector<uint8_t> records(size_t(asset.bone_count()) * size_t(asset.format.size()));
+    WorldCharacter c;
+    c.id = 9;
+    c.world_id = (uint64_t(node) << 40) | 9u;
+    c.asset = 0;
+    c.published = true;
+    bool ok = encode_root(RootPose{at}, c.root.data());
+    std::vector<uint8_t> bytes;
+    const std::string subject = "progskin." + world + ".cell.0.0";
+    for (int t = 1; t <= n && ok; ++t) {
+        BonePose p;
+        p.t = glm::vec3(0.0f, rise * float(t), 0.0f);
+        for (int b = 0; b < asset.bone_count(); ++b) encode_bone(p, asset.format, records.data() + size_t(b) * size_t(asset.format.size()));
+        c.records = records;
+        write_world_message(WorldHeader{node, catalogue_hash(assets), uint32_t(t)}, std::span(&c, 1), assets, bytes);
+        ok = natsConnection_Publish(nc, subject.c_str(), bytes.data(), int(bytes.size())) == NATS_OK;
+    }
+    ok = ok && natsConnection_Flush(nc) == NATS_OK;
+    natsConnection_Destroy(nc);
+    return ok;
+}
+
 }  // namespace
 
 // A player on node B is seen by a player on node A within 1 s of its spawn,
@@ -190,14 +221,16 @@ TEST(NetWorld, TlsToTheBus) {
     ServerConfig no_cert = tls_node("no-cert");
     no_cert.nats_cert_file.clear();
     no_cert.nats_key_file.clear();
-    EXPECT_NE(refused(no_cert).find("cannot join " + url), std::string::npos) << refused(no_cert);
+    const std::string no_cert_why = refused(no_cert);
+    EXPECT_NE(no_cert_why.find("cannot join " + url), std::string::npos) << no_cert_why;
     ServerConfig other_ca = tls_node("other-ca");
     other_ca.nats_ca_file = node_id.cert_path;
     const std::string why = refused(other_ca);
     EXPECT_NE(why.find("SSL"), std::string::npos) << why;
     EXPECT_NE(why.find("--nats-ca"), std::string::npos) << why;
     ServerConfig plain = node(nats, "plain");  // nats:// to a server that requires TLS: refused, not retried
-    EXPECT_NE(refused(plain).find("cannot join"), std::string::npos) << refused(plain);
+    const std::string plain_why = refused(plain);
+    EXPECT_NE(plain_why.find("cannot join"), std::string::npos) << plain_why;
 
     RunningServer a({}, tls_node("alpha"));
     RunningServer b(std::vector<InstanceSpec>{}, tls_node("beta"));
@@ -227,30 +260,8 @@ TEST(NetWorld, ABehindNodeTakesTheNewestMessageOfEachCell) {
     // reaches nats-server asynchronously.
     run_until(1.0, [] { return false; }, nullptr, observer);
 
-    natsConnection* nc = nullptr;
-    ASSERT_EQ(natsConnection_ConnectTo(&nc, nats.url().c_str()), NATS_OK);
-    const ServerAssets& assets = default_assets();  // A's catalogue
-    const ServerAsset& asset = *assets[0];
-    std::vector<uint8_t> records(size_t(asset.bone_count()) * size_t(asset.format.size()));
-    WorldCharacter c;
-    c.id = 9;
-    c.world_id = 0x777000000010009ull;
-    c.asset = 0;
-    c.published = true;
-    std::vector<uint8_t> bytes;
-    const int n = 200;
-    for (int t = 1; t <= n; ++t) {
-        // The bind pose moved up by t millimetres: the newest is the last.
-        BonePose p;
-        p.t = glm::vec3(0.0f, 0.001f * float(t), 0.0f);
-        for (int b = 0; b < asset.bone_count(); ++b) encode_bone(p, asset.format, records.data() + size_t(b) * size_t(asset.format.size()));
-        c.records = records;
-        ASSERT_TRUE(encode_root(RootPose{glm::dvec3(1.0, 0.0, 1.0)}, c.root.data()));
-        write_world_message(WorldHeader{4242, catalogue_hash(assets), uint32_t(t)}, std::span(&c, 1), assets, bytes);
-        const std::string subject = "progskin." + cfg.world_name + ".cell.0.0";
-        ASSERT_EQ(natsConnection_Publish(nc, subject.c_str(), bytes.data(), int(bytes.size())), NATS_OK);
-    }
-    ASSERT_EQ(natsConnection_Flush(nc), NATS_OK);
+    const int n = 200;  // the bind pose raised t mm by message t: the newest is the last
+    ASSERT_TRUE(flood_cell(nats, cfg.world_name, 4242, n, 0.001f, glm::dvec3(1.0, 0.0, 1.0)));
     const double seen = run_until(3, [&] { return published(observer) != nullptr; }, nullptr, observer);
     ASSERT_GE(seen, 0) << "the flooding node's character not shown";
     run_until(0.5, [] { return false; }, nullptr, observer);
@@ -264,7 +275,6 @@ TEST(NetWorld, ABehindNodeTakesTheNewestMessageOfEachCell) {
     EXPECT_NEAR(rc->palette[0].m[7], 0.2, 2e-3);
     std::printf("%llu of %d messages taken, %llu superseded, %llu dropped\n", (unsigned long long)st.world_messages_in, n,
                 (unsigned long long)st.world_superseded, (unsigned long long)st.world_dropped);
-    natsConnection_Destroy(nc);
 }
 
 // A NATS server with a user and password (nats://USER:PASSWORD@HOST:PORT,
@@ -319,26 +329,7 @@ TEST(NetWorld, ABehindNodeFollowsFewerCellsThenAllAgain) {
     // time to be in place before the flood (else it goes to nobody).
     run_until(1.0, [] { return false; }, nullptr, observer);
 
-    natsConnection* nc = nullptr;
-    ASSERT_EQ(natsConnection_ConnectTo(&nc, nats.url().c_str()), NATS_OK);
-    const ServerAssets& assets = default_assets();
-    const ServerAsset& asset = *assets[0];
-    std::vector<uint8_t> records(size_t(asset.bone_count()) * size_t(asset.format.size()));
-    for (int b = 0; b < asset.bone_count(); ++b) encode_bone(BonePose{}, asset.format, records.data() + size_t(b) * size_t(asset.format.size()));
-    WorldCharacter c;
-    c.id = 5;
-    c.world_id = 0x888000000010005ull;
-    c.asset = 0;
-    c.published = true;
-    c.records = records;
-    ASSERT_TRUE(encode_root(RootPose{glm::dvec3(2.0, 0.0, 2.0)}, c.root.data()));
-    std::vector<uint8_t> bytes;
-    const std::string subject = "progskin." + cfg.world_name + ".cell.0.0";
-    for (int t = 1; t <= 3000; ++t) {
-        write_world_message(WorldHeader{4343, catalogue_hash(assets), uint32_t(t)}, std::span(&c, 1), assets, bytes);
-        ASSERT_EQ(natsConnection_Publish(nc, subject.c_str(), bytes.data(), int(bytes.size())), NATS_OK);
-    }
-    ASSERT_EQ(natsConnection_Flush(nc), NATS_OK);
+    ASSERT_TRUE(flood_cell(nats, cfg.world_name, 4343, 3000, 0.0f, glm::dvec3(2.0, 0.0, 2.0)));
     int fewest = 196, most_shed = 0;
     run_until(1.0, [&] {
         const ServerStats st = a.server->stats();
@@ -355,7 +346,6 @@ TEST(NetWorld, ABehindNodeFollowsFewerCellsThenAllAgain) {
     EXPECT_GE(back, 0) << "all 196 cells followed again; now " << a.server->stats().world_cells;
     std::printf("flood: %llu dropped, %llu superseded, cells down to %d (%d shed), all 196 again %.1f s later\n",
                 (unsigned long long)st.world_dropped, (unsigned long long)st.world_superseded, fewest, most_shed, back);
-    natsConnection_Destroy(nc);
 }
 
 // Interest management (ServerConfig::view_radius): node A subscribes only to
