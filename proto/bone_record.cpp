@@ -1,0 +1,378 @@
+// bone_record.cpp — see bone_record.h.
+#include "bone_record.h"
+
+#include <algorithm>
+#include <bit>
+#include <cmath>
+#include <stdexcept>
+
+#include <glm/gtc/quaternion.hpp>
+
+namespace progskin::net {
+namespace {
+
+uint32_t zigzag(int32_t v) { return (uint32_t(v) << 1) ^ uint32_t(v >> 31); }
+int64_t unzigzag(uint64_t u) { return int64_t(u >> 1) ^ -int64_t(u & 1); }
+int eg_bits(uint32_t u, int k) { return 2 * int(std::bit_width(uint64_t(u) + (uint64_t(1) << k))) - 1 - k; }
+
+// The order (index into orders) that codes three values in the fewest bits.
+int best_order(const uint32_t u[3], const int (&orders)[4], int& bits) {
+    int best = 0;
+    bits = 1 << 30;
+    for (int s = 0; s < 4; ++s) {
+        const int n = eg_bits(u[0], orders[s]) + eg_bits(u[1], orders[s]) + eg_bits(u[2], orders[s]);
+        if (n < bits) bits = n, best = s;
+    }
+    return best;
+}
+
+bool round_to(double v, int32_t bound, int32_t& out) {
+    const double r = std::round(v);
+    if (!(r >= -double(bound) && r <= double(bound))) return false;  // NaN fails too
+    out = int32_t(r);
+    return true;
+}
+
+struct DPose {
+    glm::dquat r{1, 0, 0, 0};
+    glm::dvec3 t{0.0};
+    double s = 1.0;
+};
+DPose widen(const BonePose& p) { return {glm::dquat(p.r), glm::dvec3(p.t), double(p.s)}; }
+
+// Rotation of a record's integers (w may be slightly negative past |p| = 1).
+glm::dquat rotation_of(const int32_t rot[3]) {
+    const glm::dvec3 p(rot[0] * ROT_STEP, rot[1] * ROT_STEP, rot[2] * ROT_STEP);
+    const double n2 = glm::dot(p, p);
+    const glm::dvec3 v = p * (2.0 / (1.0 + n2));
+    return glm::dquat((1.0 - n2) / (1.0 + n2), v.x, v.y, v.z);
+}
+
+}  // namespace
+
+RelativeFormat relative_format(std::span<const int16_t> parents, std::span<const Mat34> inverse_binds,
+                               const RecordFormat& box) {
+    if (parents.size() != inverse_binds.size()) throw std::invalid_argument("relative_format: parents and binds differ in size");
+    RelativeFormat f;
+    f.parents.assign(parents.begin(), parents.end());
+    f.pivots.resize(parents.size());
+    for (size_t b = 0; b < parents.size(); ++b) {
+        if (parents[b] >= int(b) || parents[b] < -1 || (b == 0 && parents[b] != -1))
+            throw std::invalid_argument("relative_format: a progressive parent is not below its bone");
+        const glm::dmat4 bind = glm::inverse(glm::dmat4(inverse_binds[b].to_glm()));
+        f.pivots[b] = glm::vec3(bind[3]);
+    }
+    const glm::vec3 ext = box.t_max - box.t_min;
+    f.t_step = std::max({ext.x, ext.y, ext.z, 1e-9f}) / 65535.0f;
+    f.scaled = box.scaled;
+    return f;
+}
+
+bool quantise_record(const BonePose& parent_decoded, const BonePose& m, const glm::vec3& pivot, const RelativeFormat& f,
+                     RecordInts& out) {
+    const DPose p = widen(parent_decoded), c = widen(m);
+    if (!(p.s > 0) || !(c.s > 0)) return false;
+    const glm::dquat ip = glm::conjugate(p.r);
+    glm::dquat q = ip * c.r;
+    const double len = std::sqrt(q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z);
+    if (!(len > 1e-6) || !std::isfinite(len)) return false;
+    q = q / len;
+    if (q.w < 0) q = -q;
+    RecordInts r;
+    const double d = 1.0 + q.w;
+    if (!round_to(q.x / d / ROT_STEP, kMaxRotInt, r.rot[0]) || !round_to(q.y / d / ROT_STEP, kMaxRotInt, r.rot[1]) ||
+        !round_to(q.z / d / ROT_STEP, kMaxRotInt, r.rot[2]))
+        return false;
+    const double s_rel = c.s / p.s;
+    if (f.scaled) {
+        int32_t l = 0;
+        if (!round_to(std::log2(s_rel) * 2048.0, kMaxScaleInt, l)) return false;
+        r.scale = l;
+        r.has_scale = l != 0;
+    }
+    // The translation R would have if the joint turned rigidly about its pivot.
+    const glm::dquat qh = rotation_of(r.rot);
+    const double sh = r.has_scale ? std::exp2(double(r.scale) / 2048.0) : 1.0;
+    const glm::dvec3 j(pivot);
+    const glm::dvec3 pred = j - sh * (qh * j);
+    const glm::dvec3 t_rel = (ip * (c.t - p.t)) / p.s;
+    bool big = false;
+    for (int a = 0; a < 3; ++a) {
+        if (!round_to((t_rel[a] - pred[a]) / double(f.t_step), kMaxTransInt, r.trans[a])) return false;
+        big = big || std::abs(r.trans[a]) > kTransDeadZone;
+    }
+    r.has_trans = big;
+    if (!big) r.trans[0] = r.trans[1] = r.trans[2] = 0;
+    out = r;
+    return true;
+}
+
+BonePose dequantise_record(const RecordInts& r, const glm::vec3& pivot, const RelativeFormat& f) {
+    const glm::dquat q = rotation_of(r.rot);
+    const double s = f.scaled && r.has_scale ? std::exp2(double(r.scale) / 2048.0) : 1.0;
+    const glm::dvec3 j(pivot);
+    glm::dvec3 t = j - s * (q * j);
+    if (r.has_trans) t += glm::dvec3(r.trans[0], r.trans[1], r.trans[2]) * double(f.t_step);
+    BonePose out;
+    out.r = glm::quat(glm::normalize(q));
+    out.t = glm::vec3(t);
+    out.s = float(s);
+    return out;
+}
+
+BonePose compose_relative(const BonePose& parent, const BonePose& rel) {
+    const DPose p = widen(parent), r = widen(rel);
+    BonePose out;
+    out.r = glm::quat(glm::normalize(p.r * r.r));
+    out.t = glm::vec3(p.t + p.s * (p.r * r.t));
+    out.s = float(p.s * r.s);
+    return out;
+}
+
+void BitWriter::put(uint64_t bits, int n) {
+    while (n > 0) {
+        if (free_ == 0) {
+            out_.push_back(0);
+            free_ = 8;
+        }
+        const int take = std::min(n, free_);
+        out_.back() |= uint8_t((bits & ((1u << take) - 1)) << (8 - free_));
+        bits >>= take;
+        n -= take;
+        free_ -= take;
+    }
+}
+
+void BitWriter::put_eg(uint32_t u, int k) {
+    const uint64_t x = uint64_t(u) + (uint64_t(1) << k);
+    const int n = int(std::bit_width(x));
+    put(0, n - 1 - k);
+    put(1, 1);
+    put(x & ((uint64_t(1) << (n - 1)) - 1), n - 1);
+}
+
+bool BitReader::get(int n, uint64_t& v) {
+    if (size_t(n) > bits_ - at_) return false;
+    v = 0;
+    int got = 0;
+    while (got < n) {
+        const size_t byte = at_ >> 3;
+        const int off = int(at_ & 7);
+        const int take = std::min(n - got, 8 - off);
+        v |= uint64_t((data_[byte] >> off) & ((1u << take) - 1)) << got;
+        got += take;
+        at_ += size_t(take);
+    }
+    return true;
+}
+
+bool BitReader::get_eg(int k, uint64_t& u) {
+    int z = 0;
+    uint64_t bit = 0;
+    for (;;) {
+        if (!get(1, bit)) return false;
+        if (bit) break;
+        if (++z > kMaxPrefix) return false;
+    }
+    uint64_t rest = 0;
+    if (!get(z + k, rest)) return false;
+    u = (uint64_t(1) << (z + k)) + rest - (uint64_t(1) << k);
+    return true;
+}
+
+size_t write_record(const RecordInts& r, bool scaled, BitWriter& w) {
+    const size_t start = w.bits();
+    uint32_t u[3] = {zigzag(r.rot[0]), zigzag(r.rot[1]), zigzag(r.rot[2])};
+    int bits = 0;
+    int s = best_order(u, kRotOrders, bits);
+    w.put(uint64_t(s), 2);
+    for (int a = 0; a < 3; ++a) w.put_eg(u[a], kRotOrders[s]);
+    w.put(r.has_trans ? 1 : 0, 1);
+    if (r.has_trans) {
+        uint32_t t[3] = {zigzag(r.trans[0]), zigzag(r.trans[1]), zigzag(r.trans[2])};
+        s = best_order(t, kTransOrders, bits);
+        w.put(uint64_t(s), 2);
+        for (int a = 0; a < 3; ++a) w.put_eg(t[a], kTransOrders[s]);
+    }
+    if (scaled) {
+        w.put(r.has_scale ? 1 : 0, 1);
+        if (r.has_scale) w.put_eg(zigzag(r.scale), kScaleOrder);
+    }
+    return w.bits() - start;
+}
+
+bool read_record(BitReader& in, bool scaled, RecordInts& r) {
+    r = RecordInts{};
+    uint64_t s = 0, u = 0, flag = 0;
+    if (!in.get(2, s)) return false;
+    int64_t n2 = 0;
+    for (int a = 0; a < 3; ++a) {
+        if (!in.get_eg(kRotOrders[s], u)) return false;
+        const int64_t v = unzigzag(u);
+        if (v < -kMaxRotInt || v > kMaxRotInt) return false;
+        r.rot[a] = int32_t(v);
+        n2 += v * v;
+    }
+    if (n2 > int64_t(kMaxRotInt) * kMaxRotInt) return false;
+    if (!in.get(1, flag)) return false;
+    r.has_trans = flag != 0;
+    if (r.has_trans) {
+        if (!in.get(2, s)) return false;
+        for (int a = 0; a < 3; ++a) {
+            if (!in.get_eg(kTransOrders[s], u)) return false;
+            const int64_t v = unzigzag(u);
+            if (v < -kMaxTransInt || v > kMaxTransInt) return false;
+            r.trans[a] = int32_t(v);
+        }
+    }
+    if (scaled) {
+        if (!in.get(1, flag)) return false;
+        r.has_scale = flag != 0;
+        if (r.has_scale) {
+            if (!in.get_eg(kScaleOrder, u)) return false;
+            const int64_t v = unzigzag(u);
+            if (v < -kMaxScaleInt || v > kMaxScaleInt) return false;
+            r.scale = int32_t(v);
+        }
+    }
+    return true;
+}
+
+RecordInts predict_record(const RecordInts& b1, uint32_t a1, const RecordInts* b2, uint32_t a2) {
+    RecordInts p = b1;
+    auto lin = [&](int32_t x1, int32_t x2) -> int32_t {
+        const int64_t v = int64_t(x1) + (int64_t(x1) - int64_t(x2)) * int64_t(a1) / int64_t(a2 - a1);
+        return int32_t(std::clamp<int64_t>(v, -(int64_t(1) << 30), int64_t(1) << 30));
+    };
+    if (b2 && a2 > a1 && a1 >= 1) {
+        for (int a = 0; a < 3; ++a) {
+            p.rot[a] = lin(b1.rot[a], b2->rot[a]);
+            p.trans[a] = lin(b1.has_trans ? b1.trans[a] : 0, b2->has_trans ? b2->trans[a] : 0);
+        }
+        p.scale = lin(b1.has_scale ? b1.scale : 0, b2->has_scale ? b2->scale : 0);
+    }
+    if (!b1.has_trans && !(b2 && b2->has_trans)) p.trans[0] = p.trans[1] = p.trans[2] = 0;
+    p.has_trans = p.trans[0] || p.trans[1] || p.trans[2];
+    p.has_scale = p.scale != 0;
+    return p;
+}
+
+static bool same(const RecordInts& a, const RecordInts& b) {
+    for (int i = 0; i < 3; ++i)
+        if (a.rot[i] != b.rot[i] || a.trans[i] != b.trans[i]) return false;
+    return a.scale == b.scale;
+}
+
+size_t write_predicted(const RecordInts& now, const RecordInts& pred, bool scaled, BitWriter& w) {
+    const size_t start = w.bits();
+    RecordInts n = now;
+    if (!n.has_trans) n.trans[0] = n.trans[1] = n.trans[2] = 0;
+    if (!n.has_scale || !scaled) n.scale = 0;
+    RecordInts p = pred;
+    if (!scaled) p.scale = 0;
+    if (same(n, p)) {
+        w.put(1, 1);
+        return w.bits() - start;
+    }
+    w.put(0, 1);
+    uint32_t u[3];
+    int bits = 0;
+    for (int a = 0; a < 3; ++a) u[a] = zigzag(n.rot[a] - p.rot[a]);
+    int s = best_order(u, kDeltaOrders, bits);
+    w.put(uint64_t(s), 2);
+    for (int a = 0; a < 3; ++a) w.put_eg(u[a], kDeltaOrders[s]);
+    const bool t = n.trans[0] != p.trans[0] || n.trans[1] != p.trans[1] || n.trans[2] != p.trans[2];
+    w.put(t ? 1 : 0, 1);
+    if (t) {
+        for (int a = 0; a < 3; ++a) u[a] = zigzag(n.trans[a] - p.trans[a]);
+        s = best_order(u, kDeltaOrders, bits);
+        w.put(uint64_t(s), 2);
+        for (int a = 0; a < 3; ++a) w.put_eg(u[a], kDeltaOrders[s]);
+    }
+    if (scaled) {
+        w.put(n.scale != p.scale ? 1 : 0, 1);
+        if (n.scale != p.scale) w.put_eg(zigzag(n.scale - p.scale), kScaleOrder);
+    }
+    return w.bits() - start;
+}
+
+bool read_predicted(BitReader& in, const RecordInts& pred, bool scaled, RecordInts& out) {
+    RecordInts r = pred;
+    if (!scaled) r.scale = 0;
+    uint64_t flag = 0, s = 0, u = 0;
+    if (!in.get(1, flag)) return false;
+    if (!flag) {
+        if (!in.get(2, s)) return false;
+        for (int a = 0; a < 3; ++a) {
+            if (!in.get_eg(kDeltaOrders[s], u)) return false;
+            r.rot[a] = int32_t(std::clamp<int64_t>(int64_t(r.rot[a]) + unzigzag(u), INT32_MIN, INT32_MAX));
+        }
+        if (!in.get(1, flag)) return false;
+        if (flag) {
+            if (!in.get(2, s)) return false;
+            for (int a = 0; a < 3; ++a) {
+                if (!in.get_eg(kDeltaOrders[s], u)) return false;
+                r.trans[a] = int32_t(std::clamp<int64_t>(int64_t(r.trans[a]) + unzigzag(u), INT32_MIN, INT32_MAX));
+            }
+        }
+        if (scaled) {
+            if (!in.get(1, flag)) return false;
+            if (flag) {
+                if (!in.get_eg(kScaleOrder, u)) return false;
+                r.scale = int32_t(std::clamp<int64_t>(int64_t(r.scale) + unzigzag(u), INT32_MIN, INT32_MAX));
+            }
+        }
+    }
+    int64_t n2 = 0;
+    for (int a = 0; a < 3; ++a) {
+        if (std::abs(int64_t(r.rot[a])) > kMaxRotInt || std::abs(int64_t(r.trans[a])) > kMaxTransInt) return false;
+        n2 += int64_t(r.rot[a]) * r.rot[a];
+    }
+    if (n2 > int64_t(kMaxRotInt) * kMaxRotInt || std::abs(int64_t(r.scale)) > kMaxScaleInt) return false;
+    r.has_trans = r.trans[0] || r.trans[1] || r.trans[2];
+    r.has_scale = r.scale != 0;
+    out = r;
+    return true;
+}
+
+bool encode_pose(std::span<const BonePose> model, const RelativeFormat& f, std::vector<uint8_t>& bits,
+                 std::span<uint32_t> offsets, std::span<BonePose> decoded, std::span<RecordInts> ints) {
+    const size_t B = size_t(f.bone_count());
+    if (model.size() < B || offsets.size() < B + 1 || decoded.size() < B || (!ints.empty() && ints.size() < B)) return false;
+    const size_t base = bits.size() * 8;
+    BitWriter w(bits);
+    const BonePose identity;
+    for (size_t b = 0; b < B; ++b) {
+        const int p = f.parents[b];
+        const BonePose& parent = p >= 0 ? decoded[size_t(p)] : identity;
+        RecordInts r;
+        if (!quantise_record(parent, model[b], f.pivots[b], f, r)) return false;
+        offsets[b] = uint32_t(w.bits() - base);
+        write_record(r, f.scaled, w);
+        if (!ints.empty()) ints[b] = r;
+        decoded[b] = compose_relative(parent, dequantise_record(r, f.pivots[b], f));
+    }
+    offsets[B] = uint32_t(w.bits() - base);
+    return true;
+}
+
+void copy_bits(const uint8_t* src, size_t from, size_t count, BitWriter& w) {
+    BitReader r(src, (from + count + 7) / 8, from);
+    uint64_t v = 0;
+    while (count > 0) {
+        const int n = int(std::min<size_t>(count, 56));
+        r.get(n, v);
+        w.put(v, n);
+        count -= size_t(n);
+    }
+}
+
+double relative_bound(const RelativeFormat& f, double bind_radius, double max_scale) {
+    double pivot_radius = 0.0;
+    for (const glm::vec3& j : f.pivots) pivot_radius = std::max(pivot_radius, double(glm::length(j)));
+    const double angle = 2.0 * std::sqrt(3.0) * ROT_STEP * 1.01;  // 4 x half a step per component, |dp| <= sqrt3/2 step
+    const double trans = std::sqrt(3.0) * (kTransDeadZone + 0.5) * double(f.t_step);
+    return max_scale * (angle * (bind_radius + pivot_radius) + trans) * 1.001 + 1e-6 * bind_radius;
+}
+
+}  // namespace progskin::net

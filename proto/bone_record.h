@@ -1,0 +1,158 @@
+// bone_record.h — the parent-relative, entropy-coded bone record of the frame
+// stream (protocol version 5, docs/protocol.md "Bone record").
+//
+// A character's bones travel relative to their progressive parent (parent[b]
+// < b; bone 0 relative to the character's root). For bone b with skinning
+// matrix M_b (model space, docs/metrics.md §1) and its parent's *decoded*
+// pose D_p (closed loop: quantisation error never adds down the chain), the
+// relative transform R = D_p^-1 M_b is sent as integers:
+//   rotation     Q of R as modified Rodrigues parameters p = v / (1 + w) of
+//                its quaternion (w, v) with w >= 0, |p| <= 1, each component
+//                round(p / ROT_STEP), ROT_STEP = 1/49152 (an error of half a
+//                step per component turns the bone by at most 2 sqrt3
+//                ROT_STEP = 7.0e-5 rad near identity, half that at 180°).
+//   translation  the residual of R's translation after the prediction of a
+//                rigid joint turning about its bind pivot j_b (the joint's
+//                bind position in model space): t_R - (j_b - Q j_b), in steps
+//                of the asset's translation step (its box's largest extent /
+//                65535); residuals within +-kTransDeadZone steps on every axis
+//                are not sent (the prediction stands).
+//   scale        (scaled assets) round(log2(s_R) * 2048), 0 not sent.
+// The decoded pose is D_b = D_p * R^ (pose.h composition).
+//
+// Bit layout (least significant bit first, docs/protocol.md): 2 bits
+// selecting the rotation's Exp-Golomb order from kRotOrders, three
+// Exp-Golomb codes of the zigzagged rotation integers; 1 bit "translation
+// follows": 2 bits selecting from kTransOrders, three codes; scaled assets: 1
+// bit "scale follows", one order-4 code. An Exp-Golomb code of order k for
+// u >= 0: z zero bits, a one bit, then z + k bits f (LSB first), with u =
+// 2^(z+k) + f - 2^k; z <= kMaxPrefix. A record is self-delimiting, so a
+// receiver can walk a chunk's records without knowing the asset (only the
+// chunk's CHUNK_SCALED flag). No state outside the record: any record decodes
+// on its own (given its parent's pose), so a lost datagram loses only itself.
+#pragma once
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "bone_codec.h"  // RecordFormat (the translation box), BonePose
+
+namespace progskin::net {
+
+inline constexpr double ROT_STEP = 1.0 / 49152.0;  // modified Rodrigues parameter step
+inline constexpr int kTransDeadZone = 1;           // translation residual steps not sent
+inline constexpr int kRotOrders[4] = {2, 5, 8, 11};
+inline constexpr int kTransOrders[4] = {0, 4, 8, 12};
+inline constexpr int kScaleOrder = 4;
+inline constexpr int kMaxPrefix = 24;               // Exp-Golomb zero prefix bound (values < 2^36)
+inline constexpr int32_t kMaxRotInt = 49203;        // |rotation integer| (|p| <= 1, rounding slack)
+inline constexpr int32_t kMaxTransInt = 1 << 24;    // |translation residual| in steps
+inline constexpr int32_t kMaxScaleInt = 32767;      // |log2 scale * 2048|
+// The longest record read_record accepts (an order-k code is at most 2 kMaxPrefix + k + 1 bits).
+inline constexpr int kMaxRecordBits = 2 + 3 * (2 * kMaxPrefix + 12) + 3 + 3 * (2 * kMaxPrefix + 13) + 1 +
+                                      (2 * kMaxPrefix + kScaleOrder + 1);
+
+// What both ends know of an asset to code its records: the progressive
+// parents, each bone's bind pivot (model space), the translation step, and
+// whether scale travels. Built from the skin the client downloads (asset
+// file) and the translation box of Welcome (RecordFormat).
+struct RelativeFormat {
+    std::vector<int16_t> parents;   // progressive parent per bone, -1 for bone 0
+    std::vector<glm::vec3> pivots;  // bind position of each bone's joint (model space)
+    float t_step = 1.0f;            // translation step (model units)
+    bool scaled = false;
+    int bone_count() const { return int(parents.size()); }
+};
+// parents: ProgressiveSkin::parents; inverse_binds: each bone's inverse bind
+// matrix in progressive order (the joint of bone b is inverse_binds[b]^-1's
+// translation). Throws std::invalid_argument when the sizes differ or a
+// parent is not below its bone.
+RelativeFormat relative_format(std::span<const int16_t> parents, std::span<const Mat34> inverse_binds,
+                               const RecordFormat& box);
+
+// The integers of one record.
+struct RecordInts {
+    int32_t rot[3] = {0, 0, 0};
+    int32_t trans[3] = {0, 0, 0};  // residual; all 0 and !has_trans: the prediction
+    int32_t scale = 0;
+    bool has_trans = false, has_scale = false;
+};
+
+// Quantises bone b's model-space pose m against its parent's decoded pose
+// (identity for bone 0), closed loop. Returns false when a value is not
+// finite or outside the integers' bounds (nothing written). O(1).
+bool quantise_record(const BonePose& parent_decoded, const BonePose& m, const glm::vec3& pivot, const RelativeFormat& f,
+                     RecordInts& out);
+// The relative pose R^ of a record (pivot: the bone's bind pivot). O(1).
+BonePose dequantise_record(const RecordInts& r, const glm::vec3& pivot, const RelativeFormat& f);
+// D_p * R^ (pose.h composition, normalised rotation).
+BonePose compose_relative(const BonePose& parent, const BonePose& rel);
+
+// Bit-level writer and reader (least significant bit first).
+class BitWriter {
+public:
+    explicit BitWriter(std::vector<uint8_t>& out) : out_(out) {}
+    void put(uint64_t bits, int n);  // n <= 57
+    void put_eg(uint32_t u, int k);  // Exp-Golomb of order k
+    size_t bits() const { return out_.size() * 8 - size_t(free_); }
+private:
+    std::vector<uint8_t>& out_;
+    int free_ = 0;  // unused high bits of out_.back()
+};
+class BitReader {
+public:
+    BitReader(const uint8_t* data, size_t bytes, size_t bit = 0) : data_(data), bits_(bytes * 8), at_(bit) {}
+    bool get(int n, uint64_t& v);  // n <= 57; false past the end
+    bool get_eg(int k, uint64_t& u);  // false past the end or a prefix over kMaxPrefix
+    size_t at() const { return at_; }
+    size_t size() const { return bits_; }
+private:
+    const uint8_t* data_;
+    size_t bits_, at_;
+};
+
+// Appends a record's bits; returns the bits written.
+size_t write_record(const RecordInts& r, bool scaled, BitWriter& w);
+// Reads one record; false when it runs past the end, a code is too long, or
+// an integer is outside its bound (|rot| <= kMaxRotInt and the three
+// rotation integers' norm within kMaxRotInt, |trans| <= kMaxTransInt, |scale|
+// <= kMaxScaleInt). O(record bits).
+bool read_record(BitReader& in, bool scaled, RecordInts& r);
+
+// Prediction (protocol: "Predicted record"). A receiver holding a bone's
+// records at earlier ticks predicts the integers of the record at tick T:
+// from one baseline at age a1 >= 1 (tick T - a1), the baseline itself; from
+// two (a2 > a1, linear): b1 + (b1 - b2) * a1 / (a2 - a1), C++ integer
+// division (toward zero), per integer. Absent translation / scale are 0.
+RecordInts predict_record(const RecordInts& b1, uint32_t a1, const RecordInts* b2 = nullptr, uint32_t a2 = 0);
+inline constexpr int kDeltaOrders[4] = {0, 2, 5, 8};
+// A predicted record: 1 bit "equal to the prediction" (then nothing else);
+// else 2 bits selecting the Exp-Golomb order (kDeltaOrders) and three codes
+// of the zigzagged rotation residuals, 1 bit "translation residuals follow"
+// (2 + three codes), scaled assets 1 bit "scale residual follows" (one
+// order-kScaleOrder code). The received integers are prediction + residual,
+// has_trans / has_scale when any is non-zero, within read_record's bounds.
+size_t write_predicted(const RecordInts& now, const RecordInts& pred, bool scaled, BitWriter& w);
+bool read_predicted(BitReader& in, const RecordInts& pred, bool scaled, RecordInts& out);
+
+// Encodes a whole pose (B model-space poses, progressive order) closed loop:
+// appends each bone's record to `bits` (a fresh byte-aligned stream is not
+// needed: records are concatenated bit-wise) and writes bone b's first bit
+// offset to offsets[b] and offsets[B] = the end (offsets: B + 1 entries).
+// decoded (B entries): the poses a receiver of every record will compose.
+// ints (optional, B entries): each record's integers (the baselines of
+// later predicted records). Returns false (bits and offsets partly written) when a bone cannot be
+// quantised (quantise_record). O(B).
+bool encode_pose(std::span<const BonePose> model, const RelativeFormat& f, std::vector<uint8_t>& bits,
+                 std::span<uint32_t> offsets, std::span<BonePose> decoded, std::span<RecordInts> ints = {});
+
+// Copies `count` bits starting at bit `from` of src to the end of w.
+void copy_bits(const uint8_t* src, size_t from, size_t count, BitWriter& w);
+
+// Worst-case vertex error (model units) of one record for vertices within
+// bind_radius of the origin and scale at most max_scale: rotation angle
+// error about the bone's pivot (at most 2 * bind_radius from a vertex) plus
+// the translation dead zone and rounding.
+double relative_bound(const RelativeFormat& f, double bind_radius, double max_scale = 1.0);
+
+}  // namespace progskin::net
