@@ -61,9 +61,7 @@ Row measure(const std::string& file, double rate) {
     const Character& c = a->character;
     const ProgressiveSkin& s = a->skin;
     const size_t B = size_t(s.bone_count());
-    std::vector<Mat34> ib(B);
-    for (size_t b = 0; b < B; ++b) ib[b] = Mat34::from_glm(c.inverse_bind[size_t(s.order[b])]);
-    const RelativeFormat f = relative_format(s.parents, ib, a->format);
+    const RelativeFormat f = relative_format(s, c, a->format);
     const FrameSet frames = sample_frames(c, a->selections, rate);
     Row row;
     row.character = c.name.empty() ? file : c.name;

@@ -1,5 +1,6 @@
 // libFuzzer driver: the glTF importer, or with PROGSKIN_FUZZ_FRAME_STREAM the
-// frame stream, or with PROGSKIN_FUZZ_CONTROL the control messages
+// frame stream, with PROGSKIN_FUZZ_CONTROL the control messages, or with
+// PROGSKIN_FUZZ_RECORDS the parent-relative bone records
 // (scripts/fuzz.sh builds them with clang
 // -fsanitize=fuzzer,address,undefined).
 #include "fuzz_targets.h"
@@ -7,6 +8,8 @@
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
 #if defined(PROGSKIN_FUZZ_FRAME_STREAM)
     progskin::fuzz::frame_stream(data, size);
+#elif defined(PROGSKIN_FUZZ_RECORDS)
+    progskin::fuzz::bone_records(data, size);
 #elif defined(PROGSKIN_FUZZ_CONTROL)
     progskin::fuzz::control_message(data, size);
 #else

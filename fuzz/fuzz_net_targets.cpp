@@ -2,6 +2,7 @@
 #include <array>
 
 #include "bone_codec.h"
+#include "bone_record.h"
 #include "control_messages.h"
 #include "crypto.h"
 #include "fuzz_targets.h"
@@ -123,6 +124,40 @@ int control_message(const uint8_t* data, size_t size) {
         case wire::ControlBody::Despawn: sink = c->body_as_Despawn()->instance(); return 1;
         default: return 1;  // verified; the other tables' fields are read by the sessions' tests
     }
+}
+
+int bone_records(const uint8_t* data, size_t size) {
+    using namespace progskin::net;
+    if (size < 1) return 0;
+    static const RelativeFormat f = [] {
+        RelativeFormat r;
+        for (int b = 0; b < 24; ++b) {
+            r.parents.push_back(int16_t(b == 0 ? -1 : (b - 1) / 2));
+            r.pivots.push_back(glm::vec3(0.0f, 0.1f * float(b), 0.02f * float(b % 3)));
+        }
+        r.t_step = 1e-3f;
+        return r;
+    }();
+    const bool scaled = data[0] & 1, predicted = data[0] & 2;
+    RelativeFormat fs = f;
+    fs.scaled = scaled;
+    BitReader in(data + 1, size - 1);
+    std::array<RecordInts, 24> prev{};
+    std::array<BonePose, 24> pose{};
+    for (int pass = 0; pass < 4; ++pass) {
+        for (size_t b = 0; b < 24; ++b) {
+            RecordInts r;
+            const bool ok = predicted ? read_predicted(in, predict_record(prev[b], 1), scaled, r) : read_record(in, scaled, r);
+            if (!ok) return 0;
+            prev[b] = r;
+            const int p = fs.parents[b];
+            pose[b] = compose_relative(p >= 0 ? pose[size_t(p)] : BonePose{}, dequantise_record(r, fs.pivots[b], fs));
+            if (!std::isfinite(pose[b].t.x) || !std::isfinite(pose[b].r.w) || !(pose[b].s > 0)) return 0;
+        }
+    }
+    uint64_t rest = 0;
+    const int left = int(in.size() - in.at());
+    return left < 8 && in.get(left, rest) && rest == 0 ? 1 : 0;
 }
 
 }  // namespace progskin::fuzz

@@ -35,4 +35,14 @@ int frame_stream(const uint8_t* data, size_t size);
 // message was accepted, 0 when it was refused.
 int control_message(const uint8_t* data, size_t size);
 
+// (fuzz_net_targets.cpp.) Treats the bytes as parent-relative bone records
+// (proto/bone_record.h): byte 0 bit 0 scaled, bit 1 predicted (each record
+// predicted from the previous one read for the same bone, as the baseline of
+// one tick before; the first pass from zero), then the bit stream: 4 passes
+// over a fixed 24-bone tree, each record read_record / read_predicted,
+// dequantised and composed with its parent's pose. Returns 1 when the 96
+// records leave fewer than 8 bits, all zero (padding), 0 when the stream was
+// refused.
+int bone_records(const uint8_t* data, size_t size);
+
 }  // namespace progskin::fuzz

@@ -2,7 +2,10 @@
 // target (fuzz/corpus/frame): real datagrams of the default character set
 // (progskin-server's scene without arguments) as the server packs them at
 // several budgets, frames carrying morph blocks (tests/data/skinned_morph.gltf
-// as instance 5), and one Bind, BindAck, Ack, Challenge and ChallengeResponse.
+// as instance 5), and one Bind, BindAck, Ack, Challenge and ChallengeResponse;
+// beside DIR, the control messages of players' characters (control/) and
+// parent-relative bone records of the Fox (records/, fuzz_targets.h
+// bone_records: absolute and predicted, plain and scaled).
 //
 //   build/fuzz/make_frame_corpus fuzz/corpus/frame
 #include <cstdio>
@@ -10,6 +13,7 @@
 #include <fstream>
 #include <string>
 
+#include "bone_record.h"
 #include "client_stream.h"
 #include "scene.h"
 #include "server_core.h"
@@ -106,6 +110,43 @@ int main(int argc, char** argv) {
         auto m = fbb.CreateVector(std::vector<int16_t>{0, 8192, 16384, -4096});
         write(dir, "pose", finish(fbb, wire::DatagramBody::Pose, wire::CreatePose(fbb, 0x1234, 0x5678, 2, 17, 1, 0, r, v, m).Union()));
     }
+    {
+        // Parent-relative records (fuzz/corpus/records, beside DIR): 4 ticks of
+        // the Fox's 24 bones, each tick predicted from the one before.
+        const std::filesystem::path rdir = dir.parent_path() / "records";
+        std::filesystem::create_directories(rdir);
+        const ServerAsset& fox = *assets[0];
+        for (int scaled = 0; scaled < 2; ++scaled) {
+            RecordFormat box = fox.format;
+            box.scaled = scaled != 0;
+            const RelativeFormat f = relative_format(fox.skin, fox.character, box);
+            const size_t B = size_t(f.bone_count());
+            std::vector<std::vector<RecordInts>> ticks;
+            for (int t = 0; t < 4; ++t) {
+                std::vector<glm::dmat4> mats(fox.character.joint_count());
+                sample_skinning_matrices(fox.character, fox.selections[std::min<size_t>(1, fox.selections.size() - 1)], 0.1 * t, mats);
+                std::vector<BonePose> model(B), decoded(B);
+                for (size_t b = 0; b < B; ++b) {
+                    model[b] = decompose(Mat34::from_glm(mats[size_t(fox.skin.order[b])]));
+                    if (scaled) model[b].s = 1.0f + 0.05f * float(b % 4);
+                }
+                std::vector<uint8_t> bits;
+                std::vector<uint32_t> offsets(B + 1);
+                ticks.emplace_back(B);
+                encode_pose(model, f, bits, offsets, decoded, ticks.back());
+            }
+            for (int predicted = 0; predicted < 2; ++predicted) {
+                std::vector<uint8_t> out = {uint8_t(scaled | (predicted << 1))};
+                BitWriter w(out);
+                for (int t = 0; t < 4; ++t)
+                    for (size_t b = 0; b < B; ++b) {
+                        if (!predicted) write_record(ticks[size_t(t)][b], f.scaled, w);
+                        else write_predicted(ticks[size_t(t)][b], predict_record(t ? ticks[size_t(t - 1)][b] : RecordInts{}, 1), f.scaled, w);
+                    }
+                write(rdir, std::string("fox") + (scaled ? "-scaled" : "") + (predicted ? "-predicted" : ""), out);
+            }
+        }
+    }
     // Control messages of players' characters: fuzz/corpus/control (beside DIR).
     const std::filesystem::path cdir = dir.parent_path() / "control";
     std::filesystem::create_directories(cdir);
@@ -138,6 +179,6 @@ int main(int argc, char** argv) {
         control("spawned", wire::ControlBody::Spawned, wire::CreateSpawned(fbb, 7, true, 12, reason).Union());
         control("despawn", wire::ControlBody::Despawn, wire::CreateDespawn(fbb, 12).Union());
     }
-    std::printf("make_frame_corpus: wrote %s and %s\n", dir.string().c_str(), cdir.string().c_str());
+    std::printf("make_frame_corpus: wrote %s, %s and records\n", dir.string().c_str(), cdir.string().c_str());
     return 0;
 }

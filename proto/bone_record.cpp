@@ -8,6 +8,9 @@
 
 #include <glm/gtc/quaternion.hpp>
 
+#include "character.h"
+#include "progressive_skin.h"
+
 namespace progskin::net {
 namespace {
 
@@ -66,6 +69,16 @@ RelativeFormat relative_format(std::span<const int16_t> parents, std::span<const
     f.t_step = std::max({ext.x, ext.y, ext.z, 1e-9f}) / 65535.0f;
     f.scaled = box.scaled;
     return f;
+}
+
+RelativeFormat relative_format(const ProgressiveSkin& skin, const Character& c, const RecordFormat& box) {
+    std::vector<Mat34> ib(skin.order.size());
+    for (size_t b = 0; b < ib.size(); ++b) {
+        const size_t j = size_t(skin.order[b]);
+        if (j >= c.inverse_bind.size()) throw std::invalid_argument("relative_format: a bone's joint is not in the character");
+        ib[b] = Mat34::from_glm(c.inverse_bind[j]);
+    }
+    return relative_format(skin.parents, ib, box);
 }
 
 bool quantise_record(const BonePose& parent_decoded, const BonePose& m, const glm::vec3& pivot, const RelativeFormat& f,

@@ -37,6 +37,11 @@
 
 #include "bone_codec.h"  // RecordFormat (the translation box), BonePose
 
+namespace progskin {
+struct Character;
+struct ProgressiveSkin;
+}  // namespace progskin
+
 namespace progskin::net {
 
 inline constexpr double ROT_STEP = 1.0 / 49152.0;  // modified Rodrigues parameter step
@@ -69,6 +74,8 @@ struct RelativeFormat {
 // parent is not below its bone.
 RelativeFormat relative_format(std::span<const int16_t> parents, std::span<const Mat34> inverse_binds,
                                const RecordFormat& box);
+// The same for a character's progressive skin (bone b is joint skin.order[b]).
+RelativeFormat relative_format(const ProgressiveSkin& skin, const Character& c, const RecordFormat& box);
 
 // The integers of one record.
 struct RecordInts {

@@ -63,3 +63,25 @@ TEST(NetFuzzCorpus, ControlMessagesAcceptEverySeedAndSurviveMutations) {
     }
     EXPECT_GT(refused, 0);
 }
+
+// Parent-relative bone records (fuzz/corpus/records, written by
+// make_frame_corpus) through the records entry point, and mutations of them:
+// each accepted or refused, none crashes or reads past its bytes.
+TEST(NetFuzzCorpus, BoneRecordsAcceptEverySeedAndSurviveMutations) {
+    const auto seeds = read_corpus("records");
+    ASSERT_GE(seeds.size(), 4u);
+    for (const auto& in : seeds) EXPECT_EQ(progskin::fuzz::bone_records(in.data(), in.size()), 1);
+    std::mt19937 rng(29);
+    int refused = 0;
+    for (int i = 0; i < 50000; ++i) {
+        std::vector<uint8_t> d = seeds[size_t(rng()) % seeds.size()];
+        for (int k = 0, edits = 1 + int(rng() % 4); k < edits && !d.empty(); ++k) {
+            const size_t at = size_t(rng()) % d.size();
+            if (rng() % 3) d[at] = uint8_t(rng());
+            else d.resize(at);
+        }
+        refused += 1 - progskin::fuzz::bone_records(d.data(), d.size());
+    }
+    EXPECT_GT(refused, 50000 / 4);
+    std::printf("bone records: %d of 50000 mutated streams refused\n", refused);
+}

@@ -138,9 +138,7 @@ static void measure(const std::string& file) {
     const ProgressiveSkin& s = a->skin;
     const int B = s.bone_count();
     const size_t nb = size_t(B);
-    std::vector<Mat34> ib(nb);
-    for (int b = 0; b < B; ++b) ib[size_t(b)] = Mat34::from_glm(c.inverse_bind[size_t(s.order[size_t(b)])]);
-    const RelativeFormat f = relative_format(s.parents, ib, a->format);
+    const RelativeFormat f = relative_format(s, c, a->format);
     FrameSet frames = sample_frames(c, a->selections, 30.0);
     std::vector<glm::vec3> ref(c.vertex_count()), got(c.vertex_count()), old(c.vertex_count());
     std::vector<Mat34> pal(c.joint_count()), pal_old(c.joint_count());
