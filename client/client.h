@@ -168,6 +168,10 @@ struct SpawnSpec {
 struct ClientStats {
     double seconds = 0;            // since the first frame
     uint64_t datagrams = 0, malformed = 0, duplicates = 0, unknown_chunks = 0;
+    // Records decoded from an acknowledged baseline, and runs refused because
+    // a predicted record's baseline was not held (expected 0: the server
+    // predicts only from acknowledged frames; such a datagram is not acked).
+    uint64_t predicted_records = 0, missing_baselines = 0;
     uint64_t wire_bytes = 0;       // docs/metrics.md §3 rate bytes received (payload + 28 per datagram)
     double loss = 0;
     double rtt_ms = 0, estimate_kbps = 0;

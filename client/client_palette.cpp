@@ -39,7 +39,7 @@ void remap_skin_vertices(ClientAsset& a) {
 double ClipInfo::clip_time(double tick, double tick_rate) const { return at(time_offset + tick / tick_rate * speed); }
 
 InstanceView::InstanceView(std::shared_ptr<const ClientAsset> asset, ClipInfo clip, int blend_frames, double tick_rate)
-    : asset_(std::move(asset)), clip_(std::move(clip)), buffer_(asset_->skin.bone_count(), asset_->format, int(std::min<size_t>(asset_->character.morphs.size(), MAX_MORPHS))),
+    : asset_(std::move(asset)), clip_(std::move(clip)), buffer_(relative_format(asset_->skin, asset_->character, asset_->format), int(std::min<size_t>(asset_->character.morphs.size(), MAX_MORPHS))),
       tick_rate_(tick_rate) {
     // A looping clip wraps where offset + tick / rate * speed crosses a
     // multiple of its duration: the one between two frames' ticks.
@@ -74,24 +74,22 @@ bool InstanceView::display(double d) {
     blender_.set_target(k);
     blender_.step();
     const int n = blender_.needed();
-    BonePose p, pp;
+    BonePose p;
     const bool local = !clip_.selection.clips.empty();  // a clip the client holds too
+    // Each bone's pose relative to its progressive parent, composed down the
+    // prefix (parents[b] < b): a bone nothing newer carries yet is held
+    // relative to its parent (which may be fresher), not frozen in model space.
     for (int b = 0; b < n; ++b) {
-        double held = 0, anchor = 0;
+        double anchor = 0;
         const int parent = asset_->skin.parents[b];
-        if (buffer_.pose(b, d, p, &held, local ? &anchor : nullptr)) {
-            own_[b] = compose(p);
+        if (buffer_.pose(b, d, p, nullptr, local ? &anchor : nullptr)) {
+            Mat34 rel = compose(p);
             if (local && !std::isnan(anchor)) {  // across a wrap: carried along the clip from the anchor frame
                 Mat34 scratch;
-                own_[b] = mul(own_[b], carried(asset_->skin.order[b], anchor, d, scratch));
-                continue;
+                rel = mul(rel, carried(b, anchor, d, scratch));
             }
-            // Nothing newer carries this bone yet: hold it relative to its
-            // progressive parent (which may be fresher), not frozen in model space.
-            if (held < d && parent >= 0 && buffer_.pose(parent, held, pp))
-                own_[b] = mul(own_[parent], mul(compose(inverse(pp)), own_[b]));
+            own_[b] = parent >= 0 ? mul(own_[parent], rel) : rel;
         } else {  // never received: stand in from the parent
-            int parent = asset_->skin.parents[b];
             own_[b] = parent >= 0 ? mul(own_[parent], asset_->skin.corrections[b]) : Mat34::identity();
         }
     }
@@ -105,9 +103,10 @@ bool InstanceView::display(double d) {
     return true;
 }
 
-// L(anchor)^-1 L(d) for one joint, L the clip's skinning matrix at the
-// clip time of a display tick (both evaluated once per display time).
-const Mat34& InstanceView::carried(int joint, double anchor, double d, Mat34& out) {
+// R(anchor)^-1 R(d) for bone b, R(t) = L_parent(t)^-1 L_b(t) its skinning
+// matrix relative to its progressive parent's in the clip at the clip time of
+// display tick t (L_b alone for bone 0); each time evaluated once.
+const Mat34& InstanceView::carried(int b, double anchor, double d, Mat34& out) {
     const Character& c = asset_->character;
     auto eval = [&](double tick, std::vector<glm::dmat4>& mats, double& at) {
         if (at == tick) return;
@@ -117,7 +116,12 @@ const Mat34& InstanceView::carried(int joint, double anchor, double d, Mat34& ou
     };
     eval(anchor, local_anchor_, local_anchor_at_);
     eval(d, local_d_, local_d_at_);
-    out = Mat34::from_glm(glm::inverse(local_anchor_[size_t(joint)]) * local_d_[size_t(joint)]);
+    const size_t j = size_t(asset_->skin.order[size_t(b)]);
+    const int parent = asset_->skin.parents[size_t(b)];
+    auto relative = [&](const std::vector<glm::dmat4>& m) {
+        return parent >= 0 ? glm::inverse(m[size_t(asset_->skin.order[size_t(parent)])]) * m[j] : m[j];
+    };
+    out = Mat34::from_glm(glm::inverse(relative(local_anchor_)) * relative(local_d_));
     return out;
 }
 

@@ -40,12 +40,14 @@ static void neighbours(const Frames& frames, uint32_t newest, double d, Use&& us
 }
 
 
-PoseBuffer::PoseBuffer(int bone_count, RecordFormat fmt, int morph_count)
-    : bones_(bone_count), fmt_(fmt) {
+PoseBuffer::PoseBuffer(RelativeFormat fmt, int morph_count) : bones_(fmt.bone_count()), fmt_(std::move(fmt)) {
+    const int bone_count = bones_;
     morphs_ = std::max(0, morph_count);
     frames_.resize(kHistory);
+    scratch_.resize(size_t(bone_count));
     for (auto& f : frames_) {
         f.bones.resize(bone_count);
+        f.ints.resize(size_t(bone_count));
         f.have.assign(bone_count, 0);
         f.weights.assign(size_t(morphs_), 0.0f);
         f.whave.assign(size_t(morphs_), 0);
@@ -58,11 +60,42 @@ PoseBuffer::PoseBuffer(int bone_count, RecordFormat fmt, int morph_count)
     last_have_.assign(bone_count, 0);
 }
 
-bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const uint8_t* records, int show, uint8_t epoch,
+const PoseBuffer::Frame* PoseBuffer::frame_at(uint32_t tick) const {
+    for (const auto& f : frames_)
+        if (f.used && f.tick == tick) return &f;
+    return nullptr;
+}
+
+bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const RecordRun& records, int show, uint8_t epoch,
                            const uint8_t* root) {
     if (show == 0) show = total;
-    if (total < 1 || total > bones_ || first < 0 || count < 1 || first + count > total || show < total || show > bones_)
+    if (total < 1 || total > bones_ || first < 0 || count < 1 || first + count > total || show < total || show > bones_ ||
+        records.scaled != fmt_.scaled)
         return false;
+    // Decode every record before anything changes (a predicted one from its
+    // baseline frames: the chunk is refused when one is missing).
+    const uint32_t age = records.base & kBaseAgeMask;
+    const bool linear = (records.base & kBaseLinear) != 0;
+    const Frame* b1 = age ? frame_at(tick - age) : nullptr;
+    const Frame* b2 = age && linear ? frame_at(tick - 2 * age) : nullptr;
+    BitReader in(records.data, records.bytes, records.bit);
+    for (int i = 0; i < count; ++i) {
+        const int b = first + i;
+        uint64_t predicted = 0;
+        if (age && !in.get(1, predicted)) return false;
+        if (predicted) {
+            if (!b1 || !b1->have[size_t(b)] || (linear && (!b2 || !b2->have[size_t(b)]))) {
+                ++missing_baselines_;
+                return false;
+            }
+            const RecordInts pred = linear ? predict_record(b1->ints[size_t(b)], age, &b2->ints[size_t(b)], 2 * age)
+                                           : predict_record(b1->ints[size_t(b)], age);
+            if (!read_predicted(in, pred, fmt_.scaled, scratch_[size_t(i)])) return false;
+            ++predicted_;
+        } else if (!read_record(in, fmt_.scaled, scratch_[size_t(i)])) {
+            return false;
+        }
+    }
     bool too_old = false;
     Frame* f = frame_for(tick, total, show, epoch, &too_old);
     if (too_old) return true;  // too old to matter
@@ -74,7 +107,12 @@ bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const
     last_gap_ = 0;
     for (int i = 0; i < count; ++i) {
         int b = first + i;
-        f->bones[b] = decode_bone(records + size_t(i) * fmt_.size(), fmt_);
+        f->ints[size_t(b)] = scratch_[size_t(i)];
+        // Kept about the bone's pivot (the translation is the pivot's image),
+        // so that interpolation turns the bone about its joint (pose()).
+        BonePose rel = dequantise_record(scratch_[size_t(i)], fmt_.pivots[size_t(b)], fmt_);
+        rel.t += rel.s * (rel.r * fmt_.pivots[size_t(b)]);
+        f->bones[b] = rel;
         if (!f->have[b]) ++f->count;
         f->have[b] = 1;
         if (!last_have_[b] || !newer(last_tick_[b], tick)) {
@@ -199,6 +237,12 @@ int PoseBuffer::bones_at(double d) const {
 }
 
 bool PoseBuffer::pose(int b, double d, BonePose& out, double* held_at, double* anchor_at) const {
+    if (!pose_about_pivot(b, d, out, held_at, anchor_at)) return false;
+    out.t -= out.s * (out.r * fmt_.pivots[size_t(b)]);
+    return true;
+}
+
+bool PoseBuffer::pose_about_pivot(int b, double d, BonePose& out, double* held_at, double* anchor_at) const {
     if (held_at) *held_at = d + 1.0;
     if (anchor_at) *anchor_at = std::nan("");
     const void *pa, *pa0, *pc, *pc1;

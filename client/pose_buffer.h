@@ -19,6 +19,8 @@
 #include <vector>
 
 #include "bone_codec.h"
+#include "bone_record.h"
+#include "frame_reader.h"
 #include "wire.h"
 
 namespace progskin::net {
@@ -28,16 +30,25 @@ public:
     static constexpr int kHistory = 48;  // frames kept per instance (>= HOLD_TICKS + the largest display delay)
 
     PoseBuffer() = default;
-    // morph_count: the asset's morph targets (weights start at 0).
-    PoseBuffer(int bone_count, RecordFormat fmt, int morph_count = 0);
+    // fmt: the asset's parent-relative record format (bone_record.h; its
+    // bone count); morph_count: the asset's morph targets (weights start at 0).
+    explicit PoseBuffer(RelativeFormat fmt, int morph_count = 0);
 
-    // Decodes count records (fmt.size() bytes each) of bones first.. of the
-    // frame at `tick` whose prefix has `total` bones, of which the server
-    // wants `show` shown from this tick on (total <= show <= B; 0: total).
-    // Returns false (and changes nothing) when the chunk is inconsistent.
-    // epoch: Chunk.epoch; root: the chunk's root block or nullptr.
-    bool add_chunk(uint32_t tick, int first, int count, int total, const uint8_t* records, int show = 0,
+    // Decodes count parent-relative records (bone_record.h, from `records`)
+    // of bones first.. of the frame at `tick` whose prefix has `total` bones,
+    // of which the server wants `show` shown from this tick on (total <= show
+    // <= B; 0: total). A predicted record (records.base) is decoded from this
+    // buffer's records of the same bone at the baseline ticks. Returns false
+    // (and changes nothing) when the chunk is inconsistent, a record does not
+    // decode, or a baseline record is not here (counted: missing_baselines).
+    // epoch: Chunk.epoch; root: the chunk's root block or nullptr. Stores
+    // each bone's pose relative to its progressive parent (bone_record.h).
+    bool add_chunk(uint32_t tick, int first, int count, int total, const RecordRun& records, int show = 0,
                    uint8_t epoch = 0, const uint8_t* root = nullptr);
+    // Records refused because their baseline was not here (never expected:
+    // the server predicts only from frames this client acknowledged).
+    uint64_t missing_baselines() const { return missing_baselines_; }
+    uint64_t predicted() const { return predicted_; }  // records decoded from a baseline
 
     // Applies a chunk's morph block (proto/frame_reader.h: count byte, then
     // entries) to the frame at `tick` (total, show, epoch as in add_chunk; the
@@ -66,7 +77,10 @@ public:
     // most HOLD_TICKS (longer ones are a bone shown again, not a refresh); 0
     // when none. The client's display delay covers it.
     int last_gap() const { return last_gap_; }
-    // Pose of bone b at display tick d; false if bone b was never received.
+    // Pose of bone b relative to its progressive parent (bone 0: to the
+    // character's root) at display tick d, interpolated about the bone's
+    // pivot (its joint turns in place between frames, as a clip's keys do);
+    // false if bone b was never received.
     // held_at (optional): the tick of the frame whose value is held when no
     // frame after d carries bone b yet, else a value > d.
     // anchor_at (optional): when d falls in a known boundary gap (below),
@@ -101,7 +115,8 @@ private:
         uint8_t epoch = 0;
         bool has_root = false;
         RootPose root;
-        std::vector<BonePose> bones;
+        std::vector<BonePose> bones;     // relative to the progressive parent
+        std::vector<RecordInts> ints;    // the records' integers (baselines of predicted records)
         std::vector<uint8_t> have;
         bool has_weights = false;       // carried a morph block
         std::vector<float> weights;     // per morph target (valid where whave)
@@ -110,6 +125,11 @@ private:
     // The frame for `tick` (found or created, the oldest evicted); nullptr
     // when it is older than every kept frame (*too_old) or inconsistent.
     Frame* frame_for(uint32_t tick, int total, int show, uint8_t epoch, bool* too_old);
+    const Frame* frame_at(uint32_t tick) const;
+    // pose() with the translation as the image of the bone's pivot (how frames keep it).
+    bool pose_about_pivot(int b, double d, BonePose& out, double* held_at, double* anchor_at) const;
+    std::vector<RecordInts> scratch_;   // a chunk's decoded records
+    uint64_t missing_baselines_ = 0, predicted_ = 0;
     // Weight m as of frame f: the newest frame at or before f carrying it, else held_.
     float weight_as_of(const Frame& f, int m) const;
     int morphs_ = 0;
@@ -117,7 +137,7 @@ private:
     std::vector<uint32_t> held_w_tick_;
     std::vector<uint8_t> held_w_have_;
     int bones_ = 0;
-    RecordFormat fmt_;
+    RelativeFormat fmt_;
     std::vector<Frame> frames_;
     std::vector<BonePose> last_;        // newest value of every bone
     std::vector<uint32_t> last_tick_;

@@ -358,6 +358,8 @@ private:
         rep_.datagrams = st.datagrams;
         rep_.malformed = st.malformed;
         rep_.duplicates = st.duplicates;
+        rep_.predicted_records = st.predicted_records;
+        rep_.missing_baselines = st.missing_baselines;
         rep_.loss = st.loss;
         rep_.rtt_ms = st.rtt_ms;
         rep_.estimate_kbps = st.estimate_kbps;
@@ -490,6 +492,7 @@ std::string report_json(const ClientReport& r) {
     o << ", \"rate_max_kbps\": " << r.rate_max_kbps << ", \"max_gap_ms\": " << r.max_gap_ms << ", \"max_jump_pct\": " << r.max_jump_pct
       << ", \"delay_ms_max\": " << r.delay_ms << ", \"rtt_ms\": " << r.rtt_ms << ", \"estimate_kbps\": " << r.estimate_kbps
       << ", \"malformed\": " << r.malformed << ", \"duplicates\": " << r.duplicates
+      << ", \"predicted_records\": " << r.predicted_records << ", \"missing_baselines\": " << r.missing_baselines
       << ", \"asset_bytes_downloaded\": " << r.asset_bytes_downloaded << ", \"assets_cached\": " << r.assets_cached << ", \"download_seconds\": " << r.download_seconds
       << ", \"published\": " << r.published << ", \"poses_sent\": " << r.poses_sent << ", \"remote\": {\"characters\": "
       << r.remote_characters << ", \"rms_pct\": ";

@@ -94,6 +94,7 @@ struct ClientReport {
     std::vector<double> per_second_kbps;
     double max_gap_ms = 0;     // longest time between two frames received (ClientStats::max_gap_ms)
     uint64_t datagrams = 0, malformed = 0, duplicates = 0;
+    uint64_t predicted_records = 0, missing_baselines = 0;  // ClientStats
     double loss = 0;
     int characters = 0;        // instances with at least one frame received
     double bones_mean = 0, bones_min = 0, bones_max = 0;

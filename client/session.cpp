@@ -67,6 +67,13 @@ std::string read_instance(const wire::Instance& in, size_t catalogue_size, Remot
     return {};
 }
 
+// Bits of a run's count records (walked: read_frame checked them).
+static size_t run_bits(const RecordRun& rec, int count) {
+    BitReader in(rec.data, rec.bytes, rec.bit);
+    for (int k = 0; k < count; ++k) skip_record(in, rec.scaled, (rec.base & kBaseAgeMask) != 0);
+    return in.at() - rec.bit;
+}
+
 FrameApplied apply_frame(const wire::Frame& f, std::span<const PoseTarget> instances) {
     FrameApplied r;
     auto record_size = [&](uint16_t i) -> int {
@@ -83,15 +90,18 @@ FrameApplied apply_frame(const wire::Frame& f, std::span<const PoseTarget> insta
         if (instances[c.instance()].buffer->add_morphs(f.tick(), c.show(), c.show(), c.epoch(), morph)) ++r.applied;
         else ++r.refused;
     };
-    auto run = [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
+    auto run = [&](uint16_t i, int first, int count, int show, const RecordRun& rec) {
         PoseBuffer& b = *instances[i].buffer;
-        r.record_bytes += size_t(count) * size_t(instances[i].record_size);
+        r.record_bits += run_bits(rec, count);
         const bool had = !b.empty();
         const uint32_t prev = b.newest_tick();
+        const uint64_t missing = b.missing_baselines(), predicted = b.predicted();
         if (!b.add_chunk(f.tick(), first, count, show, rec, show, epoch, root)) {
-            ++r.refused;
+            if (b.missing_baselines() != missing) ++r.missing_baselines;
+            else ++r.refused;
             return;
         }
+        r.predicted += int(b.predicted() - predicted);
         ++r.applied;
         if (!had) return;
         // The gap since the instance's newest frame and the gap since these
@@ -607,6 +617,8 @@ void ClientSession::handle_frame(const wire::Datagram& d, size_t n, double t) {
     }
     st_.malformed += uint64_t(a.refused);
     st_.unknown_chunks += uint64_t(a.unknown_chunks);
+    st_.predicted_records += uint64_t(a.predicted);
+    st_.missing_baselines += uint64_t(a.missing_baselines);
     // Cover the gaps these runs filled (the display delay, display()).
     if (tick_offset_ > -1e299 && a.reach_from < double(f->tick()))
         needed_delay_ = std::max(needed_delay_, t * tick_rate_ + tick_offset_ - a.reach_from);
@@ -615,6 +627,10 @@ void ClientSession::handle_frame(const wire::Datagram& d, size_t n, double t) {
         st_.failover_seconds = std::max(st_.failover_seconds, t - lost_at_);
         lost_at_ = 0;
     }
+    // A datagram with a record whose baseline this client does not hold is
+    // not acknowledged: the server then never predicts from what it carried
+    // (baseline_book.h), so the stream heals instead of refusing on.
+    if (a.missing_baselines > 0) return;
     window_.add(seq);
     if (seq == window_.ack) {
         ack_echo_ = d.send_time_us();
@@ -654,11 +670,10 @@ FrameApplied ClientSession::sink_frame(const wire::Frame& f, double arrival) {
     auto on_chunk = [&](const wire::Chunk& c, const uint8_t* root, const uint8_t*) {
         sink.on_chunk(c.instance(), f.tick(), c.show(), root, arrival);
     };
-    auto run = [&](uint16_t i, int first, int count, int, const uint8_t* rec) {
-        const int rs = record_size(i);
-        r.record_bytes += size_t(count) * size_t(rs);
+    auto run = [&](uint16_t i, int first, int count, int, const RecordRun& rec) {
+        r.record_bits += run_bits(rec, count);
         ++r.applied;
-        sink.on_run(i, first, count, rec, rs);
+        sink.on_run(i, first, count, rec);
     };
     r.read = read_frame(f, record_size, run, on_chunk);
     if (!r.read) r.unknown_chunks = 0;

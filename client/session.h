@@ -59,14 +59,16 @@ std::string read_instance(const wire::Instance& in, size_t catalogue_size, Remot
 // target): the pose buffer of each instance, by instance id.
 struct PoseTarget {
     PoseBuffer* buffer = nullptr;  // nullptr: unknown instance (its chunks are skipped)
-    int record_size = 0;           // the asset's RecordFormat::size(); 0: unknown
+    int record_size = 0;           // the asset's RecordFormat::size() (12 or 14: scaled or not); 0: unknown
 };
 struct FrameApplied {
     bool read = false;        // the frame passed read_frame (else nothing was applied)
     int applied = 0;          // runs of bones and morph blocks the pose buffers took
     int refused = 0;          // runs and morph blocks a pose buffer refused (inconsistent)
-    size_t record_bytes = 0;  // bytes of the records of every run
+    size_t record_bits = 0;   // bits of the records of every run
     int unknown_chunks = 0;   // chunks of instances without a target
+    int missing_baselines = 0;  // runs refused because a predicted record's baseline is not held (never acked)
+    int predicted = 0;          // records decoded from a baseline
     // The oldest tick the display must reach back to for these runs: over
     // every accepted run of an instance that had frames, the older of its
     // newest frame before and this frame, and this frame less the bones'
@@ -133,9 +135,9 @@ public:
     // the frame's tick, the bones to show, the root block (ROOT_BYTES, or
     // nullptr), the datagram's arrival (the clock of update's now).
     virtual void on_chunk(int instance, uint32_t tick, int show, const uint8_t* root, double arrival) = 0;
-    // A run of `count` records (record_size bytes each) of bones first.. of
-    // that chunk, as received (not yet decoded).
-    virtual void on_run(int instance, int first, int count, const uint8_t* records, int record_size) = 0;
+    // A run of `count` parent-relative records (bone_record.h) of bones
+    // first.. of that chunk, as received (not yet decoded).
+    virtual void on_run(int instance, int first, int count, const RecordRun& records) = 0;
 
 protected:
     ~FrameSink() = default;

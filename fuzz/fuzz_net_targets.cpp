@@ -30,13 +30,15 @@ int frame_stream(const uint8_t* data, size_t size) {
     if (const wire::Frame* f = d->body_as_Frame()) {
         // The scene of fuzz/corpus/frame (make_frame_corpus.cpp): the default
         // character set, 3 Fox (24 bones) then a CesiumMan (19), 12-byte
-        // records; instance 4 a 19-bone asset with scaled (14-byte) records;
+        // records; instance 4 a 19-bone asset with scaled records;
         // instance 5 tests/data/skinned_morph.gltf (3 bones, 4 morph targets,
         // chunks with morph blocks).
         RecordFormat plain, scaled;
         scaled.scaled = true;
-        std::array<PoseBuffer, 6> buffers = {PoseBuffer(24, plain), PoseBuffer(24, plain), PoseBuffer(24, plain),
-                                             PoseBuffer(19, plain), PoseBuffer(19, scaled), PoseBuffer(3, plain, 4)};
+        static const RelativeFormat f24 = chain_format(24, plain), f19 = chain_format(19, plain),
+                                    f19s = chain_format(19, scaled), f3 = chain_format(3, plain);
+        std::array<PoseBuffer, 6> buffers = {PoseBuffer(f24), PoseBuffer(f24), PoseBuffer(f24),
+                                             PoseBuffer(f19), PoseBuffer(f19s), PoseBuffer(f3, 4)};
         std::array<PoseTarget, 6> targets;
         for (size_t i = 0; i < buffers.size(); ++i) targets[i] = {&buffers[i], (i == 4 ? scaled : plain).size()};
         // The client's frame application (client/session.h), epochs and roots included.

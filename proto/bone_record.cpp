@@ -71,6 +71,12 @@ RelativeFormat relative_format(std::span<const int16_t> parents, std::span<const
     return f;
 }
 
+RelativeFormat chain_format(int bones, const RecordFormat& box) {
+    std::vector<int16_t> parents(size_t(std::max(0, bones)));
+    for (size_t b = 0; b < parents.size(); ++b) parents[b] = int16_t(int(b) - 1);
+    return relative_format(parents, std::vector<Mat34>(parents.size(), Mat34::identity()), box);
+}
+
 RelativeFormat relative_format(const ProgressiveSkin& skin, const Character& c, const RecordFormat& box) {
     std::vector<Mat34> ib(skin.order.size());
     for (size_t b = 0; b < ib.size(); ++b) {
@@ -346,6 +352,33 @@ bool read_predicted(BitReader& in, const RecordInts& pred, bool scaled, RecordIn
     r.has_scale = r.scale != 0;
     out = r;
     return true;
+}
+
+bool skip_record(BitReader& in, bool scaled, bool with_base) {
+    uint64_t flag = 0, s = 0, u = 0;
+    if (with_base) {
+        if (!in.get(1, flag)) return false;
+        if (flag) {  // predicted: the residuals' syntax (their sums are checked where the baseline is known)
+            if (!in.get(1, flag)) return false;
+            if (flag) return true;  // equal to the prediction
+            for (int part = 0; part < 2; ++part) {
+                if (part == 1) {
+                    if (!in.get(1, flag)) return false;
+                    if (!flag) break;
+                }
+                if (!in.get(2, s)) return false;
+                for (int a = 0; a < 3; ++a)
+                    if (!in.get_eg(kDeltaOrders[s], u)) return false;
+            }
+            if (scaled) {
+                if (!in.get(1, flag)) return false;
+                if (flag && !in.get_eg(kScaleOrder, u)) return false;
+            }
+            return true;
+        }
+    }
+    RecordInts r;
+    return read_record(in, scaled, r);
 }
 
 bool encode_pose(std::span<const BonePose> model, const RelativeFormat& f, std::vector<uint8_t>& bits,

@@ -74,6 +74,9 @@ struct RelativeFormat {
 // parent is not below its bone.
 RelativeFormat relative_format(std::span<const int16_t> parents, std::span<const Mat34> inverse_binds,
                                const RecordFormat& box);
+// A chain of `bones` bones (parent b - 1) turning about the origin: for
+// tools and tests that have no asset (the fuzz targets, pose buffer tests).
+RelativeFormat chain_format(int bones, const RecordFormat& box);
 // The same for a character's progressive skin (bone b is joint skin.order[b]).
 RelativeFormat relative_format(const ProgressiveSkin& skin, const Character& c, const RecordFormat& box);
 
@@ -141,6 +144,18 @@ inline constexpr int kDeltaOrders[4] = {0, 2, 5, 8};
 // has_trans / has_scale when any is non-zero, within read_record's bounds.
 size_t write_predicted(const RecordInts& now, const RecordInts& pred, bool scaled, BitWriter& w);
 bool read_predicted(BitReader& in, const RecordInts& pred, bool scaled, RecordInts& out);
+
+// The records of a frame chunk (docs/protocol.md "Frame"): with a baseline
+// (Chunk.base != 0) each record opens with 1 bit, set when it is predicted
+// from the baseline (then write_predicted's syntax), clear when it stands
+// alone (write_record's); without one every record is write_record's.
+// Chunk.base: bits 0-5 the baseline's age a (1..63 ticks, 0: no baseline),
+// bit 6 linear (predicted from the records a and 2a ticks old), bit 7 0.
+inline constexpr uint8_t kBaseAgeMask = 0x3F, kBaseLinear = 0x40;
+// Walks one chunk record without its baseline: the syntax, code lengths and
+// a standalone record's bounds. False when it runs past the end or breaks
+// them (the frame is refused before anything is applied). O(record bits).
+bool skip_record(BitReader& in, bool scaled, bool with_base);
 
 // Encodes a whole pose (B model-space poses, progressive order) closed loop:
 // appends each bone's record to `bits` (a fresh byte-aligned stream is not

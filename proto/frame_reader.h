@@ -1,5 +1,5 @@
 // frame_reader.h — the chunk layout of a Frame (datagram.fbs, protocol
-// version 4), written by server/datagram_packer.cpp and read here by every
+// version 5), written by server/datagram_packer.cpp and read here by every
 // receiver (client, tests, benchmarks, fuzz target).
 //
 // Frame.payload holds, per chunk in chunk order, the root block (ROOT_BYTES,
@@ -8,36 +8,56 @@
 // index, strictly increasing, and int16 little-endian weight, wire.h
 // decode_morph_weight), a bone mask of mask_bytes(first, show)
 // bytes (bit j of byte j / 8, least significant bit first: bone first + j is
-// carried), then one record per set bit, in increasing bone order; records
-// are 14 bytes when flags & CHUNK_SCALED, else 12.
+// carried), then the records of the carried bones in increasing bone order
+// as one bit stream (bone_record.h: parent-relative, each record opening with
+// a "predicted" bit when chunk.base != 0; scale fields when flags &
+// CHUNK_SCALED), padded with zero bits to a whole byte.
 //
 // read_frame(frame, record_size, run[, on_chunk]) checks every length and
 // index of a verified Frame before anything is applied:
-//   record_size(instance) -> int: the record bytes of that instance's asset,
-//       0 when the instance is unknown (its chunks are skipped: an instance
-//       may be announced on the control channel after its first frames);
+//   record_size(instance) -> int: the absolute record bytes of that
+//       instance's asset (12, or 14 when it is scaled), 0 when the instance
+//       is unknown (its chunks are walked by their flags and skipped: an
+//       instance may be announced on the control channel after its first
+//       frames);
 //   on_chunk(chunk, root, morph): once per chunk of a known instance, before
 //       its runs (root: the ROOT_BYTES block, or nullptr; morph: the morph
 //       block from its count byte on, or nullptr);
-//   run(instance, first, count, show, records): called for every run of
-//       consecutive bones carried, in payload order (records: count records).
-// Returns false, having called nothing, when a chunk's record size differs
+//   run(instance, first, count, show, RecordRun): called for every run of
+//       consecutive bones carried, in payload order (the run's first record
+//       at RecordRun.bit of its bytes).
+// Returns false, having called nothing, when a chunk's scale flag differs
 // from its known instance's, has show == 0 or first >= show, unknown flag
-// bits, a root, morph block or mask runs past the payload, a morph block has
-// n == 0 or indices not strictly increasing, the mask has bits set at or past
-// show, the chunk carries neither a bone nor a morph weight, its records run past the payload, or when bytes are
-// left over after the last chunk. Whether show fits the asset's bone count is
-// the receiver's check (PoseBuffer::add_chunk), and so is whether a morph
-// index is below the asset's morph target count (PoseBuffer::add_morphs). O(payload bytes), no allocation.
+// bits, a base with bit 7 set or linear without an age, a root, morph block
+// or mask runs past the payload, a morph block has n == 0 or indices not
+// strictly increasing, the mask has bits set at or past show, the chunk
+// carries neither a bone nor a morph weight, a record breaks its syntax or
+// runs past the payload (bone_record.h skip_record), the padding is not
+// zero, or when bytes are left over after the last chunk. Whether show fits
+// the asset's bone count is the receiver's check (PoseBuffer::add_chunk), so
+// are a predicted record's baseline and sums, and whether a morph index is
+// below the asset's morph target count (PoseBuffer::add_morphs). O(payload
+// bits), no allocation.
 #pragma once
 #include <bit>
 #include <cstddef>
 #include <cstdint>
 
+#include "bone_record.h"
 #include "datagram_generated.h"
 #include "wire.h"
 
 namespace progskin::net {
+
+// Where a run's records are: bit `bit` of data[0..bytes) (the chunk's record
+// stream), coded with the chunk's scale flag and baseline.
+struct RecordRun {
+    const uint8_t* data = nullptr;
+    size_t bytes = 0;
+    size_t bit = 0;
+    bool scaled = false;
+    uint8_t base = 0;  // Chunk.base
+};
 
 // Bytes of the bone mask of a chunk covering bones first..show-1.
 constexpr size_t mask_bytes(int first, int show) { return show > first ? size_t(show - first + 7) / 8 : 0; }
@@ -54,10 +74,13 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
         if (chunks) {
             for (const wire::Chunk* c : *chunks) {
                 const int known = record_size(c->instance());
-                const int rs = (c->flags() & CHUNK_SCALED) ? 14 : 12;
+                const bool scaled = (c->flags() & CHUNK_SCALED) != 0;
+                const int rs = scaled ? RecordFormat::kScaledSize : RecordFormat::kPlainSize;
                 const int first = c->first(), show = c->show();
+                const uint8_t base = c->base();
                 if ((known > 0 && known != rs) || first >= show ||
-                    (c->flags() & ~(CHUNK_ROOT | CHUNK_SCALED | CHUNK_MORPH)))
+                    (c->flags() & ~(CHUNK_ROOT | CHUNK_SCALED | CHUNK_MORPH)) || (base & 0x80) ||
+                    ((base & kBaseLinear) && !(base & kBaseAgeMask)))
                     return false;
                 const uint8_t* root = nullptr;
                 if (c->flags() & CHUNK_ROOT) {
@@ -83,10 +106,25 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
                 if (bits % 8 != 0 && (mask[mb - 1] >> (bits % 8)) != 0) return false;
                 size_t carried = 0;
                 for (size_t i = 0; i < mb; ++i) carried += size_t(std::popcount(mask[i]));
-                if ((carried == 0 && !morph) || (size - at) / size_t(rs) < carried) return false;
+                if (carried == 0 && !morph) return false;
+                // The records: walked (pass 0) to find where the chunk ends.
+                const uint8_t* rec = data + at;
+                const size_t avail = size - at;
+                BitReader walk(rec, avail);
+                const bool with_base = (base & kBaseAgeMask) != 0;
+                if (pass == 0) {
+                    for (size_t k = 0; k < carried; ++k)
+                        if (!skip_record(walk, scaled, with_base)) return false;
+                    const size_t pad = (8 - walk.at() % 8) % 8;
+                    uint64_t zero = 0;
+                    if (pad && (!walk.get(int(pad), zero) || zero != 0)) return false;
+                } else {
+                    for (size_t k = 0; k < carried; ++k) skip_record(walk, scaled, with_base);
+                }
+                const size_t rec_bytes = (walk.at() + 7) / 8;
                 if (pass == 1 && known > 0) {
                     on_chunk(*c, root, morph);
-                    const uint8_t* rec = data + at;
+                    BitReader runs(rec, rec_bytes);
                     int j = 0;
                     while (j < bits) {
                         if (!(mask[j / 8] >> (j % 8) & 1)) {
@@ -95,12 +133,12 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
                         }
                         int e = j + 1;
                         while (e < bits && (mask[e / 8] >> (e % 8) & 1)) ++e;
-                        run(c->instance(), first + j, e - j, show, rec);
-                        rec += size_t(e - j) * size_t(rs);
+                        run(c->instance(), first + j, e - j, show, RecordRun{rec, rec_bytes, runs.at(), scaled, base});
+                        for (int k = j; k < e; ++k) skip_record(runs, scaled, with_base);
                         j = e;
                     }
                 }
-                at += carried * size_t(rs);
+                at += rec_bytes;
             }
         }
         if (at != size) return false;

@@ -460,6 +460,7 @@ DatagramVerdict ClientStream::on_ack(const wire::Ack& a, const PeerAddress& from
     if (!bound_ || peer_ != from) return DatagramVerdict::rejected;  // counts only from the bound address
     last_heard_ = now;
     rate_.on_ack(a.ack(), a.ack_bits(), a.echo_time_us(), a.hold_us(), now_us32());
+    book_.on_ack(a.ack(), a.ack_bits());
     return DatagramVerdict::accepted;
 }
 
@@ -580,6 +581,12 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
 TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, DatagramSink& out, TickScratch& scratch) {
     update_importance(frame);
     bound_candidates(budget, frame.tick);
+    const bool predict = core_.config().predict_records;
+    plan_.begin(frame);
+    if (predict)
+        for (size_t i = 0; i < importance_.size(); ++i)
+            if (importance_[i] > 0.0f) plan_.plan(frame, int(i), book_);
+    scheduler_.set_plan(predict ? &plan_ : nullptr);
     if (selector_) {
         selector_(frame, budget, picks_);
     } else {
@@ -593,7 +600,7 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
     std::vector<std::vector<uint8_t>>& dgrams = scratch.datagrams;
     dgrams.clear();
     const uint32_t first_seq = seq_;
-    size_t wire = scratch.packer.pack(frame, picks_, seq_, dgrams);
+    size_t wire = scratch.packer.pack(frame, picks_, seq_, dgrams, predict ? &plan_ : nullptr, &book_);
     for (size_t i = 0; i < dgrams.size(); ++i) {
         const size_t sent = send_datagram(dgrams[i], peer_, out, scratch.sealed);
         if (adaptive_) rate_.on_sent(first_seq + uint32_t(i), now_us32(), sent + UDP_IP_OVERHEAD);

@@ -286,6 +286,8 @@ private:
     // neither re-evaluates the estimate nor records sends for loss.
     bool adaptive_ = true;
     Scheduler scheduler_;
+    BaselineBook book_;   // what this client acknowledged: the baselines of predicted records
+    RecordPlan plan_;     // this tick's record choices (set before the scheduler runs)
     Selector selector_;
     ViewSpec view_;
     std::vector<glm::dvec3> centres_;  // update_importance's (view_radius)

@@ -6,6 +6,8 @@
 #include <cassert>
 
 #include "errors.h"
+#include "baseline_book.h"
+#include "bone_record.h"
 #include "frame_reader.h"
 #include "wire.h"
 
@@ -32,7 +34,7 @@ void DatagramPacker::flush(uint32_t tick, uint32_t& seq, std::vector<std::vector
 }
 
 size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> picks, uint32_t& seq,
-                            std::vector<std::vector<uint8_t>>& out) {
+                            std::vector<std::vector<uint8_t>>& out, const RecordPlan* plan, BaselineBook* book) {
     const size_t room = MAX_DATAGRAM - WireCost::kFrameOverhead;
     size_t wire = 0;
     chunks_.clear();
@@ -43,8 +45,10 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
         size_t g_end = g + 1;
         while (g_end < picks.size() && picks[g_end].instance == instance) ++g_end;
         const EncodedInstance& e = frame.instances[size_t(instance)];
-        const uint8_t* src = frame.records(instance);
-        const size_t rs = size_t(e.record_size);
+        const uint8_t* src = frame.relative(instance);
+        const uint8_t base = plan ? plan->base(instance) : 0;
+        const PredictedRecords* pred = base ? plan->records(instance) : nullptr;
+        auto bits_of = [&](int b) { return plan ? plan->bits(frame, instance, b, b + 1) : frame.record_bits(instance, b, b + 1); };
         int show = 0;
         for (size_t p = g; p < g_end; ++p) show = std::max(show, std::clamp(std::max(picks[p].show, picks[p].k), 0, e.bone_count));
         // Bones of the group in increasing order: ranges [first, k), as the
@@ -77,7 +81,7 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
             const int first = bone >= 0 ? bone : show - 1;
             const size_t mb = mask_bytes(first, show);
             const size_t used = payload_.size() + (chunks_.size() + 1) * WireCost::kChunk + root_bytes + morph_bytes + mb;
-            if (used + (bone >= 0 ? rs : 0) > room) {
+            if (used + (bone >= 0 ? (bits_of(bone) + 7) / 8 : 0) > room) {
                 flush(frame.tick, seq, out, wire);
                 continue;
             }
@@ -97,14 +101,30 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
             }
             const size_t mask_at = payload_.size();
             payload_.resize(mask_at + mb, 0);
-            size_t fit = (room - used) / rs;
-            while (bone >= 0 && fit > 0) {
+            // Records as one bit stream, padded to a byte: as many as fit.
+            const size_t room_bits = (room - used) * 8;
+            size_t rec_bits = 0;
+            BitWriter w(payload_);
+            int run_first = -1, run_end = -1;  // the run of consecutive bones being written (for the book)
+            auto end_run = [&] {
+                if (book && run_first >= 0) book->carried(seq, frame.tick, instance, e.generation, run_first, run_end - run_first);
+                run_first = -1;
+            };
+            while (bone >= 0 && rec_bits + bits_of(bone) <= room_bits) {
                 payload_[mask_at + size_t(bone - first) / 8] |= uint8_t(1u << ((bone - first) % 8));
-                payload_.insert(payload_.end(), src + size_t(bone) * rs, src + size_t(bone + 1) * rs);
-                --fit;
+                const bool predicted = base && plan->predicted(instance, bone);
+                if (base) w.put(predicted ? 1 : 0, 1);
+                if (predicted)
+                    copy_bits(pred->bits.data(), pred->offsets[size_t(bone)], pred->record_bits(bone), w);
+                else
+                    copy_bits(src, frame.bit_offset(instance, bone), frame.record_bits(instance, bone, bone + 1), w);
+                rec_bits += bits_of(bone);
+                if (bone != run_end) end_run(), run_first = bone;
+                run_end = bone + 1;
                 bone = next_bone();
             }
-            chunks_.emplace_back(uint16_t(instance), uint8_t(first), uint8_t(show), e.epoch, flags);
+            end_run();
+            chunks_.emplace_back(uint16_t(instance), uint8_t(first), uint8_t(show), e.epoch, flags, base);
         }
         g = g_end;
     }

@@ -1,6 +1,6 @@
 // datagram_packer.h — turns one client's picks of a tick into frame-stream
 // datagrams (datagram.fbs Frame) of at most MAX_DATAGRAM bytes, copying the
-// pre-encoded bone records (no re-encoding). Adjacent picks of one instance
+// pre-encoded parent-relative records' bits (no re-encoding). Adjacent picks of one instance
 // share one chunk (its bone mask, then its records: proto/frame_reader.h); a
 // chunk that does not fit continues in the next datagram (Chunk.first);
 // chunks go out in pick order.
@@ -11,6 +11,7 @@
 
 #include <flatbuffers/flatbuffers.h>
 
+#include "baseline_book.h"
 #include "frame_encoder.h"
 #include "scheduler.h"
 #include "wire.h"
@@ -20,9 +21,12 @@ namespace progskin::net {
 class DatagramPacker {
 public:
     // Appends datagrams to `out` (each a complete buffer); `seq` is advanced per
-    // datagram. Returns the wire bytes (payload + 28 per datagram).
+    // datagram. Returns the wire bytes (payload + 28 per datagram). plan
+    // (optional): the client's record plan (each character's baseline and
+    // predicted bones; nullptr: standalone records); book (optional): told
+    // which bones each datagram carries (acknowledgements make them baselines).
     size_t pack(const EncodedFrame& frame, std::span<const Pick> picks, uint32_t& seq,
-                std::vector<std::vector<uint8_t>>& out);
+                std::vector<std::vector<uint8_t>>& out, const RecordPlan* plan = nullptr, BaselineBook* book = nullptr);
 
 private:
     void flush(uint32_t tick, uint32_t& seq, std::vector<std::vector<uint8_t>>& out, size_t& wire);

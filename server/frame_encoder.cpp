@@ -18,11 +18,16 @@ FrameEncoder::FrameEncoder(std::vector<std::shared_ptr<ServerAsset>> assets, std
     size_t max_joints = 0;
     for (const auto& a : assets_) {
         stride_ = std::max(stride_, size_t(a->bone_count()) * size_t(a->format.size()));
+        max_bones_ = std::max(max_bones_, size_t(a->bone_count()));
+        rel_stride_ = std::max(rel_stride_, (size_t(a->bone_count()) * size_t(kMaxRecordBits) + 7) / 8);
         max_joints = std::max(max_joints, a->character.joint_count());
         morph_stride_ = std::max(morph_stride_, std::min<size_t>(a->character.morphs.size(), MAX_MORPHS));
         weights_.resize(std::max(weights_.size(), a->character.morphs.size()));
     }
     scratch_.resize(max_joints);
+    model_.resize(max_bones_);
+    decoded_.resize(max_bones_);
+    bits_.reserve(rel_stride_);
     std::vector<glm::dmat4> first(max_joints), last(max_joints);
     for (const auto& a : assets_) {
         auto& flags = seamless_.emplace_back();
@@ -90,6 +95,7 @@ int FrameEncoder::add_instance(const InstanceSpec& s) {
     slot.has_root = false;
     slot.morphs.clear();
     slot.changed = true;
+    slot.rel_ready = false;
     return id;
 }
 
@@ -217,7 +223,21 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         frame_.instances.resize(slots_.size());
         frame_.bytes.resize(slots_.size() * stride_);
         frame_.morph.resize(slots_.size() * morph_stride_, kNoWeight);
+        frame_.rel.resize(slots_.size() * rel_stride_);
+        frame_.bit_offsets.resize(slots_.size() * (max_bones_ + 1));
+        frame_.ints.resize(slots_.size() * max_bones_);
+        frame_.ring_bones = max_bones_;
+        frame_.hist.resize(slots_.size() * kBaselineRing * max_bones_);
+        frame_.hist_tick.resize(slots_.size() * kBaselineRing, 0);
+        frame_.hist_gen.resize(slots_.size() * kBaselineRing, 0);
+        const size_t had = frame_.predicted_.size();
+        frame_.predicted_.resize(slots_.size() * kPredictedPerSlot);
+        for (size_t k = had; k < frame_.predicted_.size(); ++k) {
+            frame_.predicted_[k].bits.reserve(rel_stride_ + 8);
+            frame_.predicted_[k].offsets.resize(max_bones_ + 1);
+        }
     }
+    for (auto& p : frame_.predicted_) p.base = 0;  // coded again on first use this tick
     for (size_t i = 0; i < slots_.size(); ++i) {
         Slot& slot = slots_[i];
         auto& e = frame_.instances[i];
@@ -234,6 +254,8 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         e.owner = s.owner;
         e.morph_count = 0;
         e.morph_offset = i * morph_stride_;
+        e.rel_offset = i * rel_stride_;
+        e.bit_index = i * (max_bones_ + 1);
         uint8_t* out = frame_.bytes.data() + e.offset;
         e.model = slot.live || s.selection < 0 ? int(a.selections.size()) : s.selection;
         e.flags = uint8_t((a.format.scaled ? CHUNK_SCALED : 0) | (slot.has_root ? CHUNK_ROOT : 0));
@@ -244,17 +266,25 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
             e.world = glm::dvec3(s.position);
         }
         if (slot.changed || !slot.live) slot.changed_tick = tick;
+        const bool changed = slot.changed;
         slot.changed = false;
         e.changed_tick = slot.changed_tick;
         if (slot.live) {
             if (!slot.has_pose) continue;
             std::copy(slot.records.begin(), slot.records.end(), out);
+            if (changed || !slot.rel_ready) {
+                const size_t rs = size_t(e.record_size);
+                for (int b = 0; b < e.bone_count; ++b) model_[size_t(b)] = decode_bone(out + size_t(b) * rs, a.format);
+                slot.rel_ready = encode_relative(i, a);
+                if (!slot.rel_ready) continue;  // counted; not sent this tick
+            }
             if (!slot.morphs.empty()) {
                 e.morph_count = int(slot.morphs.size());
                 std::copy(slot.morphs.begin(), slot.morphs.end(), frame_.morph.begin() + long(e.morph_offset));
             }
             e.epoch = uint8_t(slot.teleports + slot.live_epoch);
             e.valid = true;
+            keep_baseline(i, tick, slot.generation);
             continue;
         }
         const int J = int(a.character.joint_count());
@@ -268,7 +298,9 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
             const BonePose p = decompose(Mat34::from_glm(mats[size_t(a.skin.order[b])]));
             if (!bone_in_range(p, a.format)) ++stats_.poses_out_of_range;  // the box covers the clips: never expected
             encode_bone(p, a.format, out + size_t(b) * rs);
+            model_[size_t(b)] = p;
         }
+        if (!encode_relative(i, a)) continue;  // counted; not sent this tick
         if (!a.character.morphs.empty()) {
             sample_morph_weights(a.character, sel, t, std::span<float>(weights_.data(), a.character.morphs.size()));
             e.morph_count = int(std::min<size_t>(a.character.morphs.size(), MAX_MORPHS));
@@ -286,8 +318,69 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         if (seamless_[size_t(s.asset)][size_t(s.selection)]) loops = 0;  // the wrap is no discontinuity
         e.epoch = uint8_t(int64_t(slot.teleports) + loops);
         e.valid = true;
+        keep_baseline(i, tick, slot.generation);
     }
     return frame_;
+}
+
+bool FrameEncoder::encode_relative(size_t i, const ServerAsset& a) {
+    const EncodedInstance& e = frame_.instances[i];
+    const size_t B = size_t(a.bone_count());
+    bits_.clear();
+    std::span<uint32_t> offsets(frame_.bit_offsets.data() + e.bit_index, B + 1);
+    if (!encode_pose(std::span<const BonePose>(model_.data(), B), a.relative, bits_, offsets,
+                     std::span<BonePose>(decoded_.data(), B), std::span<RecordInts>(frame_.ints.data() + i * max_bones_, B))) {
+        ++stats_.records_refused;
+        return false;
+    }
+    std::copy(bits_.begin(), bits_.end(), frame_.rel.begin() + long(e.rel_offset));
+    return true;
+}
+
+void FrameEncoder::keep_baseline(size_t i, uint32_t tick, uint32_t generation) {
+    const size_t k = i * kBaselineRing + tick % kBaselineRing;
+    std::copy(frame_.ints.begin() + long(i * max_bones_), frame_.ints.begin() + long((i + 1) * max_bones_),
+              frame_.hist.begin() + long(k * max_bones_));
+    frame_.hist_tick[k] = tick;
+    frame_.hist_gen[k] = generation;
+}
+
+const RecordInts* EncodedFrame::ints_at(int i, uint32_t t) const {
+    const size_t k = size_t(i) * kBaselineRing + t % kBaselineRing;
+    if (int32_t(tick - t) < 0 || int32_t(tick - t) >= kBaselineRing || hist_tick[k] != t ||
+        hist_gen[k] != instances[size_t(i)].generation)
+        return nullptr;
+    return hist.data() + k * ring_bones;
+}
+
+const PredictedRecords* EncodedFrame::predicted(int i, uint8_t base) const {
+    const EncodedInstance& e = instances[size_t(i)];
+    std::lock_guard lock((*predicted_locks)[size_t(i) % predicted_locks->size()]);
+    PredictedRecords* free = nullptr;
+    for (size_t k = size_t(i) * kPredictedPerSlot; k < size_t(i + 1) * kPredictedPerSlot; ++k) {
+        if (predicted_[k].base == base) return &predicted_[k];
+        if (!free && predicted_[k].base == 0) free = &predicted_[k];
+    }
+    if (!free) return nullptr;
+    PredictedRecords& p = *free;
+    p.base = base;
+    const uint32_t age = base & kBaseAgeMask;
+    const bool linear = (base & kBaseLinear) != 0;
+    const RecordInts* b1 = age ? ints_at(i, tick - age) : nullptr;
+    const RecordInts* b2 = linear ? ints_at(i, tick - 2 * age) : nullptr;
+    p.usable = b1 && (!linear || b2) && e.valid;
+    if (!p.usable) return &p;
+    p.bits.clear();
+    BitWriter w(p.bits);
+    const RecordInts* now = ints.data() + size_t(i) * ring_bones;
+    const bool scaled = (e.flags & CHUNK_SCALED) != 0;
+    for (int b = 0; b < e.bone_count; ++b) {
+        p.offsets[size_t(b)] = uint32_t(w.bits());
+        const RecordInts pred = linear ? predict_record(b1[b], age, &b2[b], 2 * age) : predict_record(b1[b], age);
+        write_predicted(now[b], pred, scaled, w);
+    }
+    p.offsets[size_t(e.bone_count)] = uint32_t(w.bits());
+    return &p;
 }
 
 }  // namespace progskin::net

@@ -1,7 +1,9 @@
 // frame_encoder.h — once per tick, samples every instance once and encodes all
-// its bones once (bone_codec.h records, progressive order, relative to the
-// instance's root). Clients then only select prefixes and copy these bytes
-// (scheduler.h, datagram_packer.h).
+// its bones once, in progressive order, relative to the instance's root: as
+// the absolute records of bone_codec.h (what the world bus carries between
+// nodes) and as the frame stream's parent-relative records (bone_record.h,
+// closed loop, a bit stream with each bone's bit offset). Clients then only
+// select bones and copy these bits (scheduler.h, datagram_packer.h).
 //
 // Instances live in slots (their wire ids, uint16) that are added and removed
 // at run time; a freed id is reused last (first in, first out), and every
@@ -56,9 +58,28 @@ struct EncodedInstance {
     uint32_t changed_tick = 0;
     int morph_count = 0;    // morph weights this tick (EncodedFrame::morph), 0: none
     size_t morph_offset = 0;  // into EncodedFrame::morph
+    size_t rel_offset = 0;  // into EncodedFrame::rel (bytes: the records' bit stream starts there)
+    size_t bit_index = 0;   // into EncodedFrame::bit_offsets (bone_count + 1) and ints (bone_count)
 };
 
 inline constexpr int32_t kNoWeight = INT32_MIN;  // EncodedFrame::morph: refused this tick (out of range)
+
+// Baselines (docs/protocol.md "Predicted records"): the encoder keeps each
+// slot's record integers of the last kBaselineRing ticks, so that a record
+// can be predicted from a tick up to kBaselineRing - 1 old (linear: the
+// baseline's age a with 2a < kBaselineRing).
+inline constexpr int kBaselineRing = 16;
+inline constexpr int kPredictedPerSlot = 4;  // baselines coded per slot and tick (the rest: standalone records)
+
+// One slot's records of a tick predicted from one baseline (Chunk.base):
+// write_predicted's bits per bone (without the chunk's "predicted" bit).
+struct PredictedRecords {
+    uint8_t base = 0;     // 0: free this tick
+    bool usable = false;  // the baseline ticks were in the ring (else nothing is predicted from it)
+    std::vector<uint8_t> bits;
+    std::vector<uint32_t> offsets;  // bone_count + 1
+    size_t record_bits(int b) const { return size_t(offsets[size_t(b) + 1] - offsets[size_t(b)]); }
+};
 
 struct EncodedFrame {
     uint32_t tick = 0;
@@ -69,12 +90,40 @@ struct EncodedFrame {
         return {morph.data() + instances[size_t(i)].morph_offset, size_t(instances[size_t(i)].morph_count)};
     }
     const uint8_t* records(int i) const { return bytes.data() + instances[i].offset; }
+    // Parent-relative records (bone_record.h) of every slot: a bit stream per
+    // slot (rel_stride bytes each) and each bone's first bit (bone_count + 1
+    // offsets per slot, the last the end) and integers.
+    std::vector<uint8_t> rel;
+    std::vector<uint32_t> bit_offsets;
+    std::vector<RecordInts> ints;
+    const uint8_t* relative(int i) const { return rel.data() + instances[size_t(i)].rel_offset; }
+    // Bits of bones [from, to) of instance i's relative records.
+    size_t record_bits(int i, int from, int to) const {
+        const uint32_t* o = bit_offsets.data() + instances[size_t(i)].bit_index;
+        return to > from ? size_t(o[to] - o[from]) : 0;
+    }
+    uint32_t bit_offset(int i, int b) const { return bit_offsets[instances[size_t(i)].bit_index + size_t(b)]; }
+
+    // The ring of each slot's integers (kBaselineRing ticks): entry k of slot
+    // i holds tick hist_tick (valid when hist_gen is the slot's generation).
+    size_t ring_bones = 0;  // integers per ring entry (the largest asset's bones)
+    std::vector<RecordInts> hist;
+    std::vector<uint32_t> hist_tick, hist_gen;
+    // Instance i's integers at `tick`, or nullptr when the ring does not hold them.
+    const RecordInts* ints_at(int i, uint32_t tick) const;
+    // Instance i's records predicted from baseline `base` (Chunk.base, non-zero),
+    // coded once per tick and slot on first use and shared by every client
+    // (thread-safe); nullptr when kPredictedPerSlot other baselines took the slot's room.
+    const PredictedRecords* predicted(int i, uint8_t base) const;
+    mutable std::vector<PredictedRecords> predicted_;  // kPredictedPerSlot per slot
+    std::shared_ptr<std::array<std::mutex, 64>> predicted_locks = std::make_shared<std::array<std::mutex, 64>>();
 };
 
 struct EncoderStats {
     uint64_t poses_out_of_range = 0;  // live poses refused by the codec's range (never clamped)
     uint64_t stale_poses = 0;         // published records older than the newest (dropped)
     uint64_t morphs_out_of_range = 0;  // morph weights outside the wire range (refused, never clamped)
+    uint64_t records_refused = 0;      // poses the relative record cannot code (quantise_record false): not sent that tick
 };
 
 class FrameEncoder {
@@ -140,11 +189,20 @@ private:
         bool has_root = false;
         std::array<uint8_t, ROOT_BYTES> root{};
         bool changed = true;        // pushed to since the last encode
+        bool rel_ready = false;     // a live pose's relative records are in the frame (unchanged since)
         uint32_t changed_tick = 0;  // EncodedInstance::changed_tick
     };
     std::vector<std::shared_ptr<ServerAsset>> assets_;
     float tick_rate_;
     size_t stride_ = 0;             // bytes per slot (the largest asset's records)
+    size_t rel_stride_ = 0;         // relative record bytes per slot (the largest asset's worst case)
+    size_t max_bones_ = 0;          // bones of the largest asset
+    std::vector<uint8_t> bits_;     // encode_pose scratch
+    std::vector<BonePose> model_, decoded_;
+    // Codes slot i's poses (model_) as relative records into the frame; false when refused.
+    bool encode_relative(size_t i, const ServerAsset& a);
+    // Keeps slot i's integers of this tick in the baseline ring.
+    void keep_baseline(size_t i, uint32_t tick, uint32_t generation);
     // Per asset and clip selection: the loop is seamless (its last pose is
     // its first, to 1e-4 of the diagonal), so a wrap is no discontinuity.
     std::vector<std::vector<uint8_t>> seamless_;

@@ -52,6 +52,7 @@ void finish_server_asset(ServerAsset& a) {
     if (a.selections.empty()) a.selections.push_back(ClipSelection{});
     static_cast<AssetTables&>(a) = compute_asset_tables(a.character, s, a.selections);
     a.format = record_format(a);
+    a.relative = relative_format(a.skin, a.character, a.format);
 }
 
 // Morph targets: their importance (the scheduler's value of a weight) and a
@@ -91,6 +92,7 @@ bool read_server_tables(const nlohmann::json& j, ServerAsset& a, std::string* wh
     if (!read_asset_tables(j, a.bone_count(), a.selections.size(), t, why)) return false;
     static_cast<AssetTables&>(a) = std::move(t);
     a.format = record_format(a);
+    a.relative = relative_format(a.skin, a.character, a.format);
     return true;
 }
 

@@ -10,6 +10,7 @@
 
 #include "animation.h"
 #include "bone_codec.h"
+#include "bone_record.h"
 #include "character.h"
 #include "cost_model.h"
 #include "progressive_skin.h"
@@ -25,6 +26,7 @@ struct ServerAsset : AssetTables {
     ProgressiveSkin skin;
     std::vector<ClipSelection> selections;  // independently played clip groups
     RecordFormat format;             // the wire record of its bones (from the tables' translation box)
+    RelativeFormat relative;         // the frame stream's parent-relative records (bone_record.h)
     // diagonal, motion, bind_radius, max_scale, the translation box and the
     // scheduler's cost model (segments, per clip selection and one for live
     // poses): AssetTables (cost_model.h), computed by finish_server_asset or

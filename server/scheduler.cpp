@@ -177,7 +177,7 @@ size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::
         morph_item(i, frame, a, double(importance[i]) * double(importance[i]) * double(a.character.vertex_count()));
         current_[i] = up_to_date(i, frame);
         if (current_[i]) continue;  // nothing to send (the fast path and the greedy skip it)
-        const size_t bytes = WireCost::header(e) + size_t(e.bone_count) * e.record_size + morph_[i].bytes;
+        const size_t bytes = WireCost::header(e) + (record_bits(frame, int(i), 0, e.bone_count) + 7) / 8 + morph_[i].bytes;
         full += bytes;
         if (const uint32_t g = group_of(i); g > 0) {
             if (group_full_.size() <= g) group_full_.resize(size_t(g) + 1, 0);
@@ -222,7 +222,7 @@ void Scheduler::segment_items(size_t i, const EncodedFrame& frame, const ServerA
     for (size_t q = 0; q < a.segments.size(); ++q) {
         const ServerAsset::Segment& seg = a.segments[q];
         const int m = std::clamp(e.model, 0, int(seg.gap.size()) - 1);
-        const size_t b = size_t(seg.to - seg.from) * size_t(e.record_size);
+        const size_t b = std::max<size_t>(1, (record_bits(frame, int(i), seg.from, seg.to) + 7) / 8);  // the real bits of its records
         // Shown: bone 0 once received (the client never drops it), every
         // further bone up to here refreshed within the hold.
         for (int x = seg.from; x < seg.to && shown; ++x) {
@@ -323,7 +323,7 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
 void Scheduler::take_greedily(size_t budget, size_t payload) {
     std::make_heap(heap_.begin(), heap_.end());
     while (!heap_.empty()) {
-        if (WireCost::wire(payload + RecordFormat::kPlainSize) > budget) break;  // not even the smallest record fits
+        if (WireCost::wire(payload + 1) > budget) break;  // not even the smallest record fits
         std::pop_heap(heap_.begin(), heap_.end());
         const Step s = heap_.back();
         heap_.pop_back();
@@ -490,12 +490,12 @@ void Scheduler::chosen_picks(std::vector<Pick>& out) const {
 
 // Estimated wire bytes of picks sorted by instance: one chunk header per
 // instance (its ranges are adjacent).
-size_t Scheduler::estimate(const EncodedFrame& frame, std::span<const Pick> picks) {
+size_t Scheduler::estimate(const EncodedFrame& frame, std::span<const Pick> picks) const {
     size_t est = 0;
     for (size_t x = 0; x < picks.size(); ++x) {
         const auto& e = frame.instances[size_t(picks[x].instance)];
         if (x == 0 || picks[x - 1].instance != picks[x].instance) est += WireCost::header(e);
-        est += size_t(std::max(0, picks[x].k - picks[x].first)) * size_t(e.record_size) + morph_block_bytes(picks[x].morphs);
+        est += (record_bits(frame, picks[x].instance, picks[x].first, std::max(picks[x].first, picks[x].k)) + 7) / 8 + morph_block_bytes(picks[x].morphs);
     }
     return est ? WireCost::wire(est) : 0;
 }

@@ -49,6 +49,7 @@
 #include <span>
 #include <vector>
 
+#include "baseline_book.h"
 #include "frame_encoder.h"
 #include "view.h"
 #include "wire.h"
@@ -59,7 +60,7 @@ namespace progskin::net {
 // carrying `payload` bytes of chunk headers and records in one tick.
 struct WireCost {
     static constexpr size_t kFrameOverhead = 88;  // Datagram + Frame FlatBuffer tables (datagram_packer.cpp checks)
-    static constexpr size_t kChunk = 6;           // one Chunk struct
+    static constexpr size_t kChunk = 8;           // one Chunk struct (7 bytes, padded to 8)
     // a chunk continued in another datagram (it repeats the root block)
     static constexpr size_t kSplitChunk = kChunk + ROOT_BYTES + (MAX_BONES + 7) / 8;
     // Chunk struct + bone mask for an instance of `bones` bones (at most; a
@@ -143,11 +144,19 @@ public:
     // (bench_net_rd "Per character"), at some cost to the scene's total error.
     // 0: no floor (pure greedy); at most 1.
     void set_floor(double fraction) { floor_fraction_ = std::clamp(fraction, 0.0, 1.0); }
+    // The client's record plan of the tick (baseline_book.h): what each bone
+    // costs as it will go (predicted or standalone). nullptr: every record
+    // standalone (EncodedFrame::record_bits). Set before select().
+    void set_plan(const RecordPlan* plan) { plan_ = plan; }
+    size_t record_bits(const EncodedFrame& frame, int i, int from, int to) const {
+        return plan_ ? plan_->bits(frame, i, from, to) : frame.record_bits(i, from, to);
+    }
 
     // The last select left something unsent (so the rate estimate may probe up).
     bool limited() const { return limited_; }
 
 private:
+    const RecordPlan* plan_ = nullptr;
     struct State {
         std::vector<uint32_t> bone_tick;  // per progressive bone, tick last sent (0: never)
         std::vector<int32_t> morph_sent;  // per morph weight, quantised value last sent (kNoWeight: never)
@@ -218,7 +227,7 @@ private:
     void take_segment(const Step& s, size_t header, size_t budget, size_t& payload);
     bool left_something() const;
     void chosen_picks(std::vector<Pick>& out) const;
-    static size_t estimate(const EncodedFrame& frame, std::span<const Pick> picks);
+    size_t estimate(const EncodedFrame& frame, std::span<const Pick> picks) const;
     void offer_unpaid(int instance, uint32_t age);
     void pay(int instance, uint32_t age);
     void offer_paid(int instance, uint32_t age);

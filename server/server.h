@@ -85,6 +85,9 @@ struct ServerConfig {
     // greedy alone, which may starve an almost still character in favour of
     // moving ones (docs/performance.md "Per character").
     double fair_floor = 0.5;
+    // Records predicted from what each client acknowledged (baseline_book.h);
+    // false: every record standalone (the A/B of bench_net_rd and the docs).
+    bool predict_records = true;
     // Asset bytes sent to one IP address, across its sessions and reconnects:
     // a bucket this deep refilled at this per minute (0: 64 x the catalogue's
     // bytes: 64 players behind one NAT joining at once for the first time).

@@ -78,6 +78,8 @@ static const char* kUsage =
     "  --max-characters-per-address N  players' characters from one IP address (default 32)\n"
     "  --owner-share-kbps N  what one session's characters may take of each other client's\n"
     "                    stream (default 256; 0: no limit)\n"
+    "  --standalone-records  every bone record coded on its own (no prediction from what\n"
+    "                    each client acknowledged; for comparisons: docs/performance.md)\n"
     "  --fair-floor F    each character's own bones go first up to this fraction of its\n"
     "                    part of a client's stream (0..1, default 0.5; 0: greedy only)\n"
     "  --asset-bytes-per-minute N  asset bytes per IP address, across reconnects (default:\n"
@@ -180,6 +182,7 @@ static int parse_options(int argc, char** argv, Options& o) {
             else if (a == "--max-characters-per-address") cfg.max_characters_per_address = cli::to_int(a, need(i));
             else if (a == "--owner-share-kbps") cfg.owner_share_kbps = cli::to_number(a, need(i));
             else if (a == "--fair-floor") cfg.fair_floor = cli::to_number(a, need(i));
+            else if (a == "--standalone-records") cfg.predict_records = false;
             else if (a == "--asset-bytes-per-minute") cfg.asset_bytes_per_minute = cli::to_number(a, need(i));
             else if (a == "--max-handshakes") cfg.max_handshakes = cli::to_int(a, need(i));
             else if (a == "--connects-per-second") cfg.connects_per_second = cli::to_number(a, need(i));

@@ -385,20 +385,25 @@ TEST(ClientSessionFrames, ApplyFrameKeepsEpochsAndRoots) {
     auto frame_at = [&](uint32_t tick, uint8_t epoch, double x) {
         RootPose root;
         root.position = {x, 0.0, 0.0};
-        Bytes payload(ROOT_BYTES + 1 + 12);
+        Bytes payload(ROOT_BYTES + 1);
         EXPECT_TRUE(encode_root(root, payload.data()));
         payload[ROOT_BYTES] = 1;  // mask: bone 0
-        encode_bone(BonePose{}, fmt, payload.data() + ROOT_BYTES + 1);
+        {
+            BitWriter w(payload);  // the identity, parent-relative (bone_record.h): 12 bits, 2 bytes
+            write_record(RecordInts{}, false, w);
+        }
         payload.push_back(1);     // instance 1 (no target): mask, record
-        payload.resize(payload.size() + 12);
-        encode_bone(BonePose{}, fmt, payload.data() + payload.size() - 12);
-        const std::vector<wire::Chunk> chunks{wire::Chunk(0, 0, 1, epoch, CHUNK_ROOT), wire::Chunk(1, 0, 1, 0, 0)};
+        {
+            BitWriter w(payload);
+            write_record(RecordInts{}, false, w);
+        }
+        const std::vector<wire::Chunk> chunks{wire::Chunk(0, 0, 1, epoch, CHUNK_ROOT, 0), wire::Chunk(1, 0, 1, 0, 0, 0)};
         flatbuffers::FlatBufferBuilder b;
         auto f = wire::CreateFrame(b, tick, b.CreateVectorOfStructs(chunks), b.CreateVector(payload));
         return datagram(b, tick, 0, wire::DatagramBody::Frame, f);
     };
     auto root_at_11 = [&](uint8_t second_epoch) {
-        PoseBuffer buffer(1, fmt);
+        PoseBuffer buffer(chain_format(1, fmt));
         const std::vector<PoseTarget> targets{{&buffer, fmt.size()}};
         for (auto [tick, epoch, x] : {std::tuple{10u, uint8_t(1), 0.0}, std::tuple{12u, second_epoch, 2.0}}) {
             const Bytes d = frame_at(tick, epoch, x);
@@ -406,7 +411,7 @@ TEST(ClientSessionFrames, ApplyFrameKeepsEpochsAndRoots) {
             EXPECT_TRUE(a.read);
             EXPECT_EQ(a.applied, 1);
             EXPECT_EQ(a.refused, 0);
-            EXPECT_EQ(a.record_bytes, 12u);
+            EXPECT_EQ(a.record_bits, 12u);
             EXPECT_EQ(a.unknown_chunks, 1);
         }
         RootPose r;

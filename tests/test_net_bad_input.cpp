@@ -228,13 +228,13 @@ TEST(NetBadInput, VerifierAndDecoderSurviveFuzzing) {
         if (verify_control(d)) ++accepted;
     }
     RecordFormat fmt;
-    PoseBuffer pb(24, fmt);
+    PoseBuffer pb(chain_format(24, fmt));
     std::vector<uint8_t> rec(24 * 14);
     for (int i = 0; i < 20000; ++i) {
         for (auto& b : rec) b = uint8_t(rng());
         int total = int(rng() % 40) - 5, first = int(rng() % 40) - 5, count = int(rng() % 30) - 2;
         bool valid = total >= 1 && total <= 24 && first >= 0 && count >= 1 && first + count <= total;
-        bool ok = pb.add_chunk(rng() % 100, first, count, total, rec.data());
+        bool ok = pb.add_chunk(rng() % 100, first, count, total, RecordRun{rec.data(), rec.size(), rng() % 8, false, uint8_t(rng() % 3)});
         if (!valid) {
             EXPECT_FALSE(ok);
         }

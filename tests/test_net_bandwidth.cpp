@@ -19,8 +19,12 @@ using namespace progskin::net::testing;
 using namespace progskin::thresholds;
 
 TEST(NetBandwidth, CapsFrom16kTo2MRespectedAndErrorFallsWithRate) {
-    // 24 instances: the full rate is about 1.8 Mbit/s, so every cap limits.
-    RunningServer s(crowd_layout(default_assets(), 24));
+    // 24 instances: the full rate is about 1.1 Mbit/s with standalone
+    // records and less predicted, so the top cap need not limit.
+    const auto layout = crowd_layout(default_assets(), 24);
+    double full_bones = 0;  // mean bones of the layout's characters
+    for (const auto& spec : layout) full_bones += double(default_assets()[size_t(spec.asset)]->bone_count()) / double(layout.size());
+    RunningServer s(layout);
     const std::vector<double> caps = {16, 64, 256, 1000, 2000};
     std::vector<ClientReport> r(caps.size());
     std::vector<std::thread> ts;
@@ -38,7 +42,9 @@ TEST(NetBandwidth, CapsFrom16kTo2MRespectedAndErrorFallsWithRate) {
                     r[i].rate_kbps, r[i].rate_max_kbps, r[i].bones_mean, r[i].rms_pct, r[i].max_pct);
         ASSERT_GE(r[i].per_second_kbps.size(), 3u);
         for (double k : r[i].per_second_kbps) EXPECT_LE(k, caps[i] * 1.05) << "cap " << caps[i];
-        EXPECT_GT(r[i].rate_kbps, caps[i] * 0.6) << "cap " << caps[i] << " poorly used";
+        // The cap is used, or it does not limit: every bone shown at a lower rate.
+        if (r[i].rate_kbps <= caps[i] * 0.6)
+            EXPECT_GE(r[i].bones_mean, full_bones - 0.3) << "cap " << caps[i] << " poorly used";
         EXPECT_EQ(r[i].characters, 24);
         // Non-increasing within 5 % while the cap limits the error; once the
         // previous cap already reached the floor where every bone goes

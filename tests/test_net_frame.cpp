@@ -1,6 +1,6 @@
-// The Frame layout of protocol version 4 (proto/frame_reader.h): what the
-// packer writes reads back bone for bone, and every malformed chunk is
-// refused before anything is applied.
+// The Frame layout of protocol version 5 (proto/frame_reader.h): what the
+// packer writes reads back bone for bone, bit for bit, and every malformed
+// chunk is refused before anything is applied.
 #include <gtest/gtest.h>
 
 #include <array>
@@ -32,14 +32,23 @@ std::vector<uint8_t> frame_datagram(const std::vector<wire::Chunk>& chunks, cons
     return {fbb.GetBufferPointer(), fbb.GetBufferPointer() + fbb.GetSize()};
 }
 
-// A chunk without root block, 12-byte records.
-wire::Chunk ch(int instance, int first, int show, uint8_t flags = 0, uint8_t epoch = 0) {
-    return wire::Chunk(uint16_t(instance), uint8_t(first), uint8_t(show), epoch, flags);
+// A chunk without root block or baseline.
+wire::Chunk ch(int instance, int first, int show, uint8_t flags = 0, uint8_t epoch = 0, uint8_t base = 0) {
+    return wire::Chunk(uint16_t(instance), uint8_t(first), uint8_t(show), epoch, flags, base);
 }
+
+// n records of the identity (bone_record.h: 12 bits each, 13 scaled), padded to a byte.
+std::vector<uint8_t> identity_records(int n, bool scaled = false) {
+    std::vector<uint8_t> out;
+    BitWriter w(out);
+    for (int k = 0; k < n; ++k) write_record(RecordInts{}, scaled, w);
+    return out;
+}
+void append(std::vector<uint8_t>& to, const std::vector<uint8_t>& more) { to.insert(to.end(), more.begin(), more.end()); }
 
 struct ChunkRun {
     int instance, first, count, show;
-    size_t offset;  // of the records in the payload
+    size_t offset;  // of the run's first record in the payload, bits
 };
 
 // read_frame over a datagram, instances 0..2 known with 12-byte records.
@@ -52,10 +61,11 @@ bool read_datagram(const std::vector<uint8_t>& d, std::vector<ChunkRun>& runs) {
     const size_t size = f.payload() ? f.payload()->size() : 0;
     return read_frame(
         f, [](uint16_t i) { return i < 3 ? 12 : 0; },
-        [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
-            EXPECT_GE(rec, base);
-            EXPECT_LE(rec + size_t(count) * 12, base + size);
-            runs.push_back({i, first, count, show, size_t(rec - base)});
+        [&](uint16_t i, int first, int count, int show, const RecordRun& rec) {
+            EXPECT_GE(rec.data, base);
+            EXPECT_LE(rec.data + rec.bytes, base + size);
+            EXPECT_LT(rec.bit + size_t(count), rec.bytes * 8 + 1);
+            runs.push_back({i, first, count, show, size_t(rec.data - base) * 8 + rec.bit});
         });
 }
 
@@ -66,30 +76,31 @@ TEST(NetFrame, ReadsMaskRunsAndRecords) {
     // instance 0, bone 0 of show 1.
     // Mask over bones 3..12 (10 bits, 2 bytes): bones 3,4,5 -> bits 0,1,2;
     // bone 9 -> bit 6; bone 11 -> bit 8.
+    // Records: 12 bits each (the identity), 5 of them in 8 bytes.
     std::vector<uint8_t> pl = {0b01000111, 0b00000001};
-    pl.resize(pl.size() + 5 * 12, 0xAB);
+    append(pl, identity_records(5));
     pl.push_back(0b1);
-    pl.resize(pl.size() + 12, 0xCD);
+    append(pl, identity_records(1));
     std::vector<ChunkRun> runs;
     ASSERT_TRUE(read_datagram(frame_datagram({ch(1, 3, 13), ch(0, 0, 1)}, pl), runs));
     ASSERT_EQ(runs.size(), 4u);
     EXPECT_EQ(runs[0].first, 3);
     EXPECT_EQ(runs[0].count, 3);
-    EXPECT_EQ(runs[0].offset, 2u);
+    EXPECT_EQ(runs[0].offset, 16u);
     EXPECT_EQ(runs[1].first, 9);
     EXPECT_EQ(runs[1].count, 1);
-    EXPECT_EQ(runs[1].offset, 2u + 36);
+    EXPECT_EQ(runs[1].offset, 16u + 36);
     EXPECT_EQ(runs[2].first, 11);
-    EXPECT_EQ(runs[2].offset, 2u + 48);
+    EXPECT_EQ(runs[2].offset, 16u + 48);
     EXPECT_EQ(runs[2].show, 13);
     EXPECT_EQ(runs[3].instance, 0);
     EXPECT_EQ(runs[3].first, 0);
-    EXPECT_EQ(runs[3].offset, 2u + 60 + 1);
+    EXPECT_EQ(runs[3].offset, (2u + 8 + 1) * 8);
 }
 
 TEST(NetFrame, RefusesEveryMalformedChunkBeforeApplyingAny) {
     std::vector<uint8_t> good = {0b00000101};  // bones 0 and 2 of show 3
-    good.resize(1 + 24, 1);
+    append(good, identity_records(2));            // 24 bits
     std::vector<ChunkRun> runs;
     ASSERT_TRUE(read_datagram(frame_datagram({ch(0, 0, 3)}, good), runs));
     EXPECT_EQ(runs.size(), 2u);
@@ -108,6 +119,10 @@ TEST(NetFrame, RefusesEveryMalformedChunkBeforeApplyingAny) {
     trailing.push_back(0);
     std::vector<uint8_t> two = good;  // a good chunk, then a bad one: nothing applied
     two.insert(two.end(), good.begin(), good.end());
+    std::vector<uint8_t> padding = {0b00000001};  // bone 0: 12 bits, then 4 padding bits not zero
+    append(padding, identity_records(1));
+    padding.back() |= 0x80;
+    std::vector<uint8_t> long_code = {0b00000001, 0, 0, 0, 0, 0, 0, 0};  // a code whose zero prefix is too long
     const std::vector<Case> cases = {
         {"record size differs from the instance's", {ch(0, 0, 3, CHUNK_SCALED)}, good},
         {"unknown flag bits", {ch(0, 0, 3, 0x80)}, good},
@@ -122,6 +137,10 @@ TEST(NetFrame, RefusesEveryMalformedChunkBeforeApplyingAny) {
         {"second chunk bad", {ch(0, 0, 3), ch(0, 0, 3, CHUNK_SCALED)}, two},
         {"unknown instance's chunk malformed", {ch(9, 0, 3), ch(0, 0, 3)}, trailing},
         {"chunks without payload", {ch(0, 0, 3)}, {}},
+        {"padding bits not zero", {ch(0, 0, 1)}, padding},
+        {"a code past its longest prefix", {ch(0, 0, 1)}, long_code},
+        {"baseline byte with bit 7", {ch(0, 0, 3, 0, 0, 0x81)}, good},
+        {"linear baseline without an age", {ch(0, 0, 3, 0, 0, kBaseLinear)}, good},
     };
     for (const Case& c : cases) {
         EXPECT_FALSE(read_datagram(frame_datagram(c.chunks, c.payload), runs)) << c.what;
@@ -130,20 +149,22 @@ TEST(NetFrame, RefusesEveryMalformedChunkBeforeApplyingAny) {
 }
 
 // A chunk of an instance the receiver does not know yet (announced on the
-// control channel after its first frames) is skipped by its declared record
-// size; the known instance's chunk after it still applies.
+// control channel after its first frames) is walked by its flags (the
+// records are self-delimiting) and skipped; the known instance's chunk after
+// it still applies.
 TEST(NetFrame, SkipsChunksOfUnknownInstances) {
-    std::vector<uint8_t> pl = {0b00000011};  // unknown instance 9: bones 0, 1 of 14-byte records
-    pl.resize(1 + 28, 7);
+    std::vector<uint8_t> pl = {0b00000011};  // unknown instance 9: bones 0, 1 of scaled records (26 bits, 4 bytes)
+    append(pl, identity_records(2, true));
+    ASSERT_EQ(pl.size(), 5u);
     const std::vector<uint8_t> root(ROOT_BYTES, 0);
     pl.insert(pl.end(), root.begin(), root.end());  // instance 0: root block, bone 0 of show 1
     pl.push_back(0b1);
-    pl.resize(pl.size() + 12, 9);
+    append(pl, identity_records(1));
     std::vector<ChunkRun> runs;
     ASSERT_TRUE(read_datagram(frame_datagram({ch(9, 0, 2, CHUNK_SCALED), ch(0, 0, 1, CHUNK_ROOT)}, pl), runs));
     ASSERT_EQ(runs.size(), 1u);
     EXPECT_EQ(runs[0].instance, 0);
-    EXPECT_EQ(runs[0].offset, 1u + 28 + ROOT_BYTES + 1);
+    EXPECT_EQ(runs[0].offset, (5u + ROOT_BYTES + 1) * 8);
 }
 
 TEST(NetFrame, RandomFramesAreRefusedOrReadInBounds) {
@@ -152,7 +173,7 @@ TEST(NetFrame, RandomFramesAreRefusedOrReadInBounds) {
     std::vector<ChunkRun> runs;
     for (int i = 0; i < 20000; ++i) {
         std::vector<wire::Chunk> chunks(rng() % 4);
-        for (auto& c : chunks) c = ch(int(rng() % 4), int(rng() % 8), int(rng() % 24), uint8_t(rng() % 4));
+        for (auto& c : chunks) c = ch(int(rng() % 4), int(rng() % 8), int(rng() % 24), uint8_t(rng() % 4), 0, uint8_t(rng() % 3));
         std::vector<uint8_t> pl(rng() % 80);
         for (auto& b : pl) b = uint8_t(rng() % 3 ? rng() % 4 : rng());
         accepted += read_datagram(frame_datagram(chunks, pl), runs);  // bounds checked in read_datagram()
@@ -161,7 +182,7 @@ TEST(NetFrame, RandomFramesAreRefusedOrReadInBounds) {
 }
 
 // The packer's datagrams carry exactly the picked bones, each record
-// byte-identical to the encoder's, one chunk per instance and datagram, and
+// bit-identical to the encoder's, one chunk per instance and datagram, and
 // no more wire bytes than the scheduler's estimate (WireCost).
 TEST(NetFrame, PackerRoundTripsPicksOverSeveralDatagrams) {
     const auto& assets = progskin::net::testing::default_assets();
@@ -173,7 +194,6 @@ TEST(NetFrame, PackerRoundTripsPicksOverSeveralDatagrams) {
     size_t est = 0;
     for (int i = 0; i < int(specs.size()); ++i) {
         const int B = f.instances[size_t(i)].bone_count;
-        const size_t rs = size_t(f.instances[size_t(i)].record_size);
         est += WireCost::header(f.instances[size_t(i)]);
         // Three disjoint ranges for even instances, everything for odd ones.
         std::vector<std::pair<int, int>> ranges = i % 2 ? std::vector<std::pair<int, int>>{{0, B}}
@@ -181,7 +201,7 @@ TEST(NetFrame, PackerRoundTripsPicksOverSeveralDatagrams) {
         for (auto [a, b] : ranges) {
             picks.push_back({i, b, B, a});
             for (int x = a; x < b; ++x) want[{i, x}] = true;
-            est += size_t(b - a) * rs;
+            est += (f.record_bits(i, a, b) + 7) / 8;
         }
     }
     DatagramPacker packer;
@@ -201,12 +221,19 @@ TEST(NetFrame, PackerRoundTripsPicksOverSeveralDatagrams) {
         for (const wire::Chunk* c : *fr.chunks()) ++chunks_of[c->instance()];
         for (auto [i, n] : chunks_of) EXPECT_EQ(n, 1) << "instance " << i;
         auto size_of = [&](uint16_t i) { return i < specs.size() ? f.instances[i].record_size : 0; };
-        ASSERT_TRUE(read_frame(fr, size_of, [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
-            const size_t rs = size_t(f.instances[i].record_size);
+        ASSERT_TRUE(read_frame(fr, size_of, [&](uint16_t i, int first, int count, int show, const RecordRun& rec) {
             EXPECT_EQ(show, f.instances[i].bone_count);
+            BitReader in(rec.data, rec.bytes, rec.bit);
             for (int x = first; x < first + count; ++x) {
                 ++got[{i, x}];
-                EXPECT_EQ(0, std::memcmp(rec + size_t(x - first) * rs, f.records(i) + size_t(x) * rs, rs));
+                const size_t n = f.record_bits(i, x, x + 1);
+                BitReader want(f.relative(i), (f.bit_offset(i, x + 1) + 7) / 8, f.bit_offset(i, x));
+                for (size_t k = 0; k < n; ++k) {
+                    uint64_t a = 0, b = 0;
+                    ASSERT_TRUE(in.get(1, a));
+                    ASSERT_TRUE(want.get(1, b));
+                    ASSERT_EQ(a, b) << "instance " << i << " bone " << x << " bit " << k;
+                }
             }
         }));
     }
@@ -226,7 +253,7 @@ bool read_morphs(const std::vector<uint8_t>& d, std::vector<ChunkRun>& runs, std
     if (!g || !g->body_as_Frame()) return false;
     return read_frame(
         *g->body_as_Frame(), [](uint16_t i) { return i < 3 ? 12 : 0; },
-        [&](uint16_t i, int first, int count, int show, const uint8_t*) { runs.push_back({i, first, count, show, 0}); },
+        [&](uint16_t i, int first, int count, int show, const RecordRun&) { runs.push_back({i, first, count, show, 0}); },
         [&](const wire::Chunk&, const uint8_t*, const uint8_t* morph) { blocks.push_back(morph); });
 }
 }  // namespace
@@ -242,7 +269,7 @@ TEST(NetFrame, ReadsAndChecksMorphBlocks) {
     const std::vector<uint8_t> block = {2, 1, lo, hi, 4, lo, hi};
     pl.insert(pl.end(), block.begin(), block.end());
     pl.push_back(0b01);
-    pl.resize(pl.size() + 12, 3);
+    append(pl, identity_records(1));
     // Instance 1: weights only (first = show - 1, an empty mask).
     const std::vector<uint8_t> only = {1, 0, lo, hi, 0b0};
     std::vector<uint8_t> both = pl;

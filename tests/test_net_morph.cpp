@@ -159,7 +159,7 @@ TEST(NetMorph, SchedulerSendsChangedWeightsOnly) {
         for (const auto& d : out.sent) {
             const wire::Frame* fr = verify_datagram(d.bytes)->body_as_Frame();
             ASSERT_TRUE(read_frame(
-                *fr, [](uint16_t) { return 12; }, [](uint16_t, int, int, int, const uint8_t*) {},
+                *fr, [](uint16_t) { return 12; }, [](uint16_t, int, int, int, const RecordRun&) {},
                 [&](const wire::Chunk&, const uint8_t*, const uint8_t* m) {
                     if (!m) return;
                     for (int i = 0; i < m[0]; ++i) {
@@ -215,7 +215,7 @@ TEST(NetMorph, OutOfRangeWeightsAreRefusedAndCounted) {
         for (const auto& d : out.sent)
             ASSERT_TRUE(read_frame(
                 *verify_datagram(d.bytes)->body_as_Frame(), [](uint16_t) { return 12; },
-                [](uint16_t, int, int, int, const uint8_t*) {},
+                [](uint16_t, int, int, int, const RecordRun&) {},
                 [&](const wire::Chunk&, const uint8_t*, const uint8_t* m) {
                     if (!m) return;
                     for (int i = 0; i < m[0]; ++i) {

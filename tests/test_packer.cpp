@@ -39,6 +39,22 @@ struct ReadBack {
     std::set<uint32_t> seqs;
 };
 
+// Bits [from, from + n) of data, one per element.
+std::vector<uint8_t> bits_of(const uint8_t* data, size_t bytes, size_t from, size_t n) {
+    BitReader in(data, bytes, from);
+    std::vector<uint8_t> out(n);
+    for (auto& b : out) {
+        uint64_t v = 0;
+        EXPECT_TRUE(in.get(1, v));
+        b = uint8_t(v);
+    }
+    return out;
+}
+// Bone b's record as the encoder coded it.
+std::vector<uint8_t> encoded_bits(const EncodedFrame& f, int i, int b) {
+    return bits_of(f.relative(i), (f.bit_offset(i, b + 1) + 7) / 8, f.bit_offset(i, b), f.record_bits(i, b, b + 1));
+}
+
 ReadBack read_back(const EncodedFrame& f, const std::vector<std::vector<uint8_t>>& out) {
     ReadBack r;
     for (const auto& d : out) {
@@ -56,12 +72,13 @@ ReadBack read_back(const EncodedFrame& f, const std::vector<std::vector<uint8_t>
         auto record_size = [&](uint16_t i) { return i < f.instances.size() ? f.instances[i].record_size : 0; };
         const bool ok = read_frame(
             *fr, record_size,
-            [&](uint16_t i, int first, int count, int show, const uint8_t* rec) {
-                const size_t rs = size_t(record_size(i));
+            [&](uint16_t i, int first, int count, int show, const RecordRun& rec) {
                 r.shows[i].insert(show);
+                BitReader in(rec.data, rec.bytes, rec.bit);
                 for (int b = first; b < first + count; ++b) {
-                    const uint8_t* p = rec + size_t(b - first) * rs;
-                    r.records[{i, b}].assign(p, p + rs);
+                    const size_t at = in.at();
+                    EXPECT_TRUE(skip_record(in, rec.scaled, (rec.base & kBaseAgeMask) != 0));
+                    r.records[{i, b}] = bits_of(rec.data, rec.bytes, at, in.at() - at);
                     ++r.copies[{i, b}];
                 }
             },
@@ -99,10 +116,7 @@ void expect_exact(const EncodedFrame& f, const std::vector<Pick>& picks, const s
     for (const auto& key : want) {
         const auto it = r.records.find(key);
         ASSERT_NE(it, r.records.end()) << "instance " << key.first << " bone " << key.second << " missing";
-        const EncodedInstance& e = f.instances[size_t(key.first)];
-        const uint8_t* src = f.records(key.first) + size_t(key.second) * size_t(e.record_size);
-        EXPECT_EQ(0, std::memcmp(it->second.data(), src, size_t(e.record_size)))
-            << "instance " << key.first << " bone " << key.second;
+        EXPECT_EQ(it->second, encoded_bits(f, key.first, key.second)) << "instance " << key.first << " bone " << key.second;
         EXPECT_EQ(r.copies.at(key), 1) << "instance " << key.first << " bone " << key.second << " carried twice";
     }
     for (const auto& [i, s] : r.shows) {
@@ -145,7 +159,7 @@ TEST(Packer, EverythingReadsBackExactlyOverManyDatagrams) {
     for (int i = 0; i < int(s.specs.size()); ++i) {
         const EncodedInstance& e = f.instances[size_t(i)];
         picks.push_back({i, e.bone_count, e.bone_count, 0});
-        payload += WireCost::header(e) + size_t(e.bone_count) * size_t(e.record_size);
+        payload += WireCost::header(e) + (f.record_bits(i, 0, e.bone_count) + 7) / 8;
     }
     DatagramPacker packer;
     uint32_t seq = 100;

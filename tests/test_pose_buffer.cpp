@@ -29,24 +29,35 @@ namespace {
 
 const RecordFormat kFmt{glm::vec3(-10.0f), glm::vec3(10.0f), false};
 
-// One record of a bone at translation t, rotated by `angle` about z.
-std::vector<uint8_t> record(glm::vec3 t, float angle = 0.0f) {
-    BonePose p;
-    p.t = t;
-    p.r = glm::angleAxis(angle, glm::vec3(0, 0, 1));
-    std::vector<uint8_t> r(size_t(kFmt.size()));
-    encode_bone(p, kFmt, r.data());
-    return r;
-}
-// `n` bones, bone b at translation t + (b, 0, 0).
-std::vector<uint8_t> records(int n, glm::vec3 t, float angle = 0.0f) {
-    std::vector<uint8_t> out;
+// A buffer of an n-bone chain over the box of kFmt (pivots at the origin).
+PoseBuffer buffer(int n, int morphs = 0) { return PoseBuffer(chain_format(n, kFmt), morphs); }
+
+// Parent-relative records (bone_record.h) of given relative poses: each coded
+// against an identity parent, so that the buffer's (relative) pose of a bone
+// is the pose given. run(k): the records from the k-th on.
+struct Records {
+    std::vector<uint8_t> bits;
+    std::vector<size_t> at;
+    RecordRun run(size_t k = 0) const { return {bits.data(), bits.size(), at[k], false, 0}; }
+};
+// `n` bones, bone b at translation t + (b, 0, 0), rotated by `angle` about z.
+Records records(int n, glm::vec3 t, float angle = 0.0f) {
+    const RelativeFormat f = chain_format(n, kFmt);
+    Records out;
+    BitWriter w(out.bits);
     for (int b = 0; b < n; ++b) {
-        const auto r = record(t + glm::vec3(float(b), 0, 0), angle);
-        out.insert(out.end(), r.begin(), r.end());
+        BonePose p;
+        p.t = t + glm::vec3(float(b), 0, 0);
+        p.r = glm::angleAxis(angle, glm::vec3(0, 0, 1));
+        RecordInts r;
+        EXPECT_TRUE(quantise_record(BonePose{}, p, glm::vec3(0.0f), f, r));
+        out.at.push_back(w.bits());
+        write_record(r, false, w);
     }
     return out;
 }
+// One record of a bone at translation t.
+Records record(glm::vec3 t, float angle = 0.0f) { return records(1, t, angle); }
 
 std::array<uint8_t, ROOT_BYTES> root_block(glm::dvec3 p, float angle) {
     RootPose r;
@@ -75,8 +86,10 @@ BonePose pose_of(const PoseBuffer& pb, int b, double d) {
     return p;
 }
 
+// The angle between two rotations (well conditioned near 0, unlike acos of the dot product).
 double rotation_angle(const glm::quat& a, const glm::quat& b) {
-    return 2.0 * std::acos(std::min(1.0, double(std::fabs(glm::dot(a, b)))));
+    const glm::dquat x(a), y(glm::dot(a, b) < 0.0f ? -b : b);
+    return 4.0 * std::asin(std::min(1.0, glm::length(x - y) / 2.0));
 }
 
 }  // namespace
@@ -91,38 +104,44 @@ TEST(PoseBuffer, ExactAtTicksAndCloseBetweenThemOnARealClip) {
     InstanceSpec spec;
     spec.selection = 0;
     FrameEncoder enc(assets, {spec}, 30.0f);
-    PoseBuffer pb(a.bone_count(), a.format);
+    PoseBuffer pb(a.relative);
     const int B = a.bone_count();
-    const size_t rs = size_t(a.format.size());
-    std::vector<std::vector<uint8_t>> kept;
+    std::vector<std::vector<RecordInts>> kept;
     const uint32_t first = 10, last = 40;
     for (uint32_t t = first; t <= last; ++t) {
         const EncodedFrame& f = enc.encode(t);
-        ASSERT_TRUE(pb.add_chunk(t, 0, B, B, f.records(0), B, f.instances[0].epoch));
-        kept.emplace_back(f.records(0), f.records(0) + size_t(B) * rs);
+        const RecordRun run{f.relative(0), (f.bit_offset(0, B) + 7) / 8, f.bit_offset(0, 0), a.relative.scaled, 0};
+        ASSERT_TRUE(pb.add_chunk(t, 0, B, B, run, B, f.instances[0].epoch));
+        kept.emplace_back(f.ints.begin(), f.ints.begin() + long(B));  // slot 0's integers
     }
     EXPECT_EQ(pb.newest_tick(), last);
     EXPECT_EQ(pb.bones_at(last), B);
     EXPECT_EQ(pb.last_gap(), 1);
     for (uint32_t t = first; t <= last; t += 5)
         for (int b = 0; b < B; ++b) {
-            const BonePose want = decode_bone(kept[t - first].data() + size_t(b) * rs, a.format);
+            const BonePose want = dequantise_record(kept[t - first][size_t(b)], a.relative.pivots[size_t(b)], a.relative);
             const BonePose got = pose_of(pb, b, t);
             EXPECT_LT(glm::length(got.t - want.t), 1e-5f * float(a.diagonal)) << "bone " << b << " tick " << t;
             EXPECT_LT(rotation_angle(got.r, want.r), 1e-5) << "bone " << b << " tick " << t;
         }
-    // Half-way: skin the interpolated pose and the clip at the half tick.
+    // Half-way: skin the interpolated pose (composed down the progressive
+    // parents) and the clip at the half tick.
     const Character& c = a.character;
     const ClipSelection& sel = a.selections[0];
     ErrorAccumulator between(rest_diagonal(c));
     std::vector<glm::dmat4> m(c.joint_count());
     std::vector<Mat34> ref_pal(c.joint_count()), pal(c.joint_count());
+    std::vector<BonePose> model(static_cast<size_t>(B));
     std::vector<glm::vec3> ref(c.vertex_count()), got(c.vertex_count());
     for (uint32_t t = first + 1; t + 1 < last; ++t) {
         const double d = t + 0.5;
         sample_skinning_matrices(c, sel, enc.clip_time(0, d), m);
         for (size_t j = 0; j < m.size(); ++j) ref_pal[j] = Mat34::from_glm(m[j]);
-        for (int b = 0; b < B; ++b) pal[size_t(a.skin.order[size_t(b)])] = compose(pose_of(pb, b, d));
+        for (int b = 0; b < B; ++b) {
+            const int p = a.skin.parents[size_t(b)];
+            model[size_t(b)] = compose_relative(p >= 0 ? model[size_t(p)] : BonePose{}, pose_of(pb, b, d));
+            pal[size_t(a.skin.order[size_t(b)])] = compose(model[size_t(b)]);
+        }
         skinning_job(c, ref_pal, ref).run();
         skinning_job(c, pal, got).run();
         between.add(ref, got);
@@ -138,10 +157,10 @@ TEST(PoseBuffer, ExactAtTicksAndCloseBetweenThemOnARealClip) {
 // (to the codec's step); with only two frames the buffer lerps, with more
 // it uses the cubic, both exact here. After the newest frame it holds.
 TEST(PoseBuffer, InterpolatesLinearMotionExactly) {
-    PoseBuffer pb(3, kFmt);
+    PoseBuffer pb = buffer(3);
     auto at = [](double tick) { return glm::vec3(-5.0f + 0.25f * float(tick - 100), 1.0f, 0.5f); };
-    ASSERT_TRUE(pb.add_chunk(100, 0, 3, 3, records(3, at(100), 0.1f).data()));
-    ASSERT_TRUE(pb.add_chunk(102, 0, 3, 3, records(3, at(102), 0.3f).data()));
+    ASSERT_TRUE(pb.add_chunk(100, 0, 3, 3, records(3, at(100), 0.1f).run()));
+    ASSERT_TRUE(pb.add_chunk(102, 0, 3, 3, records(3, at(102), 0.3f).run()));
     const float step = 20.0f / 65535.0f;  // translation step of the record over [-10, 10]
     for (double d : {100.0, 100.5, 101.0, 101.75, 102.0}) {
         for (int b = 0; b < 3; ++b) {
@@ -150,7 +169,7 @@ TEST(PoseBuffer, InterpolatesLinearMotionExactly) {
             EXPECT_NEAR(rotation_angle(p.r, glm::angleAxis(float(0.1 + 0.1 * (d - 100)), glm::vec3(0, 0, 1))), 0.0, 1e-3);
         }
     }
-    for (uint32_t t : {98u, 104u, 106u}) ASSERT_TRUE(pb.add_chunk(t, 0, 3, 3, records(3, at(t), float(0.1 + 0.1 * (t - 100.0))).data()));
+    for (uint32_t t : {98u, 104u, 106u}) ASSERT_TRUE(pb.add_chunk(t, 0, 3, 3, records(3, at(t), float(0.1 + 0.1 * (t - 100.0))).run()));
     for (double d : {98.5, 101.25, 103.0, 104.5}) {
         const BonePose p = pose_of(pb, 1, d);
         EXPECT_LT(glm::length(p.t - (at(d) + glm::vec3(1, 0, 0))), 2 * step) << "cubic, d " << d;
@@ -170,10 +189,10 @@ TEST(PoseBuffer, EpochChangePreventsInterpolatingAcrossADiscontinuity) {
     const glm::vec3 here(1, 2, 3), there(-4, 7, -6);
     for (bool new_epoch : {false, true}) {
         SCOPED_TRACE(new_epoch);
-        PoseBuffer pb(2, kFmt);
-        ASSERT_TRUE(pb.add_chunk(50, 0, 2, 2, records(2, here).data(), 2, 3));
-        ASSERT_TRUE(pb.add_chunk(51, 0, 2, 2, records(2, here).data(), 2, 3));
-        ASSERT_TRUE(pb.add_chunk(53, 0, 2, 2, records(2, there).data(), 2, new_epoch ? 4 : 3));
+        PoseBuffer pb = buffer(2);
+        ASSERT_TRUE(pb.add_chunk(50, 0, 2, 2, records(2, here).run(), 2, 3));
+        ASSERT_TRUE(pb.add_chunk(51, 0, 2, 2, records(2, here).run(), 2, 3));
+        ASSERT_TRUE(pb.add_chunk(53, 0, 2, 2, records(2, there).run(), 2, new_epoch ? 4 : 3));
         for (double d : {51.5, 52.0, 52.9}) {
             const BonePose p = pose_of(pb, 0, d);
             if (new_epoch) {
@@ -190,7 +209,7 @@ TEST(PoseBuffer, EpochChangePreventsInterpolatingAcrossADiscontinuity) {
 // Inconsistent chunks are refused (false) and change nothing; a chunk older
 // than every kept frame is dropped without effect.
 TEST(PoseBuffer, RefusesInconsistentChunksAndIgnoresStaleOnes) {
-    PoseBuffer pb(4, kFmt);
+    PoseBuffer pb = buffer(4);
     const auto r4 = records(4, glm::vec3(1, 1, 1));
     struct Case {
         const char* what;
@@ -206,27 +225,27 @@ TEST(PoseBuffer, RefusesInconsistentChunksAndIgnoresStaleOnes) {
         {"show past the bone count", 0, 2, 2, 5},
     };
     for (const Case& c : bad) {
-        EXPECT_FALSE(pb.add_chunk(7, c.first, c.count, c.total, r4.data(), c.show)) << c.what;
+        EXPECT_FALSE(pb.add_chunk(7, c.first, c.count, c.total, r4.run(), c.show)) << c.what;
         EXPECT_TRUE(pb.empty()) << c.what;
     }
     BonePose p;
     EXPECT_FALSE(pb.pose(0, 7.0, p));  // never received
     EXPECT_EQ(pb.bones_at(7.0), 0);
 
-    ASSERT_TRUE(pb.add_chunk(7, 0, 2, 4, r4.data(), 4, 0));
+    ASSERT_TRUE(pb.add_chunk(7, 0, 2, 4, r4.run(), 4, 0));
     // The same tick with another total, show or epoch: refused, the frame unchanged.
     const auto moved = records(4, glm::vec3(5, 5, 5));
-    EXPECT_FALSE(pb.add_chunk(7, 2, 1, 3, moved.data(), 4, 0));
-    EXPECT_FALSE(pb.add_chunk(7, 2, 2, 4, moved.data(), 4, 1));
+    EXPECT_FALSE(pb.add_chunk(7, 2, 1, 3, moved.run(), 4, 0));
+    EXPECT_FALSE(pb.add_chunk(7, 2, 2, 4, moved.run(), 4, 1));
     EXPECT_FALSE(pb.pose(2, 7.0, p));  // none of the refused bones landed
-    EXPECT_TRUE(pb.add_chunk(7, 2, 2, 4, moved.data() + 2 * kFmt.size(), 4, 0));  // the rest of the frame
+    EXPECT_TRUE(pb.add_chunk(7, 2, 2, 4, moved.run(2), 4, 0));  // the rest of the frame
     EXPECT_LT(glm::length(pose_of(pb, 2, 7.0).t - glm::vec3(7, 5, 5)), 1e-3f);
 
     // Fill the history with newer frames; a chunk older than all of them changes nothing.
-    for (uint32_t t = 8; t < 8 + PoseBuffer::kHistory; ++t) ASSERT_TRUE(pb.add_chunk(t, 0, 4, 4, r4.data()));
+    for (uint32_t t = 8; t < 8 + PoseBuffer::kHistory; ++t) ASSERT_TRUE(pb.add_chunk(t, 0, 4, 4, r4.run()));
     const uint32_t newest = pb.newest_tick();
     const BonePose before = pose_of(pb, 0, 30.0);
-    pb.add_chunk(5, 0, 4, 4, moved.data());
+    pb.add_chunk(5, 0, 4, 4, moved.run());
     EXPECT_EQ(pb.newest_tick(), newest);
     EXPECT_LT(glm::length(pose_of(pb, 0, 30.0).t - before.t), 1e-6f);
     EXPECT_LT(glm::length(pose_of(pb, 0, 5.0).t - glm::vec3(1, 1, 1)), 1e-3f) << "the stale frame was kept";
@@ -235,14 +254,14 @@ TEST(PoseBuffer, RefusesInconsistentChunksAndIgnoresStaleOnes) {
 // The bones shown: the newest frame's show, limited to bones ever received;
 // a bone a frame does not carry is interpolated between its own frames.
 TEST(PoseBuffer, ShowAndPerBoneFrames) {
-    PoseBuffer pb(6, kFmt);
-    ASSERT_TRUE(pb.add_chunk(20, 0, 6, 6, records(6, glm::vec3(0, 0, 0)).data()));
+    PoseBuffer pb = buffer(6);
+    ASSERT_TRUE(pb.add_chunk(20, 0, 6, 6, records(6, glm::vec3(0, 0, 0)).run()));
     // Tick 22: bones 0..2 carried, 4 shown: bone 3 comes from tick 20, bone 4-5 hidden.
-    ASSERT_TRUE(pb.add_chunk(22, 0, 3, 3, records(3, glm::vec3(0, 2, 0)).data(), 4));
+    ASSERT_TRUE(pb.add_chunk(22, 0, 3, 3, records(3, glm::vec3(0, 2, 0)).run(), 4));
     EXPECT_EQ(pb.bones_at(22.0), 4);
     EXPECT_EQ(pb.bones_at(21.0), 6);
     // Tick 24: bone 3 alone (a refresh), show 4.
-    ASSERT_TRUE(pb.add_chunk(24, 3, 1, 4, record(glm::vec3(3, 4, 0)).data(), 4));
+    ASSERT_TRUE(pb.add_chunk(24, 3, 1, 4, record(glm::vec3(3, 4, 0)).run(), 4));
     EXPECT_LT(glm::length(pose_of(pb, 3, 22.0).t - glm::vec3(3, 2, 0)), 1e-2f) << "bone 3 between its frames 20 and 24";
     EXPECT_LT(glm::length(pose_of(pb, 1, 21.0).t - glm::vec3(1, 1, 0)), 1e-2f);
     EXPECT_TRUE(pb.covers(20.0));
@@ -252,15 +271,15 @@ TEST(PoseBuffer, ShowAndPerBoneFrames) {
 // The root block: lerp of the position and slerp of the rotation between
 // frames of one epoch, held across an epoch change; absent without blocks.
 TEST(PoseBuffer, RootInterpolatesWithinAnEpoch) {
-    PoseBuffer pb(2, kFmt);
+    PoseBuffer pb = buffer(2);
     const auto rec = records(2, glm::vec3(0));
     RootPose r;
-    ASSERT_TRUE(pb.add_chunk(10, 0, 2, 2, rec.data()));
+    ASSERT_TRUE(pb.add_chunk(10, 0, 2, 2, rec.run()));
     EXPECT_FALSE(pb.root(10.0, r));
     const auto a = root_block({0, 0, 0}, 0.0f), b = root_block({4, 0, -2}, 1.0f), c = root_block({100, 0, 0}, 0.0f);
-    ASSERT_TRUE(pb.add_chunk(12, 0, 2, 2, rec.data(), 2, 0, a.data()));
-    ASSERT_TRUE(pb.add_chunk(14, 0, 2, 2, rec.data(), 2, 0, b.data()));
-    ASSERT_TRUE(pb.add_chunk(16, 0, 2, 2, rec.data(), 2, 1, c.data()));
+    ASSERT_TRUE(pb.add_chunk(12, 0, 2, 2, rec.run(), 2, 0, a.data()));
+    ASSERT_TRUE(pb.add_chunk(14, 0, 2, 2, rec.run(), 2, 0, b.data()));
+    ASSERT_TRUE(pb.add_chunk(16, 0, 2, 2, rec.run(), 2, 1, c.data()));
     ASSERT_TRUE(pb.root(13.0, r));
     EXPECT_NEAR(glm::length(r.position - glm::dvec3(2, 0, -1)), 0.0, 2e-3);
     EXPECT_NEAR(rotation_angle(r.rotation, glm::angleAxis(0.5f, glm::vec3(0, 1, 0))), 0.0, 1e-3);
@@ -274,7 +293,7 @@ TEST(PoseBuffer, RootInterpolatesWithinAnEpoch) {
 // not carry keeps its earlier value, never interpolated across an epoch;
 // indices past the morph count are refused.
 TEST(PoseBuffer, MorphWeightsLerpWithinAnEpoch) {
-    PoseBuffer pb(2, kFmt, 3);
+    PoseBuffer pb = buffer(2, 3);
     ASSERT_EQ(pb.morph_count(), 3);
     std::array<float, 3> w{};
     ASSERT_TRUE(pb.add_morphs(8, 2, 2, 0, morph_block({{0, 0.5f}}).data()));

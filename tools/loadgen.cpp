@@ -167,7 +167,7 @@ struct Player final : DatagramSource, FrameSink {
     bool next(std::span<const uint8_t>& bytes, bool& from_server, double& arrival) override;
     void on_character(int id, const RemoteCharacter* rc) override;
     void on_chunk(int id, uint32_t tick, int show, const uint8_t* root, double arrival) override;
-    void on_run(int id, int first, int count, const uint8_t* records, int record_size) override;
+    void on_run(int id, int first, int count, const RecordRun& records) override;
 };
 
 struct Shared {
@@ -453,21 +453,34 @@ void Player::on_chunk(int id, uint32_t tick, int show, const uint8_t* root, doub
     (o.cross ? sh.cross_receipt : sh.receipt).add(ms);
 }
 
-// Decodes every record (what the client's pose buffer does first with
-// them), in the format of the character's asset; invalid ones are counted.
-void Player::on_run(int id, int, int count, const uint8_t* records, int record_size) {
+// Reads every record (what the client's pose buffer does first with them):
+// a standalone one to its integers, a predicted one (from a baseline the
+// player would hold) its residuals' syntax; invalid ones are counted.
+void Player::on_run(int id, int, int count, const RecordRun& records) {
     if (size_t(id) >= obs.size() || !obs[size_t(id)].asset) return;
-    const RecordFormat& fmt = obs[size_t(id)].asset->format;
-    float check = 0;
+    BitReader in(records.data, records.bytes, records.bit);
+    const bool with_base = (records.base & kBaseAgeMask) != 0;
+    int64_t check = 0;
     for (int k = 0; k < count; ++k) {
-        const uint8_t* r = records + size_t(k) * size_t(record_size);
-        if (!record_valid(r, fmt)) {
-            ++sh.bad_records;
+        uint64_t predicted = 0;
+        const size_t at = in.at();
+        if (with_base && (!in.get(1, predicted) || predicted)) {
+            BitReader again(records.data, records.bytes, at);
+            if (!skip_record(again, records.scaled, true)) {
+                ++sh.bad_records;
+                return;
+            }
+            in = again;
             continue;
         }
-        check += decode_bone(r, fmt).r.w;
+        RecordInts r;
+        if (!read_record(in, records.scaled, r)) {
+            ++sh.bad_records;
+            return;
+        }
+        check += r.rot[0];
     }
-    sh.decoded_check += check;
+    sh.decoded_check += float(check & 0xff);
     sh.records += uint64_t(count);
 }
 

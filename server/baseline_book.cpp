@@ -1,0 +1,157 @@
+// baseline_book.cpp — see baseline_book.h.
+#include "baseline_book.h"
+
+namespace progskin::net {
+
+static bool newer(uint32_t a, uint32_t b) { return int32_t(a - b) > 0; }
+
+void BaselineBook::carried(uint32_t seq, uint32_t tick, int instance, uint32_t generation, int first, int count) {
+    if (instance < 0 || first < 0 || count < 1 || first + count > MAX_BONES) return;
+    Sent& s = sent_[seq % kSentRing];
+    if (!s.valid || s.seq != seq) {
+        s.seq = seq;
+        s.tick = tick;
+        s.valid = true;
+        s.runs.clear();  // capacity kept
+    }
+    s.runs.push_back({uint16_t(instance), uint8_t(first), uint8_t(count), generation});
+}
+
+void BaselineBook::on_ack(uint32_t ack, uint32_t bits) {
+    auto take = [&](uint32_t seq) {
+        Sent& s = sent_[seq % kSentRing];
+        if (!s.valid || s.seq != seq) return;
+        mark(s);
+        s.valid = false;  // once
+    };
+    take(ack);
+    for (uint32_t i = 0; i < 32; ++i)
+        if (bits & (1u << i)) take(ack - 1 - i);
+}
+
+void BaselineBook::mark(const Sent& s) {
+    for (const Run& r : s.runs) {
+        if (acks_.size() <= r.instance) acks_.resize(size_t(r.instance) + 1);
+        Acks& a = acks_[r.instance];
+        if (!a.any || newer(r.generation, a.generation)) {  // a new occupant of the id
+            a.generation = r.generation;
+            a.any = true;
+            a.newest = a.first = s.tick;
+            std::fill(a.mask.begin(), a.mask.end(), 0);
+        } else if (r.generation != a.generation) {
+            continue;  // a late datagram of an earlier occupant
+        }
+        if (newer(s.tick, a.newest)) {
+            const uint32_t shift = s.tick - a.newest;
+            for (uint16_t& m : a.mask) m = shift >= 16 ? 0 : uint16_t(m << shift);
+            a.newest = s.tick;
+        }
+        if (newer(a.first, s.tick)) a.first = s.tick;
+        const uint32_t d = a.newest - s.tick;
+        if (d >= 16) continue;
+        if (a.mask.size() < size_t(r.first) + r.count) a.mask.resize(size_t(r.first) + r.count, 0);
+        for (int b = r.first; b < r.first + r.count; ++b) a.mask[size_t(b)] |= uint16_t(1u << d);
+    }
+}
+
+bool BaselineBook::acked(int instance, uint32_t generation, int b, uint32_t t) const {
+    if (instance < 0 || size_t(instance) >= acks_.size()) return false;
+    const Acks& a = acks_[size_t(instance)];
+    if (!a.any || a.generation != generation || b < 0 || size_t(b) >= a.mask.size()) return false;
+    const uint32_t d = a.newest - t;
+    if (d >= 16 || int32_t(t - a.first) < int32_t(kGraceTicks)) return false;
+    return (a.mask[size_t(b)] >> d) & 1;
+}
+
+bool BaselineBook::newest(int instance, uint32_t generation, uint32_t& tick) const {
+    if (instance < 0 || size_t(instance) >= acks_.size()) return false;
+    const Acks& a = acks_[size_t(instance)];
+    if (!a.any || a.generation != generation || int32_t(a.newest - a.first) < int32_t(kGraceTicks)) return false;
+    tick = a.newest;
+    return true;
+}
+
+void BaselineBook::clear() {
+    for (Sent& s : sent_) s.valid = false;
+    acks_.clear();
+}
+
+void RecordPlan::begin(const EncodedFrame& frame) {
+    entry_of_.assign(frame.instances.size(), -1);
+    entries_.clear();
+    prefix_.clear();
+    flags_.clear();
+    predicted_bones_ = 0;
+}
+
+void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book) {
+    if (i < 0 || size_t(i) >= entry_of_.size() || entry_of_[size_t(i)] >= 0) return;
+    const EncodedInstance& e = frame.instances[size_t(i)];
+    if (!e.valid) return;
+    const int B = e.bone_count;
+    Entry en;
+    en.at = flags_.size();
+    flags_.resize(en.at + size_t(B), 0);
+    uint32_t t0 = 0;
+    int covered = 0;
+    if (book.newest(i, e.generation, t0)) {
+        const uint32_t age = frame.tick - t0;
+        if (age >= 1 && age < uint32_t(kBaselineRing)) {
+            bool linear = 2 * age < uint32_t(kBaselineRing);
+            for (int b = 0; b < B; ++b) {
+                if (!book.acked(i, e.generation, b, t0)) continue;
+                flags_[en.at + size_t(b)] = 1;
+                ++covered;
+                linear = linear && book.acked(i, e.generation, b, t0 - age);
+            }
+            if (covered > 0) {
+                en.base = uint8_t(age | (linear ? kBaseLinear : 0));
+                en.records = frame.predicted(i, en.base);
+                if (!en.records || !en.records->usable) en.base = 0, en.records = nullptr;
+            }
+        }
+    }
+    if (en.base == 0) std::fill(flags_.begin() + long(en.at), flags_.end(), 0);
+    // Prefix sums of the planned bits: bone b at [prefix[b], prefix[b + 1]).
+    const size_t pat = prefix_.size();
+    prefix_.resize(pat + size_t(B) + 1);
+    prefix_[pat] = 0;
+    for (int b = 0; b < B; ++b) {
+        const size_t abs_bits = frame.record_bits(i, b, b + 1);
+        size_t bits = abs_bits;
+        if (en.base) {
+            const bool pred = flags_[en.at + size_t(b)] != 0;
+            bits = 1 + (pred ? en.records->record_bits(b) : abs_bits);
+            predicted_bones_ += pred;
+        }
+        prefix_[pat + size_t(b) + 1] = prefix_[pat + size_t(b)] + uint32_t(bits);
+    }
+    en.prefix = pat;
+    entry_of_[size_t(i)] = int32_t(entries_.size());
+    entries_.push_back(en);
+}
+
+uint8_t RecordPlan::base(int i) const {
+    if (i < 0 || size_t(i) >= entry_of_.size() || entry_of_[size_t(i)] < 0) return 0;
+    return entries_[size_t(entry_of_[size_t(i)])].base;
+}
+
+size_t RecordPlan::bits(const EncodedFrame& frame, int i, int from, int to) const {
+    if (to <= from) return 0;
+    if (i < 0 || size_t(i) >= entry_of_.size() || entry_of_[size_t(i)] < 0) return frame.record_bits(i, from, to);
+    const Entry& en = entries_[size_t(entry_of_[size_t(i)])];
+    return size_t(prefix_[en.prefix + size_t(to)] - prefix_[en.prefix + size_t(from)]);
+}
+
+bool RecordPlan::predicted(int i, int b) const {
+    if (i < 0 || size_t(i) >= entry_of_.size() || entry_of_[size_t(i)] < 0) return false;
+    const Entry& en = entries_[size_t(entry_of_[size_t(i)])];
+    return en.base != 0 && flags_[en.at + size_t(b)] != 0;
+}
+
+const PredictedRecords* RecordPlan::records(int i) const {
+    if (i < 0 || size_t(i) >= entry_of_.size() || entry_of_[size_t(i)] < 0) return nullptr;
+    return entries_[size_t(entry_of_[size_t(i)])].records;
+}
+
+}  // namespace progskin::net

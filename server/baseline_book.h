@@ -1,0 +1,104 @@
+// baseline_book.h — what one client has acknowledged of each character's
+// bones, and from it the record plan of a tick: the baseline each
+// character's chunks predict from (Chunk.base), which bones are predicted
+// and what each record costs (docs/protocol.md "Predicted records").
+//
+// The rule: a record is predicted only from ticks whose datagram carrying
+// that bone this client acknowledged (Ack / ack_bits), never from one it may
+// not have; with none, the record stands alone. So a lost datagram can never
+// corrupt a later frame: at worst a record costs its standalone bits.
+//
+// BaselineBook keeps, per datagram sent (the last kSentRing), the runs of
+// bones it carried (instance, generation, tick); on an Ack it marks those
+// bones acknowledged: per character the newest acknowledged tick and, per
+// bone, a 16-bit mask of the acknowledged ticks at and before it. A new
+// occupant of an instance id (generation) starts empty, and the first
+// kGraceTicks after a character's first acknowledgement are not used as
+// baselines (its frames may have reached the client before the control
+// channel announced it, and been skipped).
+//
+// plan() chooses per character the newest acknowledged tick as the baseline
+// (age a = tick - newest, 1 <= a < kBaselineRing), linear when every bone
+// acknowledged there is also acknowledged at 2a (2a < kBaselineRing), and
+// takes the shared predicted records of that baseline (EncodedFrame::
+// predicted). Cost: O(bones) per character and tick; memory 2 bytes per
+// bone of every character this client was sent.
+#pragma once
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "frame_encoder.h"
+
+namespace progskin::net {
+
+class BaselineBook {
+public:
+    static constexpr size_t kSentRing = 128;  // datagrams remembered until acknowledged
+    static constexpr uint32_t kGraceTicks = 15;
+
+    // The packer: datagram `seq` (frame tick `tick`) carries bones
+    // [first, first + count) of `instance`.
+    void carried(uint32_t seq, uint32_t tick, int instance, uint32_t generation, int first, int count);
+    // An Ack: datagram `ack` and those of ack_bits (bit i: ack - 1 - i).
+    void on_ack(uint32_t ack, uint32_t bits);
+    // Whether the client acknowledged bone b of instance (generation) at tick t.
+    bool acked(int instance, uint32_t generation, int b, uint32_t t) const;
+    // The newest acknowledged tick of any bone of the instance usable as a
+    // baseline (past the grace); false when none.
+    bool newest(int instance, uint32_t generation, uint32_t& tick) const;
+    void clear();
+
+private:
+    struct Run {
+        uint16_t instance = 0;
+        uint8_t first = 0, count = 0;
+        uint32_t generation = 0;
+    };
+    struct Sent {
+        uint32_t seq = 0, tick = 0;
+        bool valid = false;
+        std::vector<Run> runs;
+    };
+    struct Acks {
+        uint32_t generation = 0;
+        bool any = false;
+        uint32_t newest = 0;  // newest acknowledged tick of any bone
+        uint32_t first = 0;   // the first acknowledged tick (the grace starts there)
+        std::vector<uint16_t> mask;  // per bone: bit k set, tick newest - k acknowledged
+    };
+    void mark(const Sent& s);
+    std::vector<Sent> sent_ = std::vector<Sent>(kSentRing);
+    std::vector<Acks> acks_;  // by instance id
+};
+
+// A client's record choices for one tick, for the instances it may be sent.
+class RecordPlan {
+public:
+    // Plans instance i of the frame (valid, bone_count bones) from the book.
+    void plan(const EncodedFrame& frame, int i, const BaselineBook& book);
+    void begin(const EncodedFrame& frame);  // forgets the previous tick's choices
+    // Chunk.base of instance i (0: standalone records, no "predicted" bits).
+    uint8_t base(int i) const;
+    // Bits of bones [from, to) of instance i as planned (the "predicted" bits included).
+    size_t bits(const EncodedFrame& frame, int i, int from, int to) const;
+    // Whether bone b of instance i is predicted, and its records.
+    bool predicted(int i, int b) const;
+    const PredictedRecords* records(int i) const;
+    uint64_t predicted_bones() const { return predicted_bones_; }
+
+private:
+    struct Entry {
+        uint8_t base = 0;
+        const PredictedRecords* records = nullptr;
+        size_t at = 0;      // into flags_ (bone_count)
+        size_t prefix = 0;  // into prefix_ (bone_count + 1)
+    };
+    std::vector<int32_t> entry_of_;  // per instance: index into entries_, -1 none
+    std::vector<Entry> entries_;
+    std::vector<uint32_t> prefix_;
+    std::vector<uint8_t> flags_;
+    uint64_t predicted_bones_ = 0;
+};
+
+}  // namespace progskin::net
