@@ -121,6 +121,12 @@ TEST(NetBandwidth, LossReorderingAndDuplicationDoNoHarm) {
     EXPECT_LT(r.loss, 0.25);
     EXPECT_GT(r.duplicates, 0u);
     EXPECT_EQ(r.malformed, 0u);
+    // Records are predicted from acknowledged frames only: lost, reordered
+    // and duplicated datagrams never leave a record without its baseline.
+    std::printf("predicted records %llu, missing baselines %llu\n", (unsigned long long)r.predicted_records,
+                (unsigned long long)r.missing_baselines);
+    EXPECT_GT(r.predicted_records, 0u);
+    EXPECT_EQ(r.missing_baselines, 0u);
     for (double k : r.per_second_kbps) EXPECT_GT(k, 50.0);  // the stream keeps flowing every second
     EXPECT_LT(r.rms_pct, kLossyLinkRmsPct);
 }
