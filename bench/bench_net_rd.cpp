@@ -124,7 +124,7 @@ std::string character_label(const Assets& assets, const InstanceSpec& s, bool cr
 // fixed k per character (leaf_k for the leaf LOD), every morph weight, as
 // many characters as fit the budget; `rr` is the next character's turn.
 void baseline_picks(Method m, const Assets& assets, const std::vector<InstanceSpec>& specs, int leaf_k, const EncodedFrame& f,
-                    size_t budget, size_t& rr, std::vector<Pick>& picks) {
+                    const RecordPlan& plan, size_t budget, size_t& rr, std::vector<Pick>& picks) {
     picks.clear();
     const size_t n = specs.size();
     size_t payload = 0;
@@ -137,7 +137,7 @@ void baseline_picks(Method m, const Assets& assets, const std::vector<InstanceSp
         const auto q = f.morphs(int(i));
         for (size_t w = 0; w < q.size(); ++w)
             if (q[w] != kNoWeight) morphs[w / 64] |= uint64_t(1) << (w % 64);
-        size_t b = WireCost::header(a.bone_count()) + size_t(k) * a.format.size() + morph_block_bytes(morphs);
+        size_t b = WireCost::header(a.bone_count()) + (plan.bits(f, int(i), 0, k) + 7) / 8 + morph_block_bytes(morphs);
         if (WireCost::wire(payload + b) > budget) break;
         payload += b;
         picks.push_back({int(i), k});
@@ -148,8 +148,10 @@ void baseline_picks(Method m, const Assets& assets, const std::vector<InstanceSp
 
 // max_delay: the display delay in ticks at most (18 = 600 ms; 3 = 100 ms for
 // the equal-latency table).
+// fixed_k: the leaf LOD's k (0: the largest whose stream fits 94 % of the
+// cap, found by short runs of each k); rate_only: only the rate is measured.
 Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbps, int ticks, int warm, int max_delay = 18,
-                bool crowd = false) {
+                bool crowd = false, int fixed_k = 0, bool rate_only = false) {
     const Assets& assets = m == Method::LeafLod ? leaf_assets() : progressive_assets();
     // The server's session core without sockets: the same tick (importance,
     // selection or a baseline's picks, packing, rate), at a fixed rate.
@@ -164,28 +166,22 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
         min_depth = std::max(min_depth, double(WireCost::wire(WireCost::header(a->bone_count()) + size_t(a->bone_count()) * a->format.size())));
     client->rate() = RateController(cap_kbps, cap_kbps, min_depth);
     const size_t n = specs.size();
-    // Static LOD: the largest k with every character every tick within the rate.
-    int leaf_k = 1;
-    if (m == Method::LeafLod) {
+    // Static LOD: the largest k with every character every tick within the
+    // rate, as its records really cost (standalone or predicted).
+    int leaf_k = fixed_k > 0 ? fixed_k : 1;
+    if (m == Method::LeafLod && fixed_k == 0) {
         int kmax = 255;
         for (const auto& a : assets) kmax = std::min(kmax, a->bone_count());
-        for (int k = kmax; k >= 1; --k) {
-            size_t payload = 0;
-            for (const auto& s : specs) {
-                const size_t morphs = std::min<size_t>(assets[s.asset]->character.morphs.size(), MAX_MORPHS);
-                payload += WireCost::header(assets[s.asset]->bone_count()) + size_t(std::min(k, assets[s.asset]->bone_count())) * assets[s.asset]->format.size() +
-                           (morphs ? 1 + morphs * MORPH_ENTRY_BYTES : 0);  // every weight, as the baselines send them
-            }
-            if (WireCost::wire(payload) * 30.0 <= 0.94 * cap_kbps * 125.0) {
+        for (int k = kmax; k >= 1; --k)
+            if (simulate(m, specs, 1e6, 60, 20, max_delay, crowd, k, true).rate_kbps <= 0.94 * cap_kbps) {
                 leaf_k = k;
                 break;
             }
-        }
     }
     size_t rr = 0;
     if (m != Method::Progressive)
         client->set_selector([&](const EncodedFrame& f, size_t budget, std::vector<Pick>& picks) {
-            baseline_picks(m, assets, specs, leaf_k, f, budget, rr, picks);
+            baseline_picks(m, assets, specs, leaf_k, f, client->plan(), budget, rr, picks);
         });
     std::vector<std::vector<std::vector<uint8_t>>> log(size_t(ticks) + 1);
     // The display delay covers, as the client's does (client.cpp), the largest
@@ -202,13 +198,16 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
         const EncodedFrame& f = core.encoder().encode(uint32_t(t));
         sink.sent.clear();
         const TickResult r = client->tick(f, t / 30.0, 1.0 / 30.0, sink);
+        // A lossless client acknowledging each datagram before the next tick
+        // (a round trip under 33 ms, as on loopback): baselines one tick old.
+        if (!sink.sent.empty()) client->acknowledge(verify_datagram(sink.sent.back().bytes)->seq(), ~0u);
         for (auto& d : sink.sent) log[size_t(t)].push_back(std::move(d.bytes));
         if (t > warm) wire_total += r.wire_bytes;
         for (const Pick& p : client->picks()) {
             const auto& pa = *assets[size_t(specs[size_t(p.instance)].asset)];
             if (t > warm)
                 inst_bytes[size_t(p.instance)] +=
-                    double(WireCost::header(pa.bone_count()) + size_t(std::max(0, p.k - p.first)) * pa.format.size());
+                    double(WireCost::header(pa.bone_count()) + (client->plan().bits(f, p.instance, p.first, std::max(p.first, p.k)) + 7) / 8);
             int& last_update = instance_tick[size_t(p.instance)];
             if (t > warm && last_update > 0) gap = std::max(gap, t - last_update);
             last_update = t;
@@ -218,6 +217,11 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
                 last = t;
             }
         }
+    }
+    if (rate_only) {
+        Result r;
+        r.rate_kbps = double(wire_total) * 8 / 1000 / (double(ticks - warm) / 30.0);
+        return r;
     }
     // Display delay covering the largest gap after warm-up (as the client adapts it).
     const int delay = std::min(max_delay, gap + 1);

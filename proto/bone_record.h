@@ -149,9 +149,17 @@ bool read_predicted(BitReader& in, const RecordInts& pred, bool scaled, RecordIn
 // (Chunk.base != 0) each record opens with 1 bit, set when it is predicted
 // from the baseline (then write_predicted's syntax), clear when it stands
 // alone (write_record's); without one every record is write_record's.
-// Chunk.base: bits 0-5 the baseline's age a (1..63 ticks, 0: no baseline),
-// bit 6 linear (predicted from the records a and 2a ticks old), bit 7 0.
+// The baseline byte used here ("base"): bits 0-5 the baseline's age a (0: no
+// baseline), bit 6 linear (predicted from the records a and 2a ticks old);
+// on the wire in Chunk.flags (base_to_flags: age 1..15 in bits 3-6, linear
+// bit 7).
 inline constexpr uint8_t kBaseAgeMask = 0x3F, kBaseLinear = 0x40;
+inline constexpr uint32_t kMaxBaseAge = 15;  // what Chunk.flags can carry (bits 3-6)
+// A chunk's baseline in Chunk.flags (wire.h CHUNK_AGE, CHUNK_LINEAR) and back.
+inline uint8_t base_to_flags(uint8_t base) {
+    return uint8_t(((base & kBaseAgeMask) << 3) & 0x78) | ((base & kBaseLinear) ? 0x80 : 0);
+}
+inline uint8_t base_from_flags(uint8_t flags) { return uint8_t(((flags & 0x78) >> 3) | ((flags & 0x80) ? kBaseLinear : 0)); }
 // Walks one chunk record without its baseline: the syntax, code lengths and
 // a standalone record's bounds. False when it runs past the end or breaks
 // them (the frame is refused before anything is applied). O(record bits).

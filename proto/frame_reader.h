@@ -10,8 +10,8 @@
 // bytes (bit j of byte j / 8, least significant bit first: bone first + j is
 // carried), then the records of the carried bones in increasing bone order
 // as one bit stream (bone_record.h: parent-relative, each record opening with
-// a "predicted" bit when chunk.base != 0; scale fields when flags &
-// CHUNK_SCALED), padded with zero bits to a whole byte.
+// a "predicted" bit when the chunk has a baseline, flags bits 3-6; scale
+// fields when flags & CHUNK_SCALED), padded with zero bits to a whole byte.
 //
 // read_frame(frame, record_size, run[, on_chunk]) checks every length and
 // index of a verified Frame before anything is applied:
@@ -27,8 +27,8 @@
 //       consecutive bones carried, in payload order (the run's first record
 //       at RecordRun.bit of its bytes).
 // Returns false, having called nothing, when a chunk's scale flag differs
-// from its known instance's, has show == 0 or first >= show, unknown flag
-// bits, a base with bit 7 set or linear without an age, a root, morph block
+// from its known instance's, has show == 0 or first >= show, a linear
+// baseline without an age (Chunk.flags bits 3-7), a root, morph block
 // or mask runs past the payload, a morph block has n == 0 or indices not
 // strictly increasing, the mask has bits set at or past show, the chunk
 // carries neither a bone nor a morph weight, a record breaks its syntax or
@@ -56,7 +56,7 @@ struct RecordRun {
     size_t bytes = 0;
     size_t bit = 0;
     bool scaled = false;
-    uint8_t base = 0;  // Chunk.base
+    uint8_t base = 0;  // the chunk's baseline (bone_record.h base_from_flags)
 };
 
 // Bytes of the bone mask of a chunk covering bones first..show-1.
@@ -77,10 +77,8 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
                 const bool scaled = (c->flags() & CHUNK_SCALED) != 0;
                 const int rs = scaled ? RecordFormat::kScaledSize : RecordFormat::kPlainSize;
                 const int first = c->first(), show = c->show();
-                const uint8_t base = c->base();
-                if ((known > 0 && known != rs) || first >= show ||
-                    (c->flags() & ~(CHUNK_ROOT | CHUNK_SCALED | CHUNK_MORPH)) || (base & 0x80) ||
-                    ((base & kBaseLinear) && !(base & kBaseAgeMask)))
+                const uint8_t base = base_from_flags(c->flags());
+                if ((known > 0 && known != rs) || first >= show || ((base & kBaseLinear) && !(base & kBaseAgeMask)))
                     return false;
                 const uint8_t* root = nullptr;
                 if (c->flags() & CHUNK_ROOT) {

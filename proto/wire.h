@@ -31,6 +31,9 @@ inline constexpr size_t CHALLENGE_NONCE = 16;          // Challenge.nonce bytes
 inline constexpr int HOLD_TICKS = kHoldTicks;                // a bone stays shown this many ticks after its newest frame
 inline constexpr uint8_t CHUNK_ROOT = 1, CHUNK_SCALED = 2;   // Chunk.flags
 inline constexpr uint8_t CHUNK_MORPH = 4;             // Chunk.flags: a morph block follows the root block
+// Chunk.flags bits 3-6: the age of the chunk's baseline (1..15 ticks, 0: every
+// record standalone), bit 7: linear (docs/protocol.md "Bone record").
+inline constexpr uint8_t CHUNK_AGE_SHIFT = 3, CHUNK_AGE = 0x78, CHUNK_LINEAR = 0x80;
 inline constexpr int MAX_MORPHS = 255;                // morph targets streamed per character (uint8 index and count)
 inline constexpr size_t MORPH_ENTRY_BYTES = 3;        // morph block entry: uint8 index, int16 weight
 // Morph weight on the wire (docs/protocol.md "Morph block"): int16

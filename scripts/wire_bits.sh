@@ -33,9 +33,8 @@ for b in "$server" "$client"; do [ -x "$b" ] || { echo "wire_bits.sh: $b not bui
 command -v python3 >/dev/null || { echo "wire_bits.sh: needs python3" >&2; exit 1; }
 work=$(mktemp -d)
 trap 'kill $(jobs -p) 2>/dev/null || true; rm -rf "$work"' EXIT
-modes=("predicted")
 help=$("$server" --help 2>&1 || true)
-[[ "$help" == *--standalone-records* ]] && modes+=("standalone")
+if [[ "$help" == *--standalone-records* ]]; then modes=("predicted" "standalone"); else modes=("as built"); fi
 rows=()
 echo "| mode | rate kbit/s | characters | bones/char | bits per bone per frame | predicted records | missing baselines | RMS % | max % |"
 echo "|---|---|---|---|---|---|---|---|---|"
@@ -43,16 +42,17 @@ for mode in "${modes[@]}"; do
   port=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
   extra=()
   [ "$mode" = standalone ] && extra=(--standalone-records)
-  "$server" --port "$port" --duration $((seconds + 30)) "${extra[@]}" "${server_args[@]}" >"$work/server-$mode.log" 2>&1 &
+  tag=${mode// /-}
+  "$server" --port "$port" --duration $((seconds + 30)) "${extra[@]}" "${server_args[@]}" >"$work/server-$tag.log" 2>&1 &
   srv=$!
-  for _ in $(seq 100); do grep -q "listening\|TLS certificate" "$work/server-$mode.log" 2>/dev/null && break; sleep 0.2; done
+  for _ in $(seq 100); do grep -q "listening\|TLS certificate" "$work/server-$tag.log" 2>/dev/null && break; sleep 0.2; done
   sleep 1
   if ! "$client" --server "127.0.0.1:$port" --insecure --duration "$seconds" --warmup 2 --verify --verify-every 3 \
-       --report json >"$work/report-$mode.json" 2>"$work/client-$mode.log"; then
-    echo "wire_bits.sh: the $mode client failed:" >&2; tail -5 "$work/client-$mode.log" >&2; exit 1
+       --report json >"$work/report-$tag.json" 2>"$work/client-$tag.log"; then
+    echo "wire_bits.sh: the $mode client failed:" >&2; tail -5 "$work/client-$tag.log" >&2; exit 1
   fi
   kill "$srv" 2>/dev/null || true; wait "$srv" 2>/dev/null || true
-  row=$(python3 - "$work/report-$mode.json" "$mode" <<'EOF'
+  row=$(python3 - "$work/report-$tag.json" "$mode" <<'EOF'
 import json, sys
 r = json.load(open(sys.argv[1]))
 bones = r["characters"] * r["bones_mean"]

@@ -96,7 +96,7 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
     int covered = 0;
     if (book.newest(i, e.generation, t0)) {
         const uint32_t age = frame.tick - t0;
-        if (age >= 1 && age < uint32_t(kBaselineRing)) {
+        if (age >= 1 && age < uint32_t(kBaselineRing) && age <= kMaxBaseAge) {
             bool linear = 2 * age < uint32_t(kBaselineRing);
             for (int b = 0; b < B; ++b) {
                 if (!book.acked(i, e.generation, b, t0)) continue;

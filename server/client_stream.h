@@ -206,6 +206,12 @@ public:
 
     // -------------------------------------------- tuning (benchmarks) --
     RateController& rate() { return rate_; }
+    // A detached stream's client acknowledging datagrams (benchmarks: what
+    // its Ack would say): their bones become baselines (baseline_book.h).
+    void acknowledge(uint32_t ack, uint32_t bits) { book_.on_ack(ack, bits); }
+    // This tick's record plan (each character's baseline and bits), set
+    // before the scheduler or a selector runs.
+    const RecordPlan& plan() const { return plan_; }
     void set_view(ViewSpec v) { view_ = std::move(v); }
     // Where this client looks from (ServerConfig::view_radius): its camera,
     // else the world positions of its own characters in `frame`. Appends to

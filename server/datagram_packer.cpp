@@ -124,7 +124,7 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
                 bone = next_bone();
             }
             end_run();
-            chunks_.emplace_back(uint16_t(instance), uint8_t(first), uint8_t(show), e.epoch, flags, base);
+            chunks_.emplace_back(uint16_t(instance), uint8_t(first), uint8_t(show), e.epoch, uint8_t(flags | base_to_flags(base)));
         }
         g = g_end;
     }

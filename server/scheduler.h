@@ -60,7 +60,7 @@ namespace progskin::net {
 // carrying `payload` bytes of chunk headers and records in one tick.
 struct WireCost {
     static constexpr size_t kFrameOverhead = 88;  // Datagram + Frame FlatBuffer tables (datagram_packer.cpp checks)
-    static constexpr size_t kChunk = 8;           // one Chunk struct (7 bytes, padded to 8)
+    static constexpr size_t kChunk = 6;           // one Chunk struct
     // a chunk continued in another datagram (it repeats the root block)
     static constexpr size_t kSplitChunk = kChunk + ROOT_BYTES + (MAX_BONES + 7) / 8;
     // Chunk struct + bone mask for an instance of `bones` bones (at most; a

@@ -397,7 +397,7 @@ TEST(ClientSessionFrames, ApplyFrameKeepsEpochsAndRoots) {
             BitWriter w(payload);
             write_record(RecordInts{}, false, w);
         }
-        const std::vector<wire::Chunk> chunks{wire::Chunk(0, 0, 1, epoch, CHUNK_ROOT, 0), wire::Chunk(1, 0, 1, 0, 0, 0)};
+        const std::vector<wire::Chunk> chunks{wire::Chunk(0, 0, 1, epoch, CHUNK_ROOT), wire::Chunk(1, 0, 1, 0, 0)};
         flatbuffers::FlatBufferBuilder b;
         auto f = wire::CreateFrame(b, tick, b.CreateVectorOfStructs(chunks), b.CreateVector(payload));
         return datagram(b, tick, 0, wire::DatagramBody::Frame, f);
