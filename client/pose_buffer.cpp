@@ -81,15 +81,21 @@ bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const
     BitReader in(records.data, records.bytes, records.bit);
     for (int i = 0; i < count; ++i) {
         const int b = first + i;
-        uint64_t predicted = 0;
-        if (age && !in.get(1, predicted)) return false;
-        if (predicted) {
-            if (!b1 || !b1->have[size_t(b)] || (linear && (!b2 || !b2->have[size_t(b)]))) {
+        RecordPrefix prefix;
+        if (age && !read_prefix(in, prefix)) return false;
+        if (prefix.kind != RecordPrefix::Standalone) {
+            // The chunk's baseline, or the record's own (a bone refreshed at other ticks).
+            const bool own = prefix.kind == RecordPrefix::Own;
+            const uint32_t a = own ? (prefix.base & kBaseAgeMask) : age;
+            const bool lin = own ? (prefix.base & kBaseLinear) != 0 : linear;
+            const Frame* f1 = own ? frame_at(tick - a) : b1;
+            const Frame* f2 = own ? (lin ? frame_at(tick - 2 * a) : nullptr) : b2;
+            if (!f1 || !f1->have[size_t(b)] || (lin && (!f2 || !f2->have[size_t(b)]))) {
                 ++missing_baselines_;
                 return false;
             }
-            const RecordInts pred = linear ? predict_record(b1->ints[size_t(b)], age, &b2->ints[size_t(b)], 2 * age)
-                                           : predict_record(b1->ints[size_t(b)], age);
+            const RecordInts pred = lin ? predict_record(f1->ints[size_t(b)], a, &f2->ints[size_t(b)], 2 * a)
+                                        : predict_record(f1->ints[size_t(b)], a);
             if (!read_predicted(in, pred, fmt_.scaled, scratch_[size_t(i)])) return false;
             ++predicted_;
         } else if (!read_record(in, fmt_.scaled, scratch_[size_t(i)])) {

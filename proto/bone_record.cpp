@@ -354,11 +354,41 @@ bool read_predicted(BitReader& in, const RecordInts& pred, bool scaled, RecordIn
     return true;
 }
 
+bool read_prefix(BitReader& in, RecordPrefix& out) {
+    uint64_t d = 0, o = 0, age = 0, linear = 0;
+    out = RecordPrefix{};
+    if (!in.get(1, d)) return false;
+    if (d) {
+        out.kind = RecordPrefix::Chunk;
+        return true;
+    }
+    if (!in.get(1, o)) return false;
+    if (!o) return true;  // standalone
+    if (!in.get(4, age) || !in.get(1, linear) || age == 0) return false;
+    out.kind = RecordPrefix::Own;
+    out.base = uint8_t(age | (linear ? kBaseLinear : 0));
+    return true;
+}
+
+void write_prefix(const RecordPrefix& p, BitWriter& w) {
+    if (p.kind == RecordPrefix::Chunk) {
+        w.put(1, 1);
+        return;
+    }
+    w.put(0, 1);
+    w.put(p.kind == RecordPrefix::Own ? 1 : 0, 1);
+    if (p.kind == RecordPrefix::Own) {
+        w.put(p.base & 0xF, 4);
+        w.put((p.base & kBaseLinear) ? 1 : 0, 1);
+    }
+}
+
 bool skip_record(BitReader& in, bool scaled, bool with_base) {
     uint64_t flag = 0, s = 0, u = 0;
     if (with_base) {
-        if (!in.get(1, flag)) return false;
-        if (flag) {  // predicted: the residuals' syntax (their sums are checked where the baseline is known)
+        RecordPrefix prefix;
+        if (!read_prefix(in, prefix)) return false;
+        if (prefix.kind != RecordPrefix::Standalone) {  // predicted: the residuals' syntax (their sums are checked where the baseline is known)
             if (!in.get(1, flag)) return false;
             if (flag) return true;  // equal to the prediction
             for (int part = 0; part < 2; ++part) {

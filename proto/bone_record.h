@@ -160,6 +160,18 @@ inline uint8_t base_to_flags(uint8_t base) {
     return uint8_t(((base & kBaseAgeMask) << 3) & 0x78) | ((base & kBaseLinear) ? 0x80 : 0);
 }
 inline uint8_t base_from_flags(uint8_t flags) { return uint8_t(((flags & 0x78) >> 3) | ((flags & 0x80) ? kBaseLinear : 0)); }
+// In a chunk with a baseline each record opens with a prefix: 1 bit set:
+// predicted from the chunk's baseline; else 1 bit set: predicted from a
+// baseline of its own, then 4 bits its age (1..15) and 1 bit linear; else
+// (two clear bits) a standalone record.
+struct RecordPrefix {
+    enum Kind : uint8_t { Standalone, Chunk, Own } kind = Standalone;
+    uint8_t base = 0;  // Own: the record's baseline (age | kBaseLinear)
+};
+bool read_prefix(BitReader& in, RecordPrefix& out);  // false past the end or an own age of 0
+void write_prefix(const RecordPrefix& p, BitWriter& w);
+inline constexpr int kOwnPrefixBits = 7, kChunkPrefixBits = 1, kStandalonePrefixBits = 2;
+
 // Walks one chunk record without its baseline: the syntax, code lengths and
 // a standalone record's bounds. False when it runs past the end or breaks
 // them (the frame is refused before anything is applied). O(record bits).

@@ -1,6 +1,8 @@
 // baseline_book.cpp — see baseline_book.h.
 #include "baseline_book.h"
 
+#include <bit>
+
 namespace progskin::net {
 
 static bool newer(uint32_t a, uint32_t b) { return int32_t(a - b) > 0; }
@@ -71,6 +73,16 @@ bool BaselineBook::newest(int instance, uint32_t generation, uint32_t& tick) con
     return true;
 }
 
+bool BaselineBook::newest_of(int instance, uint32_t generation, int b, uint32_t& tick) const {
+    if (instance < 0 || size_t(instance) >= acks_.size()) return false;
+    const Acks& a = acks_[size_t(instance)];
+    if (!a.any || a.generation != generation || b < 0 || size_t(b) >= a.mask.size() || a.mask[size_t(b)] == 0) return false;
+    const uint32_t t = a.newest - uint32_t(std::countr_zero(a.mask[size_t(b)]));
+    if (int32_t(t - a.first) < int32_t(kGraceTicks)) return false;
+    tick = t;
+    return true;
+}
+
 void BaselineBook::clear() {
     for (Sent& s : sent_) s.valid = false;
     acks_.clear();
@@ -81,6 +93,10 @@ void RecordPlan::begin(const EncodedFrame& frame) {
     entries_.clear();
     prefix_.clear();
     flags_.clear();
+    own_base_.clear();
+    own_at_.clear();
+    own_len_.clear();
+    own_bits_.clear();
     predicted_bones_ = 0;
 }
 
@@ -91,16 +107,19 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
     const int B = e.bone_count;
     Entry en;
     en.at = flags_.size();
-    flags_.resize(en.at + size_t(B), 0);
+    flags_.resize(en.at + size_t(B), RecordPrefix::Standalone);
+    own_base_.resize(en.at + size_t(B), 0);
+    own_at_.resize(en.at + size_t(B), 0);
+    own_len_.resize(en.at + size_t(B), 0);
     uint32_t t0 = 0;
-    int covered = 0;
     if (book.newest(i, e.generation, t0)) {
         const uint32_t age = frame.tick - t0;
-        if (age >= 1 && age < uint32_t(kBaselineRing) && age <= kMaxBaseAge) {
+        if (age >= 1 && age <= kMaxBaseAge) {
             bool linear = 2 * age < uint32_t(kBaselineRing);
+            int covered = 0;
             for (int b = 0; b < B; ++b) {
                 if (!book.acked(i, e.generation, b, t0)) continue;
-                flags_[en.at + size_t(b)] = 1;
+                flags_[en.at + size_t(b)] = RecordPrefix::Chunk;
                 ++covered;
                 linear = linear && book.acked(i, e.generation, b, t0 - age);
             }
@@ -111,7 +130,35 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
             }
         }
     }
-    if (en.base == 0) std::fill(flags_.begin() + long(en.at), flags_.end(), 0);
+    if (en.base == 0) std::fill(flags_.begin() + long(en.at), flags_.end(), RecordPrefix::Standalone);
+    // Bones refreshed at other ticks: from their own newest acknowledged
+    // tick, when shorter than standalone (only in a chunk with a baseline).
+    const bool scaled = (e.flags & CHUNK_SCALED) != 0;
+    const RecordInts* now = frame.ints.data() + size_t(i) * frame.ring_bones;
+    if (en.base != 0) {
+        BitWriter w(own_bits_);
+        for (int b = 0; b < B; ++b) {
+            if (flags_[en.at + size_t(b)] != RecordPrefix::Standalone) continue;
+            uint32_t tb = 0;
+            if (!book.newest_of(i, e.generation, b, tb)) continue;
+            const uint32_t age = frame.tick - tb;
+            if (age < 1 || age > kMaxBaseAge) continue;
+            const RecordInts* b1 = frame.ints_at(i, tb);
+            if (!b1) continue;
+            const bool linear = 2 * age < uint32_t(kBaselineRing) && book.acked(i, e.generation, b, tb - age) &&
+                                frame.ints_at(i, tb - age) != nullptr;
+            const RecordInts pred = linear ? predict_record(b1[b], age, &frame.ints_at(i, tb - age)[b], 2 * age)
+                                           : predict_record(b1[b], age);
+            const size_t from = w.bits();
+            write_predicted(now[b], pred, scaled, w);
+            const size_t n = w.bits() - from;
+            if (n + kOwnPrefixBits >= frame.record_bits(i, b, b + 1) + kStandalonePrefixBits) continue;  // (its bits stay unused)
+            flags_[en.at + size_t(b)] = RecordPrefix::Own;
+            own_base_[en.at + size_t(b)] = uint8_t(age | (linear ? kBaseLinear : 0));
+            own_at_[en.at + size_t(b)] = uint32_t(from);
+            own_len_[en.at + size_t(b)] = uint32_t(n);
+        }
+    }
     // Prefix sums of the planned bits: bone b at [prefix[b], prefix[b + 1]).
     const size_t pat = prefix_.size();
     prefix_.resize(pat + size_t(B) + 1);
@@ -120,9 +167,12 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
         const size_t abs_bits = frame.record_bits(i, b, b + 1);
         size_t bits = abs_bits;
         if (en.base) {
-            const bool pred = flags_[en.at + size_t(b)] != 0;
-            bits = 1 + (pred ? en.records->record_bits(b) : abs_bits);
-            predicted_bones_ += pred;
+            switch (flags_[en.at + size_t(b)]) {
+                case RecordPrefix::Chunk: bits = kChunkPrefixBits + en.records->record_bits(b); break;
+                case RecordPrefix::Own: bits = kOwnPrefixBits + own_len_[en.at + size_t(b)]; break;
+                default: bits = kStandalonePrefixBits + abs_bits; break;
+            }
+            predicted_bones_ += flags_[en.at + size_t(b)] != RecordPrefix::Standalone;
         }
         prefix_[pat + size_t(b) + 1] = prefix_[pat + size_t(b)] + uint32_t(bits);
     }
@@ -143,10 +193,20 @@ size_t RecordPlan::bits(const EncodedFrame& frame, int i, int from, int to) cons
     return size_t(prefix_[en.prefix + size_t(to)] - prefix_[en.prefix + size_t(from)]);
 }
 
-bool RecordPlan::predicted(int i, int b) const {
-    if (i < 0 || size_t(i) >= entry_of_.size() || entry_of_[size_t(i)] < 0) return false;
+RecordPrefix RecordPlan::prefix(int i, int b) const {
+    RecordPrefix p;
+    if (i < 0 || size_t(i) >= entry_of_.size() || entry_of_[size_t(i)] < 0) return p;
     const Entry& en = entries_[size_t(entry_of_[size_t(i)])];
-    return en.base != 0 && flags_[en.at + size_t(b)] != 0;
+    if (en.base == 0) return p;
+    p.kind = RecordPrefix::Kind(flags_[en.at + size_t(b)]);
+    if (p.kind == RecordPrefix::Own) p.base = own_base_[en.at + size_t(b)];
+    return p;
+}
+
+void RecordPlan::own_record(int i, int b, size_t& from, size_t& count) const {
+    const Entry& en = entries_[size_t(entry_of_[size_t(i)])];
+    from = own_at_[en.at + size_t(b)];
+    count = own_len_[en.at + size_t(b)];
 }
 
 const PredictedRecords* RecordPlan::records(int i) const {

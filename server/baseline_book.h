@@ -17,12 +17,14 @@
 // baselines (its frames may have reached the client before the control
 // channel announced it, and been skipped).
 //
-// plan() chooses per character the newest acknowledged tick as the baseline
-// (age a = tick - newest, 1 <= a < kBaselineRing), linear when every bone
+// plan() chooses per character the newest acknowledged tick as the chunk's
+// baseline (age a = tick - newest, 1 <= a <= 15), linear when every bone
 // acknowledged there is also acknowledged at 2a (2a < kBaselineRing), and
 // takes the shared predicted records of that baseline (EncodedFrame::
-// predicted). Cost: O(bones) per character and tick; memory 2 bytes per
-// bone of every character this client was sent.
+// predicted). A bone not acknowledged there (refreshed at other ticks) is
+// predicted from its own newest acknowledged tick when that is shorter than
+// standalone, coded for this client alone. Cost: O(bones) per character and
+// tick; memory 2 bytes per bone of every character this client was sent.
 #pragma once
 #include <cstdint>
 #include <span>
@@ -47,6 +49,8 @@ public:
     // The newest acknowledged tick of any bone of the instance usable as a
     // baseline (past the grace); false when none.
     bool newest(int instance, uint32_t generation, uint32_t& tick) const;
+    // The newest acknowledged tick of bone b (past the grace); false when none.
+    bool newest_of(int instance, uint32_t generation, int b, uint32_t& tick) const;
     void clear();
 
 private:
@@ -82,9 +86,13 @@ public:
     uint8_t base(int i) const;
     // Bits of bones [from, to) of instance i as planned (the "predicted" bits included).
     size_t bits(const EncodedFrame& frame, int i, int from, int to) const;
-    // Whether bone b of instance i is predicted, and its records.
-    bool predicted(int i, int b) const;
+    // How bone b of instance i goes: its prefix (RecordPrefix: standalone,
+    // from the chunk's baseline, or from its own), and its records.
+    RecordPrefix prefix(int i, int b) const;
     const PredictedRecords* records(int i) const;
+    // Bone b's own-baseline record: bits [from, from + count) of own_bits().
+    void own_record(int i, int b, size_t& from, size_t& count) const;
+    const std::vector<uint8_t>& own_bits() const { return own_bits_; }
     uint64_t predicted_bones() const { return predicted_bones_; }
 
 private:
@@ -97,7 +105,10 @@ private:
     std::vector<int32_t> entry_of_;  // per instance: index into entries_, -1 none
     std::vector<Entry> entries_;
     std::vector<uint32_t> prefix_;
-    std::vector<uint8_t> flags_;
+    std::vector<uint8_t> flags_;       // per bone: RecordPrefix::Kind
+    std::vector<uint8_t> own_base_;    // per bone: its own baseline (Own)
+    std::vector<uint32_t> own_at_, own_len_;  // per bone: its own-baseline record in own_bits_
+    std::vector<uint8_t> own_bits_;
     uint64_t predicted_bones_ = 0;
 };
 

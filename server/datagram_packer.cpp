@@ -112,12 +112,17 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
             };
             while (bone >= 0 && rec_bits + bits_of(bone) <= room_bits) {
                 payload_[mask_at + size_t(bone - first) / 8] |= uint8_t(1u << ((bone - first) % 8));
-                const bool predicted = base && plan->predicted(instance, bone);
-                if (base) w.put(predicted ? 1 : 0, 1);
-                if (predicted)
+                const RecordPrefix how = base ? plan->prefix(instance, bone) : RecordPrefix{};
+                if (base) write_prefix(how, w);
+                if (how.kind == RecordPrefix::Chunk) {
                     copy_bits(pred->bits.data(), pred->offsets[size_t(bone)], pred->record_bits(bone), w);
-                else
+                } else if (how.kind == RecordPrefix::Own) {
+                    size_t from = 0, count = 0;
+                    plan->own_record(instance, bone, from, count);
+                    copy_bits(plan->own_bits().data(), from, count, w);
+                } else {
                     copy_bits(src, frame.bit_offset(instance, bone), frame.record_bits(instance, bone, bone + 1), w);
+                }
                 rec_bits += bits_of(bone);
                 if (bone != run_end) end_run(), run_first = bone;
                 run_end = bone + 1;

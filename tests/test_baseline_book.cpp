@@ -10,6 +10,7 @@
 #include "frame_encoder.h"
 #include "frame_reader.h"
 #include "net_test_support.h"
+#include "pose_buffer.h"
 #include "scene.h"
 
 using namespace progskin;
@@ -84,4 +85,58 @@ TEST(BaselineBook, PlanPredictsAcknowledgedBonesAndThePackerWritesThem) {
     std::printf("Fox clip, every bone every tick: %.1f bits per bone standalone, %.1f predicted\n",
                 double(standalone_bits) / (20.0 * B), double(planned_bits) / (20.0 * B));
     EXPECT_LT(planned_bits, standalone_bits * 9 / 10);
+}
+
+// Deep bones refreshed every fourth tick, shallow ones every tick, every
+// datagram acknowledged at once: the deep bones go predicted from their own
+// baselines (not standalone), and a client's pose buffer decodes every record
+// to exactly the encoder's integers, none from a baseline it lacks.
+TEST(BaselineBook, PartialRefreshesPredictFromTheirOwnBaselinesAndDecodeExactly) {
+    const auto& assets = progskin::net::testing::default_assets();
+    std::vector<InstanceSpec> specs(1);
+    FrameEncoder enc(assets, specs, 30.0f);
+    const ServerAsset& a = *assets[0];
+    const int B = a.bone_count(), shallow = 10;
+    BaselineBook book;
+    RecordPlan plan;
+    DatagramPacker packer;
+    PoseBuffer client(a.relative);
+    uint32_t seq = 0;
+    uint64_t own = 0, standalone_deep = 0;
+    std::vector<std::vector<uint8_t>> out;
+    for (uint32_t t = 1; t <= 60; ++t) {
+        const EncodedFrame& f = enc.encode(t);
+        plan.begin(f);
+        plan.plan(f, 0, book);
+        const bool deep = t % 4 == 0;
+        const Pick pick{0, deep ? B : shallow, B, 0};
+        if (t > 30 && deep)
+            for (int b = shallow; b < B; ++b) {
+                own += plan.prefix(0, b).kind == RecordPrefix::Own;
+                standalone_deep += plan.prefix(0, b).kind == RecordPrefix::Standalone;
+            }
+        out.clear();
+        packer.pack(f, std::span(&pick, 1), seq, out, &plan, &book);
+        for (const auto& d : out) {
+            const wire::Frame* fr = verify_datagram(d)->body_as_Frame();
+            ASSERT_NE(fr, nullptr);
+            ASSERT_TRUE(read_frame(*fr, [&](uint16_t) { return a.format.size(); },
+                                   [&](uint16_t, int first, int count, int show, const RecordRun& rec) {
+                                       ASSERT_TRUE(client.add_chunk(t, first, count, show, rec, show, fr->chunks()->Get(0)->epoch()));
+                                   }));
+        }
+        book.on_ack(seq - 1, ~0u);
+        // Every bone this tick decodes to the encoder's integers (pose() at the tick is the frame's own).
+        for (int b = 0; b < pick.k; ++b) {
+            BonePose got;
+            ASSERT_TRUE(client.pose(b, double(t), got));
+            const BonePose want = dequantise_record(f.ints[size_t(b)], a.relative.pivots[size_t(b)], a.relative);
+            ASSERT_LT(glm::length(got.t - want.t), 1e-4f * float(a.diagonal)) << "tick " << t << " bone " << b;
+        }
+    }
+    EXPECT_EQ(client.missing_baselines(), 0u);
+    EXPECT_GT(client.predicted(), 0u);
+    std::printf("deep bones at their refresh: %llu from their own baseline, %llu standalone\n", (unsigned long long)own,
+                (unsigned long long)standalone_deep);
+    EXPECT_GT(own, standalone_deep);
 }

@@ -462,9 +462,9 @@ void Player::on_run(int id, int, int count, const RecordRun& records) {
     const bool with_base = (records.base & kBaseAgeMask) != 0;
     int64_t check = 0;
     for (int k = 0; k < count; ++k) {
-        uint64_t predicted = 0;
+        RecordPrefix prefix;
         const size_t at = in.at();
-        if (with_base && (!in.get(1, predicted) || predicted)) {
+        if (with_base && (!read_prefix(in, prefix) || prefix.kind != RecordPrefix::Standalone)) {
             BitReader again(records.data, records.bytes, at);
             if (!skip_record(again, records.scaled, true)) {
                 ++sh.bad_records;
