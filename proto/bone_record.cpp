@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <bit>
 #include <cmath>
+#include <cstring>
 #include <stdexcept>
 
 #include <glm/gtc/quaternion.hpp>
@@ -148,51 +149,69 @@ BonePose compose_relative(const BonePose& parent, const BonePose& rel) {
     return out;
 }
 
+// Bits are written and read through a little-endian 64-bit window: a field
+// of at most 57 bits starting anywhere in a byte fits one window.
 void BitWriter::put(uint64_t bits, int n) {
-    while (n > 0) {
-        if (free_ == 0) {
-            out_.push_back(0);
-            free_ = 8;
-        }
-        const int take = std::min(n, free_);
-        out_.back() |= uint8_t((bits & ((1u << take) - 1)) << (8 - free_));
-        bits >>= take;
-        n -= take;
-        free_ -= take;
+    if (n <= 0) return;
+    bits &= n >= 64 ? ~uint64_t(0) : (uint64_t(1) << n) - 1;
+    const size_t pos = out_.size() * 8 - size_t(free_);
+    const size_t end = pos + size_t(n);
+    if ((end + 7) / 8 > out_.size()) out_.resize((end + 7) / 8, 0);
+    const size_t b0 = pos / 8, len = std::min<size_t>(8, out_.size() - b0);
+    uint64_t w = 0;
+    if constexpr (std::endian::native == std::endian::little) {
+        std::memcpy(&w, out_.data() + b0, len);
+        w |= bits << (pos % 8);
+        std::memcpy(out_.data() + b0, &w, len);
+    } else {
+        for (size_t i = 0; i < len; ++i) w |= uint64_t(out_[b0 + i]) << (8 * i);
+        w |= bits << (pos % 8);
+        for (size_t i = 0; i < len; ++i) out_[b0 + i] = uint8_t(w >> (8 * i));
     }
+    free_ = int(out_.size() * 8 - end);
 }
 
 void BitWriter::put_eg(uint32_t u, int k) {
     const uint64_t x = uint64_t(u) + (uint64_t(1) << k);
     const int n = int(std::bit_width(x));
-    put(0, n - 1 - k);
+    const int z = n - 1 - k;
+    // z zero bits, a one, then the low n - 1 bits of x: one field when it fits a window.
+    if (2 * z + k + 1 <= 57) {
+        put((uint64_t(1) << z) | ((x & ((uint64_t(1) << (n - 1)) - 1)) << (z + 1)), 2 * z + k + 1);
+        return;
+    }
+    put(0, z);
     put(1, 1);
     put(x & ((uint64_t(1) << (n - 1)) - 1), n - 1);
 }
 
 bool BitReader::get(int n, uint64_t& v) {
     if (size_t(n) > bits_ - at_) return false;
-    v = 0;
-    int got = 0;
-    while (got < n) {
-        const size_t byte = at_ >> 3;
-        const int off = int(at_ & 7);
-        const int take = std::min(n - got, 8 - off);
-        v |= uint64_t((data_[byte] >> off) & ((1u << take) - 1)) << got;
-        got += take;
-        at_ += size_t(take);
+    if (n == 0) {
+        v = 0;
+        return true;
     }
+    const size_t b0 = at_ / 8, len = std::min<size_t>(8, (bits_ + 7) / 8 - b0);
+    uint64_t w = 0;
+    if constexpr (std::endian::native == std::endian::little) {
+        std::memcpy(&w, data_ + b0, len);
+    } else {
+        for (size_t i = 0; i < len; ++i) w |= uint64_t(data_[b0 + i]) << (8 * i);
+    }
+    v = (w >> (at_ % 8)) & (n >= 64 ? ~uint64_t(0) : (uint64_t(1) << n) - 1);
+    at_ += size_t(n);
     return true;
 }
 
 bool BitReader::get_eg(int k, uint64_t& u) {
-    int z = 0;
-    uint64_t bit = 0;
-    for (;;) {
-        if (!get(1, bit)) return false;
-        if (bit) break;
-        if (++z > kMaxPrefix) return false;
-    }
+    // The zero prefix: the first set bit within kMaxPrefix + 1 bits.
+    const int look = int(std::min<size_t>(size_t(kMaxPrefix) + 1, bits_ - at_));
+    uint64_t peek = 0;
+    if (look == 0 || !get(look, peek)) return false;
+    at_ -= size_t(look);
+    if (peek == 0) return false;  // past the end, or a prefix longer than kMaxPrefix
+    const int z = std::countr_zero(peek);
+    at_ += size_t(z) + 1;
     uint64_t rest = 0;
     if (!get(z + k, rest)) return false;
     u = (uint64_t(1) << (z + k)) + rest - (uint64_t(1) << k);
@@ -432,14 +451,37 @@ bool encode_pose(std::span<const BonePose> model, const RelativeFormat& f, std::
     return true;
 }
 
-void copy_bits(const uint8_t* src, size_t from, size_t count, BitWriter& w) {
-    BitReader r(src, (from + count + 7) / 8, from);
-    uint64_t v = 0;
-    while (count > 0) {
-        const int n = int(std::min<size_t>(count, 56));
-        r.get(n, v);
-        w.put(v, n);
-        count -= size_t(n);
+void copy_bits(const uint8_t* src, size_t from, size_t count, BitWriter& w) { w.append_bits(src, from, count); }
+
+// 56 bits at a time through 64-bit windows, the output grown once.
+void BitWriter::append_bits(const uint8_t* src, size_t from, size_t count) {
+    if (count == 0) return;
+    const size_t pos = out_.size() * 8 - size_t(free_), end = pos + count;
+    if ((end + 7) / 8 > out_.size()) out_.resize((end + 7) / 8, 0);
+    free_ = int(out_.size() * 8 - end);
+    const size_t src_end = (from + count + 7) / 8;
+    uint8_t* dst = out_.data();
+    const size_t dst_end = out_.size();
+    for (size_t done = 0; done < count;) {
+        const size_t n = std::min<size_t>(56, count - done);
+        const size_t s = from + done, d = pos + done;
+        uint64_t v = 0, o = 0;
+        const size_t sl = std::min<size_t>(8, src_end - s / 8), dl = std::min<size_t>(8, dst_end - d / 8);
+        if constexpr (std::endian::native == std::endian::little) {
+            std::memcpy(&v, src + s / 8, sl);
+            std::memcpy(&o, dst + d / 8, dl);
+        } else {
+            for (size_t i = 0; i < sl; ++i) v |= uint64_t(src[s / 8 + i]) << (8 * i);
+            for (size_t i = 0; i < dl; ++i) o |= uint64_t(dst[d / 8 + i]) << (8 * i);
+        }
+        v = (v >> (s % 8)) & ((uint64_t(1) << n) - 1);
+        o |= v << (d % 8);
+        if constexpr (std::endian::native == std::endian::little) {
+            std::memcpy(dst + d / 8, &o, dl);
+        } else {
+            for (size_t i = 0; i < dl; ++i) dst[d / 8 + i] = uint8_t(o >> (8 * i));
+        }
+        done += n;
     }
 }
 

@@ -104,6 +104,8 @@ public:
     explicit BitWriter(std::vector<uint8_t>& out) : out_(out) {}
     void put(uint64_t bits, int n);  // n <= 57
     void put_eg(uint32_t u, int k);  // Exp-Golomb of order k
+    // Appends bits [from, from + count) of src (bytes past (from + count + 7) / 8 are not read).
+    void append_bits(const uint8_t* src, size_t from, size_t count);
     size_t bits() const { return out_.size() * 8 - size_t(free_); }
 private:
     std::vector<uint8_t>& out_;

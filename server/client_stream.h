@@ -209,6 +209,7 @@ public:
     // A detached stream's client acknowledging datagrams (benchmarks: what
     // its Ack would say): their bones become baselines (baseline_book.h).
     void acknowledge(uint32_t ack, uint32_t bits) { book_.on_ack(ack, bits); }
+    uint32_t next_seq() const { return seq_; }  // the sequence number of the next datagram
     // This tick's record plan (each character's baseline and bits), set
     // before the scheduler or a selector runs.
     const RecordPlan& plan() const { return plan_; }
