@@ -43,14 +43,11 @@ TEST(NetFuzzCorpus, FrameStreamSurvivesMutations) {
     std::printf("frame stream: %d of %d mutated datagrams dropped\n", dropped, tried);
 }
 
-// The control messages of players' characters (fuzz/corpus/control, written
-// by make_frame_corpus) through the control-message entry point, and
-// mutations of them: each accepted or refused, none crashes.
-TEST(NetFuzzCorpus, ControlMessagesAcceptEverySeedAndSurviveMutations) {
-    const auto seeds = read_corpus("control");
-    ASSERT_GE(seeds.size(), 5u);
-    for (const auto& in : seeds) EXPECT_EQ(progskin::fuzz::control_message(in.data(), in.size()), 1);
-    std::mt19937 rng(23);
+// 50,000 mutations of the seeds (1-4 edits: a byte replaced, or cut there)
+// through an entry point; how many it refused.
+static int refused_mutations(const std::vector<std::vector<uint8_t>>& seeds, unsigned seed,
+                             int (*entry)(const uint8_t*, size_t)) {
+    std::mt19937 rng(seed);
     int refused = 0;
     for (int i = 0; i < 50000; ++i) {
         std::vector<uint8_t> d = seeds[size_t(rng()) % seeds.size()];
@@ -59,8 +56,19 @@ TEST(NetFuzzCorpus, ControlMessagesAcceptEverySeedAndSurviveMutations) {
             if (rng() % 3) d[at] = uint8_t(rng());
             else d.resize(at);
         }
-        refused += 1 - progskin::fuzz::control_message(d.data(), d.size());
+        refused += 1 - entry(d.data(), d.size());
     }
+    return refused;
+}
+
+// The control messages of players' characters (fuzz/corpus/control, written
+// by make_frame_corpus) through the control-message entry point, and
+// mutations of them: each accepted or refused, none crashes.
+TEST(NetFuzzCorpus, ControlMessagesAcceptEverySeedAndSurviveMutations) {
+    const auto seeds = read_corpus("control");
+    ASSERT_GE(seeds.size(), 5u);
+    for (const auto& in : seeds) EXPECT_EQ(progskin::fuzz::control_message(in.data(), in.size()), 1);
+    const int refused = refused_mutations(seeds, 23, progskin::fuzz::control_message);
     EXPECT_GT(refused, 0);
 }
 
@@ -71,17 +79,7 @@ TEST(NetFuzzCorpus, BoneRecordsAcceptEverySeedAndSurviveMutations) {
     const auto seeds = read_corpus("records");
     ASSERT_GE(seeds.size(), 4u);
     for (const auto& in : seeds) EXPECT_EQ(progskin::fuzz::bone_records(in.data(), in.size()), 1);
-    std::mt19937 rng(29);
-    int refused = 0;
-    for (int i = 0; i < 50000; ++i) {
-        std::vector<uint8_t> d = seeds[size_t(rng()) % seeds.size()];
-        for (int k = 0, edits = 1 + int(rng() % 4); k < edits && !d.empty(); ++k) {
-            const size_t at = size_t(rng()) % d.size();
-            if (rng() % 3) d[at] = uint8_t(rng());
-            else d.resize(at);
-        }
-        refused += 1 - progskin::fuzz::bone_records(d.data(), d.size());
-    }
+    const int refused = refused_mutations(seeds, 29, progskin::fuzz::bone_records);
     EXPECT_GT(refused, 50000 / 4);
     std::printf("bone records: %d of 50000 mutated streams refused\n", refused);
 }
