@@ -103,7 +103,9 @@ void RecordPlan::begin(const EncodedFrame& frame) {
 void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book) {
     if (i < 0 || size_t(i) >= entry_of_.size() || entry_of_[size_t(i)] >= 0) return;
     const EncodedInstance& e = frame.instances[size_t(i)];
-    if (!e.valid) return;
+    uint32_t t0 = 0;
+    // Nothing acknowledged: no entry, every record standalone (bits() falls back to the frame's).
+    if (!e.valid || !book.newest(i, e.generation, t0)) return;
     const int B = e.bone_count;
     Entry en;
     en.at = flags_.size();
@@ -111,8 +113,7 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
     own_base_.resize(en.at + size_t(B), 0);
     own_at_.resize(en.at + size_t(B), 0);
     own_len_.resize(en.at + size_t(B), 0);
-    uint32_t t0 = 0;
-    if (book.newest(i, e.generation, t0)) {
+    {
         const uint32_t age = frame.tick - t0;
         if (age >= 1 && age <= kMaxBaseAge) {
             bool linear = 2 * age < uint32_t(kBaselineRing);
