@@ -8,6 +8,7 @@
 
 #include <progskin/animation.h>
 #include <progskin/bone_codec.h>
+#include <progskin/bone_record.h>
 #include <progskin/character.h>
 #include <progskin/client.h>
 #include <progskin/client_asset.h>
