@@ -68,10 +68,11 @@ private:
     mutable std::vector<glm::vec3> morphed_;  // morphed bind positions (skin)
     mutable std::vector<glm::dmat4> ref_mats_;
     // Boundary gaps of a looping clip: the clip's own motion from an anchor
-    // frame to the display time, per joint (M(d) = M(anchor) L(anchor)^-1 L(d)).
+    // frame to the display time, per bone relative to its progressive parent
+    // (R(d) = R(anchor) Rclip(anchor)^-1 Rclip(d), client_palette.cpp carried).
     std::vector<glm::dmat4> local_d_, local_anchor_;
     double local_d_at_ = -1e300, local_anchor_at_ = -1e300;
-    const Mat34& carried(int joint, double anchor, double d, Mat34& scratch);
+    const Mat34& carried(int bone, double anchor, double d, Mat34& scratch);
     mutable std::vector<Mat34> ref_palette_;
 };
 

@@ -67,13 +67,6 @@ std::string read_instance(const wire::Instance& in, size_t catalogue_size, Remot
     return {};
 }
 
-// Bits of a run's count records (walked: read_frame checked them).
-static size_t run_bits(const RecordRun& rec, int count) {
-    BitReader in(rec.data, rec.bytes, rec.bit);
-    for (int k = 0; k < count; ++k) skip_record(in, rec.scaled, (rec.base & kBaseAgeMask) != 0);
-    return in.at() - rec.bit;
-}
-
 FrameApplied apply_frame(const wire::Frame& f, std::span<const PoseTarget> instances) {
     FrameApplied r;
     auto record_size = [&](uint16_t i) -> int {
@@ -92,7 +85,7 @@ FrameApplied apply_frame(const wire::Frame& f, std::span<const PoseTarget> insta
     };
     auto run = [&](uint16_t i, int first, int count, int show, const RecordRun& rec) {
         PoseBuffer& b = *instances[i].buffer;
-        r.record_bits += run_bits(rec, count);
+        r.record_bits += rec.bits;
         const bool had = !b.empty();
         const uint32_t prev = b.newest_tick();
         const uint64_t missing = b.missing_baselines(), predicted = b.predicted();
@@ -671,7 +664,7 @@ FrameApplied ClientSession::sink_frame(const wire::Frame& f, double arrival) {
         sink.on_chunk(c.instance(), f.tick(), c.show(), root, arrival);
     };
     auto run = [&](uint16_t i, int first, int count, int, const RecordRun& rec) {
-        r.record_bits += run_bits(rec, count);
+        r.record_bits += rec.bits;
         ++r.applied;
         sink.on_run(i, first, count, rec);
     };

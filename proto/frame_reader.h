@@ -57,6 +57,7 @@ struct RecordRun {
     size_t bit = 0;
     bool scaled = false;
     uint8_t base = 0;  // the chunk's baseline (bone_record.h base_from_flags)
+    size_t bits = 0;   // the run's records take bits [bit, bit + bits)
 };
 
 // Bytes of the bone mask of a chunk covering bones first..show-1.
@@ -131,8 +132,9 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
                         }
                         int e = j + 1;
                         while (e < bits && (mask[e / 8] >> (e % 8) & 1)) ++e;
-                        run(c->instance(), first + j, e - j, show, RecordRun{rec, rec_bytes, runs.at(), scaled, base});
+                        const size_t from = runs.at();
                         for (int k = j; k < e; ++k) skip_record(runs, scaled, with_base);
+                        run(c->instance(), first + j, e - j, show, RecordRun{rec, rec_bytes, from, scaled, base, runs.at() - from});
                         j = e;
                     }
                 }

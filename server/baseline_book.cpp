@@ -97,7 +97,6 @@ void RecordPlan::begin(const EncodedFrame& frame) {
     own_at_.clear();
     own_len_.clear();
     own_bits_.clear();
-    predicted_bones_ = 0;
 }
 
 void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book) {
@@ -173,7 +172,6 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
                 case RecordPrefix::Own: bits = kOwnPrefixBits + own_len_[en.at + size_t(b)]; break;
                 default: bits = kStandalonePrefixBits + abs_bits; break;
             }
-            predicted_bones_ += flags_[en.at + size_t(b)] != RecordPrefix::Standalone;
         }
         prefix_[pat + size_t(b) + 1] = prefix_[pat + size_t(b)] + uint32_t(bits);
     }

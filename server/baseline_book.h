@@ -93,7 +93,6 @@ public:
     // Bone b's own-baseline record: bits [from, from + count) of own_bits().
     void own_record(int i, int b, size_t& from, size_t& count) const;
     const std::vector<uint8_t>& own_bits() const { return own_bits_; }
-    uint64_t predicted_bones() const { return predicted_bones_; }
 
 private:
     struct Entry {
@@ -109,7 +108,6 @@ private:
     std::vector<uint8_t> own_base_;    // per bone: its own baseline (Own)
     std::vector<uint32_t> own_at_, own_len_;  // per bone: its own-baseline record in own_bits_
     std::vector<uint8_t> own_bits_;
-    uint64_t predicted_bones_ = 0;
 };
 
 }  // namespace progskin::net

@@ -462,17 +462,16 @@ void Player::on_run(int id, int, int count, const RecordRun& records) {
     const bool with_base = (records.base & kBaseAgeMask) != 0;
     int64_t check = 0;
     for (int k = 0; k < count; ++k) {
+        BitReader peek = in;  // a predicted record: its syntax (its baseline is not kept here)
         RecordPrefix prefix;
-        const size_t at = in.at();
-        if (with_base && (!read_prefix(in, prefix) || prefix.kind != RecordPrefix::Standalone)) {
-            BitReader again(records.data, records.bytes, at);
-            if (!skip_record(again, records.scaled, true)) {
+        if (with_base && (!read_prefix(peek, prefix) || prefix.kind != RecordPrefix::Standalone)) {
+            if (!skip_record(in, records.scaled, true)) {
                 ++sh.bad_records;
                 return;
             }
-            in = again;
             continue;
         }
+        in = peek;  // past the standalone prefix (if any)
         RecordInts r;
         if (!read_record(in, records.scaled, r)) {
             ++sh.bad_records;
