@@ -180,6 +180,8 @@ struct ClientStats {
     int assets_cached = 0;
     double download_seconds = -1;  // from connect() until every catalogue asset was ready (-1: not yet)
     uint64_t poses_sent = 0, poses_refused = 0;  // publish(): sent, and refused (out of the codec's range)
+    uint64_t poses_predicted = 0;  // publish()es whose records were predicted from a pose the server acknowledged
+    uint64_t pose_wire_bytes = 0;  // Pose datagrams sent (sealed size + 28 IP/UDP bytes each)
     std::vector<double> per_second_bytes;  // wire bytes per second since the first frame
     double max_gap_ms = 0;         // longest time between two frames received (the stream's worst stall)
     int failovers = 0;             // times the client lost its server and moved to the next of connect()'s list

@@ -368,6 +368,8 @@ private:
         rep_.assets_cached = st.assets_cached;
         rep_.download_seconds = st.download_seconds;
         rep_.poses_sent = st.poses_sent;
+        rep_.poses_predicted = st.poses_predicted;
+        rep_.pose_kbps = st.seconds > 0 ? double(st.pose_wire_bytes) * 8.0 / 1000.0 / st.seconds : 0.0;
         rep_.max_gap_ms = st.max_gap_ms;
         rep_.failovers = st.failovers;
         rep_.failover_seconds_to_stream = st.failover_seconds;
@@ -494,7 +496,8 @@ std::string report_json(const ClientReport& r) {
       << ", \"malformed\": " << r.malformed << ", \"duplicates\": " << r.duplicates
       << ", \"predicted_records\": " << r.predicted_records << ", \"missing_baselines\": " << r.missing_baselines
       << ", \"asset_bytes_downloaded\": " << r.asset_bytes_downloaded << ", \"assets_cached\": " << r.assets_cached << ", \"download_seconds\": " << r.download_seconds
-      << ", \"published\": " << r.published << ", \"poses_sent\": " << r.poses_sent << ", \"remote\": {\"characters\": "
+      << ", \"published\": " << r.published << ", \"poses_sent\": " << r.poses_sent
+      << ", \"poses_predicted\": " << r.poses_predicted << ", \"pose_kbps\": " << r.pose_kbps << ", \"remote\": {\"characters\": "
       << r.remote_characters << ", \"rms_pct\": ";
     num_or_null(o, r.remote_rms_pct);
     o << ", \"max_pct\": ";

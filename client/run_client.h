@@ -114,6 +114,8 @@ struct ClientReport {
     double latency_ms_p50 = -1, latency_ms_p99 = -1;
     int published = 0;         // characters this client published
     uint64_t poses_sent = 0;
+    uint64_t poses_predicted = 0;  // of them, predicted from a pose the server acknowledged
+    double pose_kbps = 0;          // Pose datagrams sent (sealed + 28 bytes each) over the session
     // Assets of the catalogue this client could not load (ClientEvent::AssetFailed):
     // (name, why). Their characters are not shown; the others are.
     std::vector<std::pair<std::string, std::string>> assets_failed;

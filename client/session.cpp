@@ -608,6 +608,7 @@ void ClientSession::handle_frame(const wire::Datagram& d, size_t n, double t) {
         ++st_.malformed;
         return;
     }
+    apply_pose_acks(*f);
     st_.malformed += uint64_t(a.refused);
     st_.unknown_chunks += uint64_t(a.unknown_chunks);
     st_.predicted_records += uint64_t(a.predicted);
@@ -908,6 +909,7 @@ void ClientSession::on_spawned(const wire::Spawned& m) {
     }
     if (m.ok()) {
         it->instance = m.instance();
+        it->acked = 0;  // this server holds none of its poses yet
         raise(ClientEvent::Type::Spawned, it->instance, it->asset, it->handle);
     } else {
         it->refused = true;
@@ -935,40 +937,93 @@ bool ClientSession::publish(int handle, const RootPose& root, std::span<const Ma
     std::array<uint8_t, ROOT_BYTES> rb;
     const RecordFormat& fmt = a->format;
     const int B = a->skin.bone_count();
-    const size_t rs = size_t(fmt.size());
-    pose_records_.resize(size_t(B) * rs);
+    if (o->fmt.bone_count() != B) {  // the first pose of this character
+        o->fmt = relative_format(a->skin, a->character, fmt);
+        o->ring.assign(size_t(B) * POSE_BASELINES, RecordInts{});
+        o->ring_seq.fill(0);
+        // The scratch at its worst case once (publish() allocates nothing after).
+        pose_bits_.reserve(std::max(pose_bits_.capacity(), size_t(B) * size_t(kMaxRecordBits) / 8 + 16));
+        pose_chunk_.reserve(MAX_DATAGRAM);
+    }
+    pose_model_.resize(size_t(B));
+    pose_decoded_.resize(size_t(B));
+    pose_offsets_.resize(size_t(B) + 1);
     bool ok = encode_root(root, rb.data());
+    // A pose outside the asset's box is refused (the world bus carries the
+    // absolute records of bone_codec.h), never clamped.
     for (int b = 0; ok && b < B; ++b) {
-        const BonePose p = decompose(skinning[size_t(a->skin.order[size_t(b)])]);
-        if (!bone_in_range(p, fmt)) ok = false;
-        else encode_bone(p, fmt, pose_records_.data() + size_t(b) * rs);
+        pose_model_[size_t(b)] = decompose(skinning[size_t(a->skin.order[size_t(b)])]);
+        ok = bone_in_range(pose_model_[size_t(b)], fmt);
     }
     if (!morph_weights.empty()) {
         if (morph_weights.size() != std::min<size_t>(a->character.morphs.size(), MAX_MORPHS)) return false;
         pose_morphs_.resize(morph_weights.size());
         for (size_t m = 0; ok && m < morph_weights.size(); ++m) ok = encode_morph_weight(morph_weights[m], pose_morphs_[m]);
     }
+    const uint32_t seq = o->pose_seq + 1;
+    std::span<RecordInts> ints(o->ring.data() + size_t(seq % POSE_BASELINES) * size_t(B), size_t(B));
+    // Closed loop against the decoded parents, the integers into the ring.
+    pose_bits_.clear();
+    ok = ok && encode_pose(pose_model_, o->fmt, pose_bits_, pose_offsets_, pose_decoded_, ints);
     if (!ok) {
+        o->ring_seq[seq % POSE_BASELINES] = 0;
         ++st_.poses_refused;
         return false;
     }
+    o->ring_seq[seq % POSE_BASELINES] = seq;
+    // Predicted from the newest pose the server holds whole, when it is
+    // young enough to still be among its baselines and still in the ring.
+    uint32_t base = o->acked;
+    if (base != 0 && (int32_t(seq - base) <= 0 || seq - base >= POSE_BASELINES || o->ring_seq[base % POSE_BASELINES] != base))
+        base = 0;
+    if (base != 0) {
+        const RecordInts* pred = o->ring.data() + size_t(base % POSE_BASELINES) * size_t(B);
+        pose_bits_.clear();
+        BitWriter w(pose_bits_);
+        for (int b = 0; b < B; ++b) {
+            pose_offsets_[size_t(b)] = uint32_t(w.bits());
+            write_predicted(ints[size_t(b)], pred[b], o->fmt.scaled, w);
+        }
+        pose_offsets_[size_t(B)] = uint32_t(w.bits());
+        ++st_.poses_predicted;
+    }
     if (teleport) ++o->epoch;
-    ++o->pose_seq;
-    // As many bones per datagram as fit (a 67-bone character takes one).
-    const size_t per = std::max<size_t>(1, (MAX_DATAGRAM - 120 - ROOT_BYTES) / rs);
-    for (int first = 0; first < B; first += int(per)) {
-        const int count = std::min(B - first, int(per));
+    o->pose_seq = seq;
+    // As many bones per datagram as fit (a character of a few hundred bones takes one).
+    const size_t free_bytes = MAX_DATAGRAM - POSE_OVERHEAD - ROOT_BYTES;
+    for (int first = 0; first < B;) {
+        const size_t room = 8 * (free_bytes - (first == 0 ? 2 * pose_morphs_.size() * !morph_weights.empty() : 0));
+        int end = first + 1;  // one record always fits (kMaxRecordBits)
+        while (end < B && pose_offsets_[size_t(end) + 1] - pose_offsets_[size_t(first)] <= room) ++end;
+        pose_chunk_.clear();
+        BitWriter w(pose_chunk_);
+        copy_bits(pose_bits_.data(), pose_offsets_[size_t(first)], pose_offsets_[size_t(end)] - pose_offsets_[size_t(first)], w);
         fbb_.Clear();
         auto rv = fbb_.CreateVector(rb.data(), rb.size());
-        auto rec = fbb_.CreateVector(pose_records_.data() + size_t(first) * rs, size_t(count) * rs);
+        auto rec = fbb_.CreateVector(pose_chunk_.data(), pose_chunk_.size());
         flatbuffers::Offset<flatbuffers::Vector<int16_t>> mv;  // the weights go with the first bones
         if (first == 0 && !morph_weights.empty()) mv = fbb_.CreateVector(pose_morphs_.data(), pose_morphs_.size());
-        auto p = wire::CreatePose(fbb_, session_, udp_token_, uint16_t(o->instance), o->pose_seq, o->epoch, uint8_t(first), rv, rec, mv);
+        auto p = wire::CreatePose(fbb_, session_, udp_token_, uint16_t(o->instance), seq, o->epoch, uint8_t(first), rv, rec, mv,
+                                  uint16_t(end - first), base);
         fbb_.Finish(wire::CreateDatagram(fbb_, 0, now_us32(), wire::DatagramBody::Pose, p.Union()), wire::DatagramIdentifier());
+        const size_t before = out_.datagram_bytes.size();
         send_datagram(fbb_);
+        st_.pose_wire_bytes += out_.datagram_bytes.size() - before + UDP_IP_OVERHEAD;
+        first = end;
     }
     ++st_.poses_sent;
     return true;
+}
+
+// Frame.pose_acks: the newest pose of each of this player's characters the
+// server holds whole (the newest of those seen wins: frames may arrive out of order).
+void ClientSession::apply_pose_acks(const wire::Frame& f) {
+    if (!f.pose_acks()) return;
+    for (const wire::PoseAck* k : *f.pose_acks())
+        for (Own& o : own_)
+            if (o.instance == int(k->instance()) && k->pose_seq() != 0 && int32_t(k->pose_seq() - o.pose_seq) <= 0 &&
+                (o.acked == 0 || int32_t(k->pose_seq() - o.acked) > 0))
+                o.acked = k->pose_seq();
 }
 
 }  // namespace progskin::net

@@ -26,6 +26,7 @@
 // Allocates nothing per update once steady (Outbox and its own buffers keep
 // their capacity).
 #pragma once
+#include <array>
 #include <cstdint>
 #include <functional>
 #include <limits>
@@ -259,6 +260,15 @@ private:
         uint8_t epoch = 0;
         bool refused = false, gone = false;
         SpawnSpec spec;  // spawned again on the next server after a failover
+        // Published poses as parent-relative records (publish()): the format,
+        // the newest pose the server acknowledged holding whole (0: none,
+        // reset at every Spawned), and the integers of the last
+        // POSE_BASELINES poses sent (ring by pose_seq), the baselines of
+        // predicted records.
+        RelativeFormat fmt;
+        uint32_t acked = 0;
+        std::array<uint32_t, POSE_BASELINES> ring_seq{};
+        std::vector<RecordInts> ring;  // POSE_BASELINES x bones
     };
     // The receive window of the frame stream: the newest sequence and the
     // 32 before it (Ack), the range seen (loss).
@@ -364,8 +374,13 @@ private:
     // own characters
     std::vector<Own> own_;
     uint32_t next_request_ = 1;
-    std::vector<uint8_t> pose_records_;
     std::vector<int16_t> pose_morphs_;
+    // publish() scratch: model-space poses, their decoded poses, the records'
+    // bits (all bones) with each bone's bit offset, one datagram's bits.
+    std::vector<BonePose> pose_model_, pose_decoded_;
+    std::vector<uint8_t> pose_bits_, pose_chunk_;
+    std::vector<uint32_t> pose_offsets_;
+    void apply_pose_acks(const wire::Frame& f);
     flatbuffers::FlatBufferBuilder fbb_{1400};
 };
 

@@ -78,13 +78,20 @@ int frame_stream(const uint8_t* data, size_t size) {
         sink = r->session_id() ^ r->token() ^ (r->nonce() ? r->nonce()->size() : 0) ^ (r->pad() ? r->pad()->size() : 0);
         return 1;
     }
-    // Pose: what the server checks before using a player's pose (server.cpp).
+    // Pose: what the server checks before using a player's pose
+    // (client_stream.cpp on_pose): the root block, the records as a chain of
+    // up to 255 bones, standalone or predicted from a pose at rest.
     if (const wire::Pose* p = d->body_as_Pose()) {
         sink = p->session_id() ^ p->token() ^ p->instance() ^ p->pose_seq() ^ p->epoch() ^ p->first();
-        if (!p->root() || p->root()->size() != ROOT_BYTES || !p->records() || p->records()->size() % 12 != 0) return 0;
+        if (!p->root() || p->root()->size() != ROOT_BYTES || !p->records() || p->count() < 1 || p->first() + p->count() > 255) return 0;
         const RootPose r = decode_root(p->root()->data());
         sink = uint64_t(r.position.x) ^ r.source_us;
-        for (size_t k = 0; k < p->records()->size() / 12; ++k) sink = record_valid(p->records()->data() + k * 12, RecordFormat{});
+        std::array<RecordInts, 255> ints, rest{};
+        const std::span<RecordInts> out(ints.data(), p->count());
+        if (!read_pose_records({p->records()->data(), p->records()->size()}, false,
+                               p->base_seq() ? std::span<const RecordInts>(rest.data(), p->count()) : std::span<const RecordInts>(), out))
+            return 0;
+        for (const RecordInts& x : out) sink = uint64_t(x.rot[0]) ^ uint64_t(x.trans[2]);
         if (p->morphs())
             for (int16_t w : *p->morphs()) sink = uint64_t(decode_morph_weight(w) * 16384.0f);
         return 1;

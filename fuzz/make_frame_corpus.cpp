@@ -102,13 +102,27 @@ int main(int argc, char** argv) {
           finish(fbb, wire::DatagramBody::ChallengeResponse, wire::CreateChallengeResponse(fbb, 0x1234, 0x5678, nv2, p32).Union()));
     fbb.Clear();
     {
-        std::vector<uint8_t> root(ROOT_BYTES), rec(24 * 12);
+        // A Pose of 24 bones: standalone parent-relative records (bone 0
+        // moved, the others at rest), and the same predicted from a pose at rest.
+        std::vector<uint8_t> root(ROOT_BYTES);
         encode_root(placed, root.data());
-        for (int b = 0; b < 24; ++b) encode_bone(BonePose{}, RecordFormat{}, rec.data() + b * 12);
-        auto r = fbb.CreateVector(root);
-        auto v = fbb.CreateVector(rec);
-        auto m = fbb.CreateVector(std::vector<int16_t>{0, 8192, 16384, -4096});
-        write(dir, "pose", finish(fbb, wire::DatagramBody::Pose, wire::CreatePose(fbb, 0x1234, 0x5678, 2, 17, 1, 0, r, v, m).Union()));
+        for (uint32_t base = 0; base < 2; ++base) {
+            std::vector<uint8_t> rec;
+            BitWriter w(rec);
+            RecordInts moved;
+            moved.rot[1] = 1200;
+            moved.trans[0] = 35;
+            moved.has_trans = true;
+            for (int b = 0; b < 24; ++b)
+                base ? void(write_predicted(b == 0 ? moved : RecordInts{}, RecordInts{}, false, w))
+                     : void(write_record(b == 0 ? moved : RecordInts{}, false, w));
+            fbb.Clear();
+            auto r = fbb.CreateVector(root);
+            auto v = fbb.CreateVector(rec);
+            auto m = fbb.CreateVector(std::vector<int16_t>{0, 8192, 16384, -4096});
+            write(dir, base ? "pose-predicted" : "pose",
+                  finish(fbb, wire::DatagramBody::Pose, wire::CreatePose(fbb, 0x1234, 0x5678, 2, 17 + base, 1, 0, r, v, m, 24, base ? 16 : 0).Union()));
+        }
     }
     {
         // Parent-relative records (fuzz/corpus/records, beside DIR): 4 ticks of

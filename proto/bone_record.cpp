@@ -430,6 +430,16 @@ bool skip_record(BitReader& in, bool scaled, bool with_base) {
     return read_record(in, scaled, r);
 }
 
+bool read_pose_records(std::span<const uint8_t> bytes, bool scaled, std::span<const RecordInts> pred, std::span<RecordInts> out) {
+    if (!pred.empty() && pred.size() != out.size()) return false;
+    BitReader in(bytes.data(), bytes.size());
+    for (size_t i = 0; i < out.size(); ++i)
+        if (!(pred.empty() ? read_record(in, scaled, out[i]) : read_predicted(in, pred[i], scaled, out[i]))) return false;
+    const size_t rest = in.size() - in.at();
+    uint64_t pad = 0;
+    return rest < 8 && in.get(int(rest), pad) && pad == 0;
+}
+
 bool encode_pose(std::span<const BonePose> model, const RelativeFormat& f, std::vector<uint8_t>& bits,
                  std::span<uint32_t> offsets, std::span<BonePose> decoded, std::span<RecordInts> ints) {
     const size_t B = size_t(f.bone_count());

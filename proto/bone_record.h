@@ -190,6 +190,14 @@ bool skip_record(BitReader& in, bool scaled, bool with_base);
 bool encode_pose(std::span<const BonePose> model, const RelativeFormat& f, std::vector<uint8_t>& bits,
                  std::span<uint32_t> offsets, std::span<BonePose> decoded, std::span<RecordInts> ints = {});
 
+// The records of a Pose datagram (docs/protocol.md "Pose"): out.size()
+// records, bit-packed from the first bit of `bytes`, then zero bits to the
+// byte's end; standalone (write_record's syntax) when pred is empty, else
+// record i predicted from pred[i] (write_predicted's). False when a record
+// does not read (read_record's bounds), bytes are left over or a padding
+// bit is set. O(bytes), no allocation.
+bool read_pose_records(std::span<const uint8_t> bytes, bool scaled, std::span<const RecordInts> pred, std::span<RecordInts> out);
+
 // Copies `count` bits starting at bit `from` of src to the end of w.
 void copy_bits(const uint8_t* src, size_t from, size_t count, BitWriter& w);
 

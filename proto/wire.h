@@ -19,7 +19,7 @@
 
 namespace progskin::net {
 
-inline constexpr uint16_t PROTOCOL_VERSION = 5;
+inline constexpr uint16_t PROTOCOL_VERSION = 6;
 inline constexpr size_t MAX_DATAGRAM = 1200;          // UDP payload limit, bytes
 inline constexpr size_t UDP_IP_OVERHEAD = 28;         // IPv4 + UDP headers (docs/metrics.md §3)
 inline constexpr size_t MAX_CONTROL_MESSAGE = 65536;  // control message body limit
@@ -50,6 +50,13 @@ inline bool encode_morph_weight(float w, int16_t& out) {
 inline float decode_morph_weight(int16_t q) { return float(q) / MORPH_WEIGHT_SCALE; }
 inline constexpr size_t ROOT_BYTES = 26;              // root block (datagram.fbs Chunk)
 inline constexpr int MAX_SPAWNED = 16;                // characters one session may own
+// Published poses a server keeps per character as baselines of predicted Pose
+// records (docs/protocol.md "Pose"); a publisher predicts only from an
+// acknowledged pose fewer than this many poses older than the one it sends.
+inline constexpr uint32_t POSE_BASELINES = 8;
+// The fixed part of a Pose datagram (tables, ids, sequence numbers): what a
+// publisher leaves free of records, root block and morph weights.
+inline constexpr size_t POSE_OVERHEAD = 120;
 inline constexpr size_t MAX_INSTANCES = 65535;        // instance ids are uint16 (0xFFFF unused)
 // Lists in control messages (docs/protocol.md "Limits"): every list a peer
 // sends has a limit the receiver checks on arrival, and every message a

@@ -301,7 +301,10 @@ void ClientStream::on_spawn(const wire::Spawn& m, double now) {
     } catch (const Error& e) {
         return refuse_spawn("spawn_invalid", e.what());
     }
-    owned_.push_back({id, 0.0, now});
+    Owned o;
+    o.instance = id;
+    o.refilled = now;
+    owned_.push_back(std::move(o));
     log("session " + hex64(id_) + " spawned " + core_.assets()[size_t(sp.asset)]->name + " as instance " + std::to_string(id));
     spawned(m.request(), true, id, "");
 }
@@ -469,19 +472,14 @@ DatagramVerdict ClientStream::on_pose(const wire::Pose& p, const PeerAddress& fr
     auto o = std::find_if(owned_.begin(), owned_.end(), [&](const Owned& x) { return x.instance == p.instance(); });
     if (o == owned_.end()) return DatagramVerdict::rejected;  // not this session's character (or despawned)
     const ServerAsset& a = *core_.assets()[size_t(core_.encoder().spec(o->instance).asset)];
-    const size_t rs = size_t(a.format.size());
-    if (!p.root() || p.root()->size() != ROOT_BYTES || !p.records() || p.records()->size() == 0 || p.records()->size() % rs != 0 ||
-        p.first() + p.records()->size() / rs > size_t(a.bone_count()))
+    const int B = a.bone_count(), first = p.first(), count = p.count();
+    if (!p.root() || p.root()->size() != ROOT_BYTES || !p.records() || count < 1 || first + count > B || p.pose_seq() == 0)
         return DatagramVerdict::malformed;
-    // Every record must decode to a finite unit rotation (smallest-three
-    // components whose squares sum to at most 1) and a finite scale.
-    for (size_t r = 0; r < p.records()->size() / rs; ++r)
-        if (!record_valid(p.records()->data() + r * rs, a.format)) return DatagramVerdict::malformed;
     // Morph weights, when present: one per target (every int16 is a weight in [-2, 2)).
     const size_t morphs = std::min<size_t>(a.character.morphs.size(), MAX_MORPHS);
     if (p.morphs() && p.morphs()->size() != morphs) return DatagramVerdict::malformed;
     // Rate limit: a bucket of 2 s at twice the tick rate (poses beyond it
-    // are dropped and counted, the newest wins anyway).
+    // are dropped and counted, the newest wins anyway), before any decoding.
     const double rate = 2.0 * core_.config().tick_rate;
     o->tokens = std::min(2.0 * rate, o->tokens + (now - o->refilled) * rate);
     o->refilled = now;
@@ -490,11 +488,48 @@ DatagramVerdict ClientStream::on_pose(const wire::Pose& p, const PeerAddress& fr
         return DatagramVerdict::accepted;
     }
     o->tokens -= 1.0;
+    if (o->ints.size() != size_t(B) * POSE_BASELINES) {  // the first Pose of this character
+        o->ints.assign(size_t(B) * POSE_BASELINES, RecordInts{});
+        o->have.assign(size_t(B) * POSE_BASELINES, 0);
+        pose_ints_.reserve(size_t(B));
+    }
+    // The baseline: a pose held whole (the publisher predicts only from
+    // acknowledged ones, so a miss is a broken or hostile publisher).
+    const RecordInts* pred = nullptr;
+    if (p.base_seq() != 0) {
+        const size_t k = p.base_seq() % POSE_BASELINES;
+        if (o->seq[k] != p.base_seq() || o->received[k] != B) {
+            core_.count([](ServerStats& st) { ++st.poses_missing_baseline; });
+            return DatagramVerdict::accepted;
+        }
+        pred = o->ints.data() + k * size_t(B);
+    }
+    // Every record within its bounds (bone_record.h), then only zero padding.
+    pose_ints_.resize(size_t(count));
+    if (!read_pose_records({p.records()->data(), p.records()->size()}, a.relative.scaled,
+                           pred ? std::span<const RecordInts>(pred + first, size_t(count)) : std::span<const RecordInts>(),
+                           pose_ints_))
+        return DatagramVerdict::malformed;
+    // Kept as a baseline unless older than the ring's entry for it.
+    const size_t k = p.pose_seq() % POSE_BASELINES;
+    if (o->seq[k] != p.pose_seq() && (o->seq[k] == 0 || int32_t(p.pose_seq() - o->seq[k]) > 0)) {
+        o->seq[k] = p.pose_seq();
+        o->received[k] = 0;
+        std::fill(o->have.begin() + long(k * size_t(B)), o->have.begin() + long((k + 1) * size_t(B)), 0);
+    }
+    if (o->seq[k] == p.pose_seq()) {
+        for (int i = 0; i < count; ++i) {
+            const size_t at = k * size_t(B) + size_t(first + i);
+            o->ints[at] = pose_ints_[size_t(i)];
+            if (!o->have[at]) ++o->received[k];
+            o->have[at] = 1;
+        }
+        if (o->received[k] == B && (o->acked == 0 || int32_t(p.pose_seq() - o->acked) > 0)) o->acked = p.pose_seq();
+    }
     std::span<const uint8_t, ROOT_BYTES> root(p.root()->data(), ROOT_BYTES);
     std::span<const int16_t> weights;
     if (p.morphs()) weights = {p.morphs()->data(), p.morphs()->size()};
-    if (core_.encoder().push_records(o->instance, p.pose_seq(), p.epoch(), p.first(), {p.records()->data(), p.records()->size()},
-                                     root, weights))
+    if (core_.encoder().push_relative(o->instance, p.pose_seq(), p.epoch(), first, pose_ints_, root, weights))
         core_.count([](ServerStats& st) { ++st.poses_received; });
     else
         core_.count([](ServerStats& st) { ++st.poses_stale; });
@@ -596,11 +631,20 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
         scheduler_.select(frame, core_.assets(), importance_, budget, cfg.tick_rate, picks_);
         if (scheduler_.limited()) rate_.mark_limited();
     }
-    if (picks_.empty()) return {};
+    // Pose acks that changed go with the first datagram; with nothing else
+    // to send, alone, at most every kAloneAckTicks ticks.
+    pose_acks_.clear();
+    for (const Owned& o : owned_)
+        if (o.acked != o.acked_sent) pose_acks_.emplace_back(uint16_t(o.instance), o.acked);
+    if (picks_.empty() && (pose_acks_.empty() || frame.tick - pose_acks_tick_ < kAloneAckTicks)) return {};
     std::vector<std::vector<uint8_t>>& dgrams = scratch.datagrams;
     dgrams.clear();
     const uint32_t first_seq = seq_;
-    size_t wire = scratch.packer.pack(frame, picks_, seq_, dgrams, predict ? &plan_ : nullptr, &book_);
+    size_t wire = scratch.packer.pack(frame, picks_, seq_, dgrams, predict ? &plan_ : nullptr, &book_, pose_acks_);
+    if (!dgrams.empty() && !pose_acks_.empty()) {
+        for (Owned& o : owned_) o.acked_sent = o.acked;
+        if (picks_.empty()) pose_acks_tick_ = frame.tick;
+    }
     for (size_t i = 0; i < dgrams.size(); ++i) {
         const size_t sent = send_datagram(dgrams[i], peer_, out, scratch.sealed);
         if (adaptive_) rate_.on_sent(first_seq + uint32_t(i), now_us32(), sent + UDP_IP_OVERHEAD);

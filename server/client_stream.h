@@ -229,7 +229,19 @@ private:
     struct Owned {
         int instance = 0;
         double tokens = 0, refilled = 0;  // pose rate limit (token bucket)
+        // The newest POSE_BASELINES published poses (ring by pose_seq): each
+        // one's record integers and which bones arrived (the baselines of
+        // predicted Pose records); allocated at the first Pose.
+        std::array<uint32_t, POSE_BASELINES> seq{};
+        std::array<uint16_t, POSE_BASELINES> received{};  // bones of each
+        std::vector<RecordInts> ints;                     // POSE_BASELINES x bones
+        std::vector<uint8_t> have;                        // POSE_BASELINES x bones
+        uint32_t acked = 0, acked_sent = 0;  // newest pose held whole; the newest told (Frame.pose_acks)
     };
+    std::vector<RecordInts> pose_ints_;        // on_pose: one Pose's records
+    std::vector<wire::PoseAck> pose_acks_;     // send_frame: the acks that changed
+    uint32_t pose_acks_tick_ = 0;              // the tick acks last went out alone
+    static constexpr uint32_t kAloneAckTicks = 4;
     void send(const flatbuffers::FlatBufferBuilder& fbb);
     void finish(const flatbuffers::FlatBufferBuilder& last, const std::string& why, double now);
     void despawn_all();

@@ -14,16 +14,18 @@
 namespace progskin::net {
 
 void DatagramPacker::flush(uint32_t tick, uint32_t& seq, std::vector<std::vector<uint8_t>>& out, size_t& wire) {
-    if (chunks_.empty()) return;
+    if (chunks_.empty() && acks_.empty()) return;
     fbb_.Clear();
     auto ch = fbb_.CreateVectorOfStructs(chunks_.data(), chunks_.size());
     auto pl = fbb_.CreateVector(payload_.data(), payload_.size());
-    auto fr = wire::CreateFrame(fbb_, tick, ch, pl);
+    flatbuffers::Offset<flatbuffers::Vector<const wire::PoseAck*>> pa;
+    if (!acks_.empty()) pa = fbb_.CreateVectorOfStructs(acks_.data(), acks_.size());
+    auto fr = wire::CreateFrame(fbb_, tick, ch, pl, pa);
     auto dg = wire::CreateDatagram(fbb_, seq++, now_us32(), wire::DatagramBody::Frame, fr.Union());
     fbb_.Finish(dg, wire::DatagramIdentifier());
     const size_t size = fbb_.GetSize();
     // WireCost::kFrameOverhead must cover the tables; this is what the tests check.
-    const size_t body = payload_.size() + chunks_.size() * WireCost::kChunk;
+    const size_t body = payload_.size() + chunks_.size() * WireCost::kChunk + ack_bytes_;
     if (size > MAX_DATAGRAM || size > body + WireCost::kFrameOverhead)
         throw Error("datagram_packer: frame overhead " + std::to_string(size - body) +
                     " bytes exceeds WireCost::kFrameOverhead");
@@ -31,14 +33,19 @@ void DatagramPacker::flush(uint32_t tick, uint32_t& seq, std::vector<std::vector
     wire += size + UDP_IP_OVERHEAD;
     chunks_.clear();
     payload_.clear();
+    acks_ = {};  // in the first datagram only
+    ack_bytes_ = 0;
 }
 
 size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> picks, uint32_t& seq,
-                            std::vector<std::vector<uint8_t>>& out, const RecordPlan* plan, BaselineBook* book) {
+                            std::vector<std::vector<uint8_t>>& out, const RecordPlan* plan, BaselineBook* book,
+                            std::span<const wire::PoseAck> acks) {
     const size_t room = MAX_DATAGRAM - WireCost::kFrameOverhead;
     size_t wire = 0;
     chunks_.clear();
     payload_.clear();
+    acks_ = acks;
+    ack_bytes_ = acks.empty() ? 0 : pose_ack_bytes(acks.size());
     // Adjacent picks of one instance (the scheduler's ranges of it) share a chunk.
     for (size_t g = 0; g < picks.size();) {
         const int instance = picks[g].instance;
@@ -80,7 +87,8 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
         while (bone >= 0 || morph_bytes > 0) {
             const int first = bone >= 0 ? bone : show - 1;
             const size_t mb = mask_bytes(first, show);
-            const size_t used = payload_.size() + (chunks_.size() + 1) * WireCost::kChunk + root_bytes + morph_bytes + mb;
+            const size_t used =
+                payload_.size() + (chunks_.size() + 1) * WireCost::kChunk + root_bytes + morph_bytes + mb + ack_bytes_;
             if (used + (bone >= 0 ? (bits_of(bone) + 7) / 8 : 0) > room) {
                 flush(frame.tick, seq, out, wire);
                 continue;

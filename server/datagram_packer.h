@@ -25,14 +25,21 @@ public:
     // (optional): the client's record plan (each character's baseline and
     // predicted bones; nullptr: standalone records); book (optional): told
     // which bones each datagram carries (acknowledgements make them baselines).
+    // acks (optional): Frame.pose_acks for the first datagram (with no
+    // picks, a datagram of its own that carries nothing else).
     size_t pack(const EncodedFrame& frame, std::span<const Pick> picks, uint32_t& seq,
-                std::vector<std::vector<uint8_t>>& out, const RecordPlan* plan = nullptr, BaselineBook* book = nullptr);
+                std::vector<std::vector<uint8_t>>& out, const RecordPlan* plan = nullptr, BaselineBook* book = nullptr,
+                std::span<const wire::PoseAck> acks = {});
+    // What n pose acks add to a datagram at most (field, vector length, alignment).
+    static constexpr size_t pose_ack_bytes(size_t n) { return 16 + 8 * n; }
 
 private:
     void flush(uint32_t tick, uint32_t& seq, std::vector<std::vector<uint8_t>>& out, size_t& wire);
     flatbuffers::FlatBufferBuilder fbb_{1400};
     std::vector<wire::Chunk> chunks_;
     std::vector<uint8_t> payload_;  // bone masks and records (proto/frame_reader.h)
+    std::span<const wire::PoseAck> acks_;  // still to go (the first datagram)
+    size_t ack_bytes_ = 0;
 };
 
 }  // namespace progskin::net

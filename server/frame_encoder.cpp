@@ -89,6 +89,7 @@ int FrameEncoder::add_instance(const InstanceSpec& s) {
     slot.live = s.selection < 0;
     slot.has_pose = false;
     slot.records.assign(size_t(a.bone_count()) * size_t(a.format.size()), 0);
+    slot.relative = false;
     slot.pose_seq = 0;
     slot.live_epoch = 0;
     ++slot.teleports;  // a new occupant of the slot is a discontinuity
@@ -175,6 +176,7 @@ bool FrameEncoder::push_pose(int instance, std::span<const Mat34> skinning) {
     for (int b = 0; b < a.bone_count(); ++b)
         encode_bone(decompose(skinning[size_t(a.skin.order[b])]), a.format, slot.records.data() + size_t(b) * rs);
     slot.live = slot.has_pose = true;
+    slot.relative = false;
     slot.changed = true;
     return true;
 }
@@ -199,7 +201,50 @@ bool FrameEncoder::push_records(int instance, uint32_t pose_seq, uint8_t epoch, 
     slot.pose_seq = pose_seq;
     slot.live_epoch = epoch;
     slot.live = slot.has_pose = slot.has_root = true;
+    slot.relative = false;
     slot.changed = true;
+    return true;
+}
+
+bool FrameEncoder::push_relative(int instance, uint32_t pose_seq, uint8_t epoch, int first, std::span<const RecordInts> records,
+                                 std::span<const uint8_t, ROOT_BYTES> root, std::span<const int16_t> morphs) {
+    std::lock_guard lock(mutex_);
+    if (instance < 0 || size_t(instance) >= slots_.size() || !slots_[size_t(instance)].active) return false;
+    Slot& slot = slots_[size_t(instance)];
+    if (slot.has_pose && int32_t(pose_seq - slot.pose_seq) < 0) {
+        ++stats_.stale_poses;
+        return false;
+    }
+    const ServerAsset& a = *assets_[slot.spec.asset];
+    const size_t B = size_t(a.bone_count());
+    if (first < 0 || size_t(first) + records.size() > B) return false;
+    if (!morphs.empty() && morphs.size() != std::min<size_t>(a.character.morphs.size(), MAX_MORPHS)) return false;
+    if (slot.rel.size() != B || !slot.relative) slot.rel.assign(B, RecordInts{});  // a bone not sent yet: the bind pose
+    std::copy(records.begin(), records.end(), slot.rel.begin() + first);
+    std::copy(root.begin(), root.end(), slot.root.begin());
+    if (!morphs.empty()) slot.morphs.assign(morphs.begin(), morphs.end());
+    slot.relative = true;
+    slot.pose_seq = pose_seq;
+    slot.live_epoch = epoch;
+    slot.live = slot.has_pose = slot.has_root = true;
+    slot.changed = true;
+    return true;
+}
+
+bool FrameEncoder::compose_live(Slot& slot, const ServerAsset& a) {
+    const RelativeFormat& f = a.relative;
+    const size_t rs = size_t(a.format.size());
+    for (int b = 0; b < a.bone_count(); ++b) {
+        const BonePose rel = dequantise_record(slot.rel[size_t(b)], f.pivots[size_t(b)], f);
+        const int p = f.parents[size_t(b)];
+        BonePose& m = model_[size_t(b)];
+        m = p < 0 ? rel : compose_relative(model_[size_t(p)], rel);
+        if (!bone_in_range(m, a.format)) {
+            ++stats_.poses_out_of_range;
+            return false;
+        }
+    }
+    for (int b = 0; b < a.bone_count(); ++b) encode_bone(model_[size_t(b)], a.format, slot.records.data() + size_t(b) * rs);
     return true;
 }
 
@@ -271,10 +316,15 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         e.changed_tick = slot.changed_tick;
         if (slot.live) {
             if (!slot.has_pose) continue;
+            if (slot.relative && (changed || !slot.rel_ready) && !compose_live(slot, a)) {
+                slot.rel_ready = false;
+                continue;  // counted; not sent this tick
+            }
             std::copy(slot.records.begin(), slot.records.end(), out);
             if (changed || !slot.rel_ready) {
                 const size_t rs = size_t(e.record_size);
-                for (int b = 0; b < e.bone_count; ++b) model_[size_t(b)] = decode_bone(out + size_t(b) * rs, a.format);
+                if (!slot.relative)
+                    for (int b = 0; b < e.bone_count; ++b) model_[size_t(b)] = decode_bone(out + size_t(b) * rs, a.format);
                 slot.rel_ready = encode_relative(i, a);
                 if (!slot.rel_ready) continue;  // counted; not sent this tick
             }

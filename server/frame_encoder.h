@@ -22,7 +22,7 @@
 // targets per asset are streamed.
 //
 // Thread-safety: add_instance, remove_instance, push_pose, push_records and
-// set_root may be called from any thread; encode from one thread.
+// push_relative and set_root may be called from any thread; encode from one thread.
 #pragma once
 #include <array>
 #include <cstdint>
@@ -168,6 +168,13 @@ public:
     // weight of the character, quantised (wire.h encode_morph_weight).
     bool push_records(int instance, uint32_t pose_seq, uint8_t epoch, int first, std::span<const uint8_t> records,
                       std::span<const uint8_t, ROOT_BYTES> root, std::span<const int16_t> morphs = {});
+    // The same with a player's Pose records as parent-relative integers
+    // (bone_record.h, bones first..first+n-1, decoded and checked by the
+    // caller): at the next encode they are composed down the progressive
+    // parents into model space (a bone outside the asset's box refuses the
+    // pose that tick, counted poses_out_of_range) and coded like any pose.
+    bool push_relative(int instance, uint32_t pose_seq, uint8_t epoch, int first, std::span<const RecordInts> records,
+                       std::span<const uint8_t, ROOT_BYTES> root, std::span<const int16_t> morphs = {});
     // Places an instance in the world; teleport: a discontinuity (new epoch).
     // Returns false when the root is outside the root block's range.
     bool set_root(int instance, const RootPose& root, bool teleport);
@@ -183,6 +190,8 @@ private:
         // live pose
         bool live = false, has_pose = false;
         std::vector<uint8_t> records;  // B records (progressive order)
+        bool relative = false;         // the live pose is rel (push_relative), records follow from it
+        std::vector<RecordInts> rel;   // B parent-relative records (push_relative)
         std::vector<int16_t> morphs;   // published morph weights (quantised), empty: none
         uint32_t pose_seq = 0;
         uint8_t live_epoch = 0, teleports = 0;
@@ -199,6 +208,9 @@ private:
     size_t max_bones_ = 0;          // bones of the largest asset
     std::vector<uint8_t> bits_;     // encode_pose scratch
     std::vector<BonePose> model_, decoded_;
+    // A push_relative pose composed into model_ and the slot's absolute
+    // records; false (counted) when a bone leaves the asset's box.
+    bool compose_live(Slot& slot, const ServerAsset& a);
     // Codes slot i's poses (model_) as relative records into the frame; false when refused.
     bool encode_relative(size_t i, const ServerAsset& a);
     // Keeps slot i's integers of this tick in the baseline ring.

@@ -154,6 +154,7 @@ struct ServerStats {
     uint64_t unverified_bytes_in = 0, unverified_bytes_out = 0;  // from addresses not bound / to them (Challenges only)
     uint64_t malformed_control = 0, asset_bytes_sent = 0;
     uint64_t poses_received = 0, poses_stale = 0, poses_rate_limited = 0;  // players' Pose datagrams
+    uint64_t poses_missing_baseline = 0;  // Poses predicted from a pose this server does not hold whole (dropped)
     uint64_t poses_out_of_range = 0;  // live poses refused by the codec's range (FrameEncoder)
     uint64_t morphs_out_of_range = 0; // clip morph weights outside the wire range, refused (FrameEncoder)
     uint64_t challenges_sent = 0;  // return-routability challenges (answers to Binds from new addresses)

@@ -394,13 +394,14 @@ static void serve(Server& server, double duration, double stats_every) {
 static void report(const ServerStats& st) {
     std::fprintf(stderr,
                  "progskin-server: %llu sessions, %llu datagrams sent, %llu malformed + %llu rejected + %llu late datagrams, "
-                 "%llu poses received (%llu stale, %llu over the rate limit, %llu out of range), mean tick %.3f ms\n",
+                 "%llu poses received (%llu stale, %llu over the rate limit, %llu out of range, %llu without their baseline), "
+                 "mean tick %.3f ms\n",
                  (unsigned long long)st.sessions_total, (unsigned long long)st.datagrams_sent,
                  (unsigned long long)st.malformed_datagrams, (unsigned long long)st.rejected_datagrams,
                  (unsigned long long)st.late_datagrams,
                  (unsigned long long)st.poses_received, (unsigned long long)st.poses_stale,
                  (unsigned long long)st.poses_rate_limited, (unsigned long long)st.poses_out_of_range,
-                 st.ticks ? 1000.0 * st.tick_seconds / double(st.ticks) : 0.0);
+                 (unsigned long long)st.poses_missing_baseline, st.ticks ? 1000.0 * st.tick_seconds / double(st.ticks) : 0.0);
     std::string cells = st.world_cells < 0 ? "all" : std::to_string(st.world_cells);
     if (st.world_cells_shed > 0) cells += " (" + std::to_string(st.world_cells_shed) + " shed: behind)";
     if (st.world_messages_out + st.world_messages_in > 0)

@@ -23,6 +23,7 @@
 #include "bone_codec.h"
 #include "cli_args.h"
 #include "crypto.h"
+#include "bone_record.h"
 #include "wire.h"
 
 namespace progskin::net::testing {
@@ -227,31 +228,50 @@ public:
     void pose_all() {
         for (const auto& [instance, asset] : spawned_) pose(instance, asset);
     }
+    // One Pose datagram with the given record bits, count, first bone and
+    // baseline (hostile ones: tests/test_net_hardening.cpp).
+    void pose_raw(int instance, const std::vector<uint8_t>& records, int count, int first = 0, uint32_t base_seq = 0) {
+        std::array<uint8_t, ROOT_BYTES> root{};
+        RootPose r;
+        r.position = {double(instance % 64), 0.0, 3.0};
+        encode_root(r, root.data());
+        flatbuffers::FlatBufferBuilder fbb;
+        auto rv = fbb.CreateVector(root.data(), root.size());
+        auto rc = fbb.CreateVector(records);
+        auto p = wire::CreatePose(fbb, session_, token_, uint16_t(instance), ++pose_seq_, 0, uint8_t(first), rv, rc, 0,
+                                  uint16_t(count), base_seq);
+        fbb.Finish(wire::CreateDatagram(fbb, 0, now_us32(), wire::DatagramBody::Pose, p.Union()), wire::DatagramIdentifier());
+        send_datagram(fbb);
+    }
+    uint32_t pose_seq() const { return pose_seq_; }
+    int bones(int asset) const { return assets_[size_t(asset)].bones; }
+
     void pose(int instance, int asset) {
         const AssetInfo& a = assets_[size_t(asset)];
-        const size_t rs = size_t(a.format.size());
-        BonePose bp;
-        bp.t = 0.5f * (a.format.t_min + a.format.t_max);
-        std::vector<uint8_t> rec(rs);
-        encode_bone(bp, a.format, rec.data());
+        // Every bone at the middle of the box, unturned: bone 0 translated
+        // there from the root, every other bone the identity relative to its
+        // parent (all-zero integers: bone_record.h), standalone records.
+        const float step = chain_format(1, a.format).t_step;
+        const glm::vec3 mid = 0.5f * (a.format.t_min + a.format.t_max);
+        RecordInts r0;
+        for (int k = 0; k < 3; ++k) r0.trans[k] = int32_t(std::lround(mid[k] / step));
+        r0.has_trans = true;
+        std::vector<uint8_t> records;
+        BitWriter w(records);
+        write_record(r0, a.format.scaled, w);
+        for (int b = 1; b < a.bones; ++b) write_record(RecordInts{}, a.format.scaled, w);
         std::array<uint8_t, ROOT_BYTES> root{};
         RootPose r;
         r.position = {double(instance % 64), 0.0, 3.0};
         r.source_us = now_us32();
         encode_root(r, root.data());
-        const size_t per = std::max<size_t>(1, (MAX_DATAGRAM - 120 - ROOT_BYTES) / rs);
         ++pose_seq_;
-        for (int first = 0; first < a.bones; first += int(per)) {
-            const int count = std::min(a.bones - first, int(per));
-            std::vector<uint8_t> records;
-            for (int b = 0; b < count; ++b) records.insert(records.end(), rec.begin(), rec.end());
-            flatbuffers::FlatBufferBuilder fbb;
-            auto rv = fbb.CreateVector(root.data(), root.size());
-            auto rc = fbb.CreateVector(records);
-            auto p = wire::CreatePose(fbb, session_, token_, uint16_t(instance), pose_seq_, 0, uint8_t(first), rv, rc);
-            fbb.Finish(wire::CreateDatagram(fbb, 0, now_us32(), wire::DatagramBody::Pose, p.Union()), wire::DatagramIdentifier());
-            send_datagram(fbb);
-        }
+        flatbuffers::FlatBufferBuilder fbb;
+        auto rv = fbb.CreateVector(root.data(), root.size());
+        auto rc = fbb.CreateVector(records);
+        auto p = wire::CreatePose(fbb, session_, token_, uint16_t(instance), pose_seq_, 0, 0, rv, rc, 0, uint16_t(a.bones), 0);
+        fbb.Finish(wire::CreateDatagram(fbb, 0, now_us32(), wire::DatagramBody::Pose, p.Union()), wire::DatagramIdentifier());
+        send_datagram(fbb);
     }
 
     // A View naming `count` instances (ids 0..count-1) with weight 1.

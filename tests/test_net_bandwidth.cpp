@@ -43,8 +43,9 @@ TEST(NetBandwidth, CapsFrom16kTo2MRespectedAndErrorFallsWithRate) {
         ASSERT_GE(r[i].per_second_kbps.size(), 3u);
         for (double k : r[i].per_second_kbps) EXPECT_LE(k, caps[i] * 1.05) << "cap " << caps[i];
         // The cap is used, or it does not limit: every bone shown at a lower rate.
-        if (r[i].rate_kbps <= caps[i] * 0.6)
+        if (r[i].rate_kbps <= caps[i] * 0.6) {
             EXPECT_GE(r[i].bones_mean, full_bones - 0.3) << "cap " << caps[i] << " poorly used";
+        }
         EXPECT_EQ(r[i].characters, 24);
         // Non-increasing within 5 % while the cap limits the error; once the
         // previous cap already reached the floor where every bone goes

@@ -530,3 +530,57 @@ TEST(NetHardening, SaturatingAttackerWhileAnHonestClientStreams) {
     for (double k : honest.report.per_second_kbps) EXPECT_GT(k, 0.3 * alone.report.rate_kbps);
     EXPECT_GT(st.refusals_total(), 0u);
 }
+
+// Published poses are parent-relative records predicted from poses the
+// server acknowledged (docs/protocol.md "Pose"). A Pose predicted from a pose
+// the server does not hold whole is dropped and counted, never decoded
+// against something else; records that do not read, run past the bones,
+// leave bytes over or set a padding bit are malformed; none of it costs the
+// sender its session, and the pose before them stays.
+TEST(NetHardening, HostilePoseRecordsAreDroppedAndCounted) {
+    RunningServer s({}, hardened());
+    Attacker a(source(2), s.server->tcp_port(), s.server->udp_port());
+    ASSERT_TRUE(a.join()) << a.refused();
+    ASSERT_TRUE(a.bind());
+    const int inst = a.spawn(0, {});
+    ASSERT_GE(inst, 0);
+    const int B = a.bones(0);
+    auto standalone = [&](int count, bool pad_bit) {
+        std::vector<uint8_t> bits;
+        BitWriter w(bits);
+        for (int b = 0; b < count; ++b) write_record(RecordInts{}, false, w);
+        if (pad_bit) {
+            if (w.bits() % 8 == 0) w.put(0, 1);  // room for a padding bit
+            bits.back() |= 0x80;
+        }
+        return bits;
+    };
+    auto settle = [&](uint64_t ServerStats::*field, uint64_t want) {
+        for (int i = 0; i < 100 && s.server->stats().*field < want; ++i) a.pump_and_ack(20);
+        return s.server->stats().*field;
+    };
+    a.pump_and_ack(500);  // the pose rate limit's bucket fills (2 poses per tick)
+    a.pose(inst, 0);      // a whole, valid pose (standalone)
+    EXPECT_EQ(settle(&ServerStats::poses_received, 1), 1u);
+    const uint64_t malformed0 = s.server->stats().malformed_datagrams;
+    // Predicted from a pose that was never sent, and from one sent but far in the past.
+    a.pose_raw(inst, standalone(B, false), B, 0, a.pose_seq() + 1000);
+    a.pose_raw(inst, standalone(B, false), B, 0, 1u << 31);
+    EXPECT_EQ(settle(&ServerStats::poses_missing_baseline, 2), 2u);
+    // Malformed: a padding bit, bytes left over, too few bits, more bones than the
+    // character has, a count of zero.
+    a.pose_raw(inst, standalone(B, true), B);
+    std::vector<uint8_t> over = standalone(B, false);
+    over.push_back(0);
+    a.pose_raw(inst, over, B);
+    a.pose_raw(inst, standalone(B - 1, false), B);
+    a.pose_raw(inst, standalone(B, false), B, 1);
+    a.pose_raw(inst, standalone(1, false), 0);
+    EXPECT_EQ(settle(&ServerStats::malformed_datagrams, malformed0 + 5), malformed0 + 5);
+    EXPECT_EQ(s.server->stats().poses_received, 1u);
+    EXPECT_EQ(s.server->stats().poses_rate_limited, 0u);
+    // The session is still there: a valid pose is taken.
+    a.pose(inst, 0);
+    EXPECT_EQ(settle(&ServerStats::poses_received, 2), 2u);
+    EXPECT_FALSE(a.server_closed());
+}

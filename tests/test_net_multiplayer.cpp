@@ -146,9 +146,21 @@ TEST(NetMultiplayer, EightPlayersSeeEachOtherJoinAndLeave) {
         std::this_thread::sleep_for(std::chrono::milliseconds(16));
     }
     const auto [rc, out] = external.get();
+    const ServerStats ss = server.stats();
     server.stop();
     st.join();
     ASSERT_FALSE(HasFatalFailure());
+
+    // Published poses travel predicted from poses the server acknowledged
+    // (docs/protocol.md "Pose"); none was predicted from one it lacked.
+    for (int i = 0; i < 6; ++i) {
+        const ClientStats cs = players[size_t(i)].client->stats();
+        EXPECT_GT(cs.poses_sent, 60u) << "player " << i;
+        EXPECT_GE(double(cs.poses_predicted), 0.8 * double(cs.poses_sent)) << "player " << i;
+    }
+    EXPECT_EQ(ss.poses_missing_baseline, 0u);
+    EXPECT_EQ(ss.malformed_datagrams, 0u);
+    EXPECT_GT(ss.poses_received, 600u);
 
     // Everybody saw everybody else within 1 s of their spawn, never itself.
     std::set<int> external_instances;
