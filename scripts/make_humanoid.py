@@ -4,7 +4,7 @@ skeleton and motion, hands with fingers, and a mesh of capsules around the
 bones. For the scenes of humanoids that docs/performance.md measures (issue 27:
 bits per bone on the wire with four humanoids of at least 40 bones).
 
-usage: python3 scripts/make_humanoid.py IN.bvh [-o OUT.glb] [--fps 30] [--no-fingers]
+usage: python3 scripts/make_humanoid.py IN.bvh [-o OUT.glb] [--fps 30] [--no-fingers] [--in-place]
 
 Made for the CMU motion-capture BVH conversions (Bruce Hahne's "cmuconvert"
 set; tested with subject 131 trial 01, cmu_131_01.bvh: 31 joints, 120 frames
@@ -35,8 +35,8 @@ vertices and 10,200 triangles for the CMU skeleton with fingers (3,362 and
 
 Animation: one clip, "mocap", resampled from the BVH at --fps keys per second
 (default 30; LINEAR: rotations slerped, translations lerped between BVH
-frames), the root's translation (the walk included) and every joint's
-rotation. The finger motion is synthetic (the motion capture has none): a
+frames), the root's translation (the walk included; --in-place holds its
+horizontal part at the first frame's) and every joint's rotation. The finger motion is synthetic (the motion capture has none): a
 gentle curl and release of every finger, each finger a little behind the
 previous one, period 2.4 s, 10-35 degrees per joint.
 
@@ -440,6 +440,8 @@ def main():
     ap.add_argument('--fps', type=positive_float, default=30.0, help='animation keys per second (default 30)')
     ap.add_argument('--fingers', action=argparse.BooleanOptionalAction, default=True,
                     help='add five fingers of three joints to each hand (default on; the finger motion is synthetic)')
+    ap.add_argument('--in-place', action='store_true',
+                    help="hold the root's horizontal translation at its first frame's (no walk; for comparisons)")
     ap.add_argument('--scale', type=positive_float, default=CMU_SCALE,
                     help='metres per BVH unit (default 0.0254/0.45 = %.5f, the CMU ASF unit)' % CMU_SCALE)
     a = ap.parse_args()
@@ -524,7 +526,10 @@ def main():
                 vals = []
                 for f0, f1, u in samples:
                     t0, t1 = poses[f0][b.bvh][0], poses[f1][b.bvh][0]
-                    vals.append(tuple((t0[k] + u * (t1[k] - t0[k])) * s for k in range(3)))
+                    v = [(t0[k] + u * (t1[k] - t0[k])) * s for k in range(3)]
+                    if a.in_place and b.parent is None:
+                        v[0], v[2] = poses[0][b.bvh][0][0] * s, poses[0][b.bvh][0][2] * s
+                    vals.append(tuple(v))
                 channel(i, 'translation', vals)
             if any(kind == 'rotation' for kind, _ in j.channels):
                 channel(i, 'rotation', [qslerp(poses[f0][b.bvh][1], poses[f1][b.bvh][1], u) for f0, f1, u in samples])
