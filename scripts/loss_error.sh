@@ -8,7 +8,7 @@
 # bad one (the same plus --loss, --reorder, --duplicate), each a
 # progskin-client --verify --report json. Prints a table row per cap and
 # link, the ratio RMS(bad) / RMS(clean), and with --json FILE the rows as JSON.
-# docs/performance.md "Error under loss".
+# docs/performance.md "Four humanoids", "Error under loss".
 #
 #   scripts/loss_error.sh [--caps "64 0"] [--seconds S] [--loss P] [--reorder P] [--duplicate P]
 #                         [--delay-ms N] [--jitter-ms N] [--seed N] [--build DIR] [--json FILE]
