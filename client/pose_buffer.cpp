@@ -277,6 +277,18 @@ bool PoseBuffer::pose_about_pivot(int b, double d, BonePose& out, double* held_a
         const Frame* n = nullptr;
         for (const auto& f : frames_)
             if (f.used && f.have[size_t(b)] && time(&f) > d && (!n || newer(n->tick, f.tick))) n = &f;
+        // Past a known boundary with nothing of the next epoch here yet (its
+        // first frames lost or late): the caller carries the newest frame
+        // along the clip across the boundary, rather than holding the old
+        // epoch's pose where the new one has already begun.
+        if (!n && anchor_at && d > time(a)) {
+            const double w = boundary_(boundary_ctx_, time(a), d);
+            if (w > time(a) && w <= d) {
+                out = a->bones[b];
+                *anchor_at = time(a);
+                return true;
+            }
+        }
         const double w = n ? boundary_(boundary_ctx_, time(a), time(n)) : std::nan("");
         if (n && w > time(a) && w <= time(n)) {
             // Extrapolate the side of the display time from its two nearest

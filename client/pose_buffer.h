@@ -86,7 +86,10 @@ public:
     // anchor_at (optional): when d falls in a known boundary gap (below),
     // out is the pose of the nearest frame on d's side of the boundary and
     // *anchor_at its tick, so that the caller can carry it to d along the
-    // clip (InstanceView); else *anchor_at is NaN.
+    // clip (InstanceView); when d is past a known boundary and no frame of
+    // the next epoch carries bone b yet (lost or late), out is the newest
+    // frame's pose and *anchor_at its tick, carried across the boundary the
+    // same way; else *anchor_at is NaN.
     bool pose(int b, double d, BonePose& out, double* held_at = nullptr, double* anchor_at = nullptr) const;
     // When the display falls between the last frame of one epoch (a) and
     // the first of the next (c), the boundary function tells the display

@@ -4,10 +4,12 @@
 # displayed frame decodes from a baseline the client did not have, and the
 # RMS stays within 1.5 x the lossless RMS). For each cap one server (default
 # scene, or the server arguments after --) streams to one client through a
-# progskin-netem relay twice: a clean link (--delay-ms/--jitter-ms only) and a
-# bad one (the same plus --loss, --reorder, --duplicate), each a
-# progskin-client --verify --report json. Prints a table row per cap and
-# link, the ratio RMS(bad) / RMS(clean), and with --json FILE the rows as JSON.
+# progskin-netem relay three times: a clean link (--delay-ms/--jitter-ms
+# only), a bad one (the same plus --loss, --reorder, --duplicate), and the
+# clean link again capped at the rate the bad one delivered (the rate
+# controller backs off on loss), each a progskin-client --verify --report
+# json. Prints a table row per cap and link, the ratios RMS(bad) / RMS(clean)
+# at the same cap and at the same rate, and with --json FILE the rows as JSON.
 # docs/performance.md "Four humanoids", "Error under loss".
 #
 #   scripts/loss_error.sh [--caps "64 0"] [--seconds S] [--loss P] [--reorder P] [--duplicate P]
@@ -39,7 +41,7 @@ SERVER_ARGS=()
 need() { [[ $# -ge 2 ]] || { echo "loss_error.sh: $1 needs a value (--help)" >&2; exit 2; }; }
 while (($#)); do
   case "$1" in
-    -h|--help) sed -n '2,25p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
+    -h|--help) sed -n '2,27p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
     --caps) need "$@"; CAPS=$2; shift 2;;
     --seconds) need "$@"; RUN_SECONDS=$2; shift 2;;
     --loss) need "$@"; LOSS=$2; shift 2;;
@@ -86,7 +88,7 @@ psk_start_server "${SERVER_ARGS[@]}"
 # run CAP LINK: one client through a fresh relay; its report in $TMP/CAP-LINK.json,
 # the relay's counts in $TMP/CAP-LINK.netem.
 run() {
-  local cap=$1 link=$2 impair=()
+  local cap=$1 link=$2 limit=${3:-$1} impair=()
   [[ $link == bad ]] && impair=(--loss "$LOSS" --reorder "$REORDER" --duplicate "$DUPLICATE")
   "$NETEM" --to 127.0.0.1:"$UDP_PORT" --listen 0 --delay-ms "$DELAY" --jitter-ms "$JITTER" --seed "$SEED" "${impair[@]}" \
     >"$TMP/$cap-$link.netem.out" 2>"$TMP/$cap-$link.netem" &
@@ -99,7 +101,7 @@ run() {
   done
   [[ -n $relay ]] || { echo "loss_error.sh: progskin-netem did not start:" >&2; cat "$TMP/$cap-$link.netem" >&2; exit 1; }
   local max=()
-  ((cap > 0)) && max=(--max-kbps "$cap")
+  ((limit > 0)) && max=(--max-kbps "$limit")
   if ! "$CLIENT" --server 127.0.0.1:"$PORT" --pin "$PIN" --udp-via 127.0.0.1:"$relay" "${max[@]}" \
        --duration "$RUN_SECONDS" --warmup 2 --verify --verify-every 3 --report json --cache "$TMP/cache" \
        >"$TMP/$cap-$link.json" 2>"$TMP/$cap-$link.err"; then
@@ -113,6 +115,12 @@ echo "link: delay ${DELAY} ms, jitter ${JITTER} ms; bad: loss $LOSS, reorder $RE
 for cap in $CAPS; do
   run "$cap" clean
   run "$cap" bad
+  # The clean link again, capped at the rate the bad link delivered: the
+  # rate controller backs off on loss, so "the same cap" is not "the same
+  # rate"; this isolates what the loss itself costs the display.
+  # (The pacer fills at 94 % of a cap: the cap is the delivered rate / 0.94.)
+  rate=$(python3 -c 'import json,sys; print(max(1, round(json.load(open(sys.argv[1]))["rate_kbps"] / 0.94)))' "$TMP/$cap-bad.json")
+  run "$cap" clean-at-rate "$rate"
 done
 
 # shellcheck disable=SC2086  # one argument per cap
@@ -121,11 +129,11 @@ import json, re, sys
 tmp, out, caps = sys.argv[1], sys.argv[2], sys.argv[3:]
 rows = []
 print("| cap kbit/s | link | rate kbit/s | relay: forwarded / dropped / reordered / duplicated | loss seen | RMS % | max % "
-      "| predicted records | missing baselines | RMS bad / clean |")
-print("|---|---|---|---|---|---|---|---|---|---|")
+      "| predicted records | missing baselines | RMS bad / clean | RMS bad / clean at its rate |")
+print("|---|---|---|---|---|---|---|---|---|---|---|")
 for cap in caps:
-    clean = None
-    for link in ("clean", "bad"):
+    clean = bad = None
+    for link in ("clean", "bad", "clean-at-rate"):
         r = json.load(open("%s/%s-%s.json" % (tmp, cap, link)))
         stats = open("%s/%s-%s.netem" % (tmp, cap, link)).read()
         m = re.search(r"forwarded (\d+), dropped (\d+), queue drops (\d+), duplicated (\d+), reordered (\d+)", stats)
@@ -136,13 +144,19 @@ for cap in caps:
                "predicted_records": r.get("predicted_records", 0), "missing_baselines": r.get("missing_baselines", 0)}
         if link == "clean":
             clean = row
-        else:
+        elif link == "bad":
+            bad = row
             row["rms_ratio"] = row["rms_pct"] / clean["rms_pct"] if clean["rms_pct"] > 0 else float("nan")
+        else:
+            bad["rms_ratio_same_rate"] = bad["rms_pct"] / row["rms_pct"] if row["rms_pct"] > 0 else float("nan")
         rows.append(row)
-        print("| %s | %s | %.1f | %d / %d / %d / %d | %.3f | %.4f | %.3f | %d | %d | %s |" % (
-            cap if cap != "0" else "unlimited", link, row["rate_kbps"], fwd, drop, reo, dup, row["loss"], row["rms_pct"],
+    for row in rows[-3:]:
+        print("| %s | %s | %.1f | %d / %d / %d / %d | %.3f | %.4f | %.3f | %d | %d | %s | %s |" % (
+            cap if cap != "0" else "unlimited", row["link"], row["rate_kbps"], row["relay_forwarded"], row["relay_dropped"],
+            row["relay_reordered"], row["relay_duplicated"], row["loss"], row["rms_pct"],
             row["max_pct"], row["predicted_records"], row["missing_baselines"],
-            "%.2f" % row["rms_ratio"] if "rms_ratio" in row else "-"))
+            "%.2f" % row["rms_ratio"] if "rms_ratio" in row else "-",
+            "%.2f" % row["rms_ratio_same_rate"] if "rms_ratio_same_rate" in row else "-"))
 if out:
     with open(out, "w") as f:
         json.dump(rows, f, indent=1)

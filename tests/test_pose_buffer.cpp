@@ -206,6 +206,40 @@ TEST(PoseBuffer, EpochChangePreventsInterpolatingAcrossADiscontinuity) {
     }
 }
 
+// A known boundary (a looping clip's wrap at tick 52.5) whose next epoch has
+// not arrived yet (its first frames lost or late): before the boundary the
+// newest frame is held as ever; past it, the newest frame is handed to the
+// caller as an anchor to carry along the clip across the wrap (InstanceView),
+// not held as if the old epoch went on. Without a boundary function, or
+// without the caller asking for an anchor, it is held.
+TEST(PoseBuffer, PastAKnownBoundaryWithNothingNewerTheNewestFrameIsAnAnchor) {
+    const glm::vec3 here(1, 2, 3);
+    PoseBuffer pb = buffer(2);
+    ASSERT_TRUE(pb.add_chunk(50, 0, 2, 2, records(2, here).run(), 2, 3));
+    ASSERT_TRUE(pb.add_chunk(51, 0, 2, 2, records(2, here).run(), 2, 3));
+    BonePose p;
+    double anchor = 0;
+    ASSERT_TRUE(pb.pose(0, 53.0, p, nullptr, &anchor));
+    EXPECT_TRUE(std::isnan(anchor)) << "no boundary known: held";
+    auto wrap = [](const void*, double ta, double tc) { return ta < 52.5 && tc >= 52.5 ? 52.5 : std::nan(""); };
+    pb.set_boundary(wrap, nullptr);
+    ASSERT_TRUE(pb.pose(0, 52.0, p, nullptr, &anchor));
+    EXPECT_TRUE(std::isnan(anchor)) << "before the boundary: held";
+    for (double d : {52.5, 53.0, 55.0}) {
+        ASSERT_TRUE(pb.pose(0, d, p, nullptr, &anchor));
+        EXPECT_EQ(anchor, 51.0) << "past the boundary at " << d;
+        EXPECT_LT(glm::length(p.t - here), 1e-3f);
+    }
+    double held = 0;
+    ASSERT_TRUE(pb.pose(0, 53.0, p, &held));  // no anchor asked for: held
+    EXPECT_EQ(held, 51.0);
+    // Once the next epoch's first frame is here, it is used from its tick on.
+    const glm::vec3 there(-4, 7, -6);
+    ASSERT_TRUE(pb.add_chunk(54, 0, 2, 2, records(2, there).run(), 2, 4));
+    ASSERT_TRUE(pb.pose(0, 54.0, p, nullptr, &anchor));
+    EXPECT_LT(glm::length(p.t - there), 1e-3f);
+}
+
 // Inconsistent chunks are refused (false) and change nothing; a chunk older
 // than every kept frame is dropped without effect.
 TEST(PoseBuffer, RefusesInconsistentChunksAndIgnoresStaleOnes) {
