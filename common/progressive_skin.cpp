@@ -18,6 +18,7 @@ const char* strategy_name(Strategy s) {
         case Strategy::Flatten: return "flatten";
         case Strategy::LeafPrune: return "leaf_prune";
         case Strategy::Scratch: return "scratch";
+        case Strategy::Hierarchy: return "hierarchy";
     }
     return "?";
 }
@@ -27,7 +28,8 @@ Strategy parse_strategy(const std::string& s) {
     if (s == "flatten") return Strategy::Flatten;
     if (s == "leaf_prune" || s == "leaf-prune") return Strategy::LeafPrune;
     if (s == "scratch") return Strategy::Scratch;
-    throw Error("unknown strategy '" + s + "' (expected reorder, flatten or leaf_prune)");
+    if (s == "hierarchy") return Strategy::Hierarchy;
+    throw Error("unknown strategy '" + s + "' (expected reorder, flatten, hierarchy or leaf_prune)");
 }
 
 namespace {

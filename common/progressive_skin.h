@@ -30,6 +30,9 @@ enum class Strategy : uint8_t {
     Flatten,    // world-space bones, new minimal-error hierarchy
     LeafPrune,  // naive baseline: deepest bones dropped first, plain copy-down
     Scratch,    // built from vertex animation (issue 4)
+    Hierarchy,  // as reorder, but only bones without active children collapse: every
+                // bone follows its artist parent in progressive order and that parent is
+                // its progressive parent (cheaper parent-relative records)
 };
 const char* strategy_name(Strategy s);
 Strategy parse_strategy(const std::string& s);  // throws Error

@@ -262,6 +262,8 @@ private:
     bool is_candidate(int b) const {
         if (!active_[b] || active_count() < 2) return false;
         if (opt_.strategy == Strategy::Flatten) return true;
+        // Hierarchy: the leaves of the active artist hierarchy only.
+        if (opt_.strategy == Strategy::Hierarchy && has_active_child(b)) return false;
         // Reorder: any bone with an active artist ancestor (its active children
         // then hang from that ancestor); a bone without one only when another
         // such root-level bone remains, or when it has no active children.
@@ -296,7 +298,7 @@ private:
     Candidate best_candidate(int b) {
         std::vector<int> targets;
         const int anc = nearest_active_ancestor(b);
-        if (opt_.strategy == Strategy::Reorder) {
+        if (opt_.strategy == Strategy::Reorder || opt_.strategy == Strategy::Hierarchy) {
             if (anc >= 0) {
                 targets.push_back(anc);
             } else {
@@ -536,22 +538,63 @@ double mean_rms(const std::vector<LodError>& table) {
     return table.empty() ? 0.0 : sum / double(table.size());
 }
 
+double rd_area(const std::vector<LodError>& table, const std::vector<double>& bits, double until) {
+    if (table.empty() || bits.size() != table.size()) return 0.0;
+    double area = table[0].rms * bits[0], at = 0;  // e(1) while bone 0's bits arrive
+    for (size_t k = 0; k < table.size(); ++k) {
+        at += bits[k];
+        const double next = k + 1 < table.size() ? at + bits[k + 1] : std::max(until, at);
+        area += table[k].rms * (next - at);
+    }
+    return area;
+}
+
 ProgressiveSkin build_best_progressive_skin(const Character& c, const FrameSet& frames, const BuildOptions& options,
                                             StrategyChoice* choice) {
-    BuildOptions opt = options;
-    const auto progress = options.progress;
-    opt.strategy = Strategy::Reorder;
-    if (progress) opt.progress = [&progress](int s, int t) { progress(s, 2 * t); };
-    ProgressiveSkin reorder = build_progressive_skin(c, frames, opt);
-    opt.strategy = Strategy::Flatten;
-    if (progress) opt.progress = [&progress](int s, int t) { progress(t + s, 2 * t); };
-    ProgressiveSkin flatten = build_progressive_skin(c, frames, opt);
+    // Reorder and flatten; with the stream's bits, hierarchy too.
+    std::vector<Strategy> tried = {Strategy::Reorder, Strategy::Flatten};
+    if (options.bone_bits) tried.push_back(Strategy::Hierarchy);
+    const int n = int(tried.size());
+    std::vector<ProgressiveSkin> skins;
+    for (int i = 0; i < n; ++i) {
+        BuildOptions opt = options;
+        opt.strategy = tried[size_t(i)];
+        if (options.progress) opt.progress = [&progress = options.progress, i, n](int s, int t) { progress(i * t + s, n * t); };
+        skins.push_back(build_progressive_skin(c, frames, opt));
+    }
     StrategyChoice ch;
-    ch.reorder_mean_rms = mean_rms(reorder.error);
-    ch.flatten_mean_rms = mean_rms(flatten.error);
-    ch.chosen = ch.flatten_mean_rms < ch.reorder_mean_rms ? Strategy::Flatten : Strategy::Reorder;
+    ch.reorder_mean_rms = mean_rms(skins[0].error);
+    ch.flatten_mean_rms = mean_rms(skins[1].error);
+    size_t best = ch.flatten_mean_rms < ch.reorder_mean_rms ? 1 : 0;
+    if (options.bone_bits) {
+        std::vector<std::vector<double>> bits;
+        double until = 0;
+        bool ok = true;
+        for (const ProgressiveSkin& s : skins) {
+            bits.push_back(options.bone_bits(s));
+            ok = ok && bits.back().size() == s.error.size();
+            double sum = 0;
+            for (double b : bits.back()) sum += b;
+            until = std::max(until, sum);
+        }
+        if (ok) {
+            ch.by_rate = true;
+            ch.hierarchy_mean_rms = mean_rms(skins[2].error);
+            std::vector<double> area(skins.size()), total(skins.size(), 0.0);
+            for (size_t i = 0; i < skins.size(); ++i) {
+                area[i] = rd_area(skins[i].error, bits[i], until);
+                for (double b : bits[i]) total[i] += b;
+            }
+            ch.reorder_area = area[0], ch.flatten_area = area[1], ch.hierarchy_area = area[2];
+            ch.reorder_bits = total[0], ch.flatten_bits = total[1], ch.hierarchy_bits = total[2];
+            best = 0;  // ties: reorder, then flatten
+            for (size_t i = 1; i < skins.size(); ++i)
+                if (area[i] < area[best]) best = i;
+        }
+    }
+    ch.chosen = tried[best];
     if (choice) *choice = ch;
-    return ch.chosen == Strategy::Flatten ? std::move(flatten) : std::move(reorder);
+    return std::move(skins[best]);
 }
 
 }  // namespace progskin

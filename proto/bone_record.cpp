@@ -5,10 +5,12 @@
 #include <bit>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <stdexcept>
 
 #include <glm/gtc/quaternion.hpp>
 
+#include "animation.h"
 #include "character.h"
 #include "progressive_skin.h"
 
@@ -501,6 +503,46 @@ double relative_bound(const RelativeFormat& f, double bind_radius, double max_sc
     const double angle = 2.0 * std::sqrt(3.0) * ROT_STEP * 1.01;  // 4 x half a step per component, |dp| <= sqrt3/2 step
     const double trans = std::sqrt(3.0) * (kTransDeadZone + 0.5) * double(f.t_step);
     return max_scale * (angle * (bind_radius + pivot_radius) + trans) * 1.001 + 1e-6 * bind_radius;
+}
+
+std::vector<double> record_bits_per_bone(const Character& c, const ProgressiveSkin& s, const FrameSet& frames) {
+    const size_t B = size_t(s.bone_count()), F = frames.frame_count();
+    std::vector<double> bits(B, 0.0);
+    if (B == 0 || F == 0 || frames.joint_count != int(c.joint_count())) return bits;
+    std::vector<BonePose> model(F * B);
+    RecordFormat box;
+    box.t_min = glm::vec3(std::numeric_limits<float>::max());
+    box.t_max = glm::vec3(-std::numeric_limits<float>::max());
+    for (size_t f = 0; f < F; ++f)
+        for (size_t b = 0; b < B; ++b) {
+            BonePose& p = model[f * B + b];
+            p = decompose(frames.frame(f)[size_t(s.order[b])]);
+            box.t_min = glm::min(box.t_min, p.t);
+            box.t_max = glm::max(box.t_max, p.t);
+            box.scaled = box.scaled || std::abs(p.s - 1.0f) > 1e-4f;
+        }
+    box.t_max = glm::max(box.t_max, box.t_min + glm::vec3(1e-3f));  // a box of some size
+    const RelativeFormat fmt = relative_format(s, c, box);
+    std::vector<uint8_t> scratch;
+    std::vector<uint32_t> offsets(B + 1);
+    std::vector<BonePose> decoded(B);
+    std::vector<RecordInts> now(B), before(B);
+    for (size_t f = 0; f < F; ++f) {
+        scratch.clear();
+        if (!encode_pose(std::span<const BonePose>(model.data() + f * B, B), fmt, scratch, offsets, decoded, now)) continue;
+        if (f == 0) {
+            for (size_t b = 0; b < B; ++b) bits[b] += double(offsets[b + 1] - offsets[b]);
+        } else {
+            for (size_t b = 0; b < B; ++b) {
+                scratch.clear();
+                BitWriter w(scratch);
+                bits[b] += double(write_predicted(now[b], before[b], fmt.scaled, w));
+            }
+        }
+        std::swap(now, before);
+    }
+    for (double& x : bits) x /= double(F);
+    return bits;
 }
 
 }  // namespace progskin::net

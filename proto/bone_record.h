@@ -39,6 +39,7 @@
 
 namespace progskin {
 struct Character;
+struct FrameSet;
 struct ProgressiveSkin;
 }  // namespace progskin
 
@@ -197,6 +198,16 @@ bool encode_pose(std::span<const BonePose> model, const RelativeFormat& f, std::
 // does not read (read_record's bounds), bytes are left over or a padding
 // bit is set. O(bytes), no allocation.
 bool read_pose_records(std::span<const uint8_t> bytes, bool scaled, std::span<const RecordInts> pred, std::span<RecordInts> out);
+
+// The mean bits per frame of each bone's record (progressive order) when
+// every bone of every frame of `frames` (the character's skinning matrices)
+// is coded as the stream codes it at full rate with prompt acknowledgements:
+// parent-relative, closed loop, predicted from the frame before (delta; the
+// first frame standalone). The translation box is the frames' own (every
+// bone's model-space translation), scale when any bone scales. What the
+// strategy choice weighs (offline/collapse.h BuildOptions::bone_bits).
+// O(frames x B).
+std::vector<double> record_bits_per_bone(const Character& c, const ProgressiveSkin& s, const FrameSet& frames);
 
 // Copies `count` bits starting at bit `from` of src to the end of w.
 void copy_bits(const uint8_t* src, size_t from, size_t count, BitWriter& w);

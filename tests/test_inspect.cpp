@@ -82,6 +82,27 @@ TEST(BuildCli, DefaultStrategyChosenAndSaidProgressOneLineAtATime) {
     EXPECT_NE(j.out.find("\"" + said + "\""), std::string::npos) << "the file does not say " << said << ": " << j.out.substr(0, 400);
 }
 
+// --strategy rate builds reorder, flatten and hierarchy and keeps the one of
+// lowest rate-distortion area against the stream's record bits, saying the
+// bits and areas; the file records the choice and its figures.
+TEST(BuildCli, RateStrategyWeighsTheStreamsRecordBits) {
+    if (!std::ifstream(progskin()).good()) GTEST_SKIP() << progskin() << " not built";
+    const std::string out = ::testing::TempDir() + "progskin_build_rate.glb";
+    const CmdResult r = run(progskin() + " build " + std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb --strategy rate -o " + out);
+    ASSERT_EQ(r.code, 0) << r.out;
+    EXPECT_NE(r.out.find("chosen by rate-distortion"), std::string::npos) << r.out;
+    const size_t at = r.out.find(": strategy ");
+    ASSERT_NE(at, std::string::npos) << r.out;
+    const std::string said = r.out.substr(at + 11, r.out.find(':', at + 11) - at - 11);
+    EXPECT_TRUE(said == "reorder" || said == "flatten" || said == "hierarchy") << said;
+    const CmdResult j = run(progskin() + " inspect " + out + " --json");
+    ASSERT_EQ(j.code, 0) << j.out;
+    EXPECT_NE(j.out.find("\"" + said + "\""), std::string::npos) << j.out.substr(0, 400);
+    const CmdResult bad = run(progskin() + " build " + std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb --strategy fastest -o " + out);
+    EXPECT_EQ(bad.code, 2) << bad.out;
+    EXPECT_NE(bad.out.find("--strategy"), std::string::npos) << bad.out;
+}
+
 // A file without a skin: inspect lists what it has (vertices, frames, clips,
 // morph targets) and points to --from-vertices; build says the same.
 TEST(Inspect, FileWithoutASkinListsClipsAndMorphTargetsAndPointsToFromVertices) {

@@ -68,7 +68,7 @@ class CollapseOnAsset : public ::testing::TestWithParam<AssetCase> {};
 TEST(Collapse, SyntheticTreeStructureAndExactAtFullDetail) {
     const Character c = synth::make_tree(3, 3);
     const FrameSet f = sample_frames(c, {select_clips(c, "all")}, 30.0);
-    for (Strategy st : {Strategy::Reorder, Strategy::Flatten, Strategy::LeafPrune}) {
+    for (Strategy st : {Strategy::Reorder, Strategy::Flatten, Strategy::Hierarchy, Strategy::LeafPrune}) {
         SCOPED_TRACE(strategy_name(st));
         const ProgressiveSkin s = build(c, f, st);
         expect_valid_structure(s, int(c.joint_count()));
@@ -89,6 +89,41 @@ TEST(Collapse, ReorderKeepsArtistAncestry) {
         for (int a = c.joint_parent[j]; a >= 0; a = c.joint_parent[a]) found |= (a == p);
         EXPECT_TRUE(found) << "bone " << j << " collapsed into non-ancestor " << p;
     }
+}
+
+// Hierarchy: only leaves of the active hierarchy collapse, so every bone
+// comes after its artist parent in progressive order and that parent is its
+// progressive parent (what makes its parent-relative records cheap); the
+// error table is still the greedy's (non-increasing, exact at full detail).
+TEST(Collapse, HierarchyKeepsEveryBoneUnderItsArtistParent) {
+    const Character c = synth::make_tree(4, 2);
+    const FrameSet f = sample_frames(c, {select_clips(c, "all")}, 30.0);
+    const ProgressiveSkin s = build(c, f, Strategy::Hierarchy);
+    expect_valid_structure(s, int(c.joint_count()));
+    expect_non_increasing(s.error, "hierarchy");
+    EXPECT_LE(s.error.back().max_pct, kLosslessPct);
+    for (int b = 1; b < s.bone_count(); ++b) {
+        const int j = s.order[size_t(b)];
+        ASSERT_GE(c.joint_parent[size_t(j)], 0);
+        EXPECT_EQ(s.order[size_t(s.parents[size_t(b)])], c.joint_parent[size_t(j)]) << "bone " << j;
+    }
+    // Reorder on the same tree puts some bone before its artist parent (else
+    // this test shows nothing): the two strategies differ.
+    const ProgressiveSkin r = build(c, f, Strategy::Reorder);
+    int differ = 0;
+    for (int b = 1; b < r.bone_count(); ++b) differ += r.order[size_t(r.parents[size_t(b)])] != c.joint_parent[size_t(r.order[size_t(b)])];
+    EXPECT_GT(differ, 0);
+}
+
+// rd_area: e(k) held over the bits between k and k + 1 bones, e(1) over bone
+// 0's bits, e(B) up to `until`; by hand on three bones.
+TEST(Collapse, RateDistortionAreaByHand) {
+    std::vector<LodError> t(3);
+    t[0].rms = 4.0, t[1].rms = 2.0, t[2].rms = 0.5;
+    // bits 10, 20, 30: 4*10 (bone 0 arriving) + 4*20 + 2*30 + 0.5*(100-60)
+    EXPECT_DOUBLE_EQ(rd_area(t, {10.0, 20.0, 30.0}, 100.0), 40.0 + 80.0 + 60.0 + 20.0);
+    EXPECT_DOUBLE_EQ(rd_area(t, {10.0, 20.0, 30.0}, 0.0), 40.0 + 80.0 + 60.0);  // until below the sum: nothing after
+    EXPECT_EQ(rd_area(t, {10.0, 20.0}, 100.0), 0.0);  // sizes differ
 }
 
 TEST(Collapse, TrackedTableMatchesIndependentEvaluation) {

@@ -28,6 +28,7 @@
 #include "progressive_asset.h"
 #include "progressive_skin.h"
 #ifdef PROGSKIN_HAVE_NET
+#include "bone_record.h"
 #include "crypto.h"
 #endif
 #include "scratch_build.h"
@@ -51,7 +52,7 @@ namespace {
 const char* kUsage = R"(progskin — progressive skinning, offline tool
 
 usage:
-  progskin build IN -o OUT.glb [--strategy auto|reorder|flatten|leaf_prune] [--clip SPEC]
+  progskin build IN -o OUT.glb [--strategy auto|rate|reorder|flatten|hierarchy|leaf_prune] [--clip SPEC]
                  [--fps 30] [--character N] [--plain-copy] [--quiet]
       Build a progressive skin by collapsing IN's skin and write a standard
       glTF 2.0 file (joints in progressive order, weights reordered, animations
@@ -60,7 +61,12 @@ usage:
       OUT is self-contained: images IN keeps in files beside it are embedded
       (a missing or refused one is an error, before anything is built).
       --strategy auto (default) builds reorder and flatten and keeps the one of
-      lower mean RMS error over k = 1..B, saying which (twice the time).
+      lower mean RMS error over k = 1..B, saying which (twice the time; as
+      progskin-server builds a plain file). --strategy rate builds reorder,
+      flatten and hierarchy (every bone after its artist parent: cheaper
+      parent-relative records) and keeps the one that removes the most error
+      per bit of the stream's records (docs/algorithms.md "Choosing the
+      strategy"; three times the time).
   progskin build --from-vertices IN -o OUT.glb [--bones N] [--max-error PERCENT]
                  [--rest-frame F] [--similarity] [--method auto|collapse|hybrid|top-down]
                  [--clip SPEC] [--fps 30] [--quiet]
@@ -83,7 +89,8 @@ usage:
       (default 0): joints, vertices, clips, morph targets and the error table k -> RMS / max error (units
       and % of the rest bounding-box diagonal) and mean distinct influences per
       vertex. For a plain glTF it builds and compares the strategies reorder,
-      flatten and leaf_prune (naive baseline: deepest bones first, plain copy).
+      flatten, hierarchy and leaf_prune (naive baseline: deepest bones first,
+      plain copy).
       --plot draws error against bones per strategy with gnuplot (.svg/.png/.pdf).
   progskin pose FILE --time T [--clip SPEC] [--bones K|all] [--character N]
                 [--max-influences M] [--json | -o OUT.bin]
@@ -191,12 +198,20 @@ ProgressiveSkin build_with_progress(const Character& c, const FrameSet& frames, 
     return build_progressive_skin(c, frames, opt);
 }
 
-// --strategy auto: reorder and flatten, the lower mean RMS kept (offline/collapse.h).
-ProgressiveSkin build_best_with_progress(const Character& c, const FrameSet& frames, bool fit, bool quiet, StrategyChoice& chosen) {
+// --strategy auto: reorder and flatten, the lower mean RMS kept; --strategy
+// rate: reorder, flatten and hierarchy, the lowest rate-distortion area
+// against the stream's record bits kept (offline/collapse.h).
+ProgressiveSkin build_best_with_progress(const Character& c, const FrameSet& frames, bool fit, bool quiet, bool by_rate,
+                                         StrategyChoice& chosen) {
     BuildOptions opt;
     opt.fit_corrections = fit;
-    Progress p(quiet, "build reorder, then flatten", 2);
+    Progress p(quiet, by_rate ? "build reorder, flatten, then hierarchy" : "build reorder, then flatten", by_rate ? 3 : 2);
     opt.progress = [&p](int s, int t) { p(s, t); };
+#ifdef PROGSKIN_HAVE_NET
+    if (by_rate) opt.bone_bits = [&](const ProgressiveSkin& s) { return progskin::net::record_bits_per_bone(c, s, frames); };
+#else
+    if (by_rate) throw UsageError("--strategy rate needs the wire library (a build with PROGSKIN_BUILD_NET)");
+#endif
     return build_best_progressive_skin(c, frames, opt, &chosen);
 }
 
@@ -315,10 +330,10 @@ int cmd_build(int argc, char** argv) {
     const double fps = a.has("--fps") ? to_number("--fps", a.get("--fps")) : 30.0;
     if (fps <= 0 || fps > 1000) throw UsageError("--fps must be in (0, 1000]");
     const std::string strategy = a.get("--strategy", "auto");
-    const bool choose = strategy == "auto";
+    const bool by_rate = strategy == "rate", choose = strategy == "auto" || by_rate;
+    if (!choose && strategy != "reorder" && strategy != "flatten" && strategy != "hierarchy" && strategy != "leaf_prune")
+        throw UsageError("--strategy must be auto, rate, reorder, flatten, hierarchy or leaf_prune, not '" + strategy + "'");
     const Strategy st = choose ? Strategy::Reorder : parse_strategy(strategy);
-    if (st != Strategy::Reorder && st != Strategy::Flatten && st != Strategy::LeafPrune)
-        throw UsageError("--strategy must be auto, reorder, flatten or leaf_prune");
     const bool quiet = a.has("--quiet");
     // The output embeds the images the input keeps beside it: every one is checked before the build.
     external_files(a.positional[0]);
@@ -333,19 +348,35 @@ int cmd_build(int argc, char** argv) {
                      "the skinning error on the morphed mesh\n",
                      a.positional[0].c_str(), c.morphs.size());
     StrategyChoice chosen;
-    const ProgressiveSkin s = choose ? build_best_with_progress(c, frames, !a.has("--plain-copy"), quiet, chosen)
+    const ProgressiveSkin s = choose ? build_best_with_progress(c, frames, !a.has("--plain-copy"), quiet, by_rate, chosen)
                                      : build_with_progress(c, frames, st, !a.has("--plain-copy"), quiet);
     if (!quiet) std::fprintf(stderr, "%s: computing the server's tables (bone costs and importance)\n", a.positional[0].c_str());
     json extra = server_tables(c, s);
     if (choose) {
         extra["strategy_choice"] = {{"chosen", strategy_name(chosen.chosen)},
+                                    {"by", chosen.by_rate ? "rate-distortion" : "mean RMS"},
                                     {"reorder_mean_rms_pct", 100.0 * chosen.reorder_mean_rms / s.diagonal},
                                     {"flatten_mean_rms_pct", 100.0 * chosen.flatten_mean_rms / s.diagonal}};
+        if (chosen.by_rate) {
+            extra["strategy_choice"]["reorder_bits_per_frame"] = chosen.reorder_bits;
+            extra["strategy_choice"]["flatten_bits_per_frame"] = chosen.flatten_bits;
+            extra["strategy_choice"]["hierarchy_bits_per_frame"] = chosen.hierarchy_bits;
+            extra["strategy_choice"]["reorder_rd_area"] = chosen.reorder_area;
+            extra["strategy_choice"]["flatten_rd_area"] = chosen.flatten_area;
+            extra["strategy_choice"]["hierarchy_rd_area"] = chosen.hierarchy_area;
+            extra["strategy_choice"]["hierarchy_mean_rms_pct"] = 100.0 * chosen.hierarchy_mean_rms / s.diagonal;
+        }
         if (!quiet)
             std::fprintf(stderr, "%s: strategy %s: mean RMS over k %.4f %% of the diagonal (reorder %.4f %%, flatten %.4f %%)\n",
                          a.positional[0].c_str(), strategy_name(chosen.chosen),
-                         100.0 * std::min(chosen.reorder_mean_rms, chosen.flatten_mean_rms) / s.diagonal,
+                         100.0 * mean_rms(s.error) / s.diagonal,
                          100.0 * chosen.reorder_mean_rms / s.diagonal, 100.0 * chosen.flatten_mean_rms / s.diagonal);
+        if (!quiet && chosen.by_rate)
+            std::fprintf(stderr,
+                         "%s: chosen by rate-distortion: records of every bone %.0f / %.0f / %.0f bits per frame (reorder / "
+                         "flatten / hierarchy), error x bits area %.4g / %.4g / %.4g (docs/algorithms.md \"Choosing the strategy\")\n",
+                         a.positional[0].c_str(), chosen.reorder_bits, chosen.flatten_bits, chosen.hierarchy_bits, chosen.reorder_area,
+                         chosen.flatten_area, chosen.hierarchy_area);
     }
     // What the error table was measured on (docs/metrics.md §2: a table is only comparable with its frames).
     extra["fps"] = fps;
@@ -516,7 +547,7 @@ int cmd_inspect(int argc, char** argv) {
         const FrameSet frames = sample_frames(c, training_set(c, a.get("--clip")), fps);
         out["frames"] = frames.frame_count();
         const bool quiet = as_json || a.has("--quiet");
-        for (Strategy st : {Strategy::Reorder, Strategy::Flatten, Strategy::LeafPrune})
+        for (Strategy st : {Strategy::Reorder, Strategy::Flatten, Strategy::Hierarchy, Strategy::LeafPrune})
             tables.push_back({strategy_name(st), build_with_progress(c, frames, st, true, quiet).error});
         tables.push_back(
             {"reorder_plain_copy", build_with_progress(c, frames, Strategy::Reorder, false, quiet).error});
@@ -593,7 +624,7 @@ int cmd_pose(int argc, char** argv) {
     const FrameSet one = sample_pose(c, sel, t);  // bones and morph weights at exactly t
     if (!asset.progressive && k < B) {
         StrategyChoice ignored;
-        asset.skin = build_best_with_progress(c, sample_frames(c, default_training_set(c), 30.0), true, true, ignored);
+        asset.skin = build_best_with_progress(c, sample_frames(c, default_training_set(c), 30.0), true, true, false, ignored);
         asset.progressive = true;
     }
     std::vector<glm::vec3> pos(c.vertex_count());
