@@ -181,53 +181,51 @@ bool FrameEncoder::push_pose(int instance, std::span<const Mat34> skinning) {
     return true;
 }
 
-bool FrameEncoder::push_records(int instance, uint32_t pose_seq, uint8_t epoch, int first, std::span<const uint8_t> records,
-                                std::span<const uint8_t, ROOT_BYTES> root, std::span<const int16_t> morphs) {
-    std::lock_guard lock(mutex_);
-    if (instance < 0 || size_t(instance) >= slots_.size() || !slots_[size_t(instance)].active) return false;
+FrameEncoder::Slot* FrameEncoder::pose_slot(int instance, uint32_t pose_seq, std::span<const int16_t> morphs) {
+    if (instance < 0 || size_t(instance) >= slots_.size() || !slots_[size_t(instance)].active) return nullptr;
     Slot& slot = slots_[size_t(instance)];
     if (slot.has_pose && int32_t(pose_seq - slot.pose_seq) < 0) {
         ++stats_.stale_poses;
-        return false;
+        return nullptr;
     }
-    const size_t rs = size_t(assets_[slot.spec.asset]->format.size());
-    if (first < 0 || records.size() % rs != 0 || size_t(first) * rs + records.size() > slot.records.size()) return false;
-    std::copy(records.begin(), records.end(), slot.records.begin() + long(size_t(first) * rs));
+    if (!morphs.empty() && morphs.size() != std::min<size_t>(assets_[slot.spec.asset]->character.morphs.size(), MAX_MORPHS))
+        return nullptr;
+    return &slot;
+}
+
+void FrameEncoder::take_pose(Slot& slot, uint32_t pose_seq, uint8_t epoch, std::span<const uint8_t, ROOT_BYTES> root,
+                             std::span<const int16_t> morphs, bool relative) {
     std::copy(root.begin(), root.end(), slot.root.begin());
-    if (!morphs.empty()) {
-        if (morphs.size() != std::min<size_t>(assets_[slot.spec.asset]->character.morphs.size(), MAX_MORPHS)) return false;
-        slot.morphs.assign(morphs.begin(), morphs.end());  // capacity kept after the first
-    }
+    if (!morphs.empty()) slot.morphs.assign(morphs.begin(), morphs.end());  // capacity kept after the first
+    slot.relative = relative;
     slot.pose_seq = pose_seq;
     slot.live_epoch = epoch;
     slot.live = slot.has_pose = slot.has_root = true;
-    slot.relative = false;
     slot.changed = true;
+}
+
+bool FrameEncoder::push_records(int instance, uint32_t pose_seq, uint8_t epoch, int first, std::span<const uint8_t> records,
+                                std::span<const uint8_t, ROOT_BYTES> root, std::span<const int16_t> morphs) {
+    std::lock_guard lock(mutex_);
+    Slot* slot = pose_slot(instance, pose_seq, morphs);
+    if (!slot) return false;
+    const size_t rs = size_t(assets_[slot->spec.asset]->format.size());
+    if (first < 0 || records.size() % rs != 0 || size_t(first) * rs + records.size() > slot->records.size()) return false;
+    std::copy(records.begin(), records.end(), slot->records.begin() + long(size_t(first) * rs));
+    take_pose(*slot, pose_seq, epoch, root, morphs, false);
     return true;
 }
 
 bool FrameEncoder::push_relative(int instance, uint32_t pose_seq, uint8_t epoch, int first, std::span<const RecordInts> records,
                                  std::span<const uint8_t, ROOT_BYTES> root, std::span<const int16_t> morphs) {
     std::lock_guard lock(mutex_);
-    if (instance < 0 || size_t(instance) >= slots_.size() || !slots_[size_t(instance)].active) return false;
-    Slot& slot = slots_[size_t(instance)];
-    if (slot.has_pose && int32_t(pose_seq - slot.pose_seq) < 0) {
-        ++stats_.stale_poses;
-        return false;
-    }
-    const ServerAsset& a = *assets_[slot.spec.asset];
-    const size_t B = size_t(a.bone_count());
+    Slot* slot = pose_slot(instance, pose_seq, morphs);
+    if (!slot) return false;
+    const size_t B = size_t(assets_[slot->spec.asset]->bone_count());
     if (first < 0 || size_t(first) + records.size() > B) return false;
-    if (!morphs.empty() && morphs.size() != std::min<size_t>(a.character.morphs.size(), MAX_MORPHS)) return false;
-    if (slot.rel.size() != B || !slot.relative) slot.rel.assign(B, RecordInts{});  // a bone not sent yet: the bind pose
-    std::copy(records.begin(), records.end(), slot.rel.begin() + first);
-    std::copy(root.begin(), root.end(), slot.root.begin());
-    if (!morphs.empty()) slot.morphs.assign(morphs.begin(), morphs.end());
-    slot.relative = true;
-    slot.pose_seq = pose_seq;
-    slot.live_epoch = epoch;
-    slot.live = slot.has_pose = slot.has_root = true;
-    slot.changed = true;
+    if (slot->rel.size() != B || !slot->relative) slot->rel.assign(B, RecordInts{});  // a bone not sent yet: the bind pose
+    std::copy(records.begin(), records.end(), slot->rel.begin() + first);
+    take_pose(*slot, pose_seq, epoch, root, morphs, true);
     return true;
 }
 

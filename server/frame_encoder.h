@@ -208,6 +208,13 @@ private:
     size_t max_bones_ = 0;          // bones of the largest asset
     std::vector<uint8_t> bits_;     // encode_pose scratch
     std::vector<BonePose> model_, decoded_;
+    // The slot a player's pose (sequence pose_seq, weights morphs) goes into,
+    // mutex_ held: nullptr when the instance is not active, the pose is older
+    // than the kept one (counted stale) or the weights are not one per target.
+    Slot* pose_slot(int instance, uint32_t pose_seq, std::span<const int16_t> morphs);
+    // A pushed pose's root block, weights, sequence and epoch into the slot.
+    void take_pose(Slot& slot, uint32_t pose_seq, uint8_t epoch, std::span<const uint8_t, ROOT_BYTES> root,
+                   std::span<const int16_t> morphs, bool relative);
     // A push_relative pose composed into model_ and the slot's absolute
     // records; false (counted) when a bone leaves the asset's box.
     bool compose_live(Slot& slot, const ServerAsset& a);
