@@ -52,6 +52,10 @@ struct AssetOptions {
     bool from_vertices = false;  // files without a skin: build one from their vertex animation
     int scratch_bones = 16;      // bones of such a build (progskin build --from-vertices --bones)
     std::string cache_dir;       // derived files (server_cache_dir() when empty)
+    // Plain files: build as progskin build --strategy rate (reorder, flatten
+    // and hierarchy, the most error removed per bit of the stream's records)
+    // instead of --strategy auto (the lower mean error of reorder and flatten).
+    bool build_by_rate = false;
 };
 // $XDG_CACHE_HOME/progskin, else $HOME/.cache/progskin, else ./progskin-cache.
 std::string server_cache_dir();
@@ -81,7 +85,8 @@ std::vector<std::string> check_server_assets(const std::vector<std::string>& arg
 // Builds what a checked character needs to be served. A progressive file's
 // skin and stored server tables are used as they are (tables missing or of
 // another version are recomputed, with a warning). A plain file is built once:
-// its progressive skin and tables are cached as <cache>/<content hash>-c<N>-t<version>.glb
+// its progressive skin and tables are cached as <cache>/<content hash>-c<N>-t<version>-b2[r].glb
+// (r: options.build_by_rate)
 // and read from there on later starts. Characters other than the file's first
 // are served as a copy of the file with their skins first (cached too), since
 // a client plays character 0 of the file it downloads. A file without a skin

@@ -47,6 +47,10 @@ static const char* kUsage =
     "  --from-vertices   serve files without a skin (morph-target animation, PC2) by building\n"
     "                    a skin from their vertex animation (as progskin build --from-vertices)\n"
     "  --bones N         bones of such a build (default 16)\n"
+    "  --build-strategy auto|rate  how a plain file's progressive skin is built: auto (default)\n"
+    "                    as progskin build: the lower mean error of reorder and flatten;\n"
+    "                    rate as progskin build --strategy rate: reorder, flatten or hierarchy,\n"
+    "                    the most error removed per bit of the stream's records\n"
     "  --cache DIR       derived files (default $XDG_CACHE_HOME/progskin or ~/.cache/progskin)\n"
     "  --crowd N         lay out N instances over the assets and their clips (default:\n"
     "                    one instance per asset and clip group)\n"
@@ -158,6 +162,14 @@ static int parse_options(int argc, char** argv, Options& o) {
             else if (a == "--cache") o.asset_options.cache_dir = need(i);
             else if (a == "--crowd") o.crowd = cli::to_int(a, need(i));
             else if (a == "--no-scene") o.no_scene = true;
+            else if (a == "--build-strategy") {
+                const std::string v = need(i);
+                if (v != "auto" && v != "rate") {
+                    std::fprintf(stderr, "progskin-server: --build-strategy takes auto or rate, not %s\n%s", v.c_str(), kUsage);
+                    return 2;
+                }
+                o.asset_options.build_by_rate = v == "rate";
+            }
             else if (a == "--play") {
                 const std::string v = need(i);
                 if (v != "loop" && v != "once") {

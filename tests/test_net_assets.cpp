@@ -112,6 +112,36 @@ TEST(ServerAssets, EveryCharacterOfAFileAndOneByIndex) {
     EXPECT_NE(first->id, a->id);
 }
 
+// --build-strategy rate: a plain file's skin is the one of reorder, flatten
+// and hierarchy that removes the most error per bit of the stream's records,
+// cached apart from the default build (another file name), read back as built.
+TEST(ServerAssets, BuildByRateIsCachedApartFromTheDefaultBuild) {
+    AssetOptions o;
+    o.cache_dir = temp_cache("by_rate");
+    std::vector<PendingAsset> pending;
+    ASSERT_TRUE(check_server_assets({asset("CesiumMan.glb")}, o, pending).empty());
+    const auto plain = build_server_asset(pending[0], o);
+    o.build_by_rate = true;
+    const auto rate = build_server_asset(pending[0], o);
+    const Strategy s = rate->skin.strategy;
+    EXPECT_TRUE(s == Strategy::Reorder || s == Strategy::Flatten || s == Strategy::Hierarchy) << strategy_name(s);
+    EXPECT_TRUE(plain->skin.strategy == Strategy::Reorder || plain->skin.strategy == Strategy::Flatten);
+    size_t builds = 0;
+    for (const auto& e : fs::directory_iterator(o.cache_dir)) builds += e.path().extension() == ".glb";
+    EXPECT_EQ(builds, 2u) << "one cached build each";
+    const auto again = build_server_asset(pending[0], o);
+    EXPECT_EQ(again->skin.strategy, s);
+    EXPECT_EQ(again->skin.order, rate->skin.order);
+    // The bits of every bone per frame of each build (what the choice weighs), printed.
+    const FrameSet f = sample_frames(plain->character, plain->selections, 30.0);
+    double bp = 0, br = 0;
+    for (double b : record_bits_per_bone(plain->character, plain->skin, f)) bp += b;
+    for (double b : record_bits_per_bone(rate->character, rate->skin, f)) br += b;
+    std::printf("CesiumMan: default build %s %.0f bits per frame, by rate %s %.0f\n", strategy_name(plain->skin.strategy), bp,
+                strategy_name(s), br);
+    EXPECT_GT(br, 0.0);
+}
+
 TEST(ServerAssets, FromVerticesBuildsAndCachesASkin) {
     AssetOptions o;
     o.cache_dir = temp_cache("scratch");

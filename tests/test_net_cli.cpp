@@ -72,6 +72,7 @@ TEST(NetCli, HelpAndExitCodes) {
     // Numbers are parsed whole and the error names the option (exit 2, nothing started).
     const std::pair<const char*, const char*> bad_values[] = {
         {"progskin-server --crowd 3x", "--crowd"},
+        {"progskin-server --build-strategy fastest", "--build-strategy"},
         {"progskin-server --port 70000", "--port"},
         {"progskin-client --duration 1s", "--duration"},
         {"progskin-server --no-tls --seal-datagrams", "--no-tls"},
