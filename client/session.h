@@ -357,9 +357,9 @@ private:
     double t_first_ = 0;
     double last_frame_at_ = 0;  // newest frame datagram (ClientStats::max_gap_ms)
     ClientStats st_;
-    // failover: when the last server was lost (0: streaming), the stream's
-    // first frame then, the loss figures of the servers before
-    double lost_at_ = 0, stream_started_ = 0;
+    // failover: when the last server was lost (0: streaming), the loss
+    // figures of the servers before
+    double lost_at_ = 0;
     uint64_t loss_unique_before_ = 0, loss_span_before_ = 0;
 
     // display clock (display())
