@@ -991,8 +991,9 @@ bool ClientSession::publish(int handle, const RootPose& root, std::span<const Ma
     o->pose_seq = seq;
     // As many bones per datagram as fit (a character of a few hundred bones takes one).
     const size_t free_bytes = MAX_DATAGRAM - POSE_OVERHEAD - ROOT_BYTES;
+    const size_t morph_bytes = morph_weights.empty() ? 0 : sizeof(int16_t) * pose_morphs_.size();  // with bone 0
     for (int first = 0; first < B;) {
-        const size_t room = 8 * (free_bytes - (first == 0 ? 2 * pose_morphs_.size() * !morph_weights.empty() : 0));
+        const size_t room = 8 * (free_bytes - (first == 0 ? morph_bytes : 0));
         int end = first + 1;  // one record always fits (kMaxRecordBits)
         while (end < B && pose_offsets_[size_t(end) + 1] - pose_offsets_[size_t(first)] <= room) ++end;
         pose_chunk_.clear();

@@ -17,42 +17,41 @@ seconds=8
 build=build
 json=""
 assets=()
-while [ $# -gt 0 ]; do
+need() { [[ $# -ge 2 ]] || { echo "pose_bits.sh: $1 needs a value (--help)" >&2; exit 2; }; }
+while (($#)); do
   case "$1" in
     -h|--help) sed -n '2,14p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
-    --seconds) [ $# -ge 2 ] || { echo "pose_bits.sh: --seconds needs a value" >&2; exit 2; }; seconds=$2; shift 2;;
-    --build) [ $# -ge 2 ] || { echo "pose_bits.sh: --build needs a directory" >&2; exit 2; }; build=$2; shift 2;;
-    --json) [ $# -ge 2 ] || { echo "pose_bits.sh: --json needs a file" >&2; exit 2; }; json=$2; shift 2;;
+    --seconds) need "$@"; seconds=$2; shift 2;;
+    --build) need "$@"; build=$2; shift 2;;
+    --json) need "$@"; json=$2; shift 2;;
     -*) echo "pose_bits.sh: unknown argument $1 (--help)" >&2; exit 2;;
     *) assets+=("$1"); shift;;
   esac
 done
 [ ${#assets[@]} -gt 0 ] || assets=(Fox.glb CesiumMan.glb)
 [[ "$seconds" =~ ^[0-9]+$ ]] && [ "$seconds" -ge 3 ] || { echo "pose_bits.sh: --seconds must be a whole number >= 3" >&2; exit 2; }
-server="$build/server/progskin-server"
+SERVER="$build/server/progskin-server"
 client="$build/client/progskin-client"
-for b in "$server" "$client"; do [ -x "$b" ] || { echo "pose_bits.sh: $b not built (bash scripts/build.sh)" >&2; exit 1; }; done
+for b in "$SERVER" "$client"; do [ -x "$b" ] || { echo "pose_bits.sh: $b not built (bash scripts/build.sh)" >&2; exit 1; }; done
 command -v python3 >/dev/null || { echo "pose_bits.sh: needs python3" >&2; exit 1; }
-work=$(mktemp -d)
-trap 'kill $(jobs -p) 2>/dev/null || true; rm -rf "$work"' EXIT
+NAME=pose_bits.sh
+# shellcheck source=scripts/lib.sh
+source scripts/lib.sh
+work=$TMP
 echo "| asset | bones | poses | predicted | Pose kbit/s | bits per bone per pose | watcher's RMS % |"
 echo "|---|---|---|---|---|---|---|"
 rows=()
 for asset in "${assets[@]}"; do
-  port=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
-  "$server" --port "$port" --no-scene --duration $((seconds + 30)) >"$work/server.log" 2>&1 &
-  srv=$!
-  for _ in $(seq 100); do grep -q "listening\|TLS certificate" "$work/server.log" 2>/dev/null && break; sleep 0.2; done
-  sleep 1
-  "$client" --server "127.0.0.1:$port" --insecure --duration "$seconds" --publish "$asset" --walk 1 \
+  psk_start_server --no-scene --duration $((seconds + 30))
+  "$client" --server "127.0.0.1:$PORT" --pin "$PIN" --duration "$seconds" --publish "$asset" --walk 1 \
     --report json >"$work/pub.json" 2>"$work/pub.log" &
   pub=$!
-  if ! "$client" --server "127.0.0.1:$port" --insecure --duration "$seconds" --warmup 2 --verify --verify-every 3 \
+  if ! "$client" --server "127.0.0.1:$PORT" --pin "$PIN" --duration "$seconds" --warmup 2 --verify --verify-every 3 \
        --report json >"$work/watch.json" 2>"$work/watch.log"; then
     echo "pose_bits.sh: the watching client failed:" >&2; tail -5 "$work/watch.log" >&2; exit 1
   fi
   wait "$pub" || { echo "pose_bits.sh: the publishing client failed:" >&2; tail -5 "$work/pub.log" >&2; exit 1; }
-  kill "$srv" 2>/dev/null || true; wait "$srv" 2>/dev/null || true
+  kill "$SERVER_PID" 2>/dev/null || true; wait "$SERVER_PID" 2>/dev/null || true
   row=$(python3 - "$work/pub.json" "$work/watch.json" "$asset" <<'EOF'
 import json, sys
 p = json.load(open(sys.argv[1]))
