@@ -67,13 +67,21 @@ const PoseBuffer::Frame* PoseBuffer::frame_at(uint32_t tick) const {
 }
 
 bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const RecordRun& records, int show, uint8_t epoch,
-                           const uint8_t* root) {
+                           std::span<const uint8_t> root) {
     if (show == 0) show = total;
     if (total < 1 || total > bones_ || first < 0 || count < 1 || first + count > total || show < total || show > bones_ ||
         records.scaled != fmt_.scaled)
         return false;
-    // Decode every record before anything changes (a predicted one from its
-    // baseline frames: the chunk is refused when one is missing).
+    // Decode the root and every record before anything changes (a predicted
+    // one from its baseline frames: the chunk is refused when one is missing).
+    std::array<uint8_t, ROOT_BYTES> abs_root;
+    if (!root.empty()) {
+        bool missing = false;
+        if (!roots_.resolve(tick, root.data(), root.size(), abs_root.data(), &missing)) {
+            if (missing) ++missing_baselines_;
+            return false;
+        }
+    }
     const uint32_t age = records.base & kBaseAgeMask;
     const bool linear = (records.base & kBaseLinear) != 0;
     const Frame* b1 = age ? frame_at(tick - age) : nullptr;
@@ -106,9 +114,10 @@ bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const
     Frame* f = frame_for(tick, total, show, epoch, &too_old);
     if (too_old) return true;  // too old to matter
     if (!f) return false;
-    if (root) {
-        f->root = decode_root(root);
+    if (!root.empty()) {
+        f->root = decode_root(abs_root.data());
         f->has_root = true;
+        roots_.put(tick, abs_root.data());
     }
     last_gap_ = 0;
     for (int i = 0; i < count; ++i) {

@@ -21,6 +21,7 @@
 #include "bone_codec.h"
 #include "bone_record.h"
 #include "frame_reader.h"
+#include "root_block.h"
 #include "wire.h"
 
 namespace progskin::net {
@@ -41,12 +42,16 @@ public:
     // buffer's records of the same bone at the baseline ticks. Returns false
     // (and changes nothing) when the chunk is inconsistent, a record does not
     // decode, or a baseline record is not here (counted: missing_baselines).
-    // epoch: Chunk.epoch; root: the chunk's root block or nullptr. Stores
-    // each bone's pose relative to its progressive parent (bone_record.h).
+    // epoch: Chunk.epoch; root: the chunk's root block (root_block.h, empty
+    // when none), a predicted one decoded from this buffer's roots at its
+    // baseline ticks (refused and counted like a record's when one is not
+    // here). Stores each bone's pose relative to its progressive parent
+    // (bone_record.h).
     bool add_chunk(uint32_t tick, int first, int count, int total, const RecordRun& records, int show = 0,
-                   uint8_t epoch = 0, const uint8_t* root = nullptr);
-    // Records refused because their baseline was not here (never expected:
-    // the server predicts only from frames this client acknowledged).
+                   uint8_t epoch = 0, std::span<const uint8_t> root = {});
+    // Records (and root blocks) refused because their baseline was not here
+    // (never expected: the server predicts only from frames this client
+    // acknowledged).
     uint64_t missing_baselines() const { return missing_baselines_; }
     uint64_t predicted() const { return predicted_; }  // records decoded from a baseline
 
@@ -133,6 +138,7 @@ private:
     bool pose_about_pivot(int b, double d, BonePose& out, double* held_at, double* anchor_at) const;
     std::vector<RecordInts> scratch_;   // a chunk's decoded records
     uint64_t missing_baselines_ = 0, predicted_ = 0;
+    RootRing roots_;                     // the roots received, by tick (baselines of predicted roots)
     // Weight m as of frame f: the newest frame at or before f carrying it, else held_.
     float weight_as_of(const Frame& f, int m) const;
     int morphs_ = 0;

@@ -74,8 +74,8 @@ FrameApplied apply_frame(const wire::Frame& f, std::span<const PoseTarget> insta
     };
     const double tick = double(f.tick());
     uint8_t epoch = 0;
-    const uint8_t* root = nullptr;
-    auto on_chunk = [&](const wire::Chunk& c, const uint8_t* chunk_root, const uint8_t* morph) {
+    std::span<const uint8_t> root;
+    auto on_chunk = [&](const wire::Chunk& c, std::span<const uint8_t> chunk_root, const uint8_t* morph) {
         epoch = c.epoch();
         root = chunk_root;
         // Morph weights (sparse: the others keep their values), PoseBuffer::add_morphs.
@@ -661,7 +661,7 @@ FrameApplied ClientSession::sink_frame(const wire::Frame& f, double arrival) {
             if (!a) ++r.unknown_chunks;
         }
     FrameSink& sink = *hooks_.frame_sink;
-    auto on_chunk = [&](const wire::Chunk& c, const uint8_t* root, const uint8_t*) {
+    auto on_chunk = [&](const wire::Chunk& c, std::span<const uint8_t> root, const uint8_t*) {
         sink.on_chunk(c.instance(), f.tick(), c.show(), root, arrival);
     };
     auto run = [&](uint16_t i, int first, int count, int, const RecordRun& rec) {

@@ -133,9 +133,10 @@ public:
     // asset, clip, publisher), or removed (rc == nullptr).
     virtual void on_character(int instance, const RemoteCharacter* rc) = 0;
     // One chunk of a received frame of a known character, before its runs:
-    // the frame's tick, the bones to show, the root block (ROOT_BYTES, or
-    // nullptr), the datagram's arrival (the clock of update's now).
-    virtual void on_chunk(int instance, uint32_t tick, int show, const uint8_t* root, double arrival) = 0;
+    // the frame's tick, the bones to show, the root block as received
+    // (root_block.h, absolute or predicted; empty when none), the datagram's
+    // arrival (the clock of update's now).
+    virtual void on_chunk(int instance, uint32_t tick, int show, std::span<const uint8_t> root, double arrival) = 0;
     // A run of `count` parent-relative records (bone_record.h) of bones
     // first.. of that chunk, as received (not yet decoded).
     virtual void on_run(int instance, int first, int count, const RecordRun& records) = 0;

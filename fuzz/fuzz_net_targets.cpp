@@ -54,7 +54,9 @@ int frame_stream(const uint8_t* data, size_t size) {
             std::array<float, 4> w;
             b.weights_at(t - 0.5, std::span<float>(w.data(), size_t(b.morph_count())));
         }
-        return applied.applied > 0;
+        // Accepted: a chunk applied, or refused only for want of a baseline
+        // (a predicted record or root this fresh receiver never had).
+        return applied.applied > 0 || applied.missing_baselines > 0;
     }
     // Ack, Bind, BindAck, Challenge, ChallengeResponse: verified tables, every field read.
     [[maybe_unused]] static volatile uint64_t sink;

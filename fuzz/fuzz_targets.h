@@ -24,7 +24,8 @@ int gltf_import(const uint8_t* data, size_t size);
 // 14-byte records) and a few interpolated poses; for an Ack, Bind, BindAck,
 // Challenge or ChallengeResponse its fields; and the bytes as a sealed
 // datagram (crypto.h open_datagram, a fixed key). Returns 1 when the
-// datagram was accepted, 0 when it was dropped.
+// datagram was accepted (a Frame: read, and a chunk applied or refused for
+// a baseline these fresh buffers do not hold), 0 when it was dropped.
 int frame_stream(const uint8_t* data, size_t size);
 
 // (fuzz_net_targets.cpp.) Treats the bytes as one control message body (TCP,

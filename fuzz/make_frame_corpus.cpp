@@ -1,7 +1,8 @@
 // make_frame_corpus.cpp — writes the seed corpus of the frame-stream fuzz
 // target (fuzz/corpus/frame): real datagrams of the default character set
 // (progskin-server's scene without arguments) as the server packs them at
-// several budgets, frames carrying morph blocks (tests/data/skinned_morph.gltf
+// several budgets, the same with a walking instance whose client acknowledges
+// (predicted records and root blocks), frames carrying morph blocks (tests/data/skinned_morph.gltf
 // as instance 5), and one Bind, BindAck, Ack, Challenge and ChallengeResponse;
 // beside DIR, the control messages of players' characters (control/) and
 // parent-relative bone records of the Fox (records/, fuzz_targets.h
@@ -67,6 +68,25 @@ int main(int argc, char** argv) {
     placed.source_us = 123456789;
     core.encoder().set_root(1, placed, false);
     write_frames(core, {200, 500, 1100, 20000}, dir, "frame-");
+    {
+        // Instance 1 walking, its client acknowledging every datagram at
+        // once: later frames carry predicted records and root blocks
+        // (baseline_book.h), written as frame-acked-t<tick>-<i>.
+        ServerCore acore(ServerConfig{}, assets, default_instances(assets));
+        auto client = ClientStream::detached(acore, 1, 1000);
+        for (uint32_t t = 1; t <= 40; ++t) {
+            placed.position.x += 0.04;
+            placed.rotation = glm::angleAxis(0.7f + 0.01f * float(t), glm::vec3(0, 1, 0));
+            placed.source_us += 33333 + (t % 3) * 700;
+            acore.encoder().set_root(1, placed, false);
+            DatagramCollector sink;
+            client->send_frame(acore.encoder().encode(t), t % 2 ? 500 : 20000, sink);
+            if (!sink.sent.empty()) client->acknowledge(client->seq() - 1, ~0u);
+            if (t % 13 != 1) continue;
+            for (size_t i = 0; i < sink.sent.size(); ++i)
+                write(dir, "frame-acked-t" + std::to_string(t) + "-" + std::to_string(i), sink.sent[i].bytes);
+        }
+    }
     {
         // Morph blocks: tests/data/skinned_morph.gltf as instance 5 (the
         // fuzz target's 3-bone, 4-target buffer; slots 0-4 added and removed).

@@ -1,9 +1,9 @@
 // frame_reader.h — the chunk layout of a Frame (datagram.fbs, protocol
-// version 5), written by server/datagram_packer.cpp and read here by every
+// version 7), written by server/datagram_packer.cpp and read here by every
 // receiver (client, tests, benchmarks, fuzz target).
 //
-// Frame.payload holds, per chunk in chunk order, the root block (ROOT_BYTES,
-// when chunk.flags & CHUNK_ROOT), the morph block (when chunk.flags &
+// Frame.payload holds, per chunk in chunk order, the root block (root_block.h:
+// absolute or predicted, self-delimiting; when chunk.flags & CHUNK_ROOT), the morph block (when chunk.flags &
 // CHUNK_MORPH: uint8 n >= 1, then n entries of MORPH_ENTRY_BYTES: uint8 morph
 // index, strictly increasing, and int16 little-endian weight, wire.h
 // decode_morph_weight), a bone mask of mask_bytes(first, show)
@@ -21,21 +21,22 @@
 //       instance may be announced on the control channel after its first
 //       frames);
 //   on_chunk(chunk, root, morph): once per chunk of a known instance, before
-//       its runs (root: the ROOT_BYTES block, or nullptr; morph: the morph
-//       block from its count byte on, or nullptr);
+//       its runs (root: the chunk's root block, root_block.h, empty when
+//       none; morph: the morph block from its count byte on, or nullptr);
 //   run(instance, first, count, show, RecordRun): called for every run of
 //       consecutive bones carried, in payload order (the run's first record
 //       at RecordRun.bit of its bytes).
 // Returns false, having called nothing, when a chunk's scale flag differs
 // from its known instance's, has show == 0 or first >= show, a linear
-// baseline without an age (Chunk.flags bits 3-7), a root, morph block
-// or mask runs past the payload, a morph block has n == 0 or indices not
+// baseline without an age (Chunk.flags bits 3-7), a root block breaks its
+// syntax (root_block.h root_size), a root, morph block or mask runs past
+// the payload, a morph block has n == 0 or indices not
 // strictly increasing, the mask has bits set at or past show, the chunk
 // carries neither a bone nor a morph weight, a record breaks its syntax or
 // runs past the payload (bone_record.h skip_record), the padding is not
 // zero, or when bytes are left over after the last chunk. Whether show fits
 // the asset's bone count is the receiver's check (PoseBuffer::add_chunk), so
-// are a predicted record's baseline and sums, and whether a morph index is
+// are a predicted record's or root's baseline and sums, and whether a morph index is
 // below the asset's morph target count (PoseBuffer::add_morphs). O(payload
 // bits), no allocation.
 #pragma once
@@ -43,8 +44,11 @@
 #include <cstddef>
 #include <cstdint>
 
+#include <span>
+
 #include "bone_record.h"
 #include "datagram_generated.h"
+#include "root_block.h"
 #include "wire.h"
 
 namespace progskin::net {
@@ -81,11 +85,12 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
                 const uint8_t base = base_from_flags(c->flags());
                 if ((known > 0 && known != rs) || first >= show || ((base & kBaseLinear) && !(base & kBaseAgeMask)))
                     return false;
-                const uint8_t* root = nullptr;
+                std::span<const uint8_t> root;
                 if (c->flags() & CHUNK_ROOT) {
-                    if (size - at < ROOT_BYTES) return false;
-                    root = data + at;
-                    at += ROOT_BYTES;
+                    const size_t n = at < size ? root_size(data + at, size - at) : 0;
+                    if (n == 0) return false;
+                    root = {data + at, n};
+                    at += n;
                 }
                 const uint8_t* morph = nullptr;
                 if (c->flags() & CHUNK_MORPH) {
@@ -148,7 +153,7 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
 
 template <class RecordSize, class Run>
 bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run) {
-    return read_frame(frame, record_size, run, [](const wire::Chunk&, const uint8_t*, const uint8_t*) {});
+    return read_frame(frame, record_size, run, [](const wire::Chunk&, std::span<const uint8_t>, const uint8_t*) {});
 }
 
 }  // namespace progskin::net

@@ -19,7 +19,7 @@
 
 namespace progskin::net {
 
-inline constexpr uint16_t PROTOCOL_VERSION = 6;
+inline constexpr uint16_t PROTOCOL_VERSION = 7;
 inline constexpr size_t MAX_DATAGRAM = 1200;          // UDP payload limit, bytes
 inline constexpr size_t UDP_IP_OVERHEAD = 28;         // IPv4 + UDP headers (docs/metrics.md §3)
 inline constexpr size_t MAX_CONTROL_MESSAGE = 65536;  // control message body limit
@@ -48,7 +48,7 @@ inline bool encode_morph_weight(float w, int16_t& out) {
     return true;
 }
 inline float decode_morph_weight(int16_t q) { return float(q) / MORPH_WEIGHT_SCALE; }
-inline constexpr size_t ROOT_BYTES = 26;              // root block (datagram.fbs Chunk)
+inline constexpr size_t ROOT_BYTES = 26;              // an absolute root (Pose.root; a chunk codes it: root_block.h)
 inline constexpr int MAX_SPAWNED = 16;                // characters one session may own
 // Published poses a server keeps per character as baselines of predicted Pose
 // records (docs/protocol.md "Pose"); a publisher predicts only from an

@@ -39,6 +39,7 @@ void BaselineBook::mark(const Sent& s) {
             a.generation = r.generation;
             a.any = true;
             a.newest = a.first = s.tick;
+            a.ticks = 0;
             std::fill(a.mask.begin(), a.mask.end(), 0);
         } else if (r.generation != a.generation) {
             continue;  // a late datagram of an earlier occupant
@@ -46,11 +47,13 @@ void BaselineBook::mark(const Sent& s) {
         if (newer(s.tick, a.newest)) {
             const uint32_t shift = s.tick - a.newest;
             for (uint16_t& m : a.mask) m = shift >= 16 ? 0 : uint16_t(m << shift);
+            a.ticks = shift >= 16 ? 0 : uint16_t(a.ticks << shift);
             a.newest = s.tick;
         }
         if (newer(a.first, s.tick)) a.first = s.tick;
         const uint32_t d = a.newest - s.tick;
         if (d >= 16) continue;
+        a.ticks |= uint16_t(1u << d);
         if (a.mask.size() < size_t(r.first) + r.count) a.mask.resize(size_t(r.first) + r.count, 0);
         for (int b = r.first; b < r.first + r.count; ++b) a.mask[size_t(b)] |= uint16_t(1u << d);
     }
@@ -63,6 +66,15 @@ bool BaselineBook::acked(int instance, uint32_t generation, int b, uint32_t t) c
     const uint32_t d = a.newest - t;
     if (d >= 16 || int32_t(t - a.first) < int32_t(kGraceTicks)) return false;
     return (a.mask[size_t(b)] >> d) & 1;
+}
+
+bool BaselineBook::acked_any(int instance, uint32_t generation, uint32_t t) const {
+    if (instance < 0 || size_t(instance) >= acks_.size()) return false;
+    const Acks& a = acks_[size_t(instance)];
+    if (!a.any || a.generation != generation) return false;
+    const uint32_t d = a.newest - t;
+    if (d >= 16 || int32_t(t - a.first) < int32_t(kGraceTicks)) return false;
+    return (a.ticks >> d) & 1;
 }
 
 bool BaselineBook::newest(int instance, uint32_t generation, uint32_t& tick) const {
@@ -97,6 +109,7 @@ void RecordPlan::begin(const EncodedFrame& frame) {
     own_at_.clear();
     own_len_.clear();
     own_bits_.clear();
+    roots_.clear();
 }
 
 void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book) {
@@ -176,6 +189,20 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
         prefix_[pat + size_t(b) + 1] = prefix_[pat + size_t(b)] + uint32_t(bits);
     }
     en.prefix = pat;
+    // The root block, predicted from the root at t0 (and, linear, at t0 - age).
+    if (e.flags & CHUNK_ROOT) {
+        const uint32_t age = frame.tick - t0;
+        uint8_t base = 0;
+        const uint8_t *b1 = nullptr, *b2 = nullptr;
+        if (age >= 1 && age <= kMaxBaseAge && (b1 = frame.root_at(i, t0)) != nullptr) {
+            base = uint8_t(age);
+            if (2 * age < uint32_t(kBaselineRing) && book.acked_any(i, e.generation, t0 - age) &&
+                (b2 = frame.root_at(i, t0 - age)) != nullptr)
+                base |= kBaseLinear;
+        }
+        en.root_at = uint32_t(roots_.size());
+        en.root_len = uint32_t(write_root(e.root.data(), base, b1, b2, roots_));
+    }
     entry_of_[size_t(i)] = int32_t(entries_.size());
     entries_.push_back(en);
 }
@@ -206,6 +233,18 @@ void RecordPlan::own_record(int i, int b, size_t& from, size_t& count) const {
     const Entry& en = entries_[size_t(entry_of_[size_t(i)])];
     from = own_at_[en.at + size_t(b)];
     count = own_len_[en.at + size_t(b)];
+}
+
+std::span<const uint8_t> RecordPlan::root(int i) const {
+    if (i < 0 || size_t(i) >= entry_of_.size() || entry_of_[size_t(i)] < 0) return {};
+    const Entry& en = entries_[size_t(entry_of_[size_t(i)])];
+    return {roots_.data() + en.root_at, en.root_len};
+}
+
+size_t RecordPlan::root_bytes(const EncodedFrame& frame, int i) const {
+    if (!(frame.instances[size_t(i)].flags & CHUNK_ROOT)) return 0;
+    const size_t n = root(i).size();
+    return n ? n : kRootAbsoluteBytes;
 }
 
 const PredictedRecords* RecordPlan::records(int i) const {

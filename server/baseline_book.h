@@ -31,6 +31,7 @@
 #include <vector>
 
 #include "frame_encoder.h"
+#include "root_block.h"
 
 namespace progskin::net {
 
@@ -49,6 +50,10 @@ public:
     // The newest acknowledged tick of any bone of the instance usable as a
     // baseline (past the grace); false when none.
     bool newest(int instance, uint32_t generation, uint32_t& tick) const;
+    // Whether the client acknowledged any bone of instance (generation) at
+    // tick t, past the grace: it holds that tick's root block (every chunk
+    // of a tick carries it).
+    bool acked_any(int instance, uint32_t generation, uint32_t t) const;
     // The newest acknowledged tick of bone b (past the grace); false when none.
     bool newest_of(int instance, uint32_t generation, int b, uint32_t& tick) const;
     void clear();
@@ -69,6 +74,7 @@ private:
         bool any = false;
         uint32_t newest = 0;  // newest acknowledged tick of any bone
         uint32_t first = 0;   // the first acknowledged tick (the grace starts there)
+        uint16_t ticks = 0;   // bit k set: some bone acknowledged at tick newest - k
         std::vector<uint16_t> mask;  // per bone: bit k set, tick newest - k acknowledged
     };
     void mark(const Sent& s);
@@ -93,6 +99,13 @@ public:
     // Bone b's own-baseline record: bits [from, from + count) of own_bits().
     void own_record(int i, int b, size_t& from, size_t& count) const;
     const std::vector<uint8_t>& own_bits() const { return own_bits_; }
+    // Instance i's root block for this client (root_block.h), predicted from
+    // its root at the newest tick the client acknowledged (linear when the
+    // tick as far before that is acknowledged too); empty when not planned
+    // (the packer writes it absolute). root_bytes: its size, or
+    // kRootAbsoluteBytes when not planned (0 when the instance has no root).
+    std::span<const uint8_t> root(int i) const;
+    size_t root_bytes(const EncodedFrame& frame, int i) const;
 
 private:
     struct Entry {
@@ -100,6 +113,7 @@ private:
         const PredictedRecords* records = nullptr;
         size_t at = 0;      // into flags_ (bone_count)
         size_t prefix = 0;  // into prefix_ (bone_count + 1)
+        uint32_t root_at = 0, root_len = 0;  // into root_bytes_ (len 0: no root)
     };
     std::vector<int32_t> entry_of_;  // per instance: index into entries_, -1 none
     std::vector<Entry> entries_;
@@ -108,6 +122,7 @@ private:
     std::vector<uint8_t> own_base_;    // per bone: its own baseline (Own)
     std::vector<uint32_t> own_at_, own_len_;  // per bone: its own-baseline record in own_bits_
     std::vector<uint8_t> own_bits_;
+    std::vector<uint8_t> roots_;  // the planned root blocks
 };
 
 }  // namespace progskin::net

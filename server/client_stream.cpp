@@ -588,7 +588,7 @@ TickResult ClientStream::tick(const EncodedFrame& frame, double now, double dt, 
 }
 
 // A chunk of one bone of a placed character: what the least useful pick costs.
-static constexpr size_t kSmallestChunk = WireCost::kChunk + 1 + ROOT_BYTES + RecordFormat::kPlainSize;
+static constexpr size_t kSmallestChunk = WireCost::kChunk + 1 + kRootAbsoluteBytes + RecordFormat::kPlainSize;
 
 void ClientStream::bound_candidates(size_t budget, uint32_t tick) {
     const size_t most = std::min<size_t>(size_t(std::max(1, core_.config().max_candidates)),

@@ -9,6 +9,7 @@
 #include "baseline_book.h"
 #include "bone_record.h"
 #include "frame_reader.h"
+#include "root_block.h"
 #include "wire.h"
 
 namespace progskin::net {
@@ -71,8 +72,15 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
             return -1;
         };
         bone = next_bone();
+        // The root block: this client's (predicted, RecordPlan::root), else absolute.
         const bool root = (e.flags & CHUNK_ROOT) != 0;
-        const size_t root_bytes = root ? ROOT_BYTES : 0;
+        std::span<const uint8_t> planned = plan && root ? plan->root(instance) : std::span<const uint8_t>{};
+        if (root && planned.empty()) {
+            root_.clear();
+            write_root(e.root.data(), 0, nullptr, nullptr, root_);
+            planned = root_;
+        }
+        const size_t root_bytes = planned.size();
         // Morph weights of the group: in its first chunk (a chunk of their own,
         // first = show - 1 and an empty mask, when no bone goes).
         std::array<uint64_t, 4> morphs{};
@@ -94,7 +102,7 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
                 continue;
             }
             uint8_t flags = e.flags;
-            if (root) payload_.insert(payload_.end(), e.root.begin(), e.root.end());
+            payload_.insert(payload_.end(), planned.begin(), planned.end());
             if (morph_bytes > 0) {
                 flags |= CHUNK_MORPH;
                 payload_.push_back(uint8_t((morph_bytes - 1) / MORPH_ENTRY_BYTES));

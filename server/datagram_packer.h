@@ -2,8 +2,9 @@
 // datagrams (datagram.fbs Frame) of at most MAX_DATAGRAM bytes, copying the
 // pre-encoded parent-relative records' bits (no re-encoding). Adjacent picks of one instance
 // share one chunk (its bone mask, then its records: proto/frame_reader.h); a
-// chunk that does not fit continues in the next datagram (Chunk.first);
-// chunks go out in pick order.
+// chunk that does not fit continues in the next datagram (Chunk.first) and
+// repeats its root block (RecordPlan::root: predicted for this client, else
+// absolute); chunks go out in pick order.
 #pragma once
 #include <cstdint>
 #include <span>
@@ -38,6 +39,7 @@ private:
     flatbuffers::FlatBufferBuilder fbb_{1400};
     std::vector<wire::Chunk> chunks_;
     std::vector<uint8_t> payload_;  // bone masks and records (proto/frame_reader.h)
+    std::vector<uint8_t> root_;     // an absolute root block (a character the plan has not planned)
     std::span<const wire::PoseAck> acks_;  // still to go (the first datagram)
     size_t ack_bytes_ = 0;
 };

@@ -273,6 +273,8 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         frame_.hist.resize(slots_.size() * kBaselineRing * max_bones_);
         frame_.hist_tick.resize(slots_.size() * kBaselineRing, 0);
         frame_.hist_gen.resize(slots_.size() * kBaselineRing, 0);
+        frame_.hist_root.resize(slots_.size() * kBaselineRing);
+        frame_.hist_has_root.resize(slots_.size() * kBaselineRing, 0);
         const size_t had = frame_.predicted_.size();
         frame_.predicted_.resize(slots_.size() * kPredictedPerSlot);
         for (size_t k = had; k < frame_.predicted_.size(); ++k) {
@@ -391,6 +393,15 @@ void FrameEncoder::keep_baseline(size_t i, uint32_t tick, uint32_t generation) {
               frame_.hist.begin() + long(k * max_bones_));
     frame_.hist_tick[k] = tick;
     frame_.hist_gen[k] = generation;
+    const EncodedInstance& e = frame_.instances[i];
+    frame_.hist_has_root[k] = (e.flags & CHUNK_ROOT) != 0;
+    if (frame_.hist_has_root[k]) frame_.hist_root[k] = e.root;
+}
+
+const uint8_t* EncodedFrame::root_at(int i, uint32_t t) const {
+    if (!ints_at(i, t)) return nullptr;
+    const size_t k = size_t(i) * kBaselineRing + t % kBaselineRing;
+    return hist_has_root[k] ? hist_root[k].data() : nullptr;
 }
 
 const RecordInts* EncodedFrame::ints_at(int i, uint32_t t) const {

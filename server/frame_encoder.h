@@ -109,8 +109,13 @@ struct EncodedFrame {
     size_t ring_bones = 0;  // integers per ring entry (the largest asset's bones)
     std::vector<RecordInts> hist;
     std::vector<uint32_t> hist_tick, hist_gen;
+    std::vector<std::array<uint8_t, ROOT_BYTES>> hist_root;  // per ring entry: the root block (absolute)
+    std::vector<uint8_t> hist_has_root;                     // per ring entry: the chunks carried a root
     // Instance i's integers at `tick`, or nullptr when the ring does not hold them.
     const RecordInts* ints_at(int i, uint32_t tick) const;
+    // Instance i's root block (absolute) at `tick`, or nullptr when the ring
+    // does not hold that tick or its chunks carried no root.
+    const uint8_t* root_at(int i, uint32_t tick) const;
     // Instance i's records predicted from baseline `base` (Chunk.base, non-zero),
     // coded once per tick and slot on first use and shared by every client
     // (thread-safe); nullptr when kPredictedPerSlot other baselines took the slot's room.

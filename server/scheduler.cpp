@@ -177,7 +177,7 @@ size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::
         morph_item(i, frame, a, double(importance[i]) * double(importance[i]) * double(a.character.vertex_count()));
         current_[i] = up_to_date(i, frame);
         if (current_[i]) continue;  // nothing to send (the fast path and the greedy skip it)
-        const size_t bytes = WireCost::header(e) + (record_bits(frame, int(i), 0, e.bone_count) + 7) / 8 + morph_[i].bytes;
+        const size_t bytes = header_of(frame, int(i)) + (record_bits(frame, int(i), 0, e.bone_count) + 7) / 8 + morph_[i].bytes;
         full += bytes;
         if (const uint32_t g = group_of(i); g > 0) {
             if (group_full_.size() <= g) group_full_.resize(size_t(g) + 1, 0);
@@ -304,7 +304,7 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
         paid_[i] = 0;
         chain_next_[i] = 0;
         chain_tried_[i] = 0;
-        header_[i] = WireCost::header(e);
+        header_[i] = header_of(frame, int(i));
         const State& st = state_[i];
         // Squared error in screen units, summed over the instance's vertices
         // (the RMS of docs/metrics.md §2 pools all vertices of all characters).
@@ -493,8 +493,7 @@ void Scheduler::chosen_picks(std::vector<Pick>& out) const {
 size_t Scheduler::estimate(const EncodedFrame& frame, std::span<const Pick> picks) const {
     size_t est = 0;
     for (size_t x = 0; x < picks.size(); ++x) {
-        const auto& e = frame.instances[size_t(picks[x].instance)];
-        if (x == 0 || picks[x - 1].instance != picks[x].instance) est += WireCost::header(e);
+        if (x == 0 || picks[x - 1].instance != picks[x].instance) est += header_of(frame, picks[x].instance);
         est += (record_bits(frame, picks[x].instance, picks[x].first, std::max(picks[x].first, picks[x].k)) + 7) / 8 + morph_block_bytes(picks[x].morphs);
     }
     return est ? WireCost::wire(est) : 0;

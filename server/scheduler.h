@@ -51,6 +51,7 @@
 
 #include "baseline_book.h"
 #include "frame_encoder.h"
+#include "root_block.h"
 #include "view.h"
 #include "wire.h"
 
@@ -62,13 +63,14 @@ struct WireCost {
     static constexpr size_t kFrameOverhead = 88;  // Datagram + Frame FlatBuffer tables (datagram_packer.cpp checks)
     static constexpr size_t kChunk = 6;           // one Chunk struct
     // a chunk continued in another datagram (it repeats the root block)
-    static constexpr size_t kSplitChunk = kChunk + ROOT_BYTES + (MAX_BONES + 7) / 8;
+    static constexpr size_t kSplitChunk = kChunk + kRootAbsoluteBytes + (MAX_BONES + 7) / 8;
     // Chunk struct + bone mask for an instance of `bones` bones (at most; a
     // chunk starting at bone first > 0 has a shorter mask).
     static constexpr size_t header(int bones) { return kChunk + (size_t(bones) + 7) / 8; }
-    // The same plus the root block when the instance's chunks carry one.
+    // The same plus the root block when the instance's chunks carry one
+    // (absolute; a client's plan may predict it: Scheduler::header_of).
     static size_t header(const EncodedInstance& e) {
-        return header(e.bone_count) + ((e.flags & CHUNK_ROOT) ? ROOT_BYTES : 0);
+        return header(e.bone_count) + ((e.flags & CHUNK_ROOT) ? kRootAbsoluteBytes : 0);
     }
     static size_t datagrams(size_t payload);
     static size_t wire(size_t payload);
@@ -150,6 +152,12 @@ public:
     void set_plan(const RecordPlan* plan) { plan_ = plan; }
     size_t record_bits(const EncodedFrame& frame, int i, int from, int to) const {
         return plan_ ? plan_->bits(frame, i, from, to) : frame.record_bits(i, from, to);
+    }
+    // A chunk header of instance i as it will go: Chunk, mask, and the root
+    // block at its planned size (predicted for this client, or absolute).
+    size_t header_of(const EncodedFrame& frame, int i) const {
+        const EncodedInstance& e = frame.instances[size_t(i)];
+        return plan_ ? WireCost::header(e.bone_count) + plan_->root_bytes(frame, i) : WireCost::header(e);
     }
 
     // The last select left something unsent (so the rate estimate may probe up).

@@ -385,9 +385,10 @@ TEST(ClientSessionFrames, ApplyFrameKeepsEpochsAndRoots) {
     auto frame_at = [&](uint32_t tick, uint8_t epoch, double x) {
         RootPose root;
         root.position = {x, 0.0, 0.0};
-        Bytes payload(ROOT_BYTES + 1);
-        EXPECT_TRUE(encode_root(root, payload.data()));
-        payload[ROOT_BYTES] = 1;  // mask: bone 0
+        Bytes absolute(ROOT_BYTES), payload;
+        EXPECT_TRUE(encode_root(root, absolute.data()));
+        write_root(absolute.data(), 0, nullptr, nullptr, payload);  // an absolute root block (root_block.h)
+        payload.push_back(1);  // mask: bone 0
         {
             BitWriter w(payload);  // the identity, parent-relative (bone_record.h): 12 bits, 2 bytes
             write_record(RecordInts{}, false, w);

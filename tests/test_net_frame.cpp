@@ -154,7 +154,7 @@ TEST(NetFrame, SkipsChunksOfUnknownInstances) {
     std::vector<uint8_t> pl = {0b00000011};  // unknown instance 9: bones 0, 1 of scaled records (26 bits, 4 bytes)
     append(pl, identity_records(2, true));
     ASSERT_EQ(pl.size(), 5u);
-    const std::vector<uint8_t> root(ROOT_BYTES, 0);
+    const std::vector<uint8_t> root(kRootAbsoluteBytes, 0);
     pl.insert(pl.end(), root.begin(), root.end());  // instance 0: root block, bone 0 of show 1
     pl.push_back(0b1);
     append(pl, identity_records(1));
@@ -162,7 +162,7 @@ TEST(NetFrame, SkipsChunksOfUnknownInstances) {
     ASSERT_TRUE(read_datagram(frame_datagram({ch(9, 0, 2, CHUNK_SCALED), ch(0, 0, 1, CHUNK_ROOT)}, pl), runs));
     ASSERT_EQ(runs.size(), 1u);
     EXPECT_EQ(runs[0].instance, 0);
-    EXPECT_EQ(runs[0].offset, (5u + ROOT_BYTES + 1) * 8);
+    EXPECT_EQ(runs[0].offset, (5u + kRootAbsoluteBytes + 1) * 8);
 }
 
 TEST(NetFrame, RandomFramesAreRefusedOrReadInBounds) {
@@ -252,7 +252,7 @@ bool read_morphs(const std::vector<uint8_t>& d, std::vector<ChunkRun>& runs, std
     return read_frame(
         *g->body_as_Frame(), [](uint16_t i) { return i < 3 ? 12 : 0; },
         [&](uint16_t i, int first, int count, int show, const RecordRun&) { runs.push_back({i, first, count, show, 0}); },
-        [&](const wire::Chunk&, const uint8_t*, const uint8_t* morph) { blocks.push_back(morph); });
+        [&](const wire::Chunk&, std::span<const uint8_t>, const uint8_t* morph) { blocks.push_back(morph); });
 }
 }  // namespace
 
@@ -263,7 +263,7 @@ TEST(NetFrame, ReadsAndChecksMorphBlocks) {
     ASSERT_TRUE(encode_morph_weight(0.75f, q));
     const uint8_t lo = uint8_t(uint16_t(q) & 0xFF), hi = uint8_t(uint16_t(q) >> 8);
     // Instance 0: root block, morph block {1: 0.75, 4: 0.75}, bone 0 of show 2.
-    std::vector<uint8_t> pl(ROOT_BYTES, 0);
+    std::vector<uint8_t> pl(kRootAbsoluteBytes, 0);
     const std::vector<uint8_t> block = {2, 1, lo, hi, 4, lo, hi};
     pl.insert(pl.end(), block.begin(), block.end());
     pl.push_back(0b01);

@@ -82,10 +82,14 @@ ReadBack read_back(const EncodedFrame& f, const std::vector<std::vector<uint8_t>
                     ++r.copies[{i, b}];
                 }
             },
-            [&](const wire::Chunk& c, const uint8_t* root, const uint8_t* morph) {
+            [&](const wire::Chunk& c, std::span<const uint8_t> root, const uint8_t* morph) {
                 r.epochs[c.instance()].insert(c.epoch());
                 r.shows[c.instance()].insert(c.show());
-                if (root) r.roots[c.instance()].emplace_back(root, root + ROOT_BYTES);
+                if (!root.empty()) {  // absolute without a plan (root_block.h)
+                    std::vector<uint8_t> abs(ROOT_BYTES);
+                    EXPECT_TRUE(read_root(root.data(), root.size(), nullptr, nullptr, abs.data()));
+                    r.roots[c.instance()].push_back(abs);
+                }
                 if (morph) {
                     ++r.morph_blocks[c.instance()];
                     for (int e = 0; e < morph[0]; ++e) {

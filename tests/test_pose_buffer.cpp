@@ -59,12 +59,19 @@ Records records(int n, glm::vec3 t, float angle = 0.0f) {
 // One record of a bone at translation t.
 Records record(glm::vec3 t, float angle = 0.0f) { return records(1, t, angle); }
 
-std::array<uint8_t, ROOT_BYTES> root_block(glm::dvec3 p, float angle) {
+std::array<uint8_t, ROOT_BYTES> absolute_root(glm::dvec3 p, float angle, uint64_t source_us = 0) {
     RootPose r;
     r.position = p;
     r.rotation = glm::angleAxis(angle, glm::vec3(0, 1, 0));
+    r.source_us = source_us;
     std::array<uint8_t, ROOT_BYTES> out{};
     EXPECT_TRUE(encode_root(r, out.data()));
+    return out;
+}
+// A chunk's root block (root_block.h) of that placement, absolute.
+std::vector<uint8_t> root_block(glm::dvec3 p, float angle) {
+    std::vector<uint8_t> out;
+    write_root(absolute_root(p, angle).data(), 0, nullptr, nullptr, out);
     return out;
 }
 
@@ -311,9 +318,9 @@ TEST(PoseBuffer, RootInterpolatesWithinAnEpoch) {
     ASSERT_TRUE(pb.add_chunk(10, 0, 2, 2, rec.run()));
     EXPECT_FALSE(pb.root(10.0, r));
     const auto a = root_block({0, 0, 0}, 0.0f), b = root_block({4, 0, -2}, 1.0f), c = root_block({100, 0, 0}, 0.0f);
-    ASSERT_TRUE(pb.add_chunk(12, 0, 2, 2, rec.run(), 2, 0, a.data()));
-    ASSERT_TRUE(pb.add_chunk(14, 0, 2, 2, rec.run(), 2, 0, b.data()));
-    ASSERT_TRUE(pb.add_chunk(16, 0, 2, 2, rec.run(), 2, 1, c.data()));
+    ASSERT_TRUE(pb.add_chunk(12, 0, 2, 2, rec.run(), 2, 0, a));
+    ASSERT_TRUE(pb.add_chunk(14, 0, 2, 2, rec.run(), 2, 0, b));
+    ASSERT_TRUE(pb.add_chunk(16, 0, 2, 2, rec.run(), 2, 1, c));
     ASSERT_TRUE(pb.root(13.0, r));
     EXPECT_NEAR(glm::length(r.position - glm::dvec3(2, 0, -1)), 0.0, 2e-3);
     EXPECT_NEAR(rotation_angle(r.rotation, glm::angleAxis(0.5f, glm::vec3(0, 1, 0))), 0.0, 1e-3);
@@ -321,6 +328,43 @@ TEST(PoseBuffer, RootInterpolatesWithinAnEpoch) {
     EXPECT_NEAR(glm::length(r.position - glm::dvec3(4, 0, -2)), 0.0, 2e-3);
     ASSERT_TRUE(pb.root(16.0, r));
     EXPECT_NEAR(r.position.x, 100.0, 2e-3);
+}
+
+// Predicted root blocks (root_block.h) decode from the roots this buffer
+// received at their baseline ticks, delta and linear, to the very integers
+// sent; one whose baseline is not here is refused and counted, and nothing
+// of its chunk is applied.
+TEST(PoseBuffer, PredictedRootsDecodeFromTheirBaselineTicks) {
+    PoseBuffer pb = buffer(2);
+    const auto rec = records(2, glm::vec3(0));
+    const auto r10 = absolute_root({1.0, 0.0, 2.0}, 0.10f, 1'000'000), r12 = absolute_root({1.1, 0.0, 2.05}, 0.12f, 1'066'700),
+               r14 = absolute_root({1.2, 0.0, 2.1}, 0.14f, 1'133'300), r16 = absolute_root({1.31, 0.0, 2.16}, 0.16f, 1'200'050);
+    std::vector<uint8_t> block;
+    write_root(r10.data(), 0, nullptr, nullptr, block);
+    ASSERT_TRUE(pb.add_chunk(10, 0, 2, 2, rec.run(), 2, 0, block));
+    block.clear();
+    write_root(r12.data(), 2, r10.data(), nullptr, block);  // from tick 10
+    EXPECT_EQ(root_base(block.data()), 2);
+    EXPECT_LT(block.size(), 12u);
+    ASSERT_TRUE(pb.add_chunk(12, 0, 2, 2, rec.run(), 2, 0, block));
+    block.clear();
+    write_root(r14.data(), 2 | kBaseLinear, r12.data(), r10.data(), block);  // from ticks 12 and 10
+    EXPECT_EQ(root_base(block.data()), 2 | kBaseLinear);
+    EXPECT_LT(block.size(), 9u);
+    ASSERT_TRUE(pb.add_chunk(14, 0, 2, 2, rec.run(), 2, 0, block));
+    RootPose r;
+    ASSERT_TRUE(pb.root(14.0, r));
+    const RootPose want = decode_root(r14.data());
+    EXPECT_EQ(r.position, want.position);  // exact: the same integers
+    EXPECT_EQ(r.source_us, want.source_us);
+    EXPECT_EQ(rotation_angle(r.rotation, want.rotation), 0.0);
+    // Tick 16 predicted from tick 13, which this buffer never received.
+    block.clear();
+    write_root(r16.data(), 3, r12.data(), nullptr, block);
+    const uint64_t missing = pb.missing_baselines();
+    EXPECT_FALSE(pb.add_chunk(16, 0, 2, 2, rec.run(), 2, 0, block));
+    EXPECT_EQ(pb.missing_baselines(), missing + 1);
+    EXPECT_EQ(pb.newest_tick(), 14u);  // nothing applied
 }
 
 // Morph weights: lerped between frames of one epoch, a weight a frame does

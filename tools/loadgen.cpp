@@ -29,6 +29,7 @@
 #include "asset_cache.h"
 #include "crypto.h"
 #include "errors.h"
+#include "root_block.h"
 #include "session.h"
 
 namespace progskin::net {
@@ -110,6 +111,7 @@ struct Obs {
     std::array<uint32_t, 8> ring_tick{};
     std::array<uint64_t, 8> ring_src{};
     uint8_t ring_n = 0, ring_at = 0;
+    std::unique_ptr<RootRing> roots;  // predicted root blocks' baselines (made at the first root)
 };
 
 struct Player final : DatagramSource, FrameSink {
@@ -166,7 +168,7 @@ struct Player final : DatagramSource, FrameSink {
 
     bool next(std::span<const uint8_t>& bytes, bool& from_server, double& arrival) override;
     void on_character(int id, const RemoteCharacter* rc) override;
-    void on_chunk(int id, uint32_t tick, int show, const uint8_t* root, double arrival) override;
+    void on_chunk(int id, uint32_t tick, int show, std::span<const uint8_t> root, double arrival) override;
     void on_run(int id, int first, int count, const RecordRun& records) override;
 };
 
@@ -425,7 +427,7 @@ void Player::on_character(int id, const RemoteCharacter* rc) {
     o.nearest = std::find(nearest.begin(), nearest.end(), p) != nearest.end();
 }
 
-void Player::on_chunk(int id, uint32_t tick, int show, const uint8_t* root, double arrival) {
+void Player::on_chunk(int id, uint32_t tick, int show, std::span<const uint8_t> block, double arrival) {
     if (size_t(id) >= obs.size()) return;
     Obs& o = obs[size_t(id)];
     if (o.publisher < 0) return;
@@ -440,8 +442,16 @@ void Player::on_chunk(int id, uint32_t tick, int show, const uint8_t* root, doub
         }
     }
     o.last_arrival = arrival;
-    if (!root) return;
-    const uint64_t src = root_source_us(root);
+    if (block.empty()) return;
+    // The root block, absolute or predicted from this character's earlier roots.
+    if (!o.roots) o.roots = std::make_unique<RootRing>();
+    std::array<uint8_t, ROOT_BYTES> root;
+    if (!o.roots->resolve(tick, block.data(), block.size(), root.data())) {
+        ++sh.bad_records;
+        return;
+    }
+    o.roots->put(tick, root.data());
+    const uint64_t src = root_source_us(root.data());
     if (src <= o.last_source_us) return;
     o.last_source_us = src;
     o.ring_tick[o.ring_at] = tick;

@@ -115,7 +115,8 @@ struct LoadReport {
     int starved_players = 0;
     uint64_t starved_pairs = 0, pairs = 0;
     double max_gap_ms = 0;             // longest gap of a nearest-set pair in the window
-    uint64_t frames = 0, malformed = 0, duplicates = 0, bad_records = 0, records = 0;
+    uint64_t frames = 0, malformed = 0, duplicates = 0, records = 0;
+    uint64_t bad_records = 0;          // records or root blocks that did not decode (never expected)
     double loss_mean = 0;
     uint64_t poses_sent = 0, poses_refused = 0, spawn_refused = 0;
     double cpu_seconds = 0;            // this process (user + system) over the window
