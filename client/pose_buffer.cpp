@@ -8,6 +8,7 @@ namespace progskin::net {
 
 static bool newer(uint32_t a, uint32_t b) { return int32_t(a - b) > 0; }
 
+
 // The frames around display tick d that `use` accepts, within one epoch: a
 // (newest at or before d), a0 (the one before a), c (first after d, same
 // epoch as a) and c1 (the one after c). Without a, c and c1 share c's epoch.
@@ -330,11 +331,24 @@ bool PoseBuffer::pose_about_pivot(int b, double d, BonePose& out, double* held_a
 bool PoseBuffer::root(double d, RootPose& out) const {
     const void *pa, *pa0, *pc, *pc1;
     neighbours(frames_, newest_, d, [](const Frame& f) { return f.has_root; }, pa, pa0, pc, pc1);
-    const Frame *a = static_cast<const Frame*>(pa), *c = static_cast<const Frame*>(pc);
+    const Frame *a = static_cast<const Frame*>(pa), *a0 = static_cast<const Frame*>(pa0), *c = static_cast<const Frame*>(pc);
     auto time = [&](const Frame* f) { return double(int32_t(f->tick - newest_)) + double(newest_); };
     if (a && c) {
         out = interpolate(a->root, c->root, (d - time(a)) / (time(c) - time(a)));
         return true;
+    }
+    // Past the newest root of its epoch: carried on along the two newest for
+    // at most kRootExtrapolationTicks, then held (a walking character held
+    // in place lags by its speed times the wait).
+    // (Not when a root of another epoch follows d: a teleport is no motion.)
+    bool later = false;
+    for (const auto& f : frames_) later = later || (f.used && f.has_root && time(&f) > d);
+    if (a && a0 && !later && root_extrapolation_ > 0) {
+        const double span = time(a) - time(a0), h = std::min(d - time(a), root_extrapolation_);
+        if (span > 0 && span <= double(HOLD_TICKS) && h > 0) {
+            out = interpolate(a0->root, a->root, 1.0 + h / span);
+            return true;
+        }
     }
     if (a || c) {
         out = (a ? a : c)->root;

@@ -18,9 +18,12 @@ static constexpr double kMinKbps = 8.0;
 // slow that the bucket holds more than 35 % of a second, it fills at 0.96 x
 // the target: the mean rate stays under the cap, one datagram may take more
 // than a second of it.
+// Below kFullerBelowKbps the bucket holds 12.5 % of a second (at most 1,000
+// bytes) and a tick sends from kFullerBytes on (below).
 double RateController::depth_bytes(double kbps) const {
     const double second = kbps * 125.0;
-    return std::max({min_depth_, 0.10 * second, std::min(470.0, 0.35 * second), kMinDatagramBytes});
+    const double fuller = kbps < kFullerBelowKbps ? std::min(1000.0, 0.125 * second) : 0.0;
+    return std::max({min_depth_, 0.10 * second, std::min(470.0, 0.35 * second), fuller, kMinDatagramBytes});
 }
 
 double RateController::fill_fraction(double kbps) const {
@@ -50,8 +53,12 @@ void RateController::refill(double dt) {
 size_t RateController::budget() const {
     // Send once the bucket holds 400 bytes, or earlier if the next refill would
     // overflow it (what overflows is rate never used).
-    double d = depth_bytes(target_kbps());
-    double min_send = std::max(0.0, std::min(400.0, d - fill_));
+    // Below kFullerBelowKbps from kFullerBytes: a datagram's fixed cost (the
+    // Datagram and Frame tables, the seal, IP and UDP: some 140 bytes) is
+    // then under a fifth of it (docs/performance.md "Fewer, fuller datagrams").
+    const double t = target_kbps();
+    double d = depth_bytes(t);
+    double min_send = std::max(0.0, std::min(t < kFullerBelowKbps ? kFullerBytes : 400.0, d - fill_));
     return tokens_ >= min_send && tokens_ > 0 ? size_t(tokens_) : 0;
 }
 

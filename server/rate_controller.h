@@ -10,14 +10,16 @@
 // kbit/s per window.
 //
 // Pacing is a token bucket in wire bytes: 10% of a second of the target deep,
-// or 470 bytes on slow links (below 60 kbit/s: fewer, fuller datagrams, so
-// that the 108 bytes of datagram headers do not eat the budget), filled at
-// 1.04 x the target minus the depth per second (94% from 60 kbit/s up, 81% at
-// 16 kbit/s), so the wire bytes in any one second stay <= 1.04 * target <=
-// 1.04 * cap. Never shallower than kMinDatagramBytes: below ~7 kbit/s the
-// bucket is that deep and fills at 0.96 x the target (the mean stays under
-// the cap; a datagram every 2 s at 1 kbit/s). A tick sends only when the
-// bucket holds at least min(400, depth - one tick's fill) bytes.
+// 12.5% (at most 1,000 bytes) below 80 kbit/s, or 470 bytes on slow links
+// (below 38 kbit/s) — fewer, fuller datagrams, so that the ~140 bytes of a
+// datagram's fixed cost (tables, seal, IP/UDP) do not eat the budget — filled
+// at 1.04 x the target minus the depth per second (94% from 80 kbit/s up,
+// 91.5% below, 81% at 16 kbit/s), so the wire bytes in any one second stay
+// <= 1.04 * target <= 1.04 * cap. Never shallower than kMinDatagramBytes:
+// below ~7 kbit/s the bucket is that deep and fills at 0.96 x the target (the
+// mean stays under the cap; a datagram every 2 s at 1 kbit/s). A tick sends
+// only when the bucket holds at least min(400, depth - one tick's fill)
+// bytes, min(kFullerBytes = 750, ...) below kFullerBelowKbps = 80.
 #pragma once
 #include <array>
 #include <cstddef>
@@ -33,6 +35,10 @@ public:
     // every cap, down to the wire's 1 kbit/s, delivers the root level of its
     // characters at a reduced frame rate instead of nothing.
     static constexpr double kMinDatagramBytes = 240;
+    // Below this target a tick sends from kFullerBytes in the bucket (on a
+    // deeper bucket): measured on 8 players at 64 kbit/s, remote RMS 1.9 ->
+    // 1.5 %, and on the default scene at 48-64 kbit/s (docs/performance.md).
+    static constexpr double kFullerBelowKbps = 80, kFullerBytes = 750;
     // min_depth_bytes: a deeper bucket (bursts beyond 10% of a second) for
     // senders whose smallest useful datagram is larger (the RD baselines).
     RateController(double cap_kbps = 1000, double initial_kbps = 1000, double min_depth_bytes = 0);

@@ -330,6 +330,29 @@ TEST(PoseBuffer, RootInterpolatesWithinAnEpoch) {
     EXPECT_NEAR(r.position.x, 100.0, 2e-3);
 }
 
+// Past the newest root, the root carries on along its two newest frames for
+// at most kRootExtrapolationTicks, then holds; never toward a frame of
+// another epoch (a teleport).
+TEST(PoseBuffer, RootCarriesOnBrieflyPastTheNewestFrame) {
+    PoseBuffer pb = buffer(2);
+    const auto rec = records(2, glm::vec3(0));
+    ASSERT_TRUE(pb.add_chunk(10, 0, 2, 2, rec.run(), 2, 0, root_block({0, 0, 0}, 0.0f)));
+    ASSERT_TRUE(pb.add_chunk(12, 0, 2, 2, rec.run(), 2, 0, root_block({2, 0, 0}, 0.0f)));  // 1 unit per tick
+    RootPose r;
+    ASSERT_TRUE(pb.root(13.0, r));
+    EXPECT_NEAR(r.position.x, 3.0, 2e-3);
+    const double cap = 2.0 + PoseBuffer::kRootExtrapolationTicks;
+    ASSERT_TRUE(pb.root(20.0, r));
+    EXPECT_NEAR(r.position.x, cap, 2e-3) << "held after kRootExtrapolationTicks";
+    pb.set_root_extrapolation(0);
+    ASSERT_TRUE(pb.root(13.0, r));
+    EXPECT_NEAR(r.position.x, 2.0, 2e-3) << "held at once";
+    pb.set_root_extrapolation(PoseBuffer::kRootExtrapolationTicks);
+    ASSERT_TRUE(pb.add_chunk(16, 0, 2, 2, rec.run(), 2, 1, root_block({-50, 0, 0}, 0.0f)));  // a teleport
+    ASSERT_TRUE(pb.root(13.0, r));
+    EXPECT_NEAR(r.position.x, 2.0, 2e-3) << "held until the next epoch";
+}
+
 // Predicted root blocks (root_block.h) decode from the roots this buffer
 // received at their baseline ticks, delta and linear, to the very integers
 // sent; one whose baseline is not here is refused and counted, and nothing
