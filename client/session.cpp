@@ -944,6 +944,7 @@ bool ClientSession::publish(int handle, const RootPose& root, std::span<const Ma
         // The scratch at its worst case once (publish() allocates nothing after).
         pose_bits_.reserve(std::max(pose_bits_.capacity(), size_t(B) * size_t(kMaxRecordBits) / 8 + 16));
         pose_chunk_.reserve(MAX_DATAGRAM);
+        pose_root_.reserve(kRootMaxBytes);
     }
     pose_model_.resize(size_t(B));
     pose_decoded_.resize(size_t(B));
@@ -971,6 +972,7 @@ bool ClientSession::publish(int handle, const RootPose& root, std::span<const Ma
         return false;
     }
     o->ring_seq[seq % POSE_BASELINES] = seq;
+    o->ring_root[seq % POSE_BASELINES] = rb;
     // Predicted from the newest pose the server holds whole, when it is
     // young enough to still be among its baselines and still in the ring.
     uint32_t base = o->acked;
@@ -987,10 +989,14 @@ bool ClientSession::publish(int handle, const RootPose& root, std::span<const Ma
         pose_offsets_[size_t(B)] = uint32_t(w.bits());
         ++st_.poses_predicted;
     }
+    // The root block: predicted from the baseline pose's root (age 1), else absolute.
+    pose_root_.clear();
+    write_root(rb.data(), base != 0 ? 1 : 0, base != 0 ? o->ring_root[base % POSE_BASELINES].data() : nullptr, nullptr,
+               pose_root_);
     if (teleport) ++o->epoch;
     o->pose_seq = seq;
     // As many bones per datagram as fit (a character of a few hundred bones takes one).
-    const size_t free_bytes = MAX_DATAGRAM - POSE_OVERHEAD - ROOT_BYTES;
+    const size_t free_bytes = MAX_DATAGRAM - POSE_OVERHEAD - pose_root_.size();
     const size_t morph_bytes = morph_weights.empty() ? 0 : sizeof(int16_t) * pose_morphs_.size();  // with bone 0
     for (int first = 0; first < B;) {
         const size_t room = 8 * (free_bytes - (first == 0 ? morph_bytes : 0));
@@ -1000,7 +1006,7 @@ bool ClientSession::publish(int handle, const RootPose& root, std::span<const Ma
         BitWriter w(pose_chunk_);
         copy_bits(pose_bits_.data(), pose_offsets_[size_t(first)], pose_offsets_[size_t(end)] - pose_offsets_[size_t(first)], w);
         fbb_.Clear();
-        auto rv = fbb_.CreateVector(rb.data(), rb.size());
+        auto rv = fbb_.CreateVector(pose_root_.data(), pose_root_.size());
         auto rec = fbb_.CreateVector(pose_chunk_.data(), pose_chunk_.size());
         flatbuffers::Offset<flatbuffers::Vector<int16_t>> mv;  // the weights go with the first bones
         if (first == 0 && !morph_weights.empty()) mv = fbb_.CreateVector(pose_morphs_.data(), pose_morphs_.size());

@@ -270,6 +270,7 @@ private:
         uint32_t acked = 0;
         std::array<uint32_t, POSE_BASELINES> ring_seq{};
         std::vector<RecordInts> ring;  // POSE_BASELINES x bones
+        std::array<std::array<uint8_t, ROOT_BYTES>, POSE_BASELINES> ring_root{};  // each one's root (absolute)
     };
     // The receive window of the frame stream: the newest sequence and the
     // 32 before it (Ack), the range seen (loss).
@@ -379,7 +380,7 @@ private:
     // publish() scratch: model-space poses, their decoded poses, the records'
     // bits (all bones) with each bone's bit offset, one datagram's bits.
     std::vector<BonePose> pose_model_, pose_decoded_;
-    std::vector<uint8_t> pose_bits_, pose_chunk_;
+    std::vector<uint8_t> pose_bits_, pose_chunk_, pose_root_;
     std::vector<uint32_t> pose_offsets_;
     void apply_pose_acks(const wire::Frame& f);
     flatbuffers::FlatBufferBuilder fbb_{1400};

@@ -7,6 +7,7 @@
 #include "crypto.h"
 #include "fuzz_targets.h"
 #include "pose_buffer.h"
+#include "root_block.h"
 #include "server.h"
 #include "session.h"
 #include "wire.h"
@@ -85,8 +86,18 @@ int frame_stream(const uint8_t* data, size_t size) {
     // up to 255 bones, standalone or predicted from a pose at rest.
     if (const wire::Pose* p = d->body_as_Pose()) {
         sink = p->session_id() ^ p->token() ^ p->instance() ^ p->pose_seq() ^ p->epoch() ^ p->first();
-        if (!p->root() || p->root()->size() != ROOT_BYTES || !p->records() || p->count() < 1 || p->first() + p->count() > 255) return 0;
-        const RootPose r = decode_root(p->root()->data());
+        if (!p->root() || !p->records() || p->count() < 1 || p->first() + p->count() > 255) return 0;
+        const size_t root_len = root_size(p->root()->data(), p->root()->size());
+        if (root_len == 0 || root_len != p->root()->size()) return 0;
+        // Predicted (from the baseline pose's root: a walking one), or absolute.
+        std::array<uint8_t, ROOT_BYTES> abs, base_root{};
+        const RootPose walking{{1.0, 0.0, 2.0}, {1, 0, 0, 0}, 1000000};
+        encode_root(walking, base_root.data());
+        const uint8_t from = root_base(p->root()->data());
+        if ((from != 0 && (from != 1 || p->base_seq() == 0)) ||
+            !read_root(p->root()->data(), root_len, from ? base_root.data() : nullptr, nullptr, abs.data()))
+            return 0;
+        const RootPose r = decode_root(abs.data());
         sink = uint64_t(r.position.x) ^ r.source_us;
         std::array<RecordInts, 255> ints, rest{};
         const std::span<RecordInts> out(ints.data(), p->count());

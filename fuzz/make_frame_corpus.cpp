@@ -15,6 +15,7 @@
 #include <string>
 
 #include "bone_record.h"
+#include "root_block.h"
 #include "client_stream.h"
 #include "scene.h"
 #include "server_core.h"
@@ -123,10 +124,16 @@ int main(int argc, char** argv) {
     fbb.Clear();
     {
         // A Pose of 24 bones: standalone parent-relative records (bone 0
-        // moved, the others at rest), and the same predicted from a pose at rest.
-        std::vector<uint8_t> root(ROOT_BYTES);
-        encode_root(placed, root.data());
+        // moved, the others at rest) and an absolute root block, and the same
+        // predicted from a pose at rest, its root from the fuzz target's
+        // baseline root (a walking one: fuzz_net_targets.cpp).
+        std::array<uint8_t, ROOT_BYTES> abs{}, walking{}, next{};
+        encode_root(placed, abs.data());
+        encode_root(RootPose{{1.0, 0.0, 2.0}, {1, 0, 0, 0}, 1000000}, walking.data());
+        encode_root(RootPose{{1.04, 0.0, 2.01}, {1, 0, 0, 0}, 1033400}, next.data());
         for (uint32_t base = 0; base < 2; ++base) {
+            std::vector<uint8_t> root;
+            write_root(base ? next.data() : abs.data(), base ? 1 : 0, base ? walking.data() : nullptr, nullptr, root);
             std::vector<uint8_t> rec;
             BitWriter w(rec);
             RecordInts moved;

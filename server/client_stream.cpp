@@ -473,8 +473,13 @@ DatagramVerdict ClientStream::on_pose(const wire::Pose& p, const PeerAddress& fr
     if (o == owned_.end()) return DatagramVerdict::rejected;  // not this session's character (or despawned)
     const ServerAsset& a = *core_.assets()[size_t(core_.encoder().spec(o->instance).asset)];
     const int B = a.bone_count(), first = p.first(), count = p.count();
-    if (!p.root() || p.root()->size() != ROOT_BYTES || !p.records() || count < 1 || first + count > B || p.pose_seq() == 0)
+    // The root block (root_block.h): absolute, or (version 7) with a
+    // baseline pose, age 1 and not linear: predicted from that pose's root.
+    const size_t root_len = p.root() ? root_size(p.root()->data(), p.root()->size()) : 0;
+    if (root_len == 0 || root_len != p.root()->size() || !p.records() || count < 1 || first + count > B || p.pose_seq() == 0)
         return DatagramVerdict::malformed;
+    const uint8_t root_from = root_base(p.root()->data());
+    if (root_from != 0 && (root_from != 1 || p.base_seq() == 0)) return DatagramVerdict::malformed;
     // Morph weights, when present: one per target (every int16 is a weight in [-2, 2)).
     const size_t morphs = std::min<size_t>(a.character.morphs.size(), MAX_MORPHS);
     if (p.morphs() && p.morphs()->size() != morphs) return DatagramVerdict::malformed;
@@ -496,6 +501,7 @@ DatagramVerdict ClientStream::on_pose(const wire::Pose& p, const PeerAddress& fr
     // The baseline: a pose held whole (the publisher predicts only from
     // acknowledged ones, so a miss is a broken or hostile publisher).
     const RecordInts* pred = nullptr;
+    const uint8_t* base_root = nullptr;
     if (p.base_seq() != 0) {
         const size_t k = p.base_seq() % POSE_BASELINES;
         if (o->seq[k] != p.base_seq() || o->received[k] != B) {
@@ -503,7 +509,11 @@ DatagramVerdict ClientStream::on_pose(const wire::Pose& p, const PeerAddress& fr
             return DatagramVerdict::accepted;
         }
         pred = o->ints.data() + k * size_t(B);
+        base_root = o->roots[k].data();
     }
+    std::array<uint8_t, ROOT_BYTES> root_abs;
+    if (!read_root(p.root()->data(), root_len, root_from ? base_root : nullptr, nullptr, root_abs.data()))
+        return DatagramVerdict::malformed;
     // Every record within its bounds (bone_record.h), then only zero padding.
     pose_ints_.resize(size_t(count));
     if (!read_pose_records({p.records()->data(), p.records()->size()}, a.relative.scaled,
@@ -518,6 +528,7 @@ DatagramVerdict ClientStream::on_pose(const wire::Pose& p, const PeerAddress& fr
         std::fill(o->have.begin() + long(k * size_t(B)), o->have.begin() + long((k + 1) * size_t(B)), 0);
     }
     if (o->seq[k] == p.pose_seq()) {
+        o->roots[k] = root_abs;
         for (int i = 0; i < count; ++i) {
             const size_t at = k * size_t(B) + size_t(first + i);
             o->ints[at] = pose_ints_[size_t(i)];
@@ -526,7 +537,7 @@ DatagramVerdict ClientStream::on_pose(const wire::Pose& p, const PeerAddress& fr
         }
         if (o->received[k] == B && (o->acked == 0 || int32_t(p.pose_seq() - o->acked) > 0)) o->acked = p.pose_seq();
     }
-    std::span<const uint8_t, ROOT_BYTES> root(p.root()->data(), ROOT_BYTES);
+    std::span<const uint8_t, ROOT_BYTES> root(root_abs.data(), ROOT_BYTES);
     std::span<const int16_t> weights;
     if (p.morphs()) weights = {p.morphs()->data(), p.morphs()->size()};
     if (core_.encoder().push_relative(o->instance, p.pose_seq(), p.epoch(), first, pose_ints_, root, weights))

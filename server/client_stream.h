@@ -236,6 +236,7 @@ private:
         std::array<uint16_t, POSE_BASELINES> received{};  // bones of each
         std::vector<RecordInts> ints;                     // POSE_BASELINES x bones
         std::vector<uint8_t> have;                        // POSE_BASELINES x bones
+        std::array<std::array<uint8_t, ROOT_BYTES>, POSE_BASELINES> roots{};  // each one's root (absolute)
         uint32_t acked = 0, acked_sent = 0;  // newest pose held whole; the newest told (Frame.pose_acks)
     };
     std::vector<RecordInts> pose_ints_;        // on_pose: one Pose's records

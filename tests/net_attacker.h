@@ -24,6 +24,7 @@
 #include "cli_args.h"
 #include "crypto.h"
 #include "bone_record.h"
+#include "root_block.h"
 #include "wire.h"
 
 namespace progskin::net::testing {
@@ -230,11 +231,16 @@ public:
     }
     // One Pose datagram with the given record bits, count, first bone and
     // baseline (hostile ones: tests/test_net_hardening.cpp).
-    void pose_raw(int instance, const std::vector<uint8_t>& records, int count, int first = 0, uint32_t base_seq = 0) {
-        std::array<uint8_t, ROOT_BYTES> root{};
-        RootPose r;
-        r.position = {double(instance % 64), 0.0, 3.0};
-        encode_root(r, root.data());
+    // root_block: Pose.root as given (default: an absolute root block).
+    void pose_raw(int instance, const std::vector<uint8_t>& records, int count, int first = 0, uint32_t base_seq = 0,
+                  std::vector<uint8_t> root = {}) {
+        if (root.empty()) {
+            std::array<uint8_t, ROOT_BYTES> abs{};
+            RootPose r;
+            r.position = {double(instance % 64), 0.0, 3.0};
+            encode_root(r, abs.data());
+            write_root(abs.data(), 0, nullptr, nullptr, root);  // an absolute root block (root_block.h)
+        }
         flatbuffers::FlatBufferBuilder fbb;
         auto rv = fbb.CreateVector(root.data(), root.size());
         auto rc = fbb.CreateVector(records);
@@ -260,11 +266,13 @@ public:
         BitWriter w(records);
         write_record(r0, a.format.scaled, w);
         for (int b = 1; b < a.bones; ++b) write_record(RecordInts{}, a.format.scaled, w);
-        std::array<uint8_t, ROOT_BYTES> root{};
+        std::array<uint8_t, ROOT_BYTES> abs{};
         RootPose r;
         r.position = {double(instance % 64), 0.0, 3.0};
         r.source_us = now_us32();
-        encode_root(r, root.data());
+        encode_root(r, abs.data());
+        std::vector<uint8_t> root;  // an absolute root block (root_block.h)
+        write_root(abs.data(), 0, nullptr, nullptr, root);
         ++pose_seq_;
         flatbuffers::FlatBufferBuilder fbb;
         auto rv = fbb.CreateVector(root.data(), root.size());

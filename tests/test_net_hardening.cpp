@@ -565,6 +565,7 @@ TEST(NetHardening, HostilePoseRecordsAreDroppedAndCounted) {
     };
     a.pump_and_ack(500);  // the pose rate limit's bucket fills (2 poses per tick)
     a.pose(inst, 0);      // a whole, valid pose (standalone)
+    const uint32_t held = a.pose_seq();
     EXPECT_EQ(settle(&ServerStats::poses_received, 1), 1u);
     const uint64_t malformed0 = s.server->stats().malformed_datagrams;
     // Predicted from a pose that was never sent, and from one sent but far in the past.
@@ -580,7 +581,24 @@ TEST(NetHardening, HostilePoseRecordsAreDroppedAndCounted) {
     a.pose_raw(inst, standalone(B - 1, false), B);
     a.pose_raw(inst, standalone(B, false), B, 1);
     a.pose_raw(inst, standalone(1, false), 0);
-    EXPECT_EQ(settle(&ServerStats::malformed_datagrams, malformed0 + 5), malformed0 + 5);
+    // Root blocks: the old 26 bytes, an absolute block with a byte too many,
+    // a predicted one without a baseline pose, one predicted at age 2 (a Pose
+    // predicts its root only from pose base_seq, age 1), one linear.
+    std::array<uint8_t, ROOT_BYTES> abs{};
+    encode_root(RootPose{{1.0, 0.0, 3.0}, {1, 0, 0, 0}, 5}, abs.data());
+    a.pose_raw(inst, standalone(B, false), B, 0, 0, std::vector<uint8_t>(abs.begin(), abs.end()));
+    std::vector<uint8_t> long_root;
+    write_root(abs.data(), 0, nullptr, nullptr, long_root);
+    long_root.push_back(0);
+    a.pose_raw(inst, standalone(B, false), B, 0, 0, long_root);
+    std::vector<uint8_t> from1, from2, linear;
+    write_root(abs.data(), 1, abs.data(), nullptr, from1);
+    write_root(abs.data(), 2, abs.data(), nullptr, from2);
+    write_root(abs.data(), 1 | kBaseLinear, abs.data(), abs.data(), linear);
+    a.pose_raw(inst, standalone(B, false), B, 0, 0, from1);
+    a.pose_raw(inst, standalone(B, false), B, 0, held, from2);
+    a.pose_raw(inst, standalone(B, false), B, 0, held, linear);
+    EXPECT_EQ(settle(&ServerStats::malformed_datagrams, malformed0 + 10), malformed0 + 10);
     EXPECT_EQ(s.server->stats().poses_received, 1u);
     EXPECT_EQ(s.server->stats().poses_rate_limited, 0u);
     // The session is still there: a valid pose is taken.
