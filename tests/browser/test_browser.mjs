@@ -248,12 +248,16 @@ try {
     // frames of each client's own display loop, not server ticks).
     const firstOf = (recs, i) => Math.min(...recs.filter((r) => r.instance === i).map((r) => r.tick));
     const warm = (i, t) => t >= Math.max(firstOf(mine, i), firstOf(native.records, i)) + 30;
-    let otherLod = 0;
+    let otherLod = 0, afterStall = 0;
     for (const n of native.records) {
         const b = byKey.get(`${n.instance}/${n.tick}`);
         if (!b || !warm(n.instance, n.tick)) continue;
         if (b.bones !== n.bones) {  // the two sessions' streams differ (each has its own rate controller)
             ++otherLod;
+            continue;
+        }
+        if (b.gap_ms > 100) {  // a page frame after a stall displays a tick whose frame it has not read yet
+            ++afterStall;
             continue;
         }
         ++pairs;
@@ -272,7 +276,8 @@ try {
     }
     console.log(`compare: ${pairs} (instance, tick) pairs at the same server tick; largest rotation-entry difference ` +
                 `${worstRot.toExponential(2)} (bound 6.0e-4), largest translation difference ${worstTr.toFixed(3)} x its bound; ` +
-                `${over} over the bound, ${sizeMismatch} of another size; ${otherLod} pairs left out (another LOD)`);
+                `${over} over the bound, ${sizeMismatch} of another size; ${otherLod} pairs left out (another LOD), ` +
+                `${afterStall} (a page frame more than 100 ms after the one before)`);
     const pd = await page.evaluate(() => window.progskin.details());
     const ns0 = native.summary || {};
     console.log(`loss: page ${(100 * pd.loss).toFixed(2)} % (${pd.datagrams} datagrams, ${pd.dropped} dropped in the page), ` +
