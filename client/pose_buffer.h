@@ -111,9 +111,8 @@ public:
     int bone_count() const { return bones_; }
     // Past the root's newest frame, within its epoch: the motion of its two
     // newest frames (at most HOLD_TICKS apart) carried on for at most
-    // `ticks` (0: held at once), then held. Measured on 8 walking players at
-    // 64 kbit/s: remote RMS 2.0 -> 1.9 %; extrapolating bones too gained
-    // nothing there and lost on clips (docs/performance.md).
+    // `ticks` (0: held at once), then held. Bones are not carried on that
+    // way (tried: no gain; docs/performance.md "Protocol 7").
     static constexpr double kRootExtrapolationTicks = 2.0;
     void set_root_extrapolation(double ticks) { root_extrapolation_ = ticks; }
     // World placement at display tick d from the frames that carried a root

@@ -55,7 +55,7 @@ size_t RateController::budget() const {
     // overflow it (what overflows is rate never used).
     // Below kFullerBelowKbps from kFullerBytes: a datagram's fixed cost (the
     // Datagram and Frame tables, the seal, IP and UDP: some 140 bytes) is
-    // then under a fifth of it (docs/performance.md "Fewer, fuller datagrams").
+    // then under a fifth of it (docs/performance.md "Protocol 7: predicted root blocks and fuller datagrams").
     const double t = target_kbps();
     double d = depth_bytes(t);
     double min_send = std::max(0.0, std::min(t < kFullerBelowKbps ? kFullerBytes : 400.0, d - fill_));

@@ -36,8 +36,7 @@ public:
     // characters at a reduced frame rate instead of nothing.
     static constexpr double kMinDatagramBytes = 240;
     // Below this target a tick sends from kFullerBytes in the bucket (on a
-    // deeper bucket): measured on 8 players at 64 kbit/s, remote RMS 1.9 ->
-    // 1.5 %, and on the default scene at 48-64 kbit/s (docs/performance.md).
+    // deeper bucket); the figures: docs/performance.md "Protocol 7".
     static constexpr double kFullerBelowKbps = 80, kFullerBytes = 750;
     // min_depth_bytes: a deeper bucket (bursts beyond 10% of a second) for
     // senders whose smallest useful datagram is larger (the RD baselines).
