@@ -17,11 +17,13 @@
 // (docs/metrics.md §2), RMS and max over all characters and displayed ticks, % of
 // each character's rest diagonal. Rate: docs/metrics.md §3 (payload + 28 per datagram).
 //
-// usage: bench_net_rd [--asset FILE...] [--clip SPEC] [--crowd N] [--fair-floor F] [benchmark flags]
+// usage: bench_net_rd [--asset FILE...] [--clip SPEC] [--crowd N] [--fair-floor F] [--key-samples] [benchmark flags]
 //   --asset: characters (default assets/Fox.glb assets/CesiumMan.glb; FILE#N
 //   for character N); --clip: the clip selection every asset plays (default:
 //   each asset's default training set, one instance per clip group in the
-//   first scene); --crowd: instances of the second scene (default 24).
+//   first scene); --crowd: instances of the second scene (default 24);
+//   --key-samples: the server samples linearly keyed clips at their keys
+//   (progskin-server --key-samples).
 #include <array>
 #include <benchmark/benchmark.h>
 
@@ -56,6 +58,7 @@ struct Options {
     std::string clip;  // empty: each asset's default training set
     int crowd = 24;
     double fair_floor = ServerConfig{}.fair_floor;  // --fair-floor: the server's per-character floor
+    bool key_samples = false;                       // --key-samples: ServerConfig::key_samples
 };
 Options g_options;
 
@@ -157,6 +160,7 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
     // selection or a baseline's picks, packing, rate), at a fixed rate.
     ServerConfig config;
     config.fair_floor = g_options.fair_floor;
+    config.key_samples = g_options.key_samples;
     ServerCore core(config, assets, specs);
     auto client = ClientStream::detached(core, 1, cap_kbps);
     // The all-bones baseline needs room for one whole character per datagram;
@@ -370,6 +374,8 @@ bool parse_options(int argc, char** argv) {
                 return false;
             }
             g_options.fair_floor = f;
+        } else if (a == "--key-samples") {
+            g_options.key_samples = true;
         } else if (a == "--crowd" && i + 1 < argc) {
             char* end = nullptr;
             const long n = std::strtol(argv[++i], &end, 10);
@@ -389,11 +395,12 @@ bool parse_options(int argc, char** argv) {
 int main(int argc, char** argv) {
     for (int i = 1; i < argc; ++i)
         if (!std::strcmp(argv[i], "--help")) {
-            std::printf("usage: bench_net_rd [--asset FILE...] [--clip SPEC] [--crowd N] [--fair-floor F] [--benchmark_* flags]\n"
+            std::printf("usage: bench_net_rd [--asset FILE...] [--clip SPEC] [--crowd N] [--fair-floor F] [--key-samples] [--benchmark_* flags]\n"
                         "  --asset  characters (default assets/Fox.glb assets/CesiumMan.glb; FILE#N: character N)\n"
                         "  --clip   clip selection every asset plays (default: each asset's clip groups)\n"
                         "  --crowd  instances of the crowd scene (default 24)\n"
-                        "  --fair-floor  the scheduler's per-character floor, 0..1 (default: the server's)\n");
+                        "  --fair-floor  the scheduler's per-character floor, 0..1 (default: the server's)\n"
+                        "  --key-samples  linearly keyed clips sampled at their keys (progskin-server --key-samples)\n");
             return 0;
         }
     benchmark::Initialize(&argc, argv);

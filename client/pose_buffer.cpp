@@ -8,15 +8,20 @@ namespace progskin::net {
 
 static bool newer(uint32_t a, uint32_t b) { return int32_t(a - b) > 0; }
 
+double PoseBuffer::tick_time(const Frame& f) const { return double(int32_t(f.tick - newest_)) + double(newest_); }
+// A frame's bones were sampled sample_ticks(f.sample) < 1 before its tick:
+// the order of sample times is the order of ticks.
+double PoseBuffer::sample_time(const Frame& f) const { return tick_time(f) - sample_ticks(f.sample); }
+
 
 // The frames around display tick d that `use` accepts, within one epoch: a
 // (newest at or before d), a0 (the one before a), c (first after d, same
 // epoch as a) and c1 (the one after c). Without a, c and c1 share c's epoch.
-template <class Frames, class Use>
-static void neighbours(const Frames& frames, uint32_t newest, double d, Use&& use, const void*& a_, const void*& a0_,
+// time(frame): its display tick (the sample's, or the tick's for roots).
+template <class Frames, class Use, class Time>
+static void neighbours(const Frames& frames, double d, Use&& use, Time&& time, const void*& a_, const void*& a0_,
                        const void*& c_, const void*& c1_) {
     using F = typename Frames::value_type;
-    auto time = [&](const F* f) { return double(int32_t(f->tick - newest)) + double(newest); };
     const F *a = nullptr, *c = nullptr;
     for (const auto& f : frames) {
         if (!f.used || !use(f)) continue;
@@ -68,7 +73,7 @@ const PoseBuffer::Frame* PoseBuffer::frame_at(uint32_t tick) const {
 }
 
 bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const RecordRun& records, int show, uint8_t epoch,
-                           std::span<const uint8_t> root) {
+                           std::span<const uint8_t> root, uint8_t sample) {
     if (show == 0) show = total;
     if (total < 1 || total > bones_ || first < 0 || count < 1 || first + count > total || show < total || show > bones_ ||
         records.scaled != fmt_.scaled)
@@ -103,7 +108,8 @@ bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const
                 ++missing_baselines_;
                 return false;
             }
-            const RecordInts pred = lin ? predict_record(f1->ints[size_t(b)], a, &f2->ints[size_t(b)], 2 * a)
+            const RecordInts pred = lin ? predict_record(f1->ints[size_t(b)], sample_age(a, sample, f1->sample),
+                                                         &f2->ints[size_t(b)], sample_age(2 * a, sample, f2->sample))
                                         : predict_record(f1->ints[size_t(b)], a);
             if (!read_predicted(in, pred, fmt_.scaled, scratch_[size_t(i)])) return false;
             ++predicted_;
@@ -112,7 +118,7 @@ bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const
         }
     }
     bool too_old = false;
-    Frame* f = frame_for(tick, total, show, epoch, &too_old);
+    Frame* f = frame_for(tick, total, show, epoch, sample, &too_old);
     if (too_old) return true;  // too old to matter
     if (!f) return false;
     if (!root.empty()) {
@@ -145,7 +151,7 @@ bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const
     return true;
 }
 
-PoseBuffer::Frame* PoseBuffer::frame_for(uint32_t tick, int total, int show, uint8_t epoch, bool* too_old) {
+PoseBuffer::Frame* PoseBuffer::frame_for(uint32_t tick, int total, int show, uint8_t epoch, uint8_t sample, bool* too_old) {
     *too_old = false;
     Frame* f = nullptr;
     for (auto& x : frames_)
@@ -175,23 +181,24 @@ PoseBuffer::Frame* PoseBuffer::frame_for(uint32_t tick, int total, int show, uin
         f->show = show;
         f->count = 0;
         f->epoch = epoch;
+        f->sample = sample;
         f->has_root = false;
         f->has_weights = false;
         std::fill(f->have.begin(), f->have.end(), 0);
         std::fill(f->whave.begin(), f->whave.end(), 0);
     }
-    if (f->total != total || f->show != show || f->epoch != epoch) return nullptr;
+    if (f->total != total || f->show != show || f->epoch != epoch || f->sample != sample) return nullptr;
     return f;
 }
 
-bool PoseBuffer::add_morphs(uint32_t tick, int total, int show, uint8_t epoch, const uint8_t* block) {
+bool PoseBuffer::add_morphs(uint32_t tick, int total, int show, uint8_t epoch, const uint8_t* block, uint8_t sample) {
     if (show == 0) show = total;
     if (!block || total < 1 || total > bones_ || show < total || show > bones_) return false;
     const int n = block[0];
     for (int i = 0; i < n; ++i)
         if (block[1 + size_t(i) * MORPH_ENTRY_BYTES] >= morphs_) return false;
     bool too_old = false;
-    Frame* f = frame_for(tick, total, show, epoch, &too_old);
+    Frame* f = frame_for(tick, total, show, epoch, sample, &too_old);
     if (too_old) return true;
     if (!f) return false;
     for (int i = 0; i < n; ++i) {
@@ -215,9 +222,9 @@ float PoseBuffer::weight_as_of(const Frame& at, int m) const {
 
 void PoseBuffer::weights_at(double d, std::span<float> out) const {
     const void *pa, *pa0, *pc, *pc1;
-    neighbours(frames_, newest_, d, [](const Frame&) { return true; }, pa, pa0, pc, pc1);
+    auto time = [&](const Frame* f) { return sample_time(*f); };
+    neighbours(frames_, d, [](const Frame&) { return true; }, time, pa, pa0, pc, pc1);
     const Frame *a = static_cast<const Frame*>(pa), *c = static_cast<const Frame*>(pc);
-    auto time = [&](const Frame* f) { return double(int32_t(f->tick - newest_)) + double(newest_); };
     const int n = std::min(morphs_, int(out.size()));
     for (int m = 0; m < n; ++m) {
         if (a && c) {
@@ -262,12 +269,16 @@ bool PoseBuffer::pose_about_pivot(int b, double d, BonePose& out, double* held_a
     if (held_at) *held_at = d + 1.0;
     if (anchor_at) *anchor_at = std::nan("");
     const void *pa, *pa0, *pc, *pc1;
-    neighbours(frames_, newest_, d, [&](const Frame& f) { return f.have[size_t(b)] != 0; }, pa, pa0, pc, pc1);
+    auto time = [&](const Frame* f) { return sample_time(*f); };
+    neighbours(frames_, d, [&](const Frame& f) { return f.have[size_t(b)] != 0; }, time, pa, pa0, pc, pc1);
     const Frame *a = static_cast<const Frame*>(pa), *a0 = static_cast<const Frame*>(pa0), *c = static_cast<const Frame*>(pc),
                 *c1 = static_cast<const Frame*>(pc1);
-    auto time = [&](const Frame* f) { return double(int32_t(f->tick - newest_)) + double(newest_); };
     if (a && c) {
-        const bool outer = a0 && c1;  // the stream's interpolation policy (pose.h)
+        // The stream's interpolation policy (pose.h), but linear between the
+        // samples of adjacent ticks of a linearly keyed clip (one of them at
+        // its key since the tick before: the clip is straight between them).
+        const bool keyed = (a->sample || c->sample) && c->tick - a->tick == 1;
+        const bool outer = a0 && c1 && !keyed;
         out = interpolate_between(outer ? &a0->bones[b] : nullptr, a->bones[b], c->bones[b], outer ? &c1->bones[b] : nullptr,
                                   outer ? time(a0) : 0.0, time(a), time(c), outer ? time(c1) : 0.0, d);
         return true;
@@ -330,9 +341,9 @@ bool PoseBuffer::pose_about_pivot(int b, double d, BonePose& out, double* held_a
 
 bool PoseBuffer::root(double d, RootPose& out) const {
     const void *pa, *pa0, *pc, *pc1;
-    neighbours(frames_, newest_, d, [](const Frame& f) { return f.has_root; }, pa, pa0, pc, pc1);
+    auto time = [&](const Frame* f) { return tick_time(*f); };  // roots are the tick's
+    neighbours(frames_, d, [](const Frame& f) { return f.has_root; }, time, pa, pa0, pc, pc1);
     const Frame *a = static_cast<const Frame*>(pa), *a0 = static_cast<const Frame*>(pa0), *c = static_cast<const Frame*>(pc);
-    auto time = [&](const Frame* f) { return double(int32_t(f->tick - newest_)) + double(newest_); };
     if (a && c) {
         out = interpolate(a->root, c->root, (d - time(a)) / (time(c) - time(a)));
         return true;

@@ -2,7 +2,9 @@
 // chunks (datagram.fbs Chunk) merged per tick into a short history, and the
 // pose at any display time by interpolation per bone between the two frames
 // around it that carry that bone (cubic Hermite when a further frame on each
-// side carries it too, else slerp/lerp), holding the newest value when
+// side carries it too, else slerp/lerp; slerp/lerp between the samples of
+// adjacent ticks of a linearly keyed clip, taken at its keys: add_chunk's
+// sample), holding the newest value when
 // nothing newer arrived. The server refreshes deep bones less often than shallow ones
 // (scheduler.h): a bone stays shown for HOLD_TICKS after its newest frame.
 // Frames carry the instance's epoch (datagram.fbs Chunk): nothing is
@@ -47,8 +49,12 @@ public:
     // baseline ticks (refused and counted like a record's when one is not
     // here). Stores each bone's pose relative to its progressive parent
     // (bone_record.h).
+    // sample: the chunk's sample byte (wire.h sample_ticks): the bones (and
+    // morph weights) of this tick were sampled that long before it, at a key
+    // of a linearly keyed clip (interpolated linearly to the samples of the
+    // adjacent ticks); the chunks of one tick must agree on it.
     bool add_chunk(uint32_t tick, int first, int count, int total, const RecordRun& records, int show = 0,
-                   uint8_t epoch = 0, std::span<const uint8_t> root = {});
+                   uint8_t epoch = 0, std::span<const uint8_t> root = {}, uint8_t sample = 0);
     // Records (and root blocks) refused because their baseline was not here
     // (never expected: the server predicts only from frames this client
     // acknowledged).
@@ -60,7 +66,7 @@ public:
     // frame is created when the chunk carries no bone). Returns false (and
     // changes nothing) when an index is not below morph_count() or the chunk is
     // inconsistent. O(entries), no allocation.
-    bool add_morphs(uint32_t tick, int total, int show, uint8_t epoch, const uint8_t* block);
+    bool add_morphs(uint32_t tick, int total, int show, uint8_t epoch, const uint8_t* block, uint8_t sample = 0);
     int morph_count() const { return morphs_; }
     // Morph weights at display tick d (out.size() == morph_count()): per
     // weight, its value at the frames around d (same epoch), lerped; held
@@ -128,6 +134,7 @@ private:
         int count = 0;     // bones received (not necessarily a prefix)
         bool used = false;
         uint8_t epoch = 0;
+        uint8_t sample = 0;  // the chunks' sample byte (add_chunk)
         bool has_root = false;
         RootPose root;
         std::vector<BonePose> bones;     // relative to the progressive parent
@@ -139,7 +146,9 @@ private:
     };
     // The frame for `tick` (found or created, the oldest evicted); nullptr
     // when it is older than every kept frame (*too_old) or inconsistent.
-    Frame* frame_for(uint32_t tick, int total, int show, uint8_t epoch, bool* too_old);
+    Frame* frame_for(uint32_t tick, int total, int show, uint8_t epoch, uint8_t sample, bool* too_old);
+    double tick_time(const Frame& f) const;    // display tick of the frame's tick (roots)
+    double sample_time(const Frame& f) const;  // ... of its bones' and weights' sample
     const Frame* frame_at(uint32_t tick) const;
     // pose() with the translation as the image of the bone's pivot (how frames keep it).
     bool pose_about_pivot(int b, double d, BonePose& out, double* held_at, double* anchor_at) const;

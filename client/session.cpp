@@ -73,14 +73,15 @@ FrameApplied apply_frame(const wire::Frame& f, std::span<const PoseTarget> insta
         return i < instances.size() && instances[i].buffer ? instances[i].record_size : 0;
     };
     const double tick = double(f.tick());
-    uint8_t epoch = 0;
+    uint8_t epoch = 0, sample = 0;
     std::span<const uint8_t> root;
-    auto on_chunk = [&](const wire::Chunk& c, std::span<const uint8_t> chunk_root, const uint8_t* morph) {
+    auto on_chunk = [&](const wire::Chunk& c, uint8_t chunk_sample, std::span<const uint8_t> chunk_root, const uint8_t* morph) {
         epoch = c.epoch();
+        sample = chunk_sample;
         root = chunk_root;
         // Morph weights (sparse: the others keep their values), PoseBuffer::add_morphs.
         if (!morph) return;
-        if (instances[c.instance()].buffer->add_morphs(f.tick(), c.show(), c.show(), c.epoch(), morph)) ++r.applied;
+        if (instances[c.instance()].buffer->add_morphs(f.tick(), c.show(), c.show(), c.epoch(), morph, sample)) ++r.applied;
         else ++r.refused;
     };
     auto run = [&](uint16_t i, int first, int count, int show, const RecordRun& rec) {
@@ -89,7 +90,7 @@ FrameApplied apply_frame(const wire::Frame& f, std::span<const PoseTarget> insta
         const bool had = !b.empty();
         const uint32_t prev = b.newest_tick();
         const uint64_t missing = b.missing_baselines(), predicted = b.predicted();
-        if (!b.add_chunk(f.tick(), first, count, show, rec, show, epoch, root)) {
+        if (!b.add_chunk(f.tick(), first, count, show, rec, show, epoch, root, sample)) {
             if (b.missing_baselines() != missing) ++r.missing_baselines;
             else ++r.refused;
             return;

@@ -228,6 +228,27 @@ ClipSelection make_selection(const Character& c, std::vector<int> clips) {
     return sel;
 }
 
+std::vector<double> linear_key_times(const Character& c, const ClipSelection& sel) {
+    std::vector<double> keys;
+    for (int i : sel.clips) {
+        for (const Channel& ch : c.clips[size_t(i)].channels) {
+            if (ch.interpolation != Interpolation::Linear) return {};
+            keys.insert(keys.end(), ch.times.begin(), ch.times.end());
+        }
+    }
+    std::sort(keys.begin(), keys.end());
+    std::vector<double> out;
+    for (double k : keys)
+        if (out.empty() || k - out.back() > 1e-6) out.push_back(k);
+    return out;
+}
+
+double latest_key_in(const std::vector<double>& keys, double lo, double hi) {
+    auto it = std::upper_bound(keys.begin(), keys.end(), hi);
+    if (it == keys.begin() || !(*(it - 1) > lo)) return std::nan("");
+    return *(it - 1);
+}
+
 double ClipSelection::looped(double t) const {
     const double dur = duration();
     if (!(dur > 0)) return start;

@@ -57,6 +57,16 @@ void sample_node_globals(const Character& c, const ClipSelection& sel, double t,
 // their keys like T/R/S; a target without a channel keeps its default weight.
 void sample_morph_weights(const Character& c, const ClipSelection& sel, double t, std::span<float> out);
 
+// The key times of a selection whose every channel interpolates linearly
+// (its motion is then piecewise linear between them in each node's local
+// translation, rotation by slerp, scale and morph weights), sorted, closer
+// ones than 1e-6 s merged; empty when a channel is STEP or CUBICSPLINE or
+// nothing plays. O(keys log keys).
+std::vector<double> linear_key_times(const Character& c, const ClipSelection& sel);
+
+// The latest key in (lo, hi] (keys sorted), or NaN when none. O(log keys).
+double latest_key_in(const std::vector<double>& keys, double lo, double hi);
+
 // Frames of one or more selections sampled at fps: frame times run from start
 // to end inclusive (floor(duration * fps) + 1 frames, at least 1).
 struct FrameSet {

@@ -89,6 +89,23 @@ int main(int argc, char** argv) {
         }
     }
     {
+        // Key samples (ServerConfig::key_samples, protocol 8): every chunk
+        // opens with its sample byte and the records are predicted along the
+        // samples' times; written as frame-keyed-t<tick>-<i>.
+        ServerConfig keyed;
+        keyed.key_samples = true;
+        ServerCore kcore(keyed, assets, default_instances(assets));
+        auto client = ClientStream::detached(kcore, 1, 1000);
+        for (uint32_t t = 1; t <= 40; ++t) {
+            DatagramCollector sink;
+            client->send_frame(kcore.encoder().encode(t), t % 2 ? 500 : 20000, sink);
+            if (!sink.sent.empty()) client->acknowledge(client->seq() - 1, ~0u);
+            if (t % 13 != 1) continue;
+            for (size_t i = 0; i < sink.sent.size(); ++i)
+                write(dir, "frame-keyed-t" + std::to_string(t) + "-" + std::to_string(i), sink.sent[i].bytes);
+        }
+    }
+    {
         // Morph blocks: tests/data/skinned_morph.gltf as instance 5 (the
         // fuzz target's 3-bone, 4-target buffer; slots 0-4 added and removed).
         std::vector<std::shared_ptr<ServerAsset>> morph = {

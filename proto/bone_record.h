@@ -138,6 +138,14 @@ bool read_record(BitReader& in, bool scaled, RecordInts& r);
 // two (a2 > a1, linear): b1 + (b1 - b2) * a1 / (a2 - a1), C++ integer
 // division (toward zero), per integer. Absent translation / scale are 0.
 RecordInts predict_record(const RecordInts& b1, uint32_t a1, const RecordInts* b2 = nullptr, uint32_t a2 = 0);
+// The ages predict_record takes, in 1/254 tick, from the sample of the
+// record's tick (its chunk's sample byte `now`, wire.h sample_ticks) to the
+// sample of a baseline `age` ticks older (its sample byte `base`): 254 age
+// when neither was sampled before its tick, so that the linear prediction
+// extrapolates along the samples' real times (keys of a clip).
+constexpr uint32_t sample_age(uint32_t age, uint8_t now, uint8_t base) {
+    return 254 * age - (now ? now - 1u : 0u) + (base ? base - 1u : 0u);
+}
 inline constexpr int kDeltaOrders[4] = {0, 2, 5, 8};
 // A predicted record: 1 bit "equal to the prediction" (then nothing else);
 // else 2 bits selecting the Exp-Golomb order (kDeltaOrders) and three codes

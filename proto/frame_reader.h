@@ -1,8 +1,9 @@
 // frame_reader.h — the chunk layout of a Frame (datagram.fbs, protocol
-// version 7), written by server/datagram_packer.cpp and read here by every
+// version 8), written by server/datagram_packer.cpp and read here by every
 // receiver (client, tests, benchmarks, fuzz target).
 //
-// Frame.payload holds, per chunk in chunk order, the root block (root_block.h:
+// Frame.payload holds, per chunk in chunk order, the sample byte (version 8,
+// only when frame.sampled(): wire.h sample_ticks), the root block (root_block.h:
 // absolute or predicted, self-delimiting; when chunk.flags & CHUNK_ROOT), the morph block (when chunk.flags &
 // CHUNK_MORPH: uint8 n >= 1, then n entries of MORPH_ENTRY_BYTES: uint8 morph
 // index, strictly increasing, and int16 little-endian weight, wire.h
@@ -20,8 +21,9 @@
 //       is unknown (its chunks are walked by their flags and skipped: an
 //       instance may be announced on the control channel after its first
 //       frames);
-//   on_chunk(chunk, root, morph): once per chunk of a known instance, before
-//       its runs (root: the chunk's root block, root_block.h, empty when
+//   on_chunk(chunk, [sample,] root, morph): once per chunk of a known
+//       instance, before its runs (sample: its sample byte, 0 when the frame
+//       has none; root: the chunk's root block, root_block.h, empty when
 //       none; morph: the morph block from its count byte on, or nullptr);
 //   run(instance, first, count, show, RecordRun): called for every run of
 //       consecutive bones carried, in payload order (the run's first record
@@ -45,6 +47,7 @@
 #include <cstdint>
 
 #include <span>
+#include <type_traits>
 
 #include "bone_record.h"
 #include "datagram_generated.h"
@@ -73,6 +76,7 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
     const auto* payload = frame.payload();
     const uint8_t* data = payload ? payload->data() : nullptr;
     const size_t size = payload ? payload->size() : 0;
+    const bool sampled = frame.sampled();
     // Pass 0 checks everything; pass 1 calls run.
     for (int pass = 0; pass < 2; ++pass) {
         size_t at = 0;
@@ -85,6 +89,11 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
                 const uint8_t base = base_from_flags(c->flags());
                 if ((known > 0 && known != rs) || first >= show || ((base & kBaseLinear) && !(base & kBaseAgeMask)))
                     return false;
+                uint8_t sample = 0;  // version 8: when frame.sampled(), each chunk opens with its sample byte
+                if (sampled) {
+                    if (at >= size) return false;
+                    sample = data[at++];
+                }
                 std::span<const uint8_t> root;
                 if (c->flags() & CHUNK_ROOT) {
                     const size_t n = at < size ? root_size(data + at, size - at) : 0;
@@ -127,7 +136,11 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
                 }
                 const size_t rec_bytes = (walk.at() + 7) / 8;
                 if (pass == 1 && known > 0) {
-                    on_chunk(*c, root, morph);
+                    if constexpr (std::is_invocable_v<OnChunk&, const wire::Chunk&, uint8_t, std::span<const uint8_t>,
+                                                      const uint8_t*>)
+                        on_chunk(*c, sample, root, morph);
+                    else
+                        on_chunk(*c, root, morph);
                     BitReader runs(rec, rec_bytes);
                     int j = 0;
                     while (j < bits) {

@@ -19,7 +19,7 @@
 
 namespace progskin::net {
 
-inline constexpr uint16_t PROTOCOL_VERSION = 7;
+inline constexpr uint16_t PROTOCOL_VERSION = 8;
 inline constexpr size_t MAX_DATAGRAM = 1200;          // UDP payload limit, bytes
 inline constexpr size_t UDP_IP_OVERHEAD = 28;         // IPv4 + UDP headers (docs/metrics.md §3)
 inline constexpr size_t MAX_CONTROL_MESSAGE = 65536;  // control message body limit
@@ -34,6 +34,12 @@ inline constexpr uint8_t CHUNK_MORPH = 4;             // Chunk.flags: a morph bl
 // Chunk.flags bits 3-6: the age of the chunk's baseline (1..15 ticks, 0: every
 // record standalone), bit 7: linear (docs/protocol.md "Bone record").
 inline constexpr uint8_t CHUNK_AGE_SHIFT = 3, CHUNK_AGE = 0x78, CHUNK_LINEAR = 0x80;
+// A chunk's sample byte (version 8, Frame.sampled; docs/protocol.md "Frame"):
+// 0, its bones are the pose at the frame's tick; v >= 1, the pose of a
+// linearly keyed clip sampled (v - 1) / 254 ticks before the tick (at a key),
+// interpolated linearly to the sample of an adjacent tick. The offset in
+// ticks, 0 for 0.
+inline constexpr double sample_ticks(uint8_t v) { return v ? double(v - 1) / 254.0 : 0.0; }
 inline constexpr int MAX_MORPHS = 255;                // morph targets streamed per character (uint8 index and count)
 inline constexpr size_t MORPH_ENTRY_BYTES = 3;        // morph block entry: uint8 index, int16 weight
 // Morph weight on the wire (docs/protocol.md "Morph block"): int16

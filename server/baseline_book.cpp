@@ -160,8 +160,10 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
             if (!b1) continue;
             const bool linear = 2 * age < uint32_t(kBaselineRing) && book.acked(i, e.generation, b, tb - age) &&
                                 frame.ints_at(i, tb - age) != nullptr;
-            const RecordInts pred = linear ? predict_record(b1[b], age, &frame.ints_at(i, tb - age)[b], 2 * age)
-                                           : predict_record(b1[b], age);
+            const RecordInts pred =
+                linear ? predict_record(b1[b], sample_age(age, e.sample, frame.sample_at(i, tb)), &frame.ints_at(i, tb - age)[b],
+                                        sample_age(2 * age, e.sample, frame.sample_at(i, tb - age)))
+                       : predict_record(b1[b], age);
             const size_t from = w.bits();
             write_predicted(now[b], pred, scaled, w);
             const size_t n = w.bits() - from;

@@ -21,12 +21,12 @@ void DatagramPacker::flush(uint32_t tick, uint32_t& seq, std::vector<std::vector
     auto pl = fbb_.CreateVector(payload_.data(), payload_.size());
     flatbuffers::Offset<flatbuffers::Vector<const wire::PoseAck*>> pa;
     if (!acks_.empty()) pa = fbb_.CreateVectorOfStructs(acks_.data(), acks_.size());
-    auto fr = wire::CreateFrame(fbb_, tick, ch, pl, pa);
+    auto fr = wire::CreateFrame(fbb_, tick, ch, pl, pa, sampled_);
     auto dg = wire::CreateDatagram(fbb_, seq++, now_us32(), wire::DatagramBody::Frame, fr.Union());
     fbb_.Finish(dg, wire::DatagramIdentifier());
     const size_t size = fbb_.GetSize();
     // WireCost::kFrameOverhead must cover the tables; this is what the tests check.
-    const size_t body = payload_.size() + chunks_.size() * WireCost::kChunk + ack_bytes_;
+    const size_t body = payload_.size() + chunks_.size() * WireCost::kChunk + ack_bytes_ + (sampled_ ? kSampledField : 0);
     if (size > MAX_DATAGRAM || size > body + WireCost::kFrameOverhead)
         throw Error("datagram_packer: frame overhead " + std::to_string(size - body) +
                     " bytes exceeds WireCost::kFrameOverhead");
@@ -34,6 +34,7 @@ void DatagramPacker::flush(uint32_t tick, uint32_t& seq, std::vector<std::vector
     wire += size + UDP_IP_OVERHEAD;
     chunks_.clear();
     payload_.clear();
+    sampled_ = sample_all_;
     acks_ = {};  // in the first datagram only
     ack_bytes_ = 0;
 }
@@ -45,6 +46,11 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
     size_t wire = 0;
     chunks_.clear();
     payload_.clear();
+    // Frame.sampled: every chunk opens with its sample byte when one of the
+    // tick's instances was sampled at a key (a byte per chunk then).
+    sample_all_ = false;
+    for (const Pick& p : picks) sample_all_ = sample_all_ || frame.instances[size_t(p.instance)].sample != 0;
+    sampled_ = sample_all_;
     acks_ = acks;
     ack_bytes_ = acks.empty() ? 0 : pose_ack_bytes(acks.size());
     // Adjacent picks of one instance (the scheduler's ranges of it) share a chunk.
@@ -95,13 +101,14 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
         while (bone >= 0 || morph_bytes > 0) {
             const int first = bone >= 0 ? bone : show - 1;
             const size_t mb = mask_bytes(first, show);
-            const size_t used =
-                payload_.size() + (chunks_.size() + 1) * WireCost::kChunk + root_bytes + morph_bytes + mb + ack_bytes_;
+            const size_t used = payload_.size() + (chunks_.size() + 1) * WireCost::kChunk + (sampled_ ? 1 + kSampledField : 0) +
+                                root_bytes + morph_bytes + mb + ack_bytes_;
             if (used + (bone >= 0 ? (bits_of(bone) + 7) / 8 : 0) > room) {
                 flush(frame.tick, seq, out, wire);
                 continue;
             }
             uint8_t flags = e.flags;
+            if (sampled_) payload_.push_back(e.sample);
             payload_.insert(payload_.end(), planned.begin(), planned.end());
             if (morph_bytes > 0) {
                 flags |= CHUNK_MORPH;

@@ -33,6 +33,9 @@ public:
                 std::span<const wire::PoseAck> acks = {});
     // What n pose acks add to a datagram at most (field, vector length, alignment).
     static constexpr size_t pose_ack_bytes(size_t n) { return 16 + 8 * n; }
+    // What Frame.sampled adds to a datagram at most (vtable entry, field,
+    // alignment); each chunk then has one more byte (its sample byte).
+    static constexpr size_t kSampledField = 8;
 
 private:
     void flush(uint32_t tick, uint32_t& seq, std::vector<std::vector<uint8_t>>& out, size_t& wire);
@@ -42,6 +45,8 @@ private:
     std::vector<uint8_t> root_;     // an absolute root block (a character the plan has not planned)
     std::span<const wire::PoseAck> acks_;  // still to go (the first datagram)
     size_t ack_bytes_ = 0;
+    bool sample_all_ = false;  // this pack's datagrams carry sample bytes
+    bool sampled_ = false;     // the datagram being filled does
 };
 
 }  // namespace progskin::net

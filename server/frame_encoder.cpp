@@ -30,6 +30,19 @@ FrameEncoder::FrameEncoder(std::vector<std::shared_ptr<ServerAsset>> assets, std
     bits_.reserve(rel_stride_);
     std::vector<glm::dmat4> first(max_joints), last(max_joints);
     for (const auto& a : assets_) {
+        auto& keys = keys_.emplace_back();
+        for (const ClipSelection& sel : a->selections) {
+            Keys& k = keys.emplace_back();
+            k.times = linear_key_times(a->character, sel);
+            std::vector<double> gaps;
+            for (size_t i = 1; i < k.times.size(); ++i) gaps.push_back(k.times[i] - k.times[i - 1]);
+            if (gaps.empty()) {
+                k.times.clear();
+            } else {
+                std::nth_element(gaps.begin(), gaps.begin() + long(gaps.size() / 2), gaps.end());
+                k.spacing = gaps[gaps.size() / 2];
+            }
+        }
         auto& flags = seamless_.emplace_back();
         const size_t J = a->character.joint_count();
         for (const ClipSelection& sel : a->selections) {
@@ -275,6 +288,7 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         frame_.hist_gen.resize(slots_.size() * kBaselineRing, 0);
         frame_.hist_root.resize(slots_.size() * kBaselineRing);
         frame_.hist_has_root.resize(slots_.size() * kBaselineRing, 0);
+        frame_.hist_sample.resize(slots_.size() * kBaselineRing, 0);
         const size_t had = frame_.predicted_.size();
         frame_.predicted_.resize(slots_.size() * kPredictedPerSlot);
         for (size_t k = had; k < frame_.predicted_.size(); ++k) {
@@ -304,6 +318,7 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         uint8_t* out = frame_.bytes.data() + e.offset;
         e.model = slot.live || s.selection < 0 ? int(a.selections.size()) : s.selection;
         e.flags = uint8_t((a.format.scaled ? CHUNK_SCALED : 0) | (slot.has_root ? CHUNK_ROOT : 0));
+        e.sample = 0;
         if (slot.has_root) {
             e.root = slot.root;
             e.world = decode_root(slot.root.data()).position;
@@ -341,7 +356,8 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         std::span<glm::dmat4> mats(scratch_.data(), size_t(J));
         const ClipSelection& sel = a.selections[size_t(s.selection)];
         int64_t loops = 0;
-        const double t = sel.played(s.time_offset + double(tick) / tick_rate_ * s.speed, s.once, &loops);
+        const double at_tick = sel.played(s.time_offset + double(tick) / tick_rate_ * s.speed, s.once, &loops);
+        const double t = key_sample(s, sel, keys_[size_t(s.asset)][size_t(s.selection)], tick, at_tick, loops, e.sample);
         sample_skinning_matrices(a.character, sel, t, mats);
         const size_t rs = size_t(e.record_size);
         for (int b = 0; b < e.bone_count; ++b) {
@@ -373,6 +389,32 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
     return frame_;
 }
 
+// A linearly keyed clip moves along straight lines between its keys: a
+// tick samples it at its latest key since the tick before (the kink there),
+// else half a tick before the tick (on the line), so that the client's linear interpolation
+// between the samples of adjacent ticks follows the clip (PoseBuffer).
+// Not when keys come closer than a tick apart (one sample per tick cannot
+// take every kink; the tick's own time then).
+double FrameEncoder::key_sample(const InstanceSpec& s, const ClipSelection& sel, const Keys& keys, uint32_t tick, double t,
+                                int64_t loops, uint8_t& sample) const {
+    sample = 0;
+    if (!key_samples_ || keys.times.empty() || !(s.speed > 0) || keys.spacing / s.speed * tick_rate_ < 1.0) return t;
+    sample = 1;  // keyed (at the tick while the clip stands still: once, at its end)
+    int64_t prev_loops = 0;
+    const double step = double(s.speed) / tick_rate_;  // clip seconds per tick
+    const double tp = sel.played(s.time_offset + double(tick - 1) / tick_rate_ * s.speed, s.once, &prev_loops);
+    const bool wrapped = prev_loops != loops;
+    const double lo = wrapped ? double(sel.start) - 1e-9 : tp;
+    if (!(t > lo)) return t;
+    const double k = latest_key_in(keys.times, lo, t);
+    // No key since the tick before: half a tick before the tick (on the
+    // straight piece, away from the samples on either side).
+    const double ticks = std::isnan(k) ? 0.5 : std::clamp((t - k) / step, 0.0, 1.0);
+    const int q = std::min(254, int(std::lround(ticks * 254)));
+    sample = uint8_t(1 + q);
+    return std::max(wrapped ? double(sel.start) : tp, t - double(q) / 254 * step);
+}
+
 bool FrameEncoder::encode_relative(size_t i, const ServerAsset& a) {
     const EncodedInstance& e = frame_.instances[i];
     const size_t B = size_t(a.bone_count());
@@ -395,6 +437,7 @@ void FrameEncoder::keep_baseline(size_t i, uint32_t tick, uint32_t generation) {
     frame_.hist_gen[k] = generation;
     const EncodedInstance& e = frame_.instances[i];
     frame_.hist_has_root[k] = (e.flags & CHUNK_ROOT) != 0;
+    frame_.hist_sample[k] = e.sample;
     if (frame_.hist_has_root[k]) frame_.hist_root[k] = e.root;
 }
 
@@ -402,6 +445,11 @@ const uint8_t* EncodedFrame::root_at(int i, uint32_t t) const {
     if (!ints_at(i, t)) return nullptr;
     const size_t k = size_t(i) * kBaselineRing + t % kBaselineRing;
     return hist_has_root[k] ? hist_root[k].data() : nullptr;
+}
+
+uint8_t EncodedFrame::sample_at(int i, uint32_t t) const {
+    if (!ints_at(i, t)) return 0;
+    return hist_sample[size_t(i) * kBaselineRing + t % kBaselineRing];
 }
 
 const RecordInts* EncodedFrame::ints_at(int i, uint32_t t) const {
@@ -433,9 +481,12 @@ const PredictedRecords* EncodedFrame::predicted(int i, uint8_t base) const {
     BitWriter w(p.bits);
     const RecordInts* now = ints.data() + size_t(i) * ring_bones;
     const bool scaled = (e.flags & CHUNK_SCALED) != 0;
+    // Linear: along the samples' times (sample_age; 254 age and 508 age at ticks).
+    const uint32_t a1 = sample_age(age, e.sample, sample_at(i, tick - age));
+    const uint32_t a2 = linear ? sample_age(2 * age, e.sample, sample_at(i, tick - 2 * age)) : 0;
     for (int b = 0; b < e.bone_count; ++b) {
         p.offsets[size_t(b)] = uint32_t(w.bits());
-        const RecordInts pred = linear ? predict_record(b1[b], age, &b2[b], 2 * age) : predict_record(b1[b], age);
+        const RecordInts pred = linear ? predict_record(b1[b], a1, &b2[b], a2) : predict_record(b1[b], age);
         write_predicted(now[b], pred, scaled, w);
     }
     p.offsets[size_t(e.bone_count)] = uint32_t(w.bits());

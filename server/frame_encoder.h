@@ -48,6 +48,10 @@ struct EncodedInstance {
     uint32_t generation = 0;  // bumped at every add into this slot
     uint8_t epoch = 0;      // discontinuity counter (Chunk.epoch)
     uint8_t flags = 0;      // Chunk.flags: CHUNK_ROOT when the root block travels, CHUNK_SCALED
+    // The chunk's sample byte (wire.h sample_ticks): 0, the pose is the
+    // tick's; v >= 1, a key of a linearly keyed clip, (v - 1) / 254 ticks
+    // before the tick (docs/protocol.md "Frame").
+    uint8_t sample = 0;
     uint64_t owner = 0;     // session that owns it (0: server)
     glm::dvec3 world{0.0};  // current world position (importance)
     std::array<uint8_t, ROOT_BYTES> root{};  // root block (when flags & CHUNK_ROOT)
@@ -111,11 +115,15 @@ struct EncodedFrame {
     std::vector<uint32_t> hist_tick, hist_gen;
     std::vector<std::array<uint8_t, ROOT_BYTES>> hist_root;  // per ring entry: the root block (absolute)
     std::vector<uint8_t> hist_has_root;                     // per ring entry: the chunks carried a root
+    std::vector<uint8_t> hist_sample;                       // per ring entry: EncodedInstance::sample
     // Instance i's integers at `tick`, or nullptr when the ring does not hold them.
     const RecordInts* ints_at(int i, uint32_t tick) const;
     // Instance i's root block (absolute) at `tick`, or nullptr when the ring
     // does not hold that tick or its chunks carried no root.
     const uint8_t* root_at(int i, uint32_t tick) const;
+    // Instance i's sample byte at `tick` (EncodedInstance::sample; 0 when the
+    // ring does not hold that tick).
+    uint8_t sample_at(int i, uint32_t tick) const;
     // Instance i's records predicted from baseline `base` (Chunk.base, non-zero),
     // coded once per tick and slot on first use and shared by every client
     // (thread-safe); nullptr when kPredictedPerSlot other baselines took the slot's room.
@@ -135,6 +143,11 @@ class FrameEncoder {
 public:
     FrameEncoder(std::vector<std::shared_ptr<ServerAsset>> assets, std::vector<InstanceSpec> instances,
                  float tick_rate);
+    // Clip instances whose selection is linearly keyed, keys at least a tick
+    // apart, are sampled at the latest key since the tick before (else half
+    // a tick before the tick), with the offset in EncodedInstance::sample; off: at every
+    // tick (sample 0).
+    void set_key_samples(bool on) { key_samples_ = on; }
     // Samples and encodes every active instance at `tick`. No allocation
     // after the first call unless instances were added past the capacity.
     const EncodedFrame& encode(uint32_t tick);
@@ -230,6 +243,20 @@ private:
     // Per asset and clip selection: the loop is seamless (its last pose is
     // its first, to 1e-4 of the diagonal), so a wrap is no discontinuity.
     std::vector<std::vector<uint8_t>> seamless_;
+    // Per asset and clip selection: its key times when every channel is
+    // linear (linear_key_times) and their median spacing in seconds, else
+    // empty: a tick samples the selection at its latest key since the tick
+    // before (key_sample) when keys are at least a tick apart.
+    struct Keys {
+        std::vector<double> times;
+        double spacing = 0;
+    };
+    std::vector<std::vector<Keys>> keys_;
+    bool key_samples_ = false;
+    // The clip time to sample instance spec s at `tick` (clip time t, loops
+    // as played) and its sample byte (EncodedInstance::sample).
+    double key_sample(const InstanceSpec& s, const ClipSelection& sel, const Keys& keys, uint32_t tick, double t,
+                      int64_t loops, uint8_t& sample) const;
     EncodedFrame frame_;
     std::vector<glm::dmat4> scratch_;
     size_t morph_stride_ = 0;       // weights per slot (the largest streamed morph count)

@@ -63,14 +63,15 @@ struct WireCost {
     static constexpr size_t kFrameOverhead = 88;  // Datagram + Frame FlatBuffer tables (datagram_packer.cpp checks)
     static constexpr size_t kChunk = 6;           // one Chunk struct
     // a chunk continued in another datagram (it repeats the root block)
-    static constexpr size_t kSplitChunk = kChunk + kRootAbsoluteBytes + (MAX_BONES + 7) / 8;
+    static constexpr size_t kSplitChunk = 1 + kChunk + kRootAbsoluteBytes + (MAX_BONES + 7) / 8;
     // Chunk struct + bone mask for an instance of `bones` bones (at most; a
     // chunk starting at bone first > 0 has a shorter mask).
     static constexpr size_t header(int bones) { return kChunk + (size_t(bones) + 7) / 8; }
     // The same plus the root block when the instance's chunks carry one
-    // (absolute; a client's plan may predict it: Scheduler::header_of).
+    // (absolute; a client's plan may predict it: Scheduler::header_of) and
+    // the sample byte when its pose was sampled at a key.
     static size_t header(const EncodedInstance& e) {
-        return header(e.bone_count) + ((e.flags & CHUNK_ROOT) ? kRootAbsoluteBytes : 0);
+        return header(e.bone_count) + ((e.flags & CHUNK_ROOT) ? kRootAbsoluteBytes : 0) + (e.sample ? 1 : 0);
     }
     static size_t datagrams(size_t payload);
     static size_t wire(size_t payload);
@@ -157,7 +158,7 @@ public:
     // block at its planned size (predicted for this client, or absolute).
     size_t header_of(const EncodedFrame& frame, int i) const {
         const EncodedInstance& e = frame.instances[size_t(i)];
-        return plan_ ? WireCost::header(e.bone_count) + plan_->root_bytes(frame, i) : WireCost::header(e);
+        return plan_ ? WireCost::header(e.bone_count) + plan_->root_bytes(frame, i) + (e.sample ? 1 : 0) : WireCost::header(e);
     }
 
     // The last select left something unsent (so the rate estimate may probe up).

@@ -34,6 +34,7 @@ bool equal_secret(const std::string& a, const std::string& b) {
 ServerCore::ServerCore(ServerConfig c, ServerAssets a, std::vector<InstanceSpec> instances)
     : cfg_(std::move(c)), assets_(a), encoder_(a, std::move(instances), cfg_.tick_rate) {
     if (!(cfg_.tick_rate > 0 && cfg_.tick_rate <= 240)) throw Error("tick rate must be in (0, 240]");
+    encoder_.set_key_samples(cfg_.key_samples);
     if (assets_.empty()) throw Error("server: no assets");
     if (cfg_.threads < 0 || cfg_.threads > TickPool::kMaxThreads)
         throw Error("server: threads must be in [0, " + std::to_string(TickPool::kMaxThreads) + "] (0: the machine's cores)");

@@ -84,6 +84,9 @@ static const char* kUsage =
     "                    stream (default 256; 0: no limit)\n"
     "  --standalone-records  every bone record coded on its own (no prediction from what\n"
     "                    each client acknowledged; for comparisons: docs/performance.md)\n"
+    "  --key-samples     sample clips whose channels are all linear at their keys (the\n"
+    "                    latest key since the tick before), so that clients follow their\n"
+    "                    kinks at full rate (costs below it: docs/performance.md)\n"
     "  --fair-floor F    each character's own bones go first up to this fraction of its\n"
     "                    part of a client's stream (0..1, default 0.5; 0: greedy only)\n"
     "  --asset-bytes-per-minute N  asset bytes per IP address, across reconnects (default:\n"
@@ -195,6 +198,7 @@ static int parse_options(int argc, char** argv, Options& o) {
             else if (a == "--owner-share-kbps") cfg.owner_share_kbps = cli::to_number(a, need(i));
             else if (a == "--fair-floor") cfg.fair_floor = cli::to_number(a, need(i));
             else if (a == "--standalone-records") cfg.predict_records = false;
+            else if (a == "--key-samples") cfg.key_samples = true;
             else if (a == "--asset-bytes-per-minute") cfg.asset_bytes_per_minute = cli::to_number(a, need(i));
             else if (a == "--max-handshakes") cfg.max_handshakes = cli::to_int(a, need(i));
             else if (a == "--connects-per-second") cfg.connects_per_second = cli::to_number(a, need(i));

@@ -91,10 +91,16 @@ TEST(BaselineBook, PlanPredictsAcknowledgedBonesAndThePackerWritesThem) {
 // datagram acknowledged at once: the deep bones go predicted from their own
 // baselines (not standalone), and a client's pose buffer decodes every record
 // to exactly the encoder's integers, none from a baseline it lacks.
+// The same with key samples (FrameEncoder::set_key_samples): the linear
+// predictions run along the samples' times (sample_age), the client's as
+// the server's.
 TEST(BaselineBook, PartialRefreshesPredictFromTheirOwnBaselinesAndDecodeExactly) {
+  for (bool keyed : {false, true}) {
+    SCOPED_TRACE(keyed ? "key samples" : "tick samples");
     const auto& assets = progskin::net::testing::default_assets();
     std::vector<InstanceSpec> specs(1);
     FrameEncoder enc(assets, specs, 30.0f);
+    enc.set_key_samples(keyed);
     const ServerAsset& a = *assets[0];
     const int B = a.bone_count(), shallow = 10;
     BaselineBook book;
@@ -120,13 +126,21 @@ TEST(BaselineBook, PartialRefreshesPredictFromTheirOwnBaselinesAndDecodeExactly)
         for (const auto& d : out) {
             const wire::Frame* fr = verify_datagram(d)->body_as_Frame();
             ASSERT_NE(fr, nullptr);
-            ASSERT_TRUE(read_frame(*fr, [&](uint16_t) { return a.format.size(); },
-                                   [&](uint16_t, int first, int count, int show, const RecordRun& rec) {
-                                       ASSERT_TRUE(client.add_chunk(t, first, count, show, rec, show, fr->chunks()->Get(0)->epoch()));
-                                   }));
+            uint8_t sample = 0;
+            ASSERT_TRUE(read_frame(
+                *fr, [&](uint16_t) { return a.format.size(); },
+                [&](uint16_t, int first, int count, int show, const RecordRun& rec) {
+                    ASSERT_TRUE(client.add_chunk(t, first, count, show, rec, show, fr->chunks()->Get(0)->epoch(), {}, sample));
+                },
+                [&](const wire::Chunk&, uint8_t s, std::span<const uint8_t>, const uint8_t*) { sample = s; }));
+            if (keyed) {
+                EXPECT_EQ(sample, f.instances[0].sample);
+                EXPECT_GE(sample, 1);
+            }
         }
         book.on_ack(seq - 1, ~0u);
-        // Every bone this tick decodes to the encoder's integers (pose() at the tick is the frame's own).
+        // Every bone this tick decodes to the encoder's integers (pose() at
+        // the tick is the frame's own: the newest, held past its sample).
         for (int b = 0; b < pick.k; ++b) {
             BonePose got;
             ASSERT_TRUE(client.pose(b, double(t), got));
@@ -139,6 +153,7 @@ TEST(BaselineBook, PartialRefreshesPredictFromTheirOwnBaselinesAndDecodeExactly)
     std::printf("deep bones at their refresh: %llu from their own baseline, %llu standalone\n", (unsigned long long)own,
                 (unsigned long long)standalone_deep);
     EXPECT_GT(own, standalone_deep);
+  }
 }
 
 // A walking character's root block: predicted from the ticks the client

@@ -108,6 +108,66 @@ TEST(FrameEncoder, ClipRecordsMatchTheSampledClipWithinQuantisation) {
     EXPECT_EQ(enc.stats().poses_out_of_range, 0u);
 }
 
+// Key samples (set_key_samples): a linearly keyed clip (the bundled ones:
+// 24 Hz keys) is sampled at its latest key since the tick before, else at
+// half a tick before the tick; EncodedInstance::sample says where (wire.h sample_ticks), and the
+// records are the clip at that time. Keys closer than a tick apart (a clip
+// played 1.7 times as fast) and key samples off: the tick, sample 0.
+TEST(FrameEncoder, KeySamplesLandOnTheClipsKeys) {
+    const auto& assets = fox_and_cesium();
+    std::vector<InstanceSpec> specs = crowd_layout(assets, 8);
+    specs[2].speed = 1.7f;
+    FrameEncoder plain(assets, specs, 30.0f);
+    FrameEncoder enc(assets, specs, 30.0f);
+    enc.set_key_samples(true);
+    int at_keys = 0, between = 0;
+    for (uint32_t t = 1; t <= 90; ++t) {
+        const EncodedFrame& p = plain.encode(t);
+        for (const EncodedInstance& e : p.instances) EXPECT_EQ(e.sample, 0);
+        const EncodedFrame& f = enc.encode(t);
+        for (int i = 0; i < int(specs.size()); ++i) {
+            const InstanceSpec& sp = specs[size_t(i)];
+            const EncodedInstance& e = f.instances[size_t(i)];
+            const ServerAsset& a = *assets[size_t(sp.asset)];
+            const ClipSelection& sel = a.selections[size_t(sp.selection)];
+            if (sp.speed > 1.5f) {
+                EXPECT_EQ(e.sample, 0) << "keys closer than a tick";
+                continue;
+            }
+            ASSERT_GE(e.sample, 1) << "instance " << i << " tick " << t;
+            const double st = double(t) - sample_ticks(e.sample);
+            const double clip_t = sel.played(sp.time_offset + st / 30.0 * sp.speed, false);
+            const std::vector<double> keys = linear_key_times(a.character, sel);
+            ASSERT_FALSE(keys.empty());
+            double nearest = 1e9;
+            for (double k : keys) nearest = std::min(nearest, std::fabs(k - clip_t));
+            if (nearest < 1.0 / 508 / 30.0 * sp.speed + 1e-6) {
+                ++at_keys;
+            } else {
+                // No key since the tick before: half a tick before the tick.
+                ++between;
+                EXPECT_EQ(e.sample, 128) << "instance " << i << " tick " << t;
+                const double t0 = sel.played(sp.time_offset + (t - 1) / 30.0 * sp.speed, false);
+                const double t1 = sel.played(sp.time_offset + t / 30.0 * sp.speed, false);
+                if (t1 > t0) {
+                    EXPECT_TRUE(std::isnan(latest_key_in(keys, t0, t1))) << "instance " << i << " tick " << t;
+                }
+            }
+            // The records are the clip at the sample's time.
+            const auto ref = skinned(a.character, sampled_palette(a, sel, clip_t));
+            const auto got = skinned(a.character, decoded_palette(f, i, a));
+            ErrorAccumulator one(rest_diagonal(a.character));
+            one.add(ref, got);
+            EXPECT_LE(one.stats().max, quantisation_bound(a.format, a.bind_radius, a.max_scale) * 1.5)
+                << "instance " << i << " tick " << t;
+        }
+    }
+    // 24 keys a second at 30 ticks: four ticks in five have a key since the
+    // tick before (Fox's Run has a longer gap between two of its keys).
+    EXPECT_GT(at_keys, 3 * between);
+    EXPECT_GT(between, 0);
+}
+
 // Morph weights of a clip instance: the clip's weights at its clip time,
 // quantised for the wire (encode_morph_weight).
 TEST(FrameEncoder, ClipMorphWeightsAreTheSampledWeightsQuantised) {

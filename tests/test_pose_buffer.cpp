@@ -189,6 +189,47 @@ TEST(PoseBuffer, InterpolatesLinearMotionExactly) {
     EXPECT_LT(glm::length(p.t - (at(106) + glm::vec3(2, 0, 0))), 2 * step);
 }
 
+// A piecewise linear motion (a linearly keyed clip) sampled at its keys
+// (sample bytes, wire.h sample_ticks): between the samples of adjacent ticks
+// the buffer interpolates linearly at the samples' times and follows the
+// kinks exactly; the same samples without their sample bytes (taken as the
+// ticks') do not. Chunks of one tick that disagree on the sample are refused.
+TEST(PoseBuffer, KeyedSamplesInterpolateLinearlyAtTheirTimes) {
+    // Keys every 1.25 ticks from tick 100 on (24 Hz keys at 30 Hz), x
+    // alternating between -2 and 2: kinks at every key.
+    auto key_x = [](int k) { return k % 2 ? 2.0 : -2.0; };
+    auto truth = [&](double tick) {
+        const double u = (tick - 100.0) / 1.25;
+        const int k = int(std::floor(u));
+        return key_x(k) + (key_x(k + 1) - key_x(k)) * (u - k);
+    };
+    const float step = 20.0f / 65535.0f;
+    for (bool keyed : {true, false}) {
+        PoseBuffer pb = buffer(1);
+        for (uint32_t t = 101; t <= 112; ++t) {
+            // The latest key in (t - 1, t], else t itself (FrameEncoder::key_sample).
+            const double k = 100.0 + 1.25 * std::floor((t - 100.0) / 1.25);
+            const int q = k > t - 1.0 ? int(std::lround((t - k) * 254)) : 0;
+            const double at = double(t) - q / 254.0;
+            ASSERT_TRUE(pb.add_chunk(t, 0, 1, 1, record(glm::vec3(float(truth(at)), 0, 0)).run(), 1, 0, {},
+                                     keyed ? uint8_t(1 + q) : uint8_t(0)));
+        }
+        double worst = 0;
+        for (double d = 103.0; d <= 110.0; d += 0.05) worst = std::max(worst, std::fabs(pose_of(pb, 0, d).t.x - truth(d)));
+        // A sample lands within 1/508 tick of its key (its time is kept to
+        // 1/254 tick): the line misses the kink by the slope's change (6.4
+        // per tick here) times that.
+        if (keyed)
+            EXPECT_LT(worst, 3 * step + 6.4 / 508) << "linear between key samples follows the kinks";
+        else
+            EXPECT_GT(worst, 0.1) << "the same samples taken as the ticks' miss the kinks";
+    }
+    PoseBuffer pb = buffer(2);
+    ASSERT_TRUE(pb.add_chunk(100, 0, 1, 2, record(glm::vec3(0.0f)).run(), 2, 0, {}, 10));
+    EXPECT_FALSE(pb.add_chunk(100, 1, 1, 2, record(glm::vec3(0.0f)).run(), 2, 0, {}, 11)) << "one tick, two samples";
+    EXPECT_TRUE(pb.add_chunk(100, 1, 1, 2, record(glm::vec3(0.0f)).run(), 2, 0, {}, 10));
+}
+
 // Frames of different epochs are never interpolated: between the last frame
 // of epoch 0 and the first of epoch 1 the older one is held (no boundary
 // known), and the newer one shows from its tick on.
