@@ -15,6 +15,7 @@
 //                  lerp, composed down the hierarchy: exactly what a glTF
 //                  clip of linear keys does between two of its keys
 //   rel joint cubic the same, cubic
+// Then a second table: key samples against tick samples (report_keys).
 //
 // usage: bench_interpolation [--rates "24 30 60"] [FILE...]
 //   FILE: glTF/glb characters (default: the bundled Fox and CesiumMan); rates:
@@ -134,6 +135,79 @@ void report(const Character& c, int clip, double rate) {
     std::printf("\n");
 }
 
+// Key samples (progskin-server --key-samples, docs/algorithms.md): the
+// parent-relative poses about the joint (the hierarchy build's records)
+// sampled at the ticks or at the server's key samples (the latest key since
+// the tick before, else half a tick before the tick), a bone refreshed every
+// g ticks: between its frames the client's interpolation at the samples'
+// times (linear between key samples of adjacent ticks, else the cubic), at
+// nine display times per interval. Clips whose channels are not all linear
+// are left out.
+void report_keys(const Character& c, int clip, double rate) {
+    const size_t J = c.joint_count();
+    const ClipSelection sel = make_selection(c, {clip});
+    const std::vector<double> keys = linear_key_times(c, sel);
+    const int N = int(sel.duration() * rate);
+    if (keys.empty() || N < 16) return;
+    std::vector<glm::vec3> pivot(J);
+    for (size_t j = 0; j < J; ++j) pivot[j] = glm::vec3(glm::inverse(c.inverse_bind[j])[3]);
+    auto sample = [&](double t) {  // t: seconds after the clip's start
+        std::vector<glm::dmat4> m(J);
+        sample_skinning_matrices(c, sel, sel.start + t, m);
+        std::vector<BonePose> p(J);
+        for (size_t j = 0; j < J; ++j) p[j] = decompose(Mat34::from_glm(m[j]));
+        return p;
+    };
+    auto relative = [&](const std::vector<BonePose>& model) {
+        std::vector<BonePose> r(J);
+        for (size_t j = 0; j < J; ++j) {
+            const int q = c.joint_parent[j];
+            r[j] = about(q < 0 ? model[j] : mul(inverse(model[size_t(q)]), model[j]), pivot[j]);
+        }
+        return r;
+    };
+    const double diag = rest_diagonal(c);
+    std::printf("| %s | %s | %g |", c.name.c_str(), c.clips[size_t(clip)].name.c_str(), rate);
+    for (int g = 1; g <= 4; ++g) {
+        for (int keyed = 0; keyed < 2; ++keyed) {
+            // Sample times in ticks of every g-th tick.
+            std::vector<double> at;
+            for (int k = 0; k <= N; k += g) {
+                double t = k;
+                if (keyed && k > 0) {
+                    const double key = latest_key_in(keys, sel.start + (k - 1) / rate, sel.start + k / rate);
+                    t = std::isnan(key) ? k - 0.5 : (key - sel.start) * rate;
+                }
+                at.push_back(t);
+            }
+            std::vector<std::vector<BonePose>> rel;
+            for (double t : at) rel.push_back(relative(sample(t / rate)));
+            ErrorAccumulator err(diag);
+            std::vector<BonePose> out(J);
+            std::vector<glm::vec3> ref, got;
+            for (size_t m = 1; m + 2 < at.size(); ++m) {
+                for (int s = 0; s < 9; ++s) {
+                    const double u = at[m] + (at[m + 1] - at[m]) * (s + 0.5) / 9.0;
+                    skin(c, sample(u / rate), ref);
+                    for (size_t j = 0; j < J; ++j) {
+                        const int q = c.joint_parent[j];
+                        const BonePose r =
+                            keyed && g == 1
+                                ? interpolate(rel[m][j], rel[m + 1][j], float((u - at[m]) / (at[m + 1] - at[m])))
+                                : interpolate_between(&rel[m - 1][j], rel[m][j], rel[m + 1][j], &rel[m + 2][j], at[m - 1], at[m],
+                                                      at[m + 1], at[m + 2], u);
+                        out[j] = q < 0 ? back(r, pivot[j]) : mul(out[size_t(q)], back(r, pivot[j]));
+                    }
+                    skin(c, out, got);
+                    err.add(ref, got);
+                }
+            }
+            std::printf(" %.4f / %.3f |", err.stats().rms_pct, err.stats().max_pct);
+        }
+    }
+    std::printf("\n");
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -174,6 +248,17 @@ int main(int argc, char** argv) {
             const Character c = import_character(f);
             for (double r : rates)
                 for (int k = 0; k < int(c.clips.size()); ++k) report(c, k, r);
+        }
+        std::printf("\nKey samples against tick samples, parent-relative about the joint, a bone refreshed every g ticks\n"
+                    "(RMS / max, %% of the rest diagonal):\n\n| character | clip | tick Hz |");
+        for (int g = 1; g <= 4; ++g) std::printf(" g %d, ticks | g %d, keys |", g, g);
+        std::printf("\n|---|---|---|");
+        for (int g = 1; g <= 4; ++g) std::printf("---|---|");
+        std::printf("\n");
+        for (const auto& f : files) {
+            const Character c = import_character(f);
+            for (double r : rates)
+                for (int k = 0; k < int(c.clips.size()); ++k) report_keys(c, k, r);
         }
     } catch (const std::exception& e) {
         std::fprintf(stderr, "bench_interpolation: %s\n", e.what());

@@ -6,7 +6,9 @@
 # cap -> measured rate (docs/metrics.md §3: UDP payload + 28 bytes per datagram), bones
 # per character, RMS and max error in % of the rest-pose diagonal.
 #
-#   scripts/demo.sh [--duration S] [--caps "16 32 64 ..."] [--build DIR]
+#   scripts/demo.sh [--duration S] [--caps "16 32 64 ..."] [--build DIR] [-- SERVER-ARGS...]
+#
+# SERVER-ARGS go to progskin-server (e.g. -- --build-strategy rate --key-samples).
 #
 # Builds the three targets into build/ if they are missing. Finishes in well
 # under a minute and stops every process it started.
@@ -16,12 +18,14 @@ ROOT=$(pwd)
 BUILD=${PROGSKIN_BUILD:-build}
 DURATION=8
 CAPS="16 24 32 48 64 96 128 192 256 0"
+SERVER_ARGS=()
 while (($#)); do
   case "$1" in
     --duration) DURATION=$2; shift 2;;
     --caps) CAPS=$2; shift 2;;
     --build) BUILD=$2; shift 2;;
-    -h|--help) sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
+    --) shift; SERVER_ARGS=("$@"); break;;
+    -h|--help) sed -n '2,14p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
     *) echo "demo.sh: unknown argument $1" >&2; exit 2;;
   esac
 done
@@ -39,7 +43,7 @@ NAME=demo
 # shellcheck source=scripts/lib.sh
 source scripts/lib.sh
 # TLS (the server's default, a self-signed pair in $TMP/tls): the clients pin its fingerprint.
-psk_start_server --duration $((DURATION + 40))
+psk_start_server --duration $((DURATION + 40)) "${SERVER_ARGS[@]}"
 
 # Fetch the assets once so the clients start together.
 "$CLIENT" --server 127.0.0.1:$PORT --pin "$PIN" --duration 0.2 --cache "$TMP/cache" >/dev/null
