@@ -129,6 +129,11 @@ struct RemoteCharacter {
                                            // morph_positions in common/error_metric.h); empty without targets
     int bones = 0;                       // bones shown (the LOD target)
     double display_tick = 0;             // the server tick displayed
+    // The time on the server's tick clock the displayed pose is of:
+    // display_tick, but with snap_to_ticks the frame's own sample time
+    // (a little before its tick when the server samples clips at their keys:
+    // docs/protocol.md "Key samples").
+    double pose_tick = 0;
 };
 
 struct ClientEvent {

@@ -239,6 +239,11 @@ void PoseBuffer::weights_at(double d, std::span<float> out) const {
     }
 }
 
+double PoseBuffer::sample_of(uint32_t t) const {
+    const Frame* f = frame_at(t);
+    return f ? sample_time(*f) : double(int32_t(t - newest_)) + double(newest_);
+}
+
 int PoseBuffer::bones_at(double d) const {
     const Frame* newest_before = nullptr;
     const Frame* first_after = nullptr;

@@ -83,6 +83,11 @@ public:
     // before d (before the first frame, that frame's), limited to the bones
     // received so far; each bone is interpolated between its own frames.
     int bones_at(double d) const;
+    // The display time of tick t's own sample: the time its bones were
+    // sampled (sample byte, add_chunk), or t when no frame of tick t is here
+    // or it was sampled at the tick (a display snapped to ticks shows each
+    // frame as it came: ClientSession --snap-to-ticks).
+    double sample_of(uint32_t t) const;
     // The largest gap (ticks) between a bone's previous frame and the frame
     // of the last accepted chunk, over the chunk's bones, counting gaps of at
     // most HOLD_TICKS (longer ones are a bone shown again, not a refresh); 0

@@ -298,7 +298,7 @@ private:
             clip_t = c.clip.at(t);
             ref_root = walk_root(c.publisher.walk_center, c.publisher.walk_radius, c.publisher.walk_speed, t);
         } else {
-            clip_t = c.clip.clip_time(c.display_tick, client_.tick_rate());
+            clip_t = c.clip.clip_time(c.pose_tick, client_.tick_rate());
             ref_root = c.root;
         }
         reference(ch, c.clip.selection, clip_t);

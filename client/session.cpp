@@ -800,8 +800,12 @@ void ClientSession::display(double now) {
     for (size_t k = 0; k < shown_.size(); ++k) {
         InstanceView& v = *remotes_[size_t(shown_ids_[k])].view;
         RemoteCharacter& rc = shown_[k];
-        rc.shown = v.buffer().covers(d) && v.display(d);
+        // Snapped: each frame as it came, at its sample's time (key samples
+        // come a little before their tick; the root is the tick's).
+        const double di = cfg_.snap_to_ticks && d >= 0 && !v.buffer().empty() ? v.buffer().sample_of(uint32_t(int64_t(d))) : d;
+        rc.shown = v.buffer().covers(d) && v.display(di);
         rc.display_tick = d;
+        rc.pose_tick = di;
         if (rc.shown) {
             rc.palette = v.palette();
             rc.morph_weights = v.morph_weights();

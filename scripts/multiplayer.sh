@@ -14,7 +14,7 @@
 # at the observer's cap (a room of players on slow links), not only the observer.
 #
 #   scripts/multiplayer.sh [--players N] [--caps "64 0"] [--duration S] [--walk R]
-#                          [--assets "A.glb B.glb"] [--cap-all] [--build DIR]
+#                          [--assets "A.glb B.glb"] [--cap-all] [--build DIR] [-- SERVER-ARGS...]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BUILD=${PROGSKIN_BUILD:-build}
@@ -24,6 +24,7 @@ DURATION=8
 WALK=100
 ASSETS=()
 CAP_ALL=0
+SERVER_ARGS=()
 while (($#)); do
   case "$1" in
     --players) PLAYERS=$2; shift 2;;
@@ -33,7 +34,8 @@ while (($#)); do
     --assets) read -r -a ASSETS <<<"$2"; shift 2;;
     --cap-all) CAP_ALL=1; shift;;
     --build) BUILD=$2; shift 2;;
-    -h|--help) sed -n '2,19p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
+    --) shift; SERVER_ARGS=("$@"); break;;
+    -h|--help) sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
     *) echo "multiplayer.sh: unknown argument $1" >&2; exit 2;;
   esac
 done
@@ -56,7 +58,7 @@ printf "%10s %12s %8s %10s %10s %10s %10s %10s\n" "cap kbit/s" "rate kbit/s" "re
   "bones min"
 for cap in $CAPS; do
   # TLS (the server's default, a self-signed pair in $TMP/tls): the clients pin its fingerprint.
-  psk_start_server --no-scene --duration $((DURATION + 30)) "${ASSETOPT[@]}"
+  psk_start_server --no-scene --duration $((DURATION + 30)) "${ASSETOPT[@]}" "${SERVER_ARGS[@]}"
   SPID=$SERVER_PID
   "$CLIENT" --server 127.0.0.1:$PORT --pin "$PIN" --duration 0.2 --publish 0 --cache "$TMP/cache" >/dev/null 2>&1 || true
   OTHERS=()

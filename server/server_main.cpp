@@ -47,10 +47,10 @@ static const char* kUsage =
     "  --from-vertices   serve files without a skin (morph-target animation, PC2) by building\n"
     "                    a skin from their vertex animation (as progskin build --from-vertices)\n"
     "  --bones N         bones of such a build (default 16)\n"
-    "  --build-strategy auto|rate  how a plain file's progressive skin is built: auto (default)\n"
-    "                    as progskin build: the lower mean error of reorder and flatten;\n"
-    "                    rate as progskin build --strategy rate: reorder, flatten or hierarchy,\n"
-    "                    the most error removed per bit of the stream's records\n"
+    "  --build-strategy rate|auto  how a plain file's progressive skin is built: rate (default)\n"
+    "                    as progskin build --strategy rate: reorder, flatten or hierarchy,\n"
+    "                    the most error removed per bit of the stream's records; auto as\n"
+    "                    progskin build: the lower mean error of reorder and flatten\n"
     "  --cache DIR       derived files (default $XDG_CACHE_HOME/progskin or ~/.cache/progskin)\n"
     "  --crowd N         lay out N instances over the assets and their clips (default:\n"
     "                    one instance per asset and clip group)\n"
@@ -84,9 +84,11 @@ static const char* kUsage =
     "                    stream (default 256; 0: no limit)\n"
     "  --standalone-records  every bone record coded on its own (no prediction from what\n"
     "                    each client acknowledged; for comparisons: docs/performance.md)\n"
-    "  --key-samples     sample clips whose channels are all linear at their keys (the\n"
-    "                    latest key since the tick before), so that clients follow their\n"
-    "                    kinks at full rate (costs below it: docs/performance.md)\n"
+    "  --key-samples     (default) a clip whose channels are all linear is sampled at its\n"
+    "                    latest key since the tick before, so that clients at full rate follow\n"
+    "                    its kinks between ticks (docs/protocol.md \"Key samples\")\n"
+    "  --no-key-samples  sample every clip at the ticks (better below the full rate on some\n"
+    "                    content: docs/performance.md \"Protocol 8\")\n"
     "  --fair-floor F    each character's own bones go first up to this fraction of its\n"
     "                    part of a client's stream (0..1, default 0.5; 0: greedy only)\n"
     "  --asset-bytes-per-minute N  asset bytes per IP address, across reconnects (default:\n"
@@ -132,6 +134,12 @@ struct Options {
     bool no_tls = false, seal = true, seal_asked = false;
     std::string tls_dir;
     std::string web_root;  // --web-root
+    // The command line's defaults where they differ from the library's:
+    // plain files built by rate, linearly keyed clips sampled at their keys.
+    Options() {
+        asset_options.build_by_rate = true;
+        cfg.key_samples = true;
+    }
 };
 
 // Reads argv into `o`. Returns -1 to go on, else the exit code (0: --help, 2: bad arguments).
@@ -199,6 +207,7 @@ static int parse_options(int argc, char** argv, Options& o) {
             else if (a == "--fair-floor") cfg.fair_floor = cli::to_number(a, need(i));
             else if (a == "--standalone-records") cfg.predict_records = false;
             else if (a == "--key-samples") cfg.key_samples = true;
+            else if (a == "--no-key-samples") cfg.key_samples = false;
             else if (a == "--asset-bytes-per-minute") cfg.asset_bytes_per_minute = cli::to_number(a, need(i));
             else if (a == "--max-handshakes") cfg.max_handshakes = cli::to_int(a, need(i));
             else if (a == "--connects-per-second") cfg.connects_per_second = cli::to_number(a, need(i));
@@ -333,6 +342,9 @@ static bool load_assets(Options& o, const char* argv0, std::vector<std::shared_p
                      problems.size() == 1 ? "" : "s");
         return false;
     }
+    std::fprintf(stderr, "progskin-server: plain files built --build-strategy %s; clips %s\n",
+                 o.asset_options.build_by_rate ? "rate" : "auto",
+                 o.cfg.key_samples ? "of linear keys sampled at their keys (--key-samples)" : "sampled at the ticks (--no-key-samples)");
     for (const auto& p : pending) {
         std::fprintf(stderr, "progskin-server: loading %s%s%s\n", p.path.c_str(),
                      p.characters_in_file > 1 ? (" character " + std::to_string(p.character)).c_str() : "",
