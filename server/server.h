@@ -89,11 +89,13 @@ struct ServerConfig {
     // false: every record standalone (the A/B of bench_net_rd and the docs).
     bool predict_records = true;
     // Clips whose every channel is linear are sampled at their keys (the
-    // latest key since the tick before, else the tick: FrameEncoder
-    // set_key_samples, Frame.sampled), so that a client interpolating
-    // linearly between adjacent ticks follows their kinks. Off by default:
-    // it pays at full rate and costs below it (docs/performance.md
-    // "Protocol 8").
+    // latest key since the tick before, else half a tick before the tick:
+    // FrameEncoder set_key_samples, Frame.sampled), so that a client
+    // interpolating linearly between adjacent ticks follows their kinks.
+    // Off in the library: it pays where every bone's progressive parent is
+    // its artist parent, at full rate, and can cost below it
+    // (docs/performance.md "Protocol 8"); progskin-server turns it on with
+    // its default build, --build-strategy rate.
     bool key_samples = false;
     // Asset bytes sent to one IP address, across its sessions and reconnects:
     // a bucket this deep refilled at this per minute (0: 64 x the catalogue's
