@@ -8,10 +8,10 @@ namespace progskin::net {
 
 static bool newer(uint32_t a, uint32_t b) { return int32_t(a - b) > 0; }
 
-double PoseBuffer::tick_time(const Frame& f) const { return double(int32_t(f.tick - newest_)) + double(newest_); }
+double PoseBuffer::tick_time(uint32_t tick) const { return double(int32_t(tick - newest_)) + double(newest_); }
 // A frame's bones were sampled sample_ticks(f.sample) < 1 before its tick:
 // the order of sample times is the order of ticks.
-double PoseBuffer::sample_time(const Frame& f) const { return tick_time(f) - sample_ticks(f.sample); }
+double PoseBuffer::sample_time(const Frame& f) const { return tick_time(f.tick) - sample_ticks(f.sample); }
 
 
 // The frames around display tick d that `use` accepts, within one epoch: a
@@ -241,7 +241,7 @@ void PoseBuffer::weights_at(double d, std::span<float> out) const {
 
 double PoseBuffer::sample_of(uint32_t t) const {
     const Frame* f = frame_at(t);
-    return f ? sample_time(*f) : double(int32_t(t - newest_)) + double(newest_);
+    return f ? sample_time(*f) : tick_time(t);
 }
 
 int PoseBuffer::bones_at(double d) const {
@@ -249,7 +249,7 @@ int PoseBuffer::bones_at(double d) const {
     const Frame* first_after = nullptr;
     for (const auto& f : frames_) {
         if (!f.used || f.count == 0) continue;
-        double t = double(int32_t(f.tick - newest_)) + double(newest_);
+        const double t = tick_time(f.tick);
         if (t <= d) {
             if (!newest_before || newer(f.tick, newest_before->tick)) newest_before = &f;
         } else if (!first_after || newer(first_after->tick, f.tick)) {
@@ -346,7 +346,7 @@ bool PoseBuffer::pose_about_pivot(int b, double d, BonePose& out, double* held_a
 
 bool PoseBuffer::root(double d, RootPose& out) const {
     const void *pa, *pa0, *pc, *pc1;
-    auto time = [&](const Frame* f) { return tick_time(*f); };  // roots are the tick's
+    auto time = [&](const Frame* f) { return tick_time(f->tick); };  // roots are the tick's
     neighbours(frames_, d, [](const Frame& f) { return f.has_root; }, time, pa, pa0, pc, pc1);
     const Frame *a = static_cast<const Frame*>(pa), *a0 = static_cast<const Frame*>(pa0), *c = static_cast<const Frame*>(pc);
     if (a && c) {

@@ -152,7 +152,7 @@ private:
     // The frame for `tick` (found or created, the oldest evicted); nullptr
     // when it is older than every kept frame (*too_old) or inconsistent.
     Frame* frame_for(uint32_t tick, int total, int show, uint8_t epoch, uint8_t sample, bool* too_old);
-    double tick_time(const Frame& f) const;    // display tick of the frame's tick (roots)
+    double tick_time(uint32_t tick) const;     // display tick of a tick (roots)
     double sample_time(const Frame& f) const;  // ... of its bones' and weights' sample
     const Frame* frame_at(uint32_t tick) const;
     // pose() with the translation as the image of the bone's pivot (how frames keep it).

@@ -662,7 +662,7 @@ FrameApplied ClientSession::sink_frame(const wire::Frame& f, double arrival) {
             if (!a) ++r.unknown_chunks;
         }
     FrameSink& sink = *hooks_.frame_sink;
-    auto on_chunk = [&](const wire::Chunk& c, std::span<const uint8_t> root, const uint8_t*) {
+    auto on_chunk = [&](const wire::Chunk& c, uint8_t, std::span<const uint8_t> root, const uint8_t*) {
         sink.on_chunk(c.instance(), f.tick(), c.show(), root, arrival);
     };
     auto run = [&](uint16_t i, int first, int count, int, const RecordRun& rec) {

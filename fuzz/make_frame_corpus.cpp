@@ -12,6 +12,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <string>
 
 #include "bone_record.h"
@@ -50,6 +51,24 @@ static void write_frames(ServerCore& core, std::initializer_list<size_t> budgets
     }
 }
 
+// Ticks 1..40 to one client that acknowledges every datagram at once
+// (budget 500 and 20000 bytes in turn), so that later frames carry
+// predicted records; before(t) runs before tick t is encoded. Ticks 1, 14,
+// 27 and 40 are written as <prefix>t<tick>-<i>.
+static void write_acked_frames(ServerCore& core, const std::filesystem::path& dir, const std::string& prefix,
+                               const std::function<void(uint32_t)>& before) {
+    auto client = ClientStream::detached(core, 1, 1000);
+    for (uint32_t t = 1; t <= 40; ++t) {
+        before(t);
+        DatagramCollector sink;
+        client->send_frame(core.encoder().encode(t), t % 2 ? 500 : 20000, sink);
+        if (!sink.sent.empty()) client->acknowledge(client->seq() - 1, ~0u);
+        if (t % 13 != 1) continue;
+        for (size_t i = 0; i < sink.sent.size(); ++i)
+            write(dir, prefix + "t" + std::to_string(t) + "-" + std::to_string(i), sink.sent[i].bytes);
+    }
+}
+
 int main(int argc, char** argv) {
     if (argc != 2 || std::string(argv[1]) == "--help") {
         std::fprintf(stderr, "usage: make_frame_corpus DIR\nWrites the frame-stream fuzz seeds into DIR.\n");
@@ -74,19 +93,12 @@ int main(int argc, char** argv) {
         // once: later frames carry predicted records and root blocks
         // (baseline_book.h), written as frame-acked-t<tick>-<i>.
         ServerCore acore(ServerConfig{}, assets, default_instances(assets));
-        auto client = ClientStream::detached(acore, 1, 1000);
-        for (uint32_t t = 1; t <= 40; ++t) {
+        write_acked_frames(acore, dir, "frame-acked-", [&](uint32_t t) {
             placed.position.x += 0.04;
             placed.rotation = glm::angleAxis(0.7f + 0.01f * float(t), glm::vec3(0, 1, 0));
             placed.source_us += 33333 + (t % 3) * 700;
             acore.encoder().set_root(1, placed, false);
-            DatagramCollector sink;
-            client->send_frame(acore.encoder().encode(t), t % 2 ? 500 : 20000, sink);
-            if (!sink.sent.empty()) client->acknowledge(client->seq() - 1, ~0u);
-            if (t % 13 != 1) continue;
-            for (size_t i = 0; i < sink.sent.size(); ++i)
-                write(dir, "frame-acked-t" + std::to_string(t) + "-" + std::to_string(i), sink.sent[i].bytes);
-        }
+        });
     }
     {
         // Key samples (ServerConfig::key_samples, protocol 8): every chunk
@@ -95,15 +107,7 @@ int main(int argc, char** argv) {
         ServerConfig keyed;
         keyed.key_samples = true;
         ServerCore kcore(keyed, assets, default_instances(assets));
-        auto client = ClientStream::detached(kcore, 1, 1000);
-        for (uint32_t t = 1; t <= 40; ++t) {
-            DatagramCollector sink;
-            client->send_frame(kcore.encoder().encode(t), t % 2 ? 500 : 20000, sink);
-            if (!sink.sent.empty()) client->acknowledge(client->seq() - 1, ~0u);
-            if (t % 13 != 1) continue;
-            for (size_t i = 0; i < sink.sent.size(); ++i)
-                write(dir, "frame-keyed-t" + std::to_string(t) + "-" + std::to_string(i), sink.sent[i].bytes);
-        }
+        write_acked_frames(kcore, dir, "frame-keyed-", [](uint32_t) {});
     }
     {
         // Morph blocks: tests/data/skinned_morph.gltf as instance 5 (the

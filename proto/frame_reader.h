@@ -21,7 +21,7 @@
 //       is unknown (its chunks are walked by their flags and skipped: an
 //       instance may be announced on the control channel after its first
 //       frames);
-//   on_chunk(chunk, [sample,] root, morph): once per chunk of a known
+//   on_chunk(chunk, sample, root, morph): once per chunk of a known
 //       instance, before its runs (sample: its sample byte, 0 when the frame
 //       has none; root: the chunk's root block, root_block.h, empty when
 //       none; morph: the morph block from its count byte on, or nullptr);
@@ -47,7 +47,6 @@
 #include <cstdint>
 
 #include <span>
-#include <type_traits>
 
 #include "bone_record.h"
 #include "datagram_generated.h"
@@ -136,11 +135,7 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
                 }
                 const size_t rec_bytes = (walk.at() + 7) / 8;
                 if (pass == 1 && known > 0) {
-                    if constexpr (std::is_invocable_v<OnChunk&, const wire::Chunk&, uint8_t, std::span<const uint8_t>,
-                                                      const uint8_t*>)
-                        on_chunk(*c, sample, root, morph);
-                    else
-                        on_chunk(*c, root, morph);
+                    on_chunk(*c, sample, root, morph);
                     BitReader runs(rec, rec_bytes);
                     int j = 0;
                     while (j < bits) {
@@ -166,7 +161,7 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
 
 template <class RecordSize, class Run>
 bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run) {
-    return read_frame(frame, record_size, run, [](const wire::Chunk&, std::span<const uint8_t>, const uint8_t*) {});
+    return read_frame(frame, record_size, run, [](const wire::Chunk&, uint8_t, std::span<const uint8_t>, const uint8_t*) {});
 }
 
 }  // namespace progskin::net

@@ -34,7 +34,6 @@ void DatagramPacker::flush(uint32_t tick, uint32_t& seq, std::vector<std::vector
     wire += size + UDP_IP_OVERHEAD;
     chunks_.clear();
     payload_.clear();
-    sampled_ = sample_all_;
     acks_ = {};  // in the first datagram only
     ack_bytes_ = 0;
 }
@@ -48,9 +47,8 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
     payload_.clear();
     // Frame.sampled: every chunk opens with its sample byte when one of the
     // tick's instances was sampled at a key (a byte per chunk then).
-    sample_all_ = false;
-    for (const Pick& p : picks) sample_all_ = sample_all_ || frame.instances[size_t(p.instance)].sample != 0;
-    sampled_ = sample_all_;
+    sampled_ = false;
+    for (const Pick& p : picks) sampled_ = sampled_ || frame.instances[size_t(p.instance)].sample != 0;
     acks_ = acks;
     ack_bytes_ = acks.empty() ? 0 : pose_ack_bytes(acks.size());
     // Adjacent picks of one instance (the scheduler's ranges of it) share a chunk.

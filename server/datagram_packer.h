@@ -45,8 +45,7 @@ private:
     std::vector<uint8_t> root_;     // an absolute root block (a character the plan has not planned)
     std::span<const wire::PoseAck> acks_;  // still to go (the first datagram)
     size_t ack_bytes_ = 0;
-    bool sample_all_ = false;  // this pack's datagrams carry sample bytes
-    bool sampled_ = false;     // the datagram being filled does
+    bool sampled_ = false;  // this pack's datagrams carry sample bytes (Frame.sampled)
 };
 
 }  // namespace progskin::net

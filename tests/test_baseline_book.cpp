@@ -201,7 +201,7 @@ TEST(BaselineBook, RootBlocksArePredictedFromAcknowledgedTicksOnly) {
                     ASSERT_TRUE(client.add_chunk(t, first, count, show, rec, show, fr->chunks()->Get(0)->epoch(), root))
                         << "tick " << t;
                 },
-                [&](const wire::Chunk&, std::span<const uint8_t> block, const uint8_t*) {
+                [&](const wire::Chunk&, uint8_t, std::span<const uint8_t> block, const uint8_t*) {
                     ASSERT_FALSE(block.empty());
                     root = block;
                 }));

@@ -252,7 +252,7 @@ bool read_morphs(const std::vector<uint8_t>& d, std::vector<ChunkRun>& runs, std
     return read_frame(
         *g->body_as_Frame(), [](uint16_t i) { return i < 3 ? 12 : 0; },
         [&](uint16_t i, int first, int count, int show, const RecordRun&) { runs.push_back({i, first, count, show, 0}); },
-        [&](const wire::Chunk&, std::span<const uint8_t>, const uint8_t* morph) { blocks.push_back(morph); });
+        [&](const wire::Chunk&, uint8_t, std::span<const uint8_t>, const uint8_t* morph) { blocks.push_back(morph); });
 }
 }  // namespace
 

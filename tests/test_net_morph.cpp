@@ -160,7 +160,7 @@ TEST(NetMorph, SchedulerSendsChangedWeightsOnly) {
             const wire::Frame* fr = verify_datagram(d.bytes)->body_as_Frame();
             ASSERT_TRUE(read_frame(
                 *fr, [](uint16_t) { return 12; }, [](uint16_t, int, int, int, const RecordRun&) {},
-                [&](const wire::Chunk&, std::span<const uint8_t>, const uint8_t* m) {
+                [&](const wire::Chunk&, uint8_t, std::span<const uint8_t>, const uint8_t* m) {
                     if (!m) return;
                     for (int i = 0; i < m[0]; ++i) {
                         const uint8_t* e = m + 1 + i * 3;
@@ -216,7 +216,7 @@ TEST(NetMorph, OutOfRangeWeightsAreRefusedAndCounted) {
             ASSERT_TRUE(read_frame(
                 *verify_datagram(d.bytes)->body_as_Frame(), [](uint16_t) { return 12; },
                 [](uint16_t, int, int, int, const RecordRun&) {},
-                [&](const wire::Chunk&, std::span<const uint8_t>, const uint8_t* m) {
+                [&](const wire::Chunk&, uint8_t, std::span<const uint8_t>, const uint8_t* m) {
                     if (!m) return;
                     for (int i = 0; i < m[0]; ++i) {
                         const uint8_t* e = m + 1 + i * 3;

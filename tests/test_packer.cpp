@@ -82,7 +82,7 @@ ReadBack read_back(const EncodedFrame& f, const std::vector<std::vector<uint8_t>
                     ++r.copies[{i, b}];
                 }
             },
-            [&](const wire::Chunk& c, std::span<const uint8_t> root, const uint8_t* morph) {
+            [&](const wire::Chunk& c, uint8_t, std::span<const uint8_t> root, const uint8_t* morph) {
                 r.epochs[c.instance()].insert(c.epoch());
                 r.shows[c.instance()].insert(c.show());
                 if (!root.empty()) {  // absolute without a plan (root_block.h)
