@@ -153,24 +153,25 @@ BonePose compose_relative(const BonePose& parent, const BonePose& rel) {
 
 // Bits are written and read through a little-endian 64-bit window: a field
 // of at most 57 bits starting anywhere in a byte fits one window.
+// The partial last byte first, then whole bytes by push_back (no
+// zero-filling resize, no variable-length copy: this is the record coders'
+// inner loop).
 void BitWriter::put(uint64_t bits, int n) {
     if (n <= 0) return;
     bits &= n >= 64 ? ~uint64_t(0) : (uint64_t(1) << n) - 1;
-    const size_t pos = out_.size() * 8 - size_t(free_);
-    const size_t end = pos + size_t(n);
-    if ((end + 7) / 8 > out_.size()) out_.resize((end + 7) / 8, 0);
-    const size_t b0 = pos / 8, len = std::min<size_t>(8, out_.size() - b0);
-    uint64_t w = 0;
-    if constexpr (std::endian::native == std::endian::little) {
-        std::memcpy(&w, out_.data() + b0, len);
-        w |= bits << (pos % 8);
-        std::memcpy(out_.data() + b0, &w, len);
-    } else {
-        for (size_t i = 0; i < len; ++i) w |= uint64_t(out_[b0 + i]) << (8 * i);
-        w |= bits << (pos % 8);
-        for (size_t i = 0; i < len; ++i) out_[b0 + i] = uint8_t(w >> (8 * i));
+    if (free_ > 0) {
+        out_.back() = uint8_t(out_.back() | uint8_t(bits << (8 - free_)));
+        const int used = std::min(free_, n);
+        free_ -= used;
+        n -= used;
+        if (n == 0) return;
+        bits >>= used;
     }
-    free_ = int(out_.size() * 8 - end);
+    for (; n >= 8; n -= 8, bits >>= 8) out_.push_back(uint8_t(bits));
+    if (n > 0) {
+        out_.push_back(uint8_t(bits));
+        free_ = 8 - n;
+    }
 }
 
 void BitWriter::put_eg(uint32_t u, int k) {
