@@ -35,6 +35,7 @@
 #include "server_core.h"
 #include "tick_pool.h"
 #include "wire.h"
+#include "datagram_generated.h"  // the digest reads the frames
 
 using namespace progskin;
 using namespace progskin::net;
@@ -45,12 +46,38 @@ static std::vector<std::shared_ptr<ServerAsset>>& assets() {
     return a;
 }
 
+// PROGSKIN_BENCH_DIGEST=1: ClientTick and PublishingPlayers print, on
+// stderr, an FNV-1a digest of the frames they sent in their first ticks
+// (tick, chunks, payload: not the clock's send time), so that a change
+// meant to make the tick cheaper can be shown to send the same frames:
+// compare two builds' digests once both ran past the ticks it covers
+// (60 for ClientTick, 20 for PublishingPlayers: more iterations than that).
+static const bool g_digest_on = std::getenv("PROGSKIN_BENCH_DIGEST") != nullptr;
+static uint64_t g_digest = 0;
+static bool g_hash_on = false;  // the current tick is one the digest covers
+static void digest_begin() { g_digest = 1469598103934665603ull; }
+static void digest_end(const benchmark::State& st) {
+    if (g_digest_on) std::fprintf(stderr, "digest %016llx iterations %lld\n", (unsigned long long)g_digest, (long long)st.iterations());
+}
+static void digest_add(const void* p, size_t n) {
+    for (size_t i = 0; i < n; ++i) g_digest = (g_digest ^ static_cast<const uint8_t*>(p)[i]) * 1099511628211ull;
+}
+
 // A sink that drops what it is given: the ticks' cost without sockets.
 struct NoSockets final : DatagramSink {
-    void send(std::span<const uint8_t>, const PeerAddress&) override {}
+    void send(std::span<const uint8_t> d, const PeerAddress&) override {
+        if (!g_digest_on || !g_hash_on) return;
+        const wire::Frame* f = flatbuffers::GetRoot<wire::Datagram>(d.data())->body_as_Frame();
+        if (!f) return;
+        const uint32_t tick = f->tick();
+        digest_add(&tick, sizeof tick);
+        if (f->chunks()) digest_add(f->chunks()->Data(), f->chunks()->size() * sizeof(wire::Chunk));
+        if (f->payload()) digest_add(f->payload()->Data(), f->payload()->size());
+    }
 };
 
 static void BM_ClientTick(benchmark::State& st) {
+    digest_begin();
     const int n = 100;
     const double kbps = double(st.range(0));
     const bool acked = st.range(1) != 0;  // the client acknowledges every datagram before the next tick
@@ -66,11 +93,13 @@ static void BM_ClientTick(benchmark::State& st) {
         st.PauseTiming();
         const EncodedFrame& f = core.encoder().encode(++tick);
         st.ResumeTiming();
+        g_hash_on = tick <= 60;
         const TickResult r = client->tick(f, tick / 30.0, 1.0 / 30.0, sink);
         if (acked && r.datagrams > 0) client->acknowledge(client->next_seq() - 1, ~0u);
         bytes += r.wire_bytes;
         dgrams += r.datagrams;
     }
+    digest_end(st);
     st.counters["kbps_sent"] = benchmark::Counter(double(bytes) * 8 / 1000 / (double(st.iterations()) / 30.0));
     st.counters["datagrams_per_tick"] = double(dgrams) / double(st.iterations());
     st.SetLabel(acked ? "100 characters, per client per tick, acknowledged (records predicted; this client codes each baseline first)"
@@ -135,6 +164,7 @@ static double process_seconds() {
 // load (at this P); cpu_us_per_player_tick: CPU per player per tick;
 // wall_ms_per_tick: elapsed time per tick (what threads shorten).
 static void BM_PublishingPlayers(benchmark::State& st) {
+    digest_begin();
     const int players = int(st.range(0));
     const int mode = int(st.range(1));
     const bool views = mode != 0;
@@ -201,6 +231,7 @@ static void BM_PublishingPlayers(benchmark::State& st) {
             if (ok) enc.push_records(p, tick, 0, 0, rec, root);
         }
         const EncodedFrame& f = enc.encode(tick);
+        g_hash_on = tick <= 20;
         sent += double(core.tick_streams(streams, f, tick / 30.0, 1.0 / 30.0, sink).wire_bytes);
         busy += process_seconds() - t0;
         wall += now_seconds() - w0;
@@ -208,6 +239,7 @@ static void BM_PublishingPlayers(benchmark::State& st) {
     const double ticks = double(st.iterations());
     const double load = busy / ticks * 30.0;
     st.counters["core_load_at_30Hz"] = load;
+    digest_end(st);
     st.counters["players_per_core"] = double(players) / load;
     st.counters["cpu_us_per_player_tick"] = 1e6 * busy / ticks / players;
     st.counters["wall_ms_per_tick"] = 1e3 * wall / ticks;

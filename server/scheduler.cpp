@@ -321,6 +321,8 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
 
 // Greedy over the items by value per byte, within `budget` wire bytes.
 void Scheduler::take_greedily(size_t budget, size_t payload) {
+    taken_ = &payload;
+    budget_ = budget;
     std::make_heap(heap_.begin(), heap_.end());
     while (!heap_.empty()) {
         if (WireCost::wire(payload + 1) > budget) break;  // not even the smallest record fits
@@ -338,6 +340,7 @@ void Scheduler::take_greedily(size_t budget, size_t payload) {
         else if (s.chain) take_chain_step(s, header, budget, payload);
         else take_segment(s, header, budget, payload);
     }
+    taken_ = nullptr;
 }
 
 void Scheduler::push(Step s) {
@@ -581,13 +584,17 @@ double Scheduler::step_ratio(const std::vector<ChainPoint>& chain, int c) {
 }
 
 void Scheduler::offer_unpaid(int instance, uint32_t age) {
-    const auto& items = items_[size_t(instance)];
+    auto& items = items_[size_t(instance)];
     const double header = double(header_[size_t(instance)]);
     int best = -1;
     double best_ratio = 0;
     for (size_t q = 0; q < items.size(); ++q) {
-        const SegItem& it = items[q];
+        SegItem& it = items[q];
         if (!it.shown || it.chosen || it.tried || !(it.value > 0)) continue;
+        if (!fits(it.bytes + header_[size_t(instance)])) {
+            it.tried = true;  // what the greedy would find when it popped it
+            continue;
+        }
         const double r = it.value / (double(it.bytes) + header);
         if (r > best_ratio) {
             best_ratio = r;
@@ -604,6 +611,7 @@ void Scheduler::offer_single(int instance, uint32_t age) {
     size_t u = 0;
     while (u < items.size() && (items[u].shown || items[u].chosen)) ++u;
     if (u == items.size() || !(items[u].value > 0)) return;
+    if (!fits(items[u].bytes + (paid_[i] ? 0 : header_[i]))) return;  // nor will the ones after it go
     const double header = paid_[i] ? 0.0 : double(header_[i]);
     Step st{items[u].value / (double(items[u].bytes) + header), instance, int(u), age, false, paid_[i] != 0};
     st.single = true;
@@ -611,6 +619,8 @@ void Scheduler::offer_single(int instance, uint32_t age) {
 }
 
 size_t Scheduler::take_stale_roots(const EncodedFrame& frame, size_t budget, size_t payload) {
+    taken_ = &payload;
+    budget_ = budget;
     stale_.clear();
     for (const size_t i : active_) {
         if (items_[i].empty() || items_[i][0].chosen) continue;  // not offered this tick (or up to date)
@@ -636,6 +646,7 @@ size_t Scheduler::take_stale_roots(const EncodedFrame& frame, size_t budget, siz
         it.chosen = true;
         if (!paid_[i]) pay(int(i), age);
     }
+    taken_ = nullptr;
     return payload;
 }
 
@@ -667,7 +678,7 @@ void Scheduler::offer_paid(int instance, uint32_t age) {
     const auto& items = items_[i];
     const auto& order = order_[i];
     size_t& at = order_at_[i];
-    while (at < order.size() && items[size_t(order[at])].chosen) ++at;
+    while (at < order.size() && (items[size_t(order[at])].chosen || !fits(items[size_t(order[at])].bytes))) ++at;
     if (at == order.size()) return;
     const SegItem& it = items[size_t(order[at++])];
     push({it.value / double(it.bytes), instance, order[at - 1], age, false, true});

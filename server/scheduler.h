@@ -190,10 +190,17 @@ private:
         bool morph = false;  // the instance's morph item (morph_)
         bool single = false; // one unshown segment on its own (its hull step did not fit)
         bool floor = false;  // its instance is under its floor (set_floor): goes before every other step
+        // A total order (ties of ratio and age go to the lower instance,
+        // then the lower step): the picks do not depend on the heap's history.
         bool operator<(const Step& o) const {
             if (floor != o.floor) return o.floor;
-            return ratio < o.ratio || (ratio == o.ratio && age < o.age);
+            if (ratio != o.ratio) return ratio < o.ratio;
+            if (age != o.age) return age < o.age;
+            if (instance != o.instance) return instance > o.instance;
+            if (step != o.step) return step > o.step;
+            return kind() > o.kind();
         }
+        int kind() const { return (chain ? 1 : 0) | (paid ? 2 : 0) | (morph ? 4 : 0) | (single ? 8 : 0); }
     };
     struct SegItem {
         double value;    // importance-weighted squared error removed per tick
@@ -240,6 +247,14 @@ private:
     void offer_unpaid(int instance, uint32_t age);
     void pay(int instance, uint32_t age);
     void offer_paid(int instance, uint32_t age);
+    // During take_stale_roots and take_greedily: the payload taken so far
+    // and the budget. The payload only grows, so an item whose bytes do not
+    // fit now never will: the offers skip it (fits) instead of pushing it
+    // for the greedy to pop and refuse (the tail of a full budget would
+    // otherwise pop every item of every instance once).
+    const size_t* taken_ = nullptr;
+    size_t budget_ = 0;
+    bool fits(size_t bytes) const { return !taken_ || WireCost::wire(*taken_ + bytes) <= budget_; }
     std::vector<State> state_;
     std::vector<uint32_t> generation_;              // per instance: the slot generation state_ belongs to
     struct ChainPoint {
