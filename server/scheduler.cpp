@@ -261,6 +261,8 @@ void Scheduler::segment_items(size_t i, const EncodedFrame& frame, const ServerA
 
 // The unshown segments of instance i can only be shown in order: the upper
 // concave hull of their cumulative (bytes, value), its first step offered.
+// The hull is built as the greedy walks it (extend_chain): one step is
+// offered at a time, and most instances take none or one in a tick.
 void Scheduler::offer_chain(size_t i, uint32_t age) {
     const auto& items = items_[i];
     auto& chain = chain_[i];
@@ -269,26 +271,33 @@ void Scheduler::offer_chain(size_t i, uint32_t age) {
     while (u < items.size() && items[u].shown) ++u;
     if (u == items.size()) return;
     chain.push_back({int(u), 0, 0.0});
-    size_t cb = 0;
-    double cv = 0;
-    for (size_t q = u; q < items.size(); ++q) {
-        cb += items[q].bytes;
-        cv += items[q].value;
-        const ChainPoint pt{int(q + 1), cb, cv};
-        while (chain.size() >= 2) {
-            const ChainPoint& p0 = chain[chain.size() - 2];
-            const ChainPoint& p1 = chain.back();
-            const double cross =
-                double(p1.bytes - p0.bytes) * (pt.value - p0.value) - double(pt.bytes - p0.bytes) * (p1.value - p0.value);
-            if (cross >= 0) chain.pop_back();
-            else break;
-        }
-        chain.push_back(pt);
-    }
-    if (chain.size() >= 2 && chain[1].value > 0) {
+    if (extend_chain(i) && chain[1].value > 0) {
         push({chain[1].value / double(chain[1].bytes + header_[i]), int(i), 1, age, true, false});
         chain_next_[i] = 1;
     }
+}
+
+// The hull's next vertex after chain_[i].back(): the point after it whose
+// step has the greatest value per byte (of equal ones the farthest, as the
+// hull drops collinear points). O(segments after it).
+bool Scheduler::extend_chain(size_t i) {
+    const auto& items = items_[i];
+    auto& chain = chain_[i];
+    const ChainPoint p0 = chain.back();
+    if (size_t(p0.end) >= items.size()) return false;
+    size_t cb = p0.bytes;
+    double cv = p0.value;
+    ChainPoint best{};
+    for (size_t q = size_t(p0.end); q < items.size(); ++q) {
+        cb += items[q].bytes;
+        cv += items[q].value;
+        const ChainPoint pt{int(q + 1), cb, cv};
+        if (q == size_t(p0.end) ||
+            double(best.bytes - p0.bytes) * (pt.value - p0.value) - double(pt.bytes - p0.bytes) * (best.value - p0.value) >= 0)
+            best = pt;
+    }
+    chain.push_back(best);
+    return true;
 }
 
 // Every important instance's items offered to the heap (before any header is paid).
@@ -415,7 +424,7 @@ void Scheduler::take_chain_step(const Step& s, size_t header, size_t budget, siz
     charge(inst, bytes, payload);
     for (int q = p0.end; q < p1.end; ++q) items_[inst][size_t(q)].chosen = true;
     if (!paid_[inst]) pay(s.instance, s.age);
-    if (size_t(s.step) + 1 < chain.size()) {
+    if (size_t(s.step) + 1 < chain.size() || extend_chain(inst)) {
         const double r = step_ratio(chain, s.step + 1);
         if (r > 0) {
             push({r, s.instance, s.step + 1, s.age, true, true});

@@ -232,6 +232,7 @@ private:
                      std::span<const float> importance, float tick_rate, bool only_over_share);
     void segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30);
     void offer_chain(size_t i, uint32_t age);
+    bool extend_chain(size_t i);  // appends the hull's next vertex to chain_[i]; false at the end
     void take_greedily(size_t budget, size_t payload);  // payload: already taken
     // The floor (ROOT_REFRESH_TICKS): bone 0 of the stale instances, stalest
     // first, within budget. Returns the payload taken.
@@ -265,7 +266,7 @@ private:
     // Value per record byte of hull step c (from point c - 1 to c).
     static double step_ratio(const std::vector<ChainPoint>& chain, int c);
     std::vector<std::vector<SegItem>> items_;       // per instance, per segment
-    std::vector<std::vector<ChainPoint>> chain_;    // per instance: upper hull over the unshown segments
+    std::vector<std::vector<ChainPoint>> chain_;    // per instance: upper hull over the unshown segments, as far as walked
     std::vector<uint8_t> paid_;                     // per instance: chunk header paid this tick
     std::vector<int> chain_next_;                   // per instance: chain step offered now (0: none)
     std::vector<uint8_t> chain_tried_;              // per instance: a hull step did not fit (singles offered)
