@@ -154,6 +154,9 @@ inline constexpr int kDeltaOrders[4] = {0, 2, 5, 8};
 // order-kScaleOrder code). The received integers are prediction + residual,
 // has_trans / has_scale when any is non-zero, within read_record's bounds.
 size_t write_predicted(const RecordInts& now, const RecordInts& pred, bool scaled, BitWriter& w);
+// The bits write_predicted would write, without writing them (a plan prices
+// every bone and writes only the ones that go). O(1).
+size_t predicted_bits(const RecordInts& now, const RecordInts& pred, bool scaled);
 bool read_predicted(BitReader& in, const RecordInts& pred, bool scaled, RecordInts& out);
 
 // The records of a frame chunk (docs/protocol.md "Frame"): with a baseline

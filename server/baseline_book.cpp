@@ -106,9 +106,8 @@ void RecordPlan::begin(const EncodedFrame& frame) {
     prefix_.clear();
     flags_.clear();
     own_base_.clear();
-    own_at_.clear();
     own_len_.clear();
-    own_bits_.clear();
+    own_pred_.clear();
     roots_.clear();
 }
 
@@ -123,8 +122,8 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
     en.at = flags_.size();
     flags_.resize(en.at + size_t(B), RecordPrefix::Standalone);
     own_base_.resize(en.at + size_t(B), 0);
-    own_at_.resize(en.at + size_t(B), 0);
     own_len_.resize(en.at + size_t(B), 0);
+    own_pred_.resize(en.at + size_t(B));
     {
         const uint32_t age = frame.tick - t0;
         if (age >= 1 && age <= kMaxBaseAge) {
@@ -149,7 +148,6 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
     const bool scaled = (e.flags & CHUNK_SCALED) != 0;
     const RecordInts* now = frame.ints.data() + size_t(i) * frame.ring_bones;
     if (en.base != 0) {
-        BitWriter w(own_bits_);
         for (int b = 0; b < B; ++b) {
             if (flags_[en.at + size_t(b)] != RecordPrefix::Standalone) continue;
             uint32_t tb = 0;
@@ -164,14 +162,12 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
                 linear ? predict_record(b1[b], sample_age(age, e.sample, frame.sample_at(i, tb)), &frame.ints_at(i, tb - age)[b],
                                         sample_age(2 * age, e.sample, frame.sample_at(i, tb - age)))
                        : predict_record(b1[b], age);
-            const size_t from = w.bits();
-            write_predicted(now[b], pred, scaled, w);
-            const size_t n = w.bits() - from;
-            if (n + kOwnPrefixBits >= frame.record_bits(i, b, b + 1) + kStandalonePrefixBits) continue;  // (its bits stay unused)
+            const size_t n = predicted_bits(now[b], pred, scaled);
+            if (n + kOwnPrefixBits >= frame.record_bits(i, b, b + 1) + kStandalonePrefixBits) continue;
             flags_[en.at + size_t(b)] = RecordPrefix::Own;
             own_base_[en.at + size_t(b)] = uint8_t(age | (linear ? kBaseLinear : 0));
-            own_at_[en.at + size_t(b)] = uint32_t(from);
             own_len_[en.at + size_t(b)] = uint32_t(n);
+            own_pred_[en.at + size_t(b)] = pred;
         }
     }
     // Prefix sums of the planned bits: bone b at [prefix[b], prefix[b + 1]).
@@ -231,10 +227,10 @@ RecordPrefix RecordPlan::prefix(int i, int b) const {
     return p;
 }
 
-void RecordPlan::own_record(int i, int b, size_t& from, size_t& count) const {
+size_t RecordPlan::write_own(const EncodedFrame& frame, int i, int b, BitWriter& w) const {
     const Entry& en = entries_[size_t(entry_of_[size_t(i)])];
-    from = own_at_[en.at + size_t(b)];
-    count = own_len_[en.at + size_t(b)];
+    const RecordInts* now = frame.ints.data() + size_t(i) * frame.ring_bones;
+    return write_predicted(now[b], own_pred_[en.at + size_t(b)], (frame.instances[size_t(i)].flags & CHUNK_SCALED) != 0, w);
 }
 
 std::span<const uint8_t> RecordPlan::root(int i) const {

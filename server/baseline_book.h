@@ -23,8 +23,9 @@
 // takes the shared predicted records of that baseline (EncodedFrame::
 // predicted). A bone not acknowledged there (refreshed at other ticks) is
 // predicted from its own newest acknowledged tick when that is shorter than
-// standalone, coded for this client alone. Cost: O(bones) per character and
-// tick; memory 2 bytes per bone of every character this client was sent.
+// standalone, coded for this client alone (priced when planned, written
+// only when it goes). Cost: O(bones) per character and tick; memory 2 bytes
+// per bone of every character this client was sent.
 #pragma once
 #include <cstdint>
 #include <span>
@@ -96,9 +97,9 @@ public:
     // from the chunk's baseline, or from its own), and its records.
     RecordPrefix prefix(int i, int b) const;
     const PredictedRecords* records(int i) const;
-    // Bone b's own-baseline record: bits [from, from + count) of own_bits().
-    void own_record(int i, int b, size_t& from, size_t& count) const;
-    const std::vector<uint8_t>& own_bits() const { return own_bits_; }
+    // Writes bone b's own-baseline record (prefix Own) to w: priced when
+    // planned (predicted_bits), written only when it goes. Returns the bits.
+    size_t write_own(const EncodedFrame& frame, int i, int b, BitWriter& w) const;
     // Instance i's root block for this client (root_block.h), predicted from
     // its root at the newest tick the client acknowledged (linear when the
     // tick as far before that is acknowledged too); empty when not planned
@@ -120,8 +121,8 @@ private:
     std::vector<uint32_t> prefix_;
     std::vector<uint8_t> flags_;       // per bone: RecordPrefix::Kind
     std::vector<uint8_t> own_base_;    // per bone: its own baseline (Own)
-    std::vector<uint32_t> own_at_, own_len_;  // per bone: its own-baseline record in own_bits_
-    std::vector<uint8_t> own_bits_;
+    std::vector<uint32_t> own_len_;      // per bone: its own-baseline record's bits
+    std::vector<RecordInts> own_pred_;   // per bone: its own-baseline prediction
     std::vector<uint8_t> roots_;  // the planned root blocks
 };
 

@@ -138,9 +138,7 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
                 if (how.kind == RecordPrefix::Chunk) {
                     copy_bits(pred->bits.data(), pred->offsets[size_t(bone)], pred->record_bits(bone), w);
                 } else if (how.kind == RecordPrefix::Own) {
-                    size_t from = 0, count = 0;
-                    plan->own_record(instance, bone, from, count);
-                    copy_bits(plan->own_bits().data(), from, count, w);
+                    plan->write_own(frame, instance, bone, w);
                 } else {
                     copy_bits(src, frame.bit_offset(instance, bone), frame.record_bits(instance, bone, bone + 1), w);
                 }
