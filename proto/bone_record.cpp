@@ -305,23 +305,23 @@ static bool same(const RecordInts& a, const RecordInts& b) {
 }
 
 namespace {
-// What write_predicted codes: the current and predicted integers with an
-// absent translation or scale as 0 (and scale 0 in an unscaled asset).
-struct PredictedPair {
-    RecordInts n, p;
-    PredictedPair(const RecordInts& now, const RecordInts& pred, bool scaled) : n(now), p(pred) {
-        if (!n.has_trans) n.trans[0] = n.trans[1] = n.trans[2] = 0;
-        if (!n.has_scale || !scaled) n.scale = 0;
-        if (!scaled) p.scale = 0;
-    }
-    bool trans_differs() const { return n.trans[0] != p.trans[0] || n.trans[1] != p.trans[1] || n.trans[2] != p.trans[2]; }
+// Counts what a BitWriter would write (predicted_bits).
+struct BitCounter {
+    size_t n = 0;
+    void put(uint64_t, int bits) { n += size_t(std::max(0, bits)); }
+    void put_eg(uint32_t u, int k) { n += size_t(eg_bits(u, k)); }
+    size_t bits() const { return n; }
 };
-}  // namespace
 
-size_t write_predicted(const RecordInts& now, const RecordInts& pred, bool scaled, BitWriter& w) {
+// write_predicted's syntax to a BitWriter, or to a BitCounter (its length).
+template <class Out>
+size_t code_predicted(const RecordInts& now, const RecordInts& pred, bool scaled, Out& w) {
     const size_t start = w.bits();
-    const PredictedPair pp(now, pred, scaled);
-    const RecordInts &n = pp.n, &p = pp.p;
+    RecordInts n = now;
+    if (!n.has_trans) n.trans[0] = n.trans[1] = n.trans[2] = 0;
+    if (!n.has_scale || !scaled) n.scale = 0;
+    RecordInts p = pred;
+    if (!scaled) p.scale = 0;
     if (same(n, p)) {
         w.put(1, 1);
         return w.bits() - start;
@@ -333,7 +333,7 @@ size_t write_predicted(const RecordInts& now, const RecordInts& pred, bool scale
     int s = best_order(u, kDeltaOrders, bits);
     w.put(uint64_t(s), 2);
     for (int a = 0; a < 3; ++a) w.put_eg(u[a], kDeltaOrders[s]);
-    const bool t = pp.trans_differs();
+    const bool t = n.trans[0] != p.trans[0] || n.trans[1] != p.trans[1] || n.trans[2] != p.trans[2];
     w.put(t ? 1 : 0, 1);
     if (t) {
         for (int a = 0; a < 3; ++a) u[a] = zigzag(n.trans[a] - p.trans[a]);
@@ -347,23 +347,15 @@ size_t write_predicted(const RecordInts& now, const RecordInts& pred, bool scale
     }
     return w.bits() - start;
 }
+}  // namespace
+
+size_t write_predicted(const RecordInts& now, const RecordInts& pred, bool scaled, BitWriter& w) {
+    return code_predicted(now, pred, scaled, w);
+}
 
 size_t predicted_bits(const RecordInts& now, const RecordInts& pred, bool scaled) {
-    const PredictedPair pp(now, pred, scaled);
-    const RecordInts &n = pp.n, &p = pp.p;
-    if (same(n, p)) return 1;
-    uint32_t u[3];
-    int bits = 0;
-    for (int a = 0; a < 3; ++a) u[a] = zigzag(n.rot[a] - p.rot[a]);
-    best_order(u, kDeltaOrders, bits);
-    size_t total = 1 + 2 + size_t(bits) + 1;
-    if (pp.trans_differs()) {
-        for (int a = 0; a < 3; ++a) u[a] = zigzag(n.trans[a] - p.trans[a]);
-        best_order(u, kDeltaOrders, bits);
-        total += 2 + size_t(bits);
-    }
-    if (scaled) total += 1 + (n.scale != p.scale ? size_t(eg_bits(zigzag(n.scale - p.scale), kScaleOrder)) : 0);
-    return total;
+    BitCounter c;
+    return code_predicted(now, pred, scaled, c);
 }
 
 bool read_predicted(BitReader& in, const RecordInts& pred, bool scaled, RecordInts& out) {
