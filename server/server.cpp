@@ -196,7 +196,7 @@ struct Server::Impl {
         core.set_pool(pool.get());
         if (const ServerConfig& cfg = core.config(); !cfg.nats_url.empty())
             bus = std::make_unique<WorldBus>(WorldConfig{cfg.nats_url, cfg.nats_ca_file, cfg.nats_cert_file, cfg.nats_key_file,
-                                                         cfg.world_node, cfg.world_name, cfg.world_cell},
+                                                         cfg.world_node, cfg.world_name, cfg.world_cell, cfg.world_queue},
                                              core);
         if (core.config().web_port >= 0) {
             web = std::make_unique<WebEndpoint>(io, core, sink, core.config().bind_address, uint16_t(core.config().web_port),

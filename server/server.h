@@ -132,6 +132,7 @@ struct ServerConfig {
     std::string world_node = "node";   // this node's name in the world's logs
     std::string world_name = "default";
     double world_cell = 16.0;          // side of a bus cell, world units
+    size_t world_queue = 1024;         // bus messages held between ticks (WorldConfig::queue_messages)
     // A client sees the characters within this horizontal distance (world
     // units, x and z) of its view centre: its View's camera, else its own
     // published characters (the nearest of them); a client with neither sees

@@ -72,6 +72,8 @@ static const char* kUsage =
     "  --node NAME       this node's name in the world's logs (default: node)\n"
     "  --world NAME      the world's name, its bus subjects (default: default)\n"
     "  --world-cell M    side of a bus cell in world units (default 16)\n"
+    "  --nats-queue N    bus messages held between two ticks (1..1048576, default 1024);\n"
+    "                    beyond, dropped and counted, and the node follows fewer cells\n"
     "  --view-radius M   clients see the characters within M world units of their camera\n"
     "                    (else of their own characters); a world node subscribes only to\n"
     "                    the bus cells within it (default 0: everything)\n"
@@ -198,6 +200,7 @@ static int parse_options(int argc, char** argv, Options& o) {
             else if (a == "--node") cfg.world_node = need(i);
             else if (a == "--world") cfg.world_name = need(i);
             else if (a == "--world-cell") cfg.world_cell = cli::to_number(a, need(i));
+            else if (a == "--nats-queue") cfg.world_queue = size_t(std::max(0, cli::to_int(a, need(i))));
             else if (a == "--view-radius") cfg.view_radius = cli::to_number(a, need(i));
             else if (a == "--max-clients") cfg.max_clients = cli::to_int(a, need(i));
             else if (a == "--max-kbps") cfg.max_kbps = cli::to_number(a, need(i));
@@ -254,6 +257,7 @@ static int check_options(const Options& o) {
         {"--fair-floor must be in [0, 1]", cfg.fair_floor >= 0 && cfg.fair_floor <= 1},
         {"--view-radius must be >= 0", cfg.view_radius >= 0},
         {"--world-cell must be > 0", cfg.world_cell > 0},
+        {"--nats-queue must be in [1, 1048576]", cfg.world_queue >= 1 && cfg.world_queue <= (size_t(1) << 20)},
         {"--bones must be in [1, 255]", o.asset_options.scratch_bones >= 1 && o.asset_options.scratch_bones <= MAX_BONES}};
     for (const auto& [what, ok] : ranges)
         if (!ok) {

@@ -13,6 +13,7 @@
 #include <cstring>
 #include <random>
 #include <string_view>
+#include <unordered_map>
 #include <unordered_set>
 
 #include "bone_codec.h"
@@ -137,7 +138,7 @@ struct WorldBus::Impl {
         const uint8_t kind = sub == self->hellos ? 1 : 0;  // (a cell's subscription may come and go: not compared)
         {
             std::lock_guard lock(self->queue_mutex);
-            if (self->queue.size() < kQueueMessages && self->queued_bytes + size_t(n) <= kQueueBytes && n >= 0 &&
+            if (self->queue.size() < self->cfg.queue_messages && self->queued_bytes + size_t(n) <= kQueueBytes && n >= 0 &&
                 size_t(n) <= kWorldMaxMessage) {
                 std::vector<uint8_t> m(size_t(n) + kQueuedHeader);
                 m[0] = kind;
@@ -218,7 +219,7 @@ struct WorldBus::Impl {
         }
         if (s == NATS_OK) count([](WorldStats& w) { w.connected = true; });
         check(natsConnection_Subscribe(&hellos, nc, hello_subject.c_str(), on_message, this), "subscribe");
-        check(natsSubscription_SetPendingLimits(hellos, int(kQueueMessages), int(kQueueBytes)), "pending limits");
+        check(natsSubscription_SetPendingLimits(hellos, int(cfg.queue_messages), int(kQueueBytes)), "pending limits");
         say("node " + cfg.node + " joins world " + cfg.world + " on " + shown_url + (s == NATS_OK ? "" : " (not up yet: retrying)"));
     }
 
@@ -236,11 +237,24 @@ struct WorldBus::Impl {
     natsSubscription* subscribe(const std::string& subject) {
         natsSubscription* sub = nullptr;
         if (natsConnection_Subscribe(&sub, nc, subject.c_str(), on_message, this) != NATS_OK) return nullptr;
-        natsSubscription_SetPendingLimits(sub, int(kQueueMessages), int(kQueueBytes));
+        natsSubscription_SetPendingLimits(sub, int(cfg.queue_messages), int(kQueueBytes));
         return sub;
     }
-    static void unsubscribe(natsSubscription*& sub) {
+    // Messages libnats dropped for a subscription (its pending limit, the
+    // same bound as the queue's: the tick thread slower than the bus) are
+    // counted as dropped too: read at every tick and before it goes.
+    std::unordered_map<natsSubscription*, int64_t> lib_dropped_seen;
+    void harvest_dropped(natsSubscription* sub) {
+        int64_t d = 0;
+        if (!sub || natsSubscription_GetDropped(sub, &d) != NATS_OK) return;
+        int64_t& seen = lib_dropped_seen[sub];
+        if (d > seen) count([&](WorldStats& s) { s.dropped += uint64_t(d - seen); });
+        seen = std::max(seen, d);
+    }
+    void unsubscribe(natsSubscription*& sub) {
         if (!sub) return;
+        harvest_dropped(sub);
+        lib_dropped_seen.erase(sub);
         natsSubscription_Unsubscribe(sub);
         natsSubscription_Destroy(sub);
         sub = nullptr;
@@ -396,6 +410,9 @@ void WorldBus::Impl::interest(double now) {
 }
 
 void WorldBus::Impl::receive(double now) {
+    harvest_dropped(hellos);
+    harvest_dropped(all_cells);
+    for (const auto& [cell, sub] : cell_subs) harvest_dropped(sub.first);
     std::deque<std::vector<uint8_t>> got;
     {
         std::lock_guard lock(queue_mutex);
@@ -540,6 +557,9 @@ WorldBus::WorldBus(WorldConfig cfg, ServerCore& core) : impl_(std::make_unique<I
     if (impl_->cfg.world.empty() || impl_->cfg.world.find_first_of(".*> \t") != std::string::npos)
         throw Error("world name '" + impl_->cfg.world + "': no dots, spaces, * or >");
     if (!(impl_->cfg.cell_size > 0)) throw Error("world cell size must be > 0");
+    if (impl_->cfg.queue_messages < 1 || impl_->cfg.queue_messages > WorldConfig::kMaxQueueMessages)
+        throw Error("world bus queue of " + std::to_string(impl_->cfg.queue_messages) + " messages: must be in [1, " +
+                    std::to_string(WorldConfig::kMaxQueueMessages) + "]");
     impl_->connect();
 }
 

@@ -15,7 +15,8 @@
 // with no client, to none.
 //
 // Threads: libnats delivers on its own threads; a message is copied into a
-// bounded queue (kQueueMessages, kQueueBytes: beyond, dropped and counted)
+// bounded queue (WorldConfig::queue_messages, kQueueBytes: beyond, dropped
+// and counted)
 // that after_tick drains on the tick thread. Publishing never blocks (libnats
 // buffers; while it reconnects, up to its reconnect buffer, then the
 // message is dropped and counted). A nats-server that restarts is reconnected
@@ -46,6 +47,11 @@ struct WorldConfig {
     std::string node = "node";  // this node's name (logs, hello)
     std::string world = "default";
     double cell_size = 16.0;    // metres (world units) per cell side
+    // Bus messages held between two ticks (the receive queue's bound, and
+    // libnats's pending limit per subscription): beyond, dropped and counted,
+    // and the node sheds its farthest cells until it keeps up.
+    size_t queue_messages = kDefaultQueueMessages;
+    static constexpr size_t kDefaultQueueMessages = 1024, kMaxQueueMessages = 1 << 20;
 };
 
 // The NATS URL(s) (comma-separated) with each one's credentials
@@ -79,7 +85,7 @@ public:
     void after_tick(const EncodedFrame& frame, double now);
     WorldStats stats() const;
 
-    static constexpr size_t kQueueMessages = 1024, kQueueBytes = 16 << 20;
+    static constexpr size_t kQueueBytes = 16 << 20;
     static constexpr size_t kQueuedHeader = 9;  // per queued message: kind, the subject's hash
     static constexpr double kForeignTimeout = 1.5;
     // Interest management (ServerConfig::view_radius): recomputed this often,
