@@ -281,8 +281,12 @@ bool read_record(BitReader& in, bool scaled, RecordInts& r) {
 
 RecordInts predict_record(const RecordInts& b1, uint32_t a1, const RecordInts* b2, uint32_t a2) {
     RecordInts p = b1;
+    // Evenly spaced samples (a2 = 2 a1, every tick-sampled baseline): the
+    // step is x1 - x2 exactly, without the division.
+    const bool even = a2 - a1 == a1;
     auto lin = [&](int32_t x1, int32_t x2) -> int32_t {
-        const int64_t v = int64_t(x1) + (int64_t(x1) - int64_t(x2)) * int64_t(a1) / int64_t(a2 - a1);
+        const int64_t d = int64_t(x1) - int64_t(x2);
+        const int64_t v = int64_t(x1) + (even ? d : d * int64_t(a1) / int64_t(a2 - a1));
         return int32_t(std::clamp<int64_t>(v, -(int64_t(1) << 30), int64_t(1) << 30));
     };
     if (b2 && a2 > a1 && a1 >= 1) {

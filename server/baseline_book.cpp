@@ -59,40 +59,37 @@ void BaselineBook::mark(const Sent& s) {
     }
 }
 
-bool BaselineBook::acked(int instance, uint32_t generation, int b, uint32_t t) const {
-    if (instance < 0 || size_t(instance) >= acks_.size()) return false;
-    const Acks& a = acks_[size_t(instance)];
-    if (!a.any || a.generation != generation || b < 0 || size_t(b) >= a.mask.size()) return false;
-    const uint32_t d = a.newest - t;
-    if (d >= 16 || int32_t(t - a.first) < int32_t(kGraceTicks)) return false;
-    return (a.mask[size_t(b)] >> d) & 1;
-}
-
-bool BaselineBook::acked_any(int instance, uint32_t generation, uint32_t t) const {
+bool BaselineBook::view(int instance, uint32_t generation, View& v) const {
     if (instance < 0 || size_t(instance) >= acks_.size()) return false;
     const Acks& a = acks_[size_t(instance)];
     if (!a.any || a.generation != generation) return false;
-    const uint32_t d = a.newest - t;
-    if (d >= 16 || int32_t(t - a.first) < int32_t(kGraceTicks)) return false;
-    return (a.ticks >> d) & 1;
+    v.newest = a.newest;
+    v.first = a.first;
+    v.ticks = a.ticks;
+    v.mask = a.mask;
+    return true;
+}
+
+bool BaselineBook::acked(int instance, uint32_t generation, int b, uint32_t t) const {
+    View v;
+    return b >= 0 && view(instance, generation, v) && v.acked(b, t);
+}
+
+bool BaselineBook::acked_any(int instance, uint32_t generation, uint32_t t) const {
+    View v;
+    return view(instance, generation, v) && v.acked_any(t);
 }
 
 bool BaselineBook::newest(int instance, uint32_t generation, uint32_t& tick) const {
-    if (instance < 0 || size_t(instance) >= acks_.size()) return false;
-    const Acks& a = acks_[size_t(instance)];
-    if (!a.any || a.generation != generation || int32_t(a.newest - a.first) < int32_t(kGraceTicks)) return false;
-    tick = a.newest;
+    View v;
+    if (!view(instance, generation, v) || int32_t(v.newest - v.first) < int32_t(kGraceTicks)) return false;
+    tick = v.newest;
     return true;
 }
 
 bool BaselineBook::newest_of(int instance, uint32_t generation, int b, uint32_t& tick) const {
-    if (instance < 0 || size_t(instance) >= acks_.size()) return false;
-    const Acks& a = acks_[size_t(instance)];
-    if (!a.any || a.generation != generation || b < 0 || size_t(b) >= a.mask.size() || a.mask[size_t(b)] == 0) return false;
-    const uint32_t t = a.newest - uint32_t(std::countr_zero(a.mask[size_t(b)]));
-    if (int32_t(t - a.first) < int32_t(kGraceTicks)) return false;
-    tick = t;
-    return true;
+    View v;
+    return b >= 0 && view(instance, generation, v) && v.newest_of(b, tick);
 }
 
 void BaselineBook::clear() {
@@ -103,38 +100,49 @@ void BaselineBook::clear() {
 void RecordPlan::begin(const EncodedFrame& frame) {
     entry_of_.assign(frame.instances.size(), -1);
     entries_.clear();
+    bones_ = 0;
     prefix_.clear();
-    flags_.clear();
-    own_base_.clear();
-    own_len_.clear();
-    own_pred_.clear();
     roots_.clear();
 }
 
 void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book) {
     if (i < 0 || size_t(i) >= entry_of_.size() || entry_of_[size_t(i)] >= 0) return;
     const EncodedInstance& e = frame.instances[size_t(i)];
-    uint32_t t0 = 0;
-    // Nothing acknowledged: no entry, every record standalone (bits() falls back to the frame's).
-    if (!e.valid || !book.newest(i, e.generation, t0)) return;
+    BaselineBook::View v;
+    // Nothing acknowledged past the grace: no entry, every record standalone
+    // (bits() falls back to the frame's).
+    if (!e.valid || !book.view(i, e.generation, v) || int32_t(v.newest - v.first) < int32_t(BaselineBook::kGraceTicks)) return;
+    const uint32_t t0 = v.newest;
     const int B = e.bone_count;
     Entry en;
-    en.at = flags_.size();
-    flags_.resize(en.at + size_t(B), RecordPrefix::Standalone);
-    own_base_.resize(en.at + size_t(B), 0);
-    own_len_.resize(en.at + size_t(B), 0);
-    own_pred_.resize(en.at + size_t(B));
+    en.at = bones_;
+    bones_ += size_t(B);
+    if (flags_.size() < bones_) {  // grown, never shrunk: the per-bone arrays are written before they are read
+        flags_.resize(bones_);
+        own_base_.resize(bones_);
+        own_len_.resize(bones_);
+        own_pred_.resize(bones_);
+    }
+    uint8_t* flags = flags_.data() + en.at;
+    std::fill(flags, flags + B, uint8_t(RecordPrefix::Standalone));
+    const size_t acked_bones = std::min(size_t(B), v.mask.size());
     {
         const uint32_t age = frame.tick - t0;
         if (age >= 1 && age <= kMaxBaseAge) {
-            bool linear = 2 * age < uint32_t(kBaselineRing);
+            // Every bone acknowledged at t0 (bit 0 of its mask: t0 is the
+            // newest) goes from the chunk's baseline; linear when each of
+            // them is acknowledged at t0 - age too.
+            const int d2 = 2 * age < uint32_t(kBaselineRing) ? v.bit(t0 - age) : -1;
+            uint16_t all_at_d2 = 1;
             int covered = 0;
-            for (int b = 0; b < B; ++b) {
-                if (!book.acked(i, e.generation, b, t0)) continue;
-                flags_[en.at + size_t(b)] = RecordPrefix::Chunk;
+            for (size_t b = 0; b < acked_bones; ++b) {
+                const uint16_t m = v.mask[b];
+                if (!(m & 1)) continue;
+                flags[b] = RecordPrefix::Chunk;
                 ++covered;
-                linear = linear && book.acked(i, e.generation, b, t0 - age);
+                if (d2 >= 0) all_at_d2 &= uint16_t(m >> d2);
             }
+            const bool linear = d2 >= 0 && (all_at_d2 & 1);
             if (covered > 0) {
                 en.base = uint8_t(age | (linear ? kBaseLinear : 0));
                 en.records = frame.predicted(i, en.base);
@@ -142,49 +150,49 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
             }
         }
     }
-    if (en.base == 0) std::fill(flags_.begin() + long(en.at), flags_.end(), RecordPrefix::Standalone);
+    if (en.base == 0) std::fill(flags, flags + B, uint8_t(RecordPrefix::Standalone));
     // Bones refreshed at other ticks: from their own newest acknowledged
     // tick, when shorter than standalone (only in a chunk with a baseline).
     const bool scaled = (e.flags & CHUNK_SCALED) != 0;
     const RecordInts* now = frame.ints.data() + size_t(i) * frame.ring_bones;
     if (en.base != 0) {
-        for (int b = 0; b < B; ++b) {
-            if (flags_[en.at + size_t(b)] != RecordPrefix::Standalone) continue;
+        for (size_t b = 0; b < acked_bones; ++b) {
+            if (flags[b] != RecordPrefix::Standalone) continue;
             uint32_t tb = 0;
-            if (!book.newest_of(i, e.generation, b, tb)) continue;
+            if (!v.newest_of(int(b), tb)) continue;
             const uint32_t age = frame.tick - tb;
             if (age < 1 || age > kMaxBaseAge) continue;
             const RecordInts* b1 = frame.ints_at(i, tb);
             if (!b1) continue;
-            const bool linear = 2 * age < uint32_t(kBaselineRing) && book.acked(i, e.generation, b, tb - age) &&
-                                frame.ints_at(i, tb - age) != nullptr;
+            const RecordInts* b2 = 2 * age < uint32_t(kBaselineRing) && v.acked(int(b), tb - age) ? frame.ints_at(i, tb - age) : nullptr;
             const RecordInts pred =
-                linear ? predict_record(b1[b], sample_age(age, e.sample, frame.sample_at(i, tb)), &frame.ints_at(i, tb - age)[b],
-                                        sample_age(2 * age, e.sample, frame.sample_at(i, tb - age)))
-                       : predict_record(b1[b], age);
+                b2 ? predict_record(b1[b], sample_age(age, e.sample, frame.sample_at(i, tb)), &b2[b],
+                                    sample_age(2 * age, e.sample, frame.sample_at(i, tb - age)))
+                   : predict_record(b1[b], age);
             const size_t n = predicted_bits(now[b], pred, scaled);
-            if (n + kOwnPrefixBits >= frame.record_bits(i, b, b + 1) + kStandalonePrefixBits) continue;
-            flags_[en.at + size_t(b)] = RecordPrefix::Own;
-            own_base_[en.at + size_t(b)] = uint8_t(age | (linear ? kBaseLinear : 0));
-            own_len_[en.at + size_t(b)] = uint32_t(n);
-            own_pred_[en.at + size_t(b)] = pred;
+            if (n + kOwnPrefixBits >= frame.record_bits(i, int(b), int(b) + 1) + kStandalonePrefixBits) continue;
+            flags[b] = RecordPrefix::Own;
+            own_base_[en.at + b] = uint8_t(age | (b2 ? kBaseLinear : 0));
+            own_len_[en.at + b] = uint32_t(n);
+            own_pred_[en.at + b] = pred;
         }
     }
     // Prefix sums of the planned bits: bone b at [prefix[b], prefix[b + 1]).
     const size_t pat = prefix_.size();
     prefix_.resize(pat + size_t(B) + 1);
-    prefix_[pat] = 0;
+    uint32_t* prefix = prefix_.data() + pat;
+    prefix[0] = 0;
     for (int b = 0; b < B; ++b) {
         const size_t abs_bits = frame.record_bits(i, b, b + 1);
         size_t bits = abs_bits;
         if (en.base) {
-            switch (flags_[en.at + size_t(b)]) {
+            switch (flags[b]) {
                 case RecordPrefix::Chunk: bits = kChunkPrefixBits + en.records->record_bits(b); break;
                 case RecordPrefix::Own: bits = kOwnPrefixBits + own_len_[en.at + size_t(b)]; break;
                 default: bits = kStandalonePrefixBits + abs_bits; break;
             }
         }
-        prefix_[pat + size_t(b) + 1] = prefix_[pat + size_t(b)] + uint32_t(bits);
+        prefix[b + 1] = prefix[b] + uint32_t(bits);
     }
     en.prefix = pat;
     // The root block, predicted from the root at t0 (and, linear, at t0 - age).
@@ -194,8 +202,7 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
         const uint8_t *b1 = nullptr, *b2 = nullptr;
         if (age >= 1 && age <= kMaxBaseAge && (b1 = frame.root_at(i, t0)) != nullptr) {
             base = uint8_t(age);
-            if (2 * age < uint32_t(kBaselineRing) && book.acked_any(i, e.generation, t0 - age) &&
-                (b2 = frame.root_at(i, t0 - age)) != nullptr)
+            if (2 * age < uint32_t(kBaselineRing) && v.acked_any(t0 - age) && (b2 = frame.root_at(i, t0 - age)) != nullptr)
                 base |= kBaseLinear;
         }
         en.root_at = uint32_t(roots_.size());

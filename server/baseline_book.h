@@ -27,6 +27,7 @@
 // only when it goes). Cost: O(bones) per character and tick; memory 2 bytes
 // per bone of every character this client was sent.
 #pragma once
+#include <bit>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -58,6 +59,35 @@ public:
     // The newest acknowledged tick of bone b (past the grace); false when none.
     bool newest_of(int instance, uint32_t generation, int b, uint32_t& tick) const;
     void clear();
+
+    // One character's acknowledgements at once (the queries above, without
+    // finding the character again for each bone): RecordPlan::plan's view.
+    struct View {
+        uint32_t newest = 0, first = 0;
+        uint16_t ticks = 0;
+        std::span<const uint16_t> mask;  // per bone: bit k, tick newest - k acknowledged
+        // Tick t past the grace and within the 16 ticks kept: its bit, else -1.
+        int bit(uint32_t t) const {
+            const uint32_t d = newest - t;
+            return d >= 16 || int32_t(t - first) < int32_t(kGraceTicks) ? -1 : int(d);
+        }
+        bool acked(int b, uint32_t t) const {
+            const int d = bit(t);
+            return d >= 0 && size_t(b) < mask.size() && ((mask[size_t(b)] >> d) & 1);
+        }
+        bool acked_any(uint32_t t) const {
+            const int d = bit(t);
+            return d >= 0 && ((ticks >> d) & 1);
+        }
+        // The newest acknowledged tick of bone b past the grace; false when none.
+        bool newest_of(int b, uint32_t& t) const {
+            if (size_t(b) >= mask.size() || mask[size_t(b)] == 0) return false;
+            t = newest - uint32_t(std::countr_zero(mask[size_t(b)]));
+            return int32_t(t - first) >= int32_t(kGraceTicks);
+        }
+    };
+    // False when nothing of instance (generation) was acknowledged.
+    bool view(int instance, uint32_t generation, View& v) const;
 
 private:
     struct Run {
@@ -119,6 +149,10 @@ private:
     std::vector<int32_t> entry_of_;  // per instance: index into entries_, -1 none
     std::vector<Entry> entries_;
     std::vector<uint32_t> prefix_;
+    // Per bone of the planned instances, [0, bones_) used this tick; the
+    // arrays only grow (no clearing per tick), and plan() writes a bone's
+    // entries before anything reads them (own_*: only for Own bones).
+    size_t bones_ = 0;
     std::vector<uint8_t> flags_;       // per bone: RecordPrefix::Kind
     std::vector<uint8_t> own_base_;    // per bone: its own baseline (Own)
     std::vector<uint32_t> own_len_;      // per bone: its own-baseline record's bits
