@@ -121,7 +121,6 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
         flags_.resize(bones_);
         own_base_.resize(bones_);
         own_len_.resize(bones_);
-        own_pred_.resize(bones_);
     }
     uint8_t* flags = flags_.data() + en.at;
     std::fill(flags, flags + B, uint8_t(RecordPrefix::Standalone));
@@ -153,8 +152,6 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
     if (en.base == 0) std::fill(flags, flags + B, uint8_t(RecordPrefix::Standalone));
     // Bones refreshed at other ticks: from their own newest acknowledged
     // tick, when shorter than standalone (only in a chunk with a baseline).
-    const bool scaled = (e.flags & CHUNK_SCALED) != 0;
-    const RecordInts* now = frame.ints.data() + size_t(i) * frame.ring_bones;
     if (en.base != 0) {
         for (size_t b = 0; b < acked_bones; ++b) {
             if (flags[b] != RecordPrefix::Standalone) continue;
@@ -162,19 +159,14 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
             if (!v.newest_of(int(b), tb)) continue;
             const uint32_t age = frame.tick - tb;
             if (age < 1 || age > kMaxBaseAge) continue;
-            const RecordInts* b1 = frame.ints_at(i, tb);
-            if (!b1) continue;
-            const RecordInts* b2 = 2 * age < uint32_t(kBaselineRing) && v.acked(int(b), tb - age) ? frame.ints_at(i, tb - age) : nullptr;
-            const RecordInts pred =
-                b2 ? predict_record(b1[b], sample_age(age, e.sample, frame.sample_at(i, tb)), &b2[b],
-                                    sample_age(2 * age, e.sample, frame.sample_at(i, tb - age)))
-                   : predict_record(b1[b], age);
-            const size_t n = predicted_bits(now[b], pred, scaled);
-            if (n + kOwnPrefixBits >= frame.record_bits(i, int(b), int(b) + 1) + kStandalonePrefixBits) continue;
+            // Linear when the tick as far before tb is acknowledged and in the ring too.
+            const bool linear = 2 * age < uint32_t(kBaselineRing) && v.acked(int(b), tb - age) && frame.ints_at(i, tb - age);
+            const uint8_t own = uint8_t(age | (linear ? kBaseLinear : 0));
+            const size_t n = frame.own_bits(i, int(b), own);  // shared between clients (EncodedFrame::own_bits)
+            if (n == SIZE_MAX || n + kOwnPrefixBits >= frame.record_bits(i, int(b), int(b) + 1) + kStandalonePrefixBits) continue;
             flags[b] = RecordPrefix::Own;
-            own_base_[en.at + b] = uint8_t(age | (b2 ? kBaseLinear : 0));
+            own_base_[en.at + b] = own;
             own_len_[en.at + b] = uint32_t(n);
-            own_pred_[en.at + b] = pred;
         }
     }
     // Prefix sums of the planned bits: bone b at [prefix[b], prefix[b + 1]).
@@ -236,8 +228,10 @@ RecordPrefix RecordPlan::prefix(int i, int b) const {
 
 size_t RecordPlan::write_own(const EncodedFrame& frame, int i, int b, BitWriter& w) const {
     const Entry& en = entries_[size_t(entry_of_[size_t(i)])];
+    RecordInts pred;
+    if (!frame.own_prediction(i, b, own_base_[en.at + size_t(b)], pred)) return 0;  // (planned: it was predictable)
     const RecordInts* now = frame.ints.data() + size_t(i) * frame.ring_bones;
-    return write_predicted(now[b], own_pred_[en.at + size_t(b)], (frame.instances[size_t(i)].flags & CHUNK_SCALED) != 0, w);
+    return write_predicted(now[b], pred, (frame.instances[size_t(i)].flags & CHUNK_SCALED) != 0, w);
 }
 
 std::span<const uint8_t> RecordPlan::root(int i) const {

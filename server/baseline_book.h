@@ -23,8 +23,8 @@
 // takes the shared predicted records of that baseline (EncodedFrame::
 // predicted). A bone not acknowledged there (refreshed at other ticks) is
 // predicted from its own newest acknowledged tick when that is shorter than
-// standalone, coded for this client alone (priced when planned, written
-// only when it goes). Cost: O(bones) per character and tick; memory 2 bytes
+// standalone (its length coded once per tick for every client planning it,
+// EncodedFrame::own_bits; the record written only when it goes). Cost: O(bones) per character and tick; memory 2 bytes
 // per bone of every character this client was sent.
 #pragma once
 #include <bit>
@@ -128,7 +128,7 @@ public:
     RecordPrefix prefix(int i, int b) const;
     const PredictedRecords* records(int i) const;
     // Writes bone b's own-baseline record (prefix Own) to w: priced when
-    // planned (predicted_bits), written only when it goes. Returns the bits.
+    // planned (EncodedFrame::own_bits), written only when it goes. Returns the bits.
     size_t write_own(const EncodedFrame& frame, int i, int b, BitWriter& w) const;
     // Instance i's root block for this client (root_block.h), predicted from
     // its root at the newest tick the client acknowledged (linear when the
@@ -155,8 +155,7 @@ private:
     size_t bones_ = 0;
     std::vector<uint8_t> flags_;       // per bone: RecordPrefix::Kind
     std::vector<uint8_t> own_base_;    // per bone: its own baseline (Own)
-    std::vector<uint32_t> own_len_;      // per bone: its own-baseline record's bits
-    std::vector<RecordInts> own_pred_;   // per bone: its own-baseline prediction
+    std::vector<uint32_t> own_len_;      // per bone: its own-baseline record's bits (EncodedFrame::own_bits)
     std::vector<uint8_t> roots_;  // the planned root blocks
 };
 

@@ -297,6 +297,11 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         }
     }
     for (auto& p : frame_.predicted_) p.base = 0;  // coded again on first use this tick
+    frame_.epoch = (frame_.epoch + 1) & 0xFFFFF;
+    if (frame_.epoch == 0) {  // the 20-bit epoch wrapped: no entry of the cache may match again
+        for (size_t k = 0; k < EncodedFrame::OwnCache::kEntries; ++k) frame_.own_cache->entries[k].store(0, std::memory_order_relaxed);
+        frame_.epoch = 1;
+    }
     for (size_t i = 0; i < slots_.size(); ++i) {
         Slot& slot = slots_[i];
         auto& e = frame_.instances[i];
@@ -491,6 +496,45 @@ const PredictedRecords* EncodedFrame::predicted(int i, uint8_t base) const {
     }
     p.offsets[size_t(e.bone_count)] = uint32_t(w.bits());
     return &p;
+}
+
+}  // namespace progskin::net
+
+namespace progskin::net {
+
+bool EncodedFrame::own_prediction(int i, int b, uint8_t base, RecordInts& pred) const {
+    const uint32_t age = base & kBaseAgeMask;
+    const bool linear = (base & kBaseLinear) != 0;
+    const EncodedInstance& e = instances[size_t(i)];
+    const RecordInts* b1 = age ? ints_at(i, tick - age) : nullptr;
+    const RecordInts* b2 = linear ? ints_at(i, tick - 2 * age) : nullptr;
+    if (!b1 || (linear && !b2) || b < 0 || b >= e.bone_count) return false;
+    // As predicted(): linear along the samples' times (sample_age).
+    pred = linear ? predict_record(b1[b], sample_age(age, e.sample, sample_at(i, tick - age)), &b2[b],
+                                   sample_age(2 * age, e.sample, sample_at(i, tick - 2 * age)))
+                  : predict_record(b1[b], age);
+    return true;
+}
+
+size_t EncodedFrame::own_bits(int i, int b, uint8_t base) const {
+    const uint32_t age = base & kBaseAgeMask;
+    const uint64_t linear = (base & kBaseLinear) ? 1 : 0;
+    const bool cached = age >= 1 && age <= kMaxBaseAge && i >= 0 && i < 0x10000 && b >= 0 && b < 0x100;
+    // The key (without the bits): epoch, slot, bone, base index.
+    const uint64_t key = (uint64_t(epoch) << 44) | (uint64_t(i) << 28) | (uint64_t(b) << 20) | (uint64_t((age - 1) * 2 + linear) << 15);
+    constexpr uint64_t kBitsMask = 0xFFF, kKeyMask = ~kBitsMask & ~(uint64_t(7) << 12);
+    std::atomic<uint64_t>* entry = nullptr;
+    if (cached) {
+        entry = &own_cache->entries[size_t((key * 0x9E3779B97F4A7C15ull) >> 48) & (OwnCache::kEntries - 1)];
+        const uint64_t v = entry->load(std::memory_order_relaxed);
+        if ((v & kKeyMask) == key) return (v & kBitsMask) == kBitsMask ? SIZE_MAX : size_t(v & kBitsMask);
+    }
+    RecordInts pred;
+    size_t n = SIZE_MAX;
+    if (own_prediction(i, b, base, pred))
+        n = predicted_bits(ints[size_t(i) * ring_bones + size_t(b)], pred, (instances[size_t(i)].flags & CHUNK_SCALED) != 0);
+    if (entry && (n == SIZE_MAX || n < kBitsMask)) entry->store(key | (n == SIZE_MAX ? kBitsMask : uint64_t(n)), std::memory_order_relaxed);
+    return n;
 }
 
 }  // namespace progskin::net

@@ -25,6 +25,7 @@
 // push_relative and set_root may be called from any thread; encode from one thread.
 #pragma once
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <deque>
 #include <memory>
@@ -128,6 +129,24 @@ struct EncodedFrame {
     // coded once per tick and slot on first use and shared by every client
     // (thread-safe); nullptr when kPredictedPerSlot other baselines took the slot's room.
     const PredictedRecords* predicted(int i, uint8_t base) const;
+    // Bone b of instance i predicted from a baseline of its own (`base`:
+    // age | kBaseLinear, as RecordPlan's Own records): the prediction (false
+    // when the ring lacks a baseline tick), and its length in bits
+    // (SIZE_MAX: not predictable). own_bits codes each (slot, bone, base)
+    // once per tick on first use and shares it between clients and threads
+    // (OwnCache: lock-free, direct-mapped; a collision only codes again).
+    bool own_prediction(int i, int b, uint8_t base, RecordInts& pred) const;
+    size_t own_bits(int i, int b, uint8_t base) const;
+    // Each entry: the tick's epoch (20 bits), slot (16), bone (8), base
+    // index (5: (age - 1) * 2 + linear) and bits (12; all ones: not
+    // predictable). The encoder bumps the epoch every tick and clears the
+    // table when the epoch's 20 bits wrap.
+    struct OwnCache {
+        static constexpr size_t kEntries = size_t(1) << 16;
+        std::unique_ptr<std::atomic<uint64_t>[]> entries = std::make_unique<std::atomic<uint64_t>[]>(kEntries);
+    };
+    uint32_t epoch = 0;
+    std::shared_ptr<OwnCache> own_cache = std::make_shared<OwnCache>();
     mutable std::vector<PredictedRecords> predicted_;  // kPredictedPerSlot per slot
     std::shared_ptr<std::array<std::mutex, 64>> predicted_locks = std::make_shared<std::array<std::mutex, 64>>();
 };
