@@ -132,14 +132,14 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
             // newest) goes from the chunk's baseline; linear when each of
             // them is acknowledged at t0 - age too.
             const int d2 = 2 * age < uint32_t(kBaselineRing) ? v.bit(t0 - age) : -1;
-            uint16_t all_at_d2 = 1;
-            int covered = 0;
-            for (size_t b = 0; b < acked_bones; ++b) {
-                const uint16_t m = v.mask[b];
-                if (!(m & 1)) continue;
-                flags[b] = RecordPrefix::Chunk;
-                ++covered;
-                if (d2 >= 0) all_at_d2 &= uint16_t(m >> d2);
+            const int shift = std::max(d2, 0);
+            uint32_t all_at_d2 = 1, covered = 0;
+            static_assert(RecordPrefix::Standalone == 0 && RecordPrefix::Chunk == 1);
+            for (size_t b = 0; b < acked_bones; ++b) {  // without branches (the bits are unpredictable)
+                const uint32_t m = v.mask[b], c = m & 1;
+                flags[b] = uint8_t(c);
+                covered += c;
+                all_at_d2 &= (m >> shift) | (c ^ 1);
             }
             const bool linear = d2 >= 0 && (all_at_d2 & 1);
             if (covered > 0) {

@@ -88,6 +88,12 @@ public:
     };
     // False when nothing of instance (generation) was acknowledged.
     bool view(int instance, uint32_t generation, View& v) const;
+    // A hint: instance's acknowledgements will be read soon (view).
+    void prefetch(int instance) const {
+        if (instance < 0 || size_t(instance) >= acks_.size()) return;
+        const std::vector<uint16_t>& m = acks_[size_t(instance)].mask;
+        for (size_t k = 0; k < m.size(); k += 32) __builtin_prefetch(m.data() + k);  // each 64-byte line
+    }
 
 private:
     struct Run {

@@ -629,9 +629,19 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
     bound_candidates(budget, frame.tick);
     const bool predict = core_.config().predict_records;
     plan_.begin(frame);
-    if (predict)
+    if (predict) {
+        // A few instances ahead, their acknowledgements are fetched from
+        // memory while the current one is planned (each client's book is cold).
+        constexpr size_t kAhead = 4;
+        planned_.clear();
         for (size_t i = 0; i < importance_.size(); ++i)
-            if (importance_[i] > 0.0f) plan_.plan(frame, int(i), book_);
+            if (importance_[i] > 0.0f) planned_.push_back(int(i));
+        for (size_t k = 0; k < std::min(kAhead, planned_.size()); ++k) book_.prefetch(planned_[k]);
+        for (size_t k = 0; k < planned_.size(); ++k) {
+            if (k + kAhead < planned_.size()) book_.prefetch(planned_[k + kAhead]);
+            plan_.plan(frame, planned_[k], book_);
+        }
+    }
     scheduler_.set_plan(predict ? &plan_ : nullptr);
     if (selector_) {
         selector_(frame, budget, picks_);

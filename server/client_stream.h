@@ -317,6 +317,7 @@ private:
     std::vector<std::pair<int, uint32_t>> pending_;  // (slot, generation) to announce, in order
     size_t pending_at_ = 0;          // next in pending_
     std::vector<size_t> candidates_;  // bound_candidates' scratch
+    std::vector<int> planned_;        // send_frame's scratch: the instances planned this tick
     uint64_t instances_seen_ = ~0ull;  // ServerCore::instances_version last synced
     std::vector<Owned> owned_;       // characters this session spawned
 };

@@ -127,8 +127,6 @@ void Scheduler::reset(size_t n) {
     chain_next_.assign(n, 0);
     chain_tried_.assign(n, 0);
     header_.assign(n, 0);
-    order_.assign(n, {});
-    order_at_.assign(n, 0);
     morph_.assign(n, {});
     heap_.clear();
     heap_.reserve(n * 2);
@@ -147,8 +145,6 @@ void Scheduler::track_slots(const EncodedFrame& frame) {
         chain_next_.resize(n, 0);
         chain_tried_.resize(n, 0);
         header_.resize(n, 0);
-        order_.resize(n);
-        order_at_.resize(n, 0);
         morph_.resize(n);
         current_.resize(n, 0);
         spent_.resize(n, 0);
@@ -662,15 +658,6 @@ size_t Scheduler::take_stale_roots(const EncodedFrame& frame, size_t budget, siz
 void Scheduler::pay(int instance, uint32_t age) {
     const size_t i = size_t(instance);
     paid_[i] = 1;
-    const auto& items = items_[i];
-    auto& order = order_[i];
-    order.clear();
-    for (size_t q = 0; q < items.size(); ++q)
-        if (items[q].shown && !items[q].chosen && items[q].value > 0) order.push_back(int(q));
-    std::sort(order.begin(), order.end(), [&](int a, int b) {
-        return items[size_t(a)].value * double(items[size_t(b)].bytes) > items[size_t(b)].value * double(items[size_t(a)].bytes);
-    });
-    order_at_[i] = 0;
     offer_paid(instance, age);
     if (morph_[i].value > 0 && !morph_[i].chosen) {
         push({morph_[i].value / double(morph_[i].bytes), instance, 0, age, false, true, true});
@@ -682,15 +669,21 @@ void Scheduler::pay(int instance, uint32_t age) {
     }
 }
 
+// The paid instance's best shown item by value per record byte (of equal
+// ones the first) among those not taken that fit: a scan per offer, as an
+// instance has few shown segments and the greedy takes few of them in a
+// tick (cheaper than sorting them all when the header is paid).
 void Scheduler::offer_paid(int instance, uint32_t age) {
-    const size_t i = size_t(instance);
-    const auto& items = items_[i];
-    const auto& order = order_[i];
-    size_t& at = order_at_[i];
-    while (at < order.size() && (items[size_t(order[at])].chosen || !fits(items[size_t(order[at])].bytes))) ++at;
-    if (at == order.size()) return;
-    const SegItem& it = items[size_t(order[at++])];
-    push({it.value / double(it.bytes), instance, order[at - 1], age, false, true});
+    const auto& items = items_[size_t(instance)];
+    int best = -1;
+    for (size_t q = 0; q < items.size(); ++q) {
+        const SegItem& it = items[q];
+        if (!it.shown || it.chosen || !(it.value > 0) || !fits(it.bytes)) continue;
+        if (best < 0 || it.value * double(items[size_t(best)].bytes) > items[size_t(best)].value * double(it.bytes)) best = int(q);
+    }
+    if (best < 0) return;
+    const SegItem& it = items[size_t(best)];
+    push({it.value / double(it.bytes), instance, best, age, false, true});
 }
 
 void Scheduler::sent(std::span<const Pick> picks, uint32_t tick) {

@@ -271,8 +271,6 @@ private:
     std::vector<int> chain_next_;                   // per instance: chain step offered now (0: none)
     std::vector<uint8_t> chain_tried_;              // per instance: a hull step did not fit (singles offered)
     std::vector<size_t> header_;                    // per instance: WireCost::header of its bones
-    std::vector<std::vector<int>> order_;           // per instance (once paid): shown items by value per byte
-    std::vector<size_t> order_at_;                  // per instance: next in order_ to offer
     std::vector<MorphItem> morph_;                  // per instance
     std::vector<uint8_t> current_;                  // per instance: up_to_date this tick
     // This tick's instances (valid, importance > 0), ascending: the only
