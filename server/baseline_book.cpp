@@ -153,6 +153,9 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
     // Bones refreshed at other ticks: from their own newest acknowledged
     // tick, when shorter than standalone (only in a chunk with a baseline).
     if (en.base != 0) {
+        // First each candidate bone's own baseline (the shared table's
+        // entries fetched meanwhile), then their lengths.
+        own_try_.clear();
         for (size_t b = 0; b < acked_bones; ++b) {
             if (flags[b] != RecordPrefix::Standalone) continue;
             uint32_t tb = 0;
@@ -162,6 +165,10 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
             // Linear when the tick as far before tb is acknowledged and in the ring too.
             const bool linear = 2 * age < uint32_t(kBaselineRing) && v.acked(int(b), tb - age) && frame.ints_at(i, tb - age);
             const uint8_t own = uint8_t(age | (linear ? kBaseLinear : 0));
+            frame.own_prefetch(i, int(b), own);
+            own_try_.emplace_back(uint8_t(b), own);
+        }
+        for (const auto& [b, own] : own_try_) {
             const size_t n = frame.own_bits(i, int(b), own);  // shared between clients (EncodedFrame::own_bits)
             if (n == SIZE_MAX || n + kOwnPrefixBits >= frame.record_bits(i, int(b), int(b) + 1) + kStandalonePrefixBits) continue;
             flags[b] = RecordPrefix::Own;

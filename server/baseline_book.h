@@ -162,6 +162,7 @@ private:
     std::vector<uint8_t> flags_;       // per bone: RecordPrefix::Kind
     std::vector<uint8_t> own_base_;    // per bone: its own baseline (Own)
     std::vector<uint32_t> own_len_;      // per bone: its own-baseline record's bits (EncodedFrame::own_bits)
+    std::vector<std::pair<uint8_t, uint8_t>> own_try_;  // plan()'s scratch: (bone, own baseline) to price
     std::vector<uint8_t> roots_;  // the planned root blocks
 };
 

@@ -516,16 +516,28 @@ bool EncodedFrame::own_prediction(int i, int b, uint8_t base, RecordInts& pred) 
     return true;
 }
 
-size_t EncodedFrame::own_bits(int i, int b, uint8_t base) const {
+// The own-bits cache's key (without the bits: epoch, slot, bone, base
+// index), 0 when not cached; and its entry.
+static uint64_t own_key(uint32_t epoch, int i, int b, uint8_t base) {
     const uint32_t age = base & kBaseAgeMask;
     const uint64_t linear = (base & kBaseLinear) ? 1 : 0;
-    const bool cached = age >= 1 && age <= kMaxBaseAge && i >= 0 && i < 0x10000 && b >= 0 && b < 0x100;
-    // The key (without the bits): epoch, slot, bone, base index.
-    const uint64_t key = (uint64_t(epoch) << 44) | (uint64_t(i) << 28) | (uint64_t(b) << 20) | (uint64_t((age - 1) * 2 + linear) << 15);
+    if (!(age >= 1 && age <= kMaxBaseAge && i >= 0 && i < 0x10000 && b >= 0 && b < 0x100)) return 0;
+    return (uint64_t(epoch) << 44) | (uint64_t(i) << 28) | (uint64_t(b) << 20) | (uint64_t((age - 1) * 2 + linear) << 15);
+}
+static size_t own_slot(uint64_t key) {
+    return size_t((key * 0x9E3779B97F4A7C15ull) >> 48) & (EncodedFrame::OwnCache::kEntries - 1);
+}
+
+void EncodedFrame::own_prefetch(int i, int b, uint8_t base) const {
+    if (const uint64_t key = own_key(epoch, i, b, base)) __builtin_prefetch(&own_cache->entries[own_slot(key)]);
+}
+
+size_t EncodedFrame::own_bits(int i, int b, uint8_t base) const {
+    const uint64_t key = own_key(epoch, i, b, base);
     constexpr uint64_t kBitsMask = 0xFFF, kKeyMask = ~kBitsMask & ~(uint64_t(7) << 12);
     std::atomic<uint64_t>* entry = nullptr;
-    if (cached) {
-        entry = &own_cache->entries[size_t((key * 0x9E3779B97F4A7C15ull) >> 48) & (OwnCache::kEntries - 1)];
+    if (key) {
+        entry = &own_cache->entries[own_slot(key)];
         const uint64_t v = entry->load(std::memory_order_relaxed);
         if ((v & kKeyMask) == key) return (v & kBitsMask) == kBitsMask ? SIZE_MAX : size_t(v & kBitsMask);
     }

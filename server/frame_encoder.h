@@ -137,6 +137,7 @@ struct EncodedFrame {
     // (OwnCache: lock-free, direct-mapped; a collision only codes again).
     bool own_prediction(int i, int b, uint8_t base, RecordInts& pred) const;
     size_t own_bits(int i, int b, uint8_t base) const;
+    void own_prefetch(int i, int b, uint8_t base) const;  // a hint: own_bits(i, b, base) comes soon
     // Each entry: the tick's epoch (20 bits), slot (16), bone (8), base
     // index (5: (age - 1) * 2 + linear) and bits (12; all ones: not
     // predictable). The encoder bumps the epoch every tick and clears the
