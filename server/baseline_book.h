@@ -129,6 +129,12 @@ public:
     uint8_t base(int i) const;
     // Bits of bones [from, to) of instance i as planned (the "predicted" bits included).
     size_t bits(const EncodedFrame& frame, int i, int from, int to) const;
+    // The same as prefix sums (bits(from, to) = p[to] - p[from], bone_count + 1 of them).
+    const uint32_t* bit_prefix(const EncodedFrame& frame, int i) const {
+        if (i >= 0 && size_t(i) < entry_of_.size() && entry_of_[size_t(i)] >= 0)
+            return prefix_.data() + entries_[size_t(entry_of_[size_t(i)])].prefix;
+        return frame.bit_offsets.data() + frame.instances[size_t(i)].bit_index;
+    }
     // How bone b of instance i goes: its prefix (RecordPrefix: standalone,
     // from the chunk's baseline, or from its own), and its records.
     RecordPrefix prefix(int i, int b) const;

@@ -214,11 +214,12 @@ void Scheduler::segment_items(size_t i, const EncodedFrame& frame, const ServerA
     auto& items = items_[i];
     const auto& e = frame.instances[i];
     const State& st = state_[i];
+    const uint32_t* bits = plan_ ? plan_->bit_prefix(frame, int(i)) : frame.bit_offsets.data() + e.bit_index;  // record_bits
     bool shown = true;
     for (size_t q = 0; q < a.segments.size(); ++q) {
         const ServerAsset::Segment& seg = a.segments[q];
         const int m = std::clamp(e.model, 0, int(seg.gap.size()) - 1);
-        const size_t b = std::max<size_t>(1, (record_bits(frame, int(i), seg.from, seg.to) + 7) / 8);  // the real bits of its records
+        const size_t b = std::max<size_t>(1, (size_t(bits[seg.to] - bits[seg.from]) + 7) / 8);  // the real bits of its records
         // Shown: bone 0 once received (the client never drops it), every
         // further bone up to here refreshed within the hold.
         for (int x = seg.from; x < seg.to && shown; ++x) {
