@@ -127,6 +127,9 @@ void Scheduler::reset(size_t n) {
     chain_next_.assign(n, 0);
     chain_tried_.assign(n, 0);
     header_.assign(n, 0);
+    order_.assign(n, {});
+    order_at_.assign(n, 0);
+    order_state_.assign(n, 0);
     morph_.assign(n, {});
     heap_.clear();
     heap_.reserve(n * 2);
@@ -145,6 +148,9 @@ void Scheduler::track_slots(const EncodedFrame& frame) {
         chain_next_.resize(n, 0);
         chain_tried_.resize(n, 0);
         header_.resize(n, 0);
+        order_.resize(n);
+        order_at_.resize(n, 0);
+        order_state_.resize(n, 0);
         morph_.resize(n);
         current_.resize(n, 0);
         spent_.resize(n, 0);
@@ -659,6 +665,7 @@ size_t Scheduler::take_stale_roots(const EncodedFrame& frame, size_t budget, siz
 void Scheduler::pay(int instance, uint32_t age) {
     const size_t i = size_t(instance);
     paid_[i] = 1;
+    order_state_[i] = 0;
     offer_paid(instance, age);
     if (morph_[i].value > 0 && !morph_[i].chosen) {
         push({morph_[i].value / double(morph_[i].bytes), instance, 0, age, false, true, true});
@@ -671,16 +678,37 @@ void Scheduler::pay(int instance, uint32_t age) {
 }
 
 // The paid instance's best shown item by value per record byte (of equal
-// ones the first) among those not taken that fit: a scan per offer, as an
-// instance has few shown segments and the greedy takes few of them in a
-// tick (cheaper than sorting them all when the header is paid).
+// ones the first) among those not taken that fit. Most paid instances get
+// one offer in a tick: it is a scan. From the second offer on the items
+// are sorted once (by ratio, then index: the scan's choice) and walked.
 void Scheduler::offer_paid(int instance, uint32_t age) {
-    const auto& items = items_[size_t(instance)];
+    const size_t i = size_t(instance);
+    const auto& items = items_[i];
+    auto before = [&](int a, int b) {
+        const double l = items[size_t(a)].value * double(items[size_t(b)].bytes);
+        const double r = items[size_t(b)].value * double(items[size_t(a)].bytes);
+        return l > r || (l == r && a < b);
+    };
+    auto eligible = [&](const SegItem& it) { return it.shown && !it.chosen && it.value > 0; };
     int best = -1;
-    for (size_t q = 0; q < items.size(); ++q) {
-        const SegItem& it = items[q];
-        if (!it.shown || it.chosen || !(it.value > 0) || !fits(it.bytes)) continue;
-        if (best < 0 || it.value * double(items[size_t(best)].bytes) > items[size_t(best)].value * double(it.bytes)) best = int(q);
+    if (order_state_[i] == 0) {
+        order_state_[i] = 1;
+        for (size_t q = 0; q < items.size(); ++q)
+            if (eligible(items[q]) && fits(items[q].bytes) && (best < 0 || before(int(q), best))) best = int(q);
+    } else {
+        auto& order = order_[i];
+        size_t& at = order_at_[i];
+        if (order_state_[i] == 1) {
+            order_state_[i] = 2;
+            order.clear();
+            for (size_t q = 0; q < items.size(); ++q)
+                if (eligible(items[q])) order.push_back(int(q));
+            std::sort(order.begin(), order.end(), before);
+            at = 0;
+        }
+        // Passed over for good: taken, or too big (the budget only shrinks).
+        while (at < order.size() && (items[size_t(order[at])].chosen || !fits(items[size_t(order[at])].bytes))) ++at;
+        if (at < order.size()) best = order[at++];
     }
     if (best < 0) return;
     const SegItem& it = items[size_t(best)];

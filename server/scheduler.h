@@ -270,6 +270,9 @@ private:
     std::vector<uint8_t> paid_;                     // per instance: chunk header paid this tick
     std::vector<int> chain_next_;                   // per instance: chain step offered now (0: none)
     std::vector<uint8_t> chain_tried_;              // per instance: a hull step did not fit (singles offered)
+    std::vector<std::vector<int>> order_;           // per instance (from its second paid offer): shown items by value per byte
+    std::vector<size_t> order_at_;                  // per instance: next in order_ to offer
+    std::vector<uint8_t> order_state_;              // per instance since paid: 0 no offer yet, 1 one (a scan), 2 order_ sorted
     std::vector<size_t> header_;                    // per instance: WireCost::header of its bones
     std::vector<MorphItem> morph_;                  // per instance
     std::vector<uint8_t> current_;                  // per instance: up_to_date this tick
