@@ -220,3 +220,52 @@ TEST(BaselineBook, RootBlocksArePredictedFromAcknowledgedTicksOnly) {
                 kRootAbsoluteBytes);
     EXPECT_LT(mean, 12.0);
 }
+
+// EncodedFrame::own_bits, the length of a bone's record predicted from a
+// baseline of its own, coded once per tick and shared between clients
+// through a direct-mapped table: equal to the length of the record written
+// from own_prediction for every slot, bone and baseline (age 1-15, linear or
+// not), on first use and again from the table, tick after tick (an entry of
+// an earlier tick, or of another key in the same entry, never answers);
+// SIZE_MAX exactly when the ring lacks a baseline tick.
+TEST(BaselineBook, SharedOwnBaselineLengthsAreTheRecordsWritten) {
+    const auto& assets = progskin::net::testing::default_assets();
+    std::vector<InstanceSpec> specs(3);
+    for (size_t k = 0; k < specs.size(); ++k) {
+        specs[k].asset = int(k % assets.size());
+        specs[k].position = glm::vec3(float(k) * 2.0f, 0.0f, 0.0f);
+    }
+    FrameEncoder enc(assets, specs, 30.0f);
+    size_t predictable = 0, not_predictable = 0;
+    std::vector<uint8_t> bytes;
+    for (uint32_t t = 1; t <= 24; ++t) {
+        const EncodedFrame& f = enc.encode(t);
+        for (int pass = 0; pass < 2; ++pass)
+            for (int i = 0; i < int(specs.size()); ++i) {
+                const EncodedInstance& e = f.instances[size_t(i)];
+                ASSERT_TRUE(e.valid);
+                for (int b = 0; b < e.bone_count; ++b)
+                    for (uint32_t age = 1; age <= kMaxBaseAge; ++age)
+                        for (const uint8_t linear : {uint8_t(0), kBaseLinear}) {
+                            const uint8_t base = uint8_t(age) | linear;
+                            RecordInts pred;
+                            size_t want = SIZE_MAX;
+                            if (f.own_prediction(i, b, base, pred)) {
+                                bytes.clear();
+                                BitWriter w(bytes);
+                                want = write_predicted(f.ints[size_t(i) * f.ring_bones + size_t(b)], pred,
+                                                       (e.flags & CHUNK_SCALED) != 0, w);
+                            }
+                            const size_t got = f.own_bits(i, b, base);
+                            if (got != want) {
+                                ADD_FAILURE() << "tick " << t << " pass " << pass << " instance " << i << " bone " << b
+                                              << " base " << int(base) << ": " << got << " bits, written " << want;
+                                return;
+                            }
+                            (want == SIZE_MAX ? not_predictable : predictable) += 1;
+                        }
+            }
+    }
+    EXPECT_GT(predictable, 10000u);
+    EXPECT_GT(not_predictable, 1000u) << "the first ticks lack the older baselines";
+}
