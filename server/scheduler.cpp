@@ -335,12 +335,9 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
 void Scheduler::take_greedily(size_t budget, size_t payload) {
     taken_ = &payload;
     budget_ = budget;
-    std::make_heap(heap_.begin(), heap_.end());
-    while (!heap_.empty()) {
+    while (!heap_.empty()) {  // (push keeps heap_ a heap)
         if (WireCost::wire(payload + 1) > budget) break;  // not even the smallest record fits
-        std::pop_heap(heap_.begin(), heap_.end());
-        const Step s = heap_.back();
-        heap_.pop_back();
+        const Step s = pop();
         const size_t inst = size_t(s.instance);
         if (s.floor && spent_[inst] >= floor_bytes_[inst]) {  // its floor is spent: it waits its turn by ratio
             push(s);
@@ -355,11 +352,41 @@ void Scheduler::take_greedily(size_t budget, size_t payload) {
     taken_ = nullptr;
 }
 
+// heap_ is a 4-ary max-heap (half the depth of a binary one; Step's order
+// is total, so any heap pops the same sequence).
 void Scheduler::push(Step s) {
     const size_t i = size_t(s.instance);
     s.floor = spent_[i] < floor_bytes_[i];
     heap_.push_back(s);
-    std::push_heap(heap_.begin(), heap_.end());
+    size_t k = heap_.size() - 1;
+    while (k > 0) {
+        const size_t parent = (k - 1) / 4;
+        if (!(heap_[parent] < s)) break;
+        heap_[k] = heap_[parent];
+        k = parent;
+    }
+    heap_[k] = s;
+}
+
+Scheduler::Step Scheduler::pop() {
+    const Step top = heap_.front();
+    const Step last = heap_.back();
+    heap_.pop_back();
+    const size_t n = heap_.size();
+    if (n == 0) return top;
+    size_t k = 0;
+    for (;;) {
+        const size_t c = 4 * k + 1;
+        if (c >= n) break;
+        size_t best = c;
+        for (size_t j = c + 1; j < std::min(c + 4, n); ++j)
+            if (heap_[best] < heap_[j]) best = j;
+        if (!(last < heap_[best])) break;
+        heap_[k] = heap_[best];
+        k = best;
+    }
+    heap_[k] = last;
+    return top;
 }
 
 void Scheduler::charge(size_t inst, size_t bytes, size_t& payload) {

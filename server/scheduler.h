@@ -283,6 +283,7 @@ private:
     std::vector<Step> heap_;
     // Offers step s (its floor flag set from its instance's spending).
     void push(Step s);
+    Step pop();  // the greatest step (heap_ not empty)
     // Instance inst takes `bytes` more payload (payload, its floor's count).
     void charge(size_t inst, size_t bytes, size_t& payload);
     // Each offered instance's floor this tick (set_floor), from the budget.
