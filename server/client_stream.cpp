@@ -604,9 +604,22 @@ static constexpr size_t kSmallestChunk = WireCost::kChunk + 1 + kRootAbsoluteByt
 void ClientStream::bound_candidates(size_t budget, uint32_t tick) {
     const size_t most = std::min<size_t>(size_t(std::max(1, core_.config().max_candidates)),
                                          std::max<size_t>(kMinCandidates, budget / kSmallestChunk));
+    // Only those at or above a cut are ordered when at least `most` pass it:
+    // the `most` most important are then all among them (every other one is
+    // below each of them). The cut: most of the importance of the first left
+    // out last tick (characters move little in a tick); else every one.
     candidates_.clear();
+    below_.clear();
+    const float cut = cut_;
     for (size_t i = 0; i < importance_.size(); ++i)
-        if (importance_[i] > 0.0f) candidates_.push_back(i);
+        if (importance_[i] >= cut && importance_[i] > 0.0f) candidates_.push_back(i);
+        else if (importance_[i] > 0.0f) below_.push_back(i);
+    if (candidates_.size() >= most) {
+        for (const size_t i : below_) importance_[i] = 0.0f;
+    } else {
+        candidates_.insert(candidates_.end(), below_.begin(), below_.end());
+    }
+    cut_ = 0.0f;
     if (candidates_.size() <= most) return;
     // The `most` most important keep theirs; O(instances). Ties go in turn
     // (an order that rotates with the tick), so that a crowd of equally
@@ -617,6 +630,7 @@ void ClientStream::bound_candidates(size_t budget, uint32_t tick) {
         return importance_[a] > importance_[b] || (importance_[a] == importance_[b] && (a + n - turn) % n < (b + n - turn) % n);
     };
     std::nth_element(candidates_.begin(), candidates_.begin() + long(most), candidates_.end(), more);
+    cut_ = 0.8f * importance_[candidates_[most]];
     for (size_t c = most; c < candidates_.size(); ++c) importance_[candidates_[c]] = 0.0f;
 }
 

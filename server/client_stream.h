@@ -316,7 +316,8 @@ private:
     std::vector<uint32_t> known_;    // per instance slot: generation announced to this client (0: none)
     std::vector<std::pair<int, uint32_t>> pending_;  // (slot, generation) to announce, in order
     size_t pending_at_ = 0;          // next in pending_
-    std::vector<size_t> candidates_;  // bound_candidates' scratch
+    std::vector<size_t> candidates_, below_;  // bound_candidates' scratch
+    float cut_ = 0.0f;                // bound_candidates: the importance cut tried first (0: none)
     std::vector<int> planned_;        // send_frame's scratch: the instances planned this tick
     uint64_t instances_seen_ = ~0ull;  // ServerCore::instances_version last synced
     std::vector<Owned> owned_;       // characters this session spawned
