@@ -322,6 +322,52 @@ TEST(ClientStream, InstancesNotYetAnnouncedOrOwnGetNoImportance) {
     EXPECT_FALSE(sent_to_client(mine));
 }
 
+// ServerConfig::max_candidates: each tick a client weighs only the most
+// important characters, exactly the top ones of what every character would
+// weigh, whether the camera moves a little (the previous tick's cut finds
+// them) or jumps across the scene (the cut fails and every one is ordered).
+TEST(ClientStream, OnlyTheMostImportantCharactersAreWeighed) {
+    ServerConfig cfg;
+    cfg.max_candidates = 20;
+    std::vector<InstanceSpec> specs;
+    for (int k = 0; k < 150; ++k) {
+        InstanceSpec s;
+        s.asset = k % 2;
+        s.position = glm::vec3(float(k) * 1.3f, 0.0f, float(k % 7) * 0.9f);
+        specs.push_back(s);
+    }
+    ServerCore core(cfg, default_assets(), specs);
+    auto client = ClientStream::detached(core, 7, 1000);
+    DatagramCollector sink;
+    std::vector<float> every;
+    for (uint32_t tick = 1; tick <= 60; ++tick) {
+        ViewSpec v;
+        v.has_camera = true;
+        // A walk along the row, and every 10th tick a jump to its far end.
+        const float x = tick % 10 == 0 ? 190.0f - float(tick) : float(tick) * 1.7f + 0.37f;
+        v.camera = glm::vec3(x, 1.6f, -4.0f);
+        client->set_view(v);
+        const EncodedFrame& f = core.encoder().encode(tick);
+        client->send_frame(f, 1 << 20, sink);
+        compute_importance(v, f, core.assets(), 7, every);
+        const std::vector<float>& weighed = client->importance();
+        ASSERT_EQ(weighed.size(), every.size());
+        size_t kept = 0;
+        float least_kept = INFINITY, most_left = 0.0f;
+        for (size_t i = 0; i < every.size(); ++i) {
+            if (weighed[i] > 0.0f) {
+                ++kept;
+                EXPECT_EQ(weighed[i], every[i]) << "tick " << tick << " instance " << i;
+                least_kept = std::min(least_kept, every[i]);
+            } else {
+                most_left = std::max(most_left, every[i]);
+            }
+        }
+        ASSERT_EQ(kept, 20u) << "tick " << tick;
+        ASSERT_GE(least_kept, most_left) << "tick " << tick << ": a more important character was left out";
+    }
+}
+
 namespace {
 
 std::vector<uint8_t> spawn_message(uint32_t request, std::vector<int32_t> clips = {}) {
