@@ -24,8 +24,9 @@
 // predicted). A bone not acknowledged there (refreshed at other ticks) is
 // predicted from its own newest acknowledged tick when that is shorter than
 // standalone (its length coded once per tick for every client planning it,
-// EncodedFrame::own_bits; the record written only when it goes). Cost: O(bones) per character and tick; memory 2 bytes
-// per bone of every character this client was sent.
+// EncodedFrame::own_bits; the record written only when it goes). Cost:
+// O(bones) per character and tick; memory 2 bytes per bone of every
+// character this client was sent.
 #pragma once
 #include <bit>
 #include <cstdint>
