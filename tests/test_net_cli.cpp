@@ -91,6 +91,8 @@ TEST(NetCli, HelpAndExitCodes) {
         {"progskin-server --fair-floor 1.5", "--fair-floor"},
         {"progskin-server --tick-rate 0", "--tick-rate"},
         {"progskin-server --max-clients 0", "--max-clients"},
+        {"progskin-server --nats-queue 0", "--nats-queue"},
+        {"progskin-server --nats-queue 2000000", "--nats-queue"},
         {"progskin-server --nats tls://127.0.0.1:1 --nats-cert only.pem", "--nats-key"},
         {"progskin-server --nats tls://127.0.0.1:1 --nats-ca /nonexistent/ca.pem", "--nats-ca /nonexistent/ca.pem: no such file"},
         {"progskin-server --nats-ca ca.pem", "need --nats"},
