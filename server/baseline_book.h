@@ -134,7 +134,7 @@ public:
     const uint32_t* bit_prefix(const EncodedFrame& frame, int i) const {
         if (i >= 0 && size_t(i) < entry_of_.size() && entry_of_[size_t(i)] >= 0)
             return prefix_.data() + entries_[size_t(entry_of_[size_t(i)])].prefix;
-        return frame.bit_offsets.data() + frame.instances[size_t(i)].bit_index;
+        return frame.bit_prefix(i);
     }
     // How bone b of instance i goes: its prefix (RecordPrefix: standalone,
     // from the chunk's baseline, or from its own), and its records.

@@ -476,23 +476,16 @@ const PredictedRecords* EncodedFrame::predicted(int i, uint8_t base) const {
     if (!free) return nullptr;
     PredictedRecords& p = *free;
     p.base = base;
-    const uint32_t age = base & kBaseAgeMask;
-    const bool linear = (base & kBaseLinear) != 0;
-    const RecordInts* b1 = age ? ints_at(i, tick - age) : nullptr;
-    const RecordInts* b2 = linear ? ints_at(i, tick - 2 * age) : nullptr;
-    p.usable = b1 && (!linear || b2) && e.valid;
+    Baseline from;
+    p.usable = baseline(i, base, from) && e.valid;
     if (!p.usable) return &p;
     p.bits.clear();
     BitWriter w(p.bits);
     const RecordInts* now = ints.data() + size_t(i) * ring_bones;
     const bool scaled = (e.flags & CHUNK_SCALED) != 0;
-    // Linear: along the samples' times (sample_age; 254 age and 508 age at ticks).
-    const uint32_t a1 = sample_age(age, e.sample, sample_at(i, tick - age));
-    const uint32_t a2 = linear ? sample_age(2 * age, e.sample, sample_at(i, tick - 2 * age)) : 0;
     for (int b = 0; b < e.bone_count; ++b) {
         p.offsets[size_t(b)] = uint32_t(w.bits());
-        const RecordInts pred = linear ? predict_record(b1[b], a1, &b2[b], a2) : predict_record(b1[b], age);
-        write_predicted(now[b], pred, scaled, w);
+        write_predicted(now[b], from.predict(b), scaled, w);
     }
     p.offsets[size_t(e.bone_count)] = uint32_t(w.bits());
     return &p;
@@ -502,17 +495,23 @@ const PredictedRecords* EncodedFrame::predicted(int i, uint8_t base) const {
 
 namespace progskin::net {
 
-bool EncodedFrame::own_prediction(int i, int b, uint8_t base, RecordInts& pred) const {
+bool EncodedFrame::baseline(int i, uint8_t base, Baseline& out) const {
     const uint32_t age = base & kBaseAgeMask;
     const bool linear = (base & kBaseLinear) != 0;
     const EncodedInstance& e = instances[size_t(i)];
-    const RecordInts* b1 = age ? ints_at(i, tick - age) : nullptr;
-    const RecordInts* b2 = linear ? ints_at(i, tick - 2 * age) : nullptr;
-    if (!b1 || (linear && !b2) || b < 0 || b >= e.bone_count) return false;
-    // As predicted(): linear along the samples' times (sample_age).
-    pred = linear ? predict_record(b1[b], sample_age(age, e.sample, sample_at(i, tick - age)), &b2[b],
-                                   sample_age(2 * age, e.sample, sample_at(i, tick - 2 * age)))
-                  : predict_record(b1[b], age);
+    out.b1 = age ? ints_at(i, tick - age) : nullptr;
+    out.b2 = linear ? ints_at(i, tick - 2 * age) : nullptr;
+    if (!out.b1 || (linear && !out.b2)) return false;
+    // Linear: along the samples' times (sample_age; 254 age and 508 age at ticks).
+    out.a1 = linear ? sample_age(age, e.sample, sample_at(i, tick - age)) : age;
+    out.a2 = linear ? sample_age(2 * age, e.sample, sample_at(i, tick - 2 * age)) : 0;
+    return true;
+}
+
+bool EncodedFrame::own_prediction(int i, int b, uint8_t base, RecordInts& pred) const {
+    Baseline from;
+    if (b < 0 || b >= instances[size_t(i)].bone_count || !baseline(i, base, from)) return false;
+    pred = from.predict(b);
     return true;
 }
 

@@ -104,9 +104,11 @@ struct EncodedFrame {
     const uint8_t* relative(int i) const { return rel.data() + instances[size_t(i)].rel_offset; }
     // Bits of bones [from, to) of instance i's relative records.
     size_t record_bits(int i, int from, int to) const {
-        const uint32_t* o = bit_offsets.data() + instances[size_t(i)].bit_index;
+        const uint32_t* o = bit_prefix(i);
         return to > from ? size_t(o[to] - o[from]) : 0;
     }
+    // The same as prefix sums: record_bits(i, from, to) = p[to] - p[from].
+    const uint32_t* bit_prefix(int i) const { return bit_offsets.data() + instances[size_t(i)].bit_index; }
     uint32_t bit_offset(int i, int b) const { return bit_offsets[instances[size_t(i)].bit_index + size_t(b)]; }
 
     // The ring of each slot's integers (kBaselineRing ticks): entry k of slot
@@ -136,6 +138,15 @@ struct EncodedFrame {
     // once per tick on first use and shares it between clients and threads
     // (OwnCache: lock-free, direct-mapped; a collision only codes again).
     bool own_prediction(int i, int b, uint8_t base, RecordInts& pred) const;
+    // Instance i's baseline ticks for `base` (Chunk.base syntax): their
+    // integers (b2 only when linear) and ages along the samples' times
+    // (sample_age); what predicted() and own_prediction() predict from.
+    struct Baseline {
+        const RecordInts *b1 = nullptr, *b2 = nullptr;
+        uint32_t a1 = 0, a2 = 0;
+        RecordInts predict(int b) const { return b2 ? predict_record(b1[b], a1, &b2[b], a2) : predict_record(b1[b], a1); }
+    };
+    bool baseline(int i, uint8_t base, Baseline& out) const;  // false when the ring lacks a tick of it
     size_t own_bits(int i, int b, uint8_t base) const;
     void own_prefetch(int i, int b, uint8_t base) const;  // a hint: own_bits(i, b, base) comes soon
     // Each entry: the tick's epoch (20 bits), slot (16), bone (8), base

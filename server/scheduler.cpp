@@ -220,7 +220,7 @@ void Scheduler::segment_items(size_t i, const EncodedFrame& frame, const ServerA
     auto& items = items_[i];
     const auto& e = frame.instances[i];
     const State& st = state_[i];
-    const uint32_t* bits = plan_ ? plan_->bit_prefix(frame, int(i)) : frame.bit_offsets.data() + e.bit_index;  // record_bits
+    const uint32_t* bits = plan_ ? plan_->bit_prefix(frame, int(i)) : frame.bit_prefix(int(i));  // record_bits
     bool shown = true;
     for (size_t q = 0; q < a.segments.size(); ++q) {
         const ServerAsset::Segment& seg = a.segments[q];
