@@ -128,6 +128,11 @@ struct RemoteCharacter {
     std::span<const float> morph_weights;  // one per morph target of asset->character (apply before skinning:
                                            // morph_positions in common/error_metric.h); empty without targets
     int bones = 0;                       // bones shown (the LOD target)
+    // Of those, the bones whose records of the ticks around the display time
+    // are here (PoseBuffer::bones_recorded): bones - fresh_bones are
+    // interpolated across a longer gap (a lost datagram, a bone the
+    // scheduler refreshed less often) or held.
+    int fresh_bones = 0;
     double display_tick = 0;             // the server tick displayed
     // The time on the server's tick clock the displayed pose is of:
     // display_tick, but with snap_to_ticks the frame's own sample time

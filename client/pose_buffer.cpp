@@ -264,6 +264,24 @@ int PoseBuffer::bones_at(double d) const {
     return have;
 }
 
+int PoseBuffer::bones_recorded(double d, int bones) const {
+    if (!any_ || !std::isfinite(d)) return 0;
+    const double lo = std::floor(d);
+    const Frame* a = nullptr;
+    const Frame* c = nullptr;
+    for (const auto& f : frames_) {
+        if (!f.used) continue;
+        const double t = tick_time(f.tick);
+        if (t == lo) a = &f;
+        else if (t == lo + 1) c = &f;
+    }
+    if (!a || (d != lo && !c)) return 0;
+    int n = 0;
+    for (int b = 0; b < std::min(bones, bones_); ++b)
+        n += a->have[size_t(b)] && (d == lo || c->have[size_t(b)]) ? 1 : 0;
+    return n;
+}
+
 bool PoseBuffer::pose(int b, double d, BonePose& out, double* held_at, double* anchor_at) const {
     if (!pose_about_pivot(b, d, out, held_at, anchor_at)) return false;
     out.t -= out.s * (out.r * fmt_.pivots[size_t(b)]);

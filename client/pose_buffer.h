@@ -83,6 +83,11 @@ public:
     // before d (before the first frame, that frame's), limited to the bones
     // received so far; each bone is interpolated between its own frames.
     int bones_at(double d) const;
+    // Of bones 0..bones-1, those whose records of the ticks around display
+    // tick d are here: of tick floor(d) and, when d is not a tick, of
+    // floor(d) + 1 (the others are interpolated across a longer gap or
+    // held). O(kHistory + bones), no allocation.
+    int bones_recorded(double d, int bones) const;
     // The display time of tick t's own sample: the time its bones were
     // sampled (sample byte, add_chunk), or t when no frame of tick t is here
     // or it was sampled at the tick (a display snapped to ticks shows each

@@ -810,12 +810,14 @@ void ClientSession::display(double now) {
             rc.palette = v.palette();
             rc.morph_weights = v.morph_weights();
             rc.bones = v.target_bones();
+            rc.fresh_bones = v.buffer().bones_recorded(d, rc.bones);
             RootPose root;
             if (v.buffer().root(d, root)) rc.root = root;
         } else {
             rc.palette = {};
             rc.morph_weights = {};
             rc.bones = 0;
+            rc.fresh_bones = 0;
         }
     }
 }

@@ -189,6 +189,26 @@ TEST(PoseBuffer, InterpolatesLinearMotionExactly) {
     EXPECT_LT(glm::length(p.t - (at(106) + glm::vec3(2, 0, 0))), 2 * step);
 }
 
+// bones_recorded counts the bones whose records of the ticks around the
+// display time are here: a chunk of bones 0..1 only at tick 101 leaves bone
+// 2 interpolated across 100..102 there.
+TEST(PoseBuffer, BonesRecordedCountsTheBonesOfTheTicksAroundTheDisplay) {
+    PoseBuffer pb = buffer(3);
+    EXPECT_EQ(pb.bones_recorded(100.0, 3), 0);  // nothing yet
+    const glm::vec3 t0(0.5f, 1.0f, 0.25f);
+    ASSERT_TRUE(pb.add_chunk(100, 0, 3, 3, records(3, t0, 0.1f).run()));
+    ASSERT_TRUE(pb.add_chunk(101, 0, 2, 3, records(2, t0, 0.2f).run()));
+    ASSERT_TRUE(pb.add_chunk(102, 0, 3, 3, records(3, t0, 0.3f).run()));
+    EXPECT_EQ(pb.bones_recorded(100.0, 3), 3);
+    EXPECT_EQ(pb.bones_recorded(101.0, 3), 2);
+    EXPECT_EQ(pb.bones_recorded(101.0, 2), 2);
+    EXPECT_EQ(pb.bones_recorded(102.0, 3), 3);
+    EXPECT_EQ(pb.bones_recorded(100.5, 3), 2);  // ticks 100 and 101
+    EXPECT_EQ(pb.bones_recorded(101.5, 3), 2);  // ticks 101 and 102
+    EXPECT_EQ(pb.bones_recorded(102.5, 3), 0);  // no frame of tick 103
+    EXPECT_EQ(pb.bones_recorded(99.0, 3), 0);   // before the first frame
+}
+
 // A piecewise linear motion (a linearly keyed clip) sampled at its keys
 // (sample bytes, wire.h sample_ticks): between the samples of adjacent ticks
 // the buffer interpolates linearly at the samples' times and follows the

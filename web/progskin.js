@@ -140,7 +140,7 @@ function meshFor(inst, a, nb) {
 // ---------------------------------------------------------- frame loop --
 let framesDisplayed = 0, wasmSeconds = 0, wasmFrames = 0, lastFrameAt = 0;
 let shownCount = 0, bonesMean = 0, frameSerial = 0, ownShown = 0;
-const recorded = [];  // {instance, tick, bones, palette, gap_ms (since the frame before)} of every record_every-th tick
+const recorded = [];  // {instance, tick, bones, fresh (bones shown from a record of the tick), palette, gap_ms (since the frame before)} of every record_every-th tick
 const MAX_RECORDED = 4000;
 let lastStats = null, lastStatsAt = 0;
 
@@ -198,7 +198,8 @@ function frame() {
             if (Math.abs(tick - Math.round(tick)) < 1e-6 && Math.round(tick) % recordEvery === 0 &&
                 recorded.length < MAX_RECORDED &&
                 !recorded.some((x) => x.instance === inst && x.tick === Math.round(tick)))
-                recorded.push({ instance: inst, tick: Math.round(tick), bones, palette: Array.from(pal),
+                recorded.push({ instance: inst, tick: Math.round(tick), bones, fresh: M._pskw_character_fresh_bones(w, i),
+                                palette: Array.from(pal),
                                 gap_ms: t0 - lastFrameAt });
         }
     }

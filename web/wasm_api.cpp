@@ -346,6 +346,12 @@ EMSCRIPTEN_KEEPALIVE int pskw_character_bones(psk_web* w, int i) {
     const RemoteCharacter* c = character_at(w, i);
     return c ? c->bones : 0;
 }
+// RemoteCharacter::fresh_bones: of the bones shown, those whose records of
+// the ticks around the display time are here.
+EMSCRIPTEN_KEEPALIVE int pskw_character_fresh_bones(psk_web* w, int i) {
+    const RemoteCharacter* c = character_at(w, i);
+    return c ? c->fresh_bones : 0;
+}
 EMSCRIPTEN_KEEPALIVE int pskw_character_palette_size(psk_web* w, int i) {
     const RemoteCharacter* c = character_at(w, i);
     return c ? int(c->palette.size()) : 0;

@@ -7,7 +7,8 @@
 // compares the two at the same ticks.
 //
 //   progskin_palette_dump HOST PORT SECONDS EVERY [MAX_KBPS]
-//   {"instance":I,"tick":T,"bones":K,"palette":[12 floats per bone...]}
+//   {"instance":I,"tick":T,"bones":K,"fresh":F,"palette":[12 floats per bone...]}
+// (fresh: RemoteCharacter::fresh_bones, the bones shown from a record of tick T)
 //   {"summary":{"seconds":S,"wire_bytes":N,"characters":C,"bones_mean":B,"first_shown_after":S,"loss":L,"datagrams":N}}
 // PROGSKIN_PIN set: TLS, trusting the certificate with that SHA-256;
 // PROGSKIN_CACHE: the asset cache. Exit 1 when the client failed (the reason on stderr), 2 for bad arguments.
@@ -73,7 +74,8 @@ int main(int argc, char** argv) {
             const double t = c.display_tick;
             const long tick = std::lround(t);
             if (std::abs(t - double(tick)) > 1e-6 || tick % every != 0 || !done.insert({c.instance, tick}).second) continue;
-            std::printf("{\"instance\":%d,\"tick\":%ld,\"bones\":%d,\"palette\":[", c.instance, tick, c.bones);
+            std::printf("{\"instance\":%d,\"tick\":%ld,\"bones\":%d,\"fresh\":%d,\"palette\":[", c.instance, tick, c.bones,
+                        c.fresh_bones);
             for (size_t b = 0; b < c.palette.size(); ++b)
                 for (int k = 0; k < 12; ++k) std::printf("%s%.9g", b || k ? "," : "", double(c.palette[b].m[k]));
             std::puts("]}");
