@@ -270,9 +270,14 @@ private:
             if (verify_now && !c.clip.selection.clips.empty()) verify(c, a);
         }
         if (opt_.on_snapshot && opt_.snapshot_every > 0 && warm && now >= next_snapshot_) snapshot(now, chars);
-        if (opt_.verbose && display_count_ % size_t(std::max(1.0, opt_.display_rate)) == 0)
-            std::fprintf(stderr, "progskin-client: %.1f s, %.1f kbit/s last second, %zu characters\n", now - t_stream_,
-                         last_second_kbps(client_), chars.size());
+        if (opt_.verbose && display_count_ % size_t(std::max(1.0, opt_.display_rate)) == 0) {
+            char err[96] = "";
+            if (sec_n_ > 0)  // --verify: the displayed error since the line before
+                std::snprintf(err, sizeof err, ", error RMS %.4f%% max %.4f%%", std::sqrt(sec_sq_ / sec_n_), sec_max_);
+            std::fprintf(stderr, "progskin-client: %.1f s, %.1f kbit/s last second, %zu characters%s\n", now - t_stream_,
+                         last_second_kbps(client_), chars.size(), err);
+            sec_sq_ = sec_n_ = sec_max_ = 0;
+        }
     }
 
     // The displayed vertices of c against its reference, in world space
@@ -314,10 +319,13 @@ private:
             const double pct = glm::length(e) * scale;
             a.sq += pct * pct;
             a.max = std::max(a.max, pct);
+            sec_sq_ += pct * pct;
+            sec_max_ = std::max(sec_max_, pct);
             if (a.has_prev) jump = std::max(jump, double(glm::length(e - a.prev_err[j])) * scale);
             a.prev_err[j] = e;
         }
         a.n += double(shown_.size());
+        sec_n_ += double(shown_.size());
         a.has_prev = opt_.verify_every <= 1;
         a.jump = std::max(a.jump, jump);
     }
@@ -448,6 +456,7 @@ private:
     size_t cap_index_ = 0;
     double t_stream_ = 0, end_time_ = 0, next_snapshot_ = 0, next_publish_ = 0;
     uint64_t display_count_ = 0;
+    double sec_sq_ = 0, sec_n_ = 0, sec_max_ = 0;  // --verbose with --verify: the error since the last line
     double t_start_ = 0;  // connect() returned
     std::map<int, Acc> acc_;  // by instance id
     std::vector<int> failed_assets_;  // catalogue indices (AssetFailed)

@@ -14,12 +14,21 @@ void BaselineBook::carried(uint32_t seq, uint32_t tick, int instance, uint32_t g
         s.seq = seq;
         s.tick = tick;
         s.valid = true;
+        s.timed = false;
+        s.lost = false;
         s.runs.clear();  // capacity kept
     }
     s.runs.push_back({uint16_t(instance), uint8_t(first), uint8_t(count), generation});
 }
 
-void BaselineBook::on_ack(uint32_t ack, uint32_t bits) {
+void BaselineBook::sent_at(uint32_t seq, uint32_t send_us) {
+    Sent& s = sent_[seq % kSentRing];
+    if (!s.valid || s.seq != seq) return;
+    s.send_us = send_us;
+    s.timed = true;
+}
+
+void BaselineBook::on_ack(uint32_t ack, uint32_t bits, std::vector<LostRun>* lost, uint32_t now_us, uint32_t loss_delay_us) {
     auto take = [&](uint32_t seq) {
         Sent& s = sent_[seq % kSentRing];
         if (!s.valid || s.seq != seq) return;
@@ -29,6 +38,18 @@ void BaselineBook::on_ack(uint32_t ack, uint32_t bits) {
     take(ack);
     for (uint32_t i = 0; i < 32; ++i)
         if (bits & (1u << i)) take(ack - 1 - i);
+    if (!lost) return;
+    for (uint32_t i = 0; i < 32; ++i) {  // datagram ack - 1 - i
+        if (bits & (1u << i)) continue;
+        const uint32_t seq = ack - 1 - i;
+        Sent& s = sent_[seq % kSentRing];
+        if (!s.valid || s.seq != seq || s.lost) continue;
+        const bool by_count = i + 1 >= kLossReorder;
+        const bool by_time = loss_delay_us > 0 && s.timed && int32_t(now_us - s.send_us) >= int32_t(loss_delay_us);
+        if (!by_count && !by_time) continue;
+        s.lost = true;
+        for (const Run& r : s.runs) lost->push_back({s.tick, r.generation, int(r.instance), int(r.first), int(r.count)});
+    }
 }
 
 void BaselineBook::mark(const Sent& s) {

@@ -46,8 +46,29 @@ public:
     // The packer: datagram `seq` (frame tick `tick`) carries bones
     // [first, first + count) of `instance`.
     void carried(uint32_t seq, uint32_t tick, int instance, uint32_t generation, int first, int count);
+    // A datagram is taken as lost when an Ack leaves it out while it
+    // acknowledges a newer one and either kLossReorder or more datagrams
+    // were sent after it, or it was sent at least `loss_delay_us` before
+    // the Ack arrived (QUIC's rules, RFC 9002 6.1: a later datagram arrived
+    // and this one is later than reordering explains); within the Ack's
+    // window (32).
+    static constexpr uint32_t kLossReorder = 3;
+    // The bones of a datagram taken as lost: [first, first + count) of
+    // `instance` (generation), sent at frame tick `tick`.
+    struct LostRun {
+        uint32_t tick = 0, generation = 0;
+        int instance = 0, first = 0, count = 0;
+    };
+    // Datagram `seq` (its runs given to carried) left at `send_us`.
+    void sent_at(uint32_t seq, uint32_t send_us);
     // An Ack: datagram `ack` and those of ack_bits (bit i: ack - 1 - i).
-    void on_ack(uint32_t ack, uint32_t bits);
+    // lost (optional): the runs of the datagrams this Ack shows lost
+    // (kLossReorder; by time from now_us when loss_delay_us > 0) are
+    // appended, each datagram's once; an Ack arriving later for one of them
+    // still marks its bones acknowledged. O(32 + runs); no allocation once
+    // `lost` has grown.
+    void on_ack(uint32_t ack, uint32_t bits, std::vector<LostRun>* lost = nullptr, uint32_t now_us = 0,
+                uint32_t loss_delay_us = 0);
     // Whether the client acknowledged bone b of instance (generation) at tick t.
     bool acked(int instance, uint32_t generation, int b, uint32_t t) const;
     // The newest acknowledged tick of any bone of the instance usable as a
@@ -104,7 +125,10 @@ private:
     };
     struct Sent {
         uint32_t seq = 0, tick = 0;
+        uint32_t send_us = 0;
         bool valid = false;
+        bool timed = false;  // send_us set
+        bool lost = false;   // reported lost (on_ack)
         std::vector<Run> runs;
     };
     struct Acks {

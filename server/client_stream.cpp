@@ -463,7 +463,14 @@ DatagramVerdict ClientStream::on_ack(const wire::Ack& a, const PeerAddress& from
     if (!bound_ || peer_ != from) return DatagramVerdict::rejected;  // counts only from the bound address
     last_heard_ = now;
     rate_.on_ack(a.ack(), a.ack_bits(), a.echo_time_us(), a.hold_us(), now_us32());
-    book_.on_ack(a.ack(), a.ack_bits());
+    // Bones of lost datagrams are due again (Scheduler::lost), unless a
+    // selector of its own chooses what goes.
+    lost_.clear();
+    // Lost by time: sent 9/8 of the smoothed RTT before now (RFC 9002's
+    // time threshold) while a later datagram arrived; at least 1 ms.
+    const uint32_t loss_delay = rate_.rtt_ms() > 0 ? uint32_t(std::max(1000.0, 1125.0 * rate_.rtt_ms())) : 0;
+    book_.on_ack(a.ack(), a.ack_bits(), selector_ ? nullptr : &lost_, now_us32(), loss_delay);
+    for (const BaselineBook::LostRun& r : lost_) scheduler_.lost(r.instance, r.generation, r.first, r.count, r.tick);
     return DatagramVerdict::accepted;
 }
 
@@ -683,6 +690,7 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
     for (size_t i = 0; i < dgrams.size(); ++i) {
         const size_t sent = send_datagram(dgrams[i], peer_, out, scratch.sealed);
         if (adaptive_) rate_.on_sent(first_seq + uint32_t(i), now_us32(), sent + UDP_IP_OVERHEAD);
+        book_.sent_at(first_seq + uint32_t(i), now_us32());
         wire += sent - dgrams[i].size();  // the seal's 32 bytes count against the rate
     }
     rate_.spend(wire);

@@ -307,6 +307,7 @@ private:
     bool adaptive_ = true;
     Scheduler scheduler_;
     BaselineBook book_;   // what this client acknowledged: the baselines of predicted records
+    std::vector<BaselineBook::LostRun> lost_;  // on_ack's scratch: the bones of datagrams it shows lost
     RecordPlan plan_;     // this tick's record choices (set before the scheduler runs)
     Selector selector_;
     ViewSpec view_;

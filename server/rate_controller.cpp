@@ -102,7 +102,18 @@ void RateController::on_ack(uint32_t ack, uint32_t bits, uint32_t echo_us, uint3
             min_rtt_ms_ = std::min(min_rtt_ms_, rtt);
         }
     }
-    // Datagrams older than the ack window and not acked are lost.
+    // A datagram left out of this Ack while the 2 after it arrived is lost
+    // (a late Ack of it still counts its bytes as delivered); datagrams
+    // older than the ack window and not acked are lost.
+    for (uint32_t i = 2; i < 32; ++i) {
+        if (bits & (1u << i)) continue;
+        Sent& s = ring_[(ack - 1 - i) % ring_.size()];
+        if (s.valid && s.seq == ack - 1 - i && !s.counted && !s.acked) {
+            s.counted = true;
+            ++win_lost_;
+            ++lost_total_;
+        }
+    }
     for (auto& s : ring_) {
         if (!s.valid || s.counted) continue;
         if (int32_t(highest_acked_ - s.seq) > 32) {
@@ -116,7 +127,20 @@ void RateController::update(double now) {
     if (last_update_ < 0) last_update_ = now;
     if (now - last_update_ < 0.25) return;
     const uint64_t judged = win_acked_ + win_lost_;
-    if (judged >= 4) loss_ = double(win_lost_) / double(judged);
+    // Loss is judged over at least kLossSamples datagrams (or 2 s): over
+    // one window's 8 datagrams at 30 a second, random loss of 10 % reads
+    // "over 20 %" in one window of five, a back-off for nothing; over 32,
+    // in one judgement of 24.
+    loss_acked_ += win_acked_;
+    loss_lost_ += win_lost_;
+    const uint64_t loss_judged = loss_acked_ + loss_lost_;
+    if (loss_since_ < 0) loss_since_ = last_update_;
+    const bool judge_loss = loss_judged >= kLossSamples || (loss_judged >= 4 && now - loss_since_ >= 2.0);
+    if (judge_loss) {
+        loss_ = double(loss_lost_) / double(loss_judged);
+        loss_acked_ = loss_lost_ = 0;
+        loss_since_ = now;
+    }
     bool delay_growth = srtt_ms_ > 0 && min_rtt_ms_ < 1e9 &&
                         srtt_ms_ > min_rtt_ms_ + std::max(25.0, 0.5 * min_rtt_ms_);
     // What the client actually received over the window (acked wire bytes).
@@ -125,7 +149,7 @@ void RateController::update(double now) {
     last_update_ = now;
     if (hold_ > 0) {
         --hold_;  // let the last back-off take effect before judging again
-    } else if ((judged >= 4 && loss_ > 0.20) || delay_growth) {
+    } else if ((judge_loss && loss_ > 0.20) || delay_growth) {
         hold_ = 2;
         slow_start_ = false;
         double e = estimate_kbps_ * 0.8;
@@ -156,6 +180,8 @@ void RateController::on_path_change() {
     for (auto& s : ring_)
         if (s.valid) s.counted = true;  // neither acked nor lost: sent to a path that is gone
     win_acked_ = win_lost_ = win_acked_bytes_ = 0;
+    loss_acked_ = loss_lost_ = 0;
+    loss_since_ = -1;
     loss_ = 0;
     srtt_ms_ = 0;
     min_rtt_ms_ = 1e9;

@@ -1,6 +1,7 @@
 // rate_controller.h — one client's sending rate: a cap (kbit/s, docs/metrics.md §3)
 // and an estimate that adapts to measured loss and delay (multiplicative back
-// off, to at most 95% of the rate the client acknowledged, on loss > 20% or on
+// off, to at most 95% of the rate the client acknowledged, on loss > 20%
+// over at least kLossSamples datagrams or 2 s, or on
 // RTT growing 25 ms / 50% above its minimum, then hold for two
 // windows; probe up otherwise while the budget is used), never above the cap.
 // Probing starts in slow start, as TCP's: the estimate doubles every 250 ms
@@ -64,7 +65,9 @@ public:
     double cap_kbps() const { return cap_kbps_; }
     double estimate_kbps() const { return estimate_kbps_; }
     double target_kbps() const { return estimate_kbps_ < cap_kbps_ ? estimate_kbps_ : cap_kbps_; }
-    double loss() const { return loss_; }       // last window's loss fraction
+    // Loss is judged over at least this many datagrams (or 2 s, from 4).
+    static constexpr uint64_t kLossSamples = 32;
+    double loss() const { return loss_; }       // the last judged loss fraction (kLossSamples)
     bool in_slow_start() const { return slow_start_; }
     // Off: probe by 10% per window from the start (the behaviour before slow
     // start, kept for comparisons; tests/test_net_rate.cpp).
@@ -88,6 +91,8 @@ private:
     uint32_t highest_acked_ = 0;
     bool any_ack_ = false;
     uint64_t win_acked_bytes_ = 0, win_acked_ = 0, win_lost_ = 0, acked_total_ = 0, lost_total_ = 0;
+    uint64_t loss_acked_ = 0, loss_lost_ = 0;  // since the loss was last judged
+    double loss_since_ = -1;
     double loss_ = 0, srtt_ms_ = 0, min_rtt_ms_ = 1e9, min_rtt_age_ = 0;
     double last_update_ = -1;
     int hold_ = 0;  // windows to wait after a back-off

@@ -175,7 +175,10 @@ size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::
         morph_[i] = MorphItem{};
         current_[i] = 0;
         const ServerAsset& a = *assets[size_t(e.asset)];
-        if (state_[i].bone_tick.size() != size_t(a.bone_count())) state_[i].bone_tick.assign(size_t(a.bone_count()), 0);
+        if (state_[i].bone_tick.size() != size_t(a.bone_count())) {
+            state_[i].bone_tick.assign(size_t(a.bone_count()), 0);
+            state_[i].prev_tick.assign(size_t(a.bone_count()), 0);
+        }
         morph_item(i, frame, a, double(importance[i]) * double(importance[i]) * double(a.character.vertex_count()));
         current_[i] = up_to_date(i, frame);
         if (current_[i]) continue;  // nothing to send (the fast path and the greedy skip it)
@@ -747,13 +750,26 @@ void Scheduler::sent(std::span<const Pick> picks, uint32_t tick) {
         if (size_t(p.instance) >= state_.size()) continue;
         State& s = state_[size_t(p.instance)];
         if (s.bone_tick.size() < size_t(p.k)) s.bone_tick.resize(size_t(p.k), 0);
-        for (int b = std::max(0, p.first); b < p.k; ++b) s.bone_tick[size_t(b)] = tick;
+        if (s.prev_tick.size() < s.bone_tick.size()) s.prev_tick.resize(s.bone_tick.size(), 0);
+        for (int b = std::max(0, p.first); b < p.k; ++b) {
+            if (s.bone_tick[size_t(b)] != tick) s.prev_tick[size_t(b)] = s.bone_tick[size_t(b)];
+            s.bone_tick[size_t(b)] = tick;
+        }
         for (size_t m = 0; m < s.morph_pending.size() && m < size_t(MAX_MORPHS); ++m)
             if ((p.morphs[m / 64] >> (m % 64) & 1) && s.morph_pending[m] != kNoWeight) {
                 s.morph_sent[m] = s.morph_pending[m];
                 s.morph_tick[m] = tick;
             }
     }
+}
+
+void Scheduler::lost(int instance, uint32_t generation, int first, int count, uint32_t tick) {
+    if (instance < 0 || size_t(instance) >= state_.size() || generation_[size_t(instance)] != generation || first < 0 || count < 1)
+        return;
+    State& s = state_[size_t(instance)];
+    const size_t end = std::min(s.bone_tick.size(), std::min(s.prev_tick.size(), size_t(first) + size_t(count)));
+    for (size_t b = size_t(first); b < end; ++b)
+        if (s.bone_tick[b] == tick) s.bone_tick[b] = s.prev_tick[b];
 }
 
 }  // namespace progskin::net

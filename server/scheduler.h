@@ -124,6 +124,13 @@ public:
                   std::span<const float> importance, size_t budget, float tick_rate, std::vector<Pick>& out);
     // Records that `picks` went out at `tick`.
     void sent(std::span<const Pick> picks, uint32_t tick);
+    // A datagram carrying bones [first, first + count) of instance
+    // (generation) at `tick` was lost (BaselineBook::on_ack): each of those
+    // bones still last sent at that tick goes back to the tick it was sent
+    // before (0: never), which is what the client holds, so the next select
+    // values it as due again (a lost refresh is sent again within a tick or
+    // two instead of after the bone's next refresh period). O(count).
+    void lost(int instance, uint32_t generation, int first, int count, uint32_t tick);
     // Fair share for the next selects: the characters of one owner (group[i]
     // > 0, the same number for one owner; 0 or beyond the span: the server's
     // own, no limit) take at most share_bytes of payload per tick, and at most
@@ -168,6 +175,7 @@ private:
     const RecordPlan* plan_ = nullptr;
     struct State {
         std::vector<uint32_t> bone_tick;  // per progressive bone, tick last sent (0: never)
+        std::vector<uint32_t> prev_tick;  // per progressive bone, the tick it was sent before bone_tick (lost)
         std::vector<int32_t> morph_sent;  // per morph weight, quantised value last sent (kNoWeight: never)
         std::vector<uint32_t> morph_tick; // tick it was sent
         std::vector<int32_t> morph_pending;  // chosen by the last select (committed by sent)

@@ -47,6 +47,51 @@ TEST(BaselineBook, OnlyAcknowledgedBonesBecomeBaselines) {
     EXPECT_FALSE(book.acked(3, g, 0, 141));
 }
 
+// Loss (BaselineBook::on_ack's `lost`): a datagram left out of an Ack that
+// acknowledges a newer one is lost once kLossReorder datagrams followed it,
+// or once it was sent loss_delay before the Ack (reordering explains
+// neither); each is reported once, and a late acknowledgement still makes
+// its bones baselines.
+TEST(BaselineBook, LostDatagramsAreReportedOnceByCountOrByTime) {
+    BaselineBook book;
+    const uint32_t g = 7;
+    book.carried(0, 100, 3, g, 0, 10);  // the first acknowledged tick (the grace starts there)
+    book.on_ack(0, 0);
+    // Datagram s (1..9) carries bones 0..9 of instance 3 at tick 120 + s, sent at 10 ms x s.
+    for (uint32_t s = 1; s < 10; ++s) {
+        book.carried(s, 120 + s, 3, g, 0, 10);
+        book.sent_at(s, 10000 * s);
+    }
+    std::vector<BaselineBook::LostRun> lost;
+    // At 55 ms: 5 arrived, 4 and 2 did not. 2 is three before 5 (count);
+    // 4, one before and sent 15 ms ago, may still come (loss delay 30 ms).
+    book.on_ack(5, ~((1u << 0) | (1u << 2)), &lost, 55000, 30000);
+    ASSERT_EQ(lost.size(), 1u);
+    EXPECT_EQ(lost[0].tick, 122u);
+    EXPECT_EQ(lost[0].instance, 3);
+    EXPECT_EQ(lost[0].generation, g);
+    EXPECT_EQ(lost[0].first, 0);
+    EXPECT_EQ(lost[0].count, 10);
+    // At 80 ms: 6 arrived, 4 still not: sent 40 ms ago, lost by time; 2 not again.
+    lost.clear();
+    book.on_ack(6, ~((1u << 1) | (1u << 3)), &lost, 80000, 30000);
+    ASSERT_EQ(lost.size(), 1u);
+    EXPECT_EQ(lost[0].tick, 124u);
+    // Without a time (loss_delay 0) only the count: 7 left out behind 8 is
+    // not lost (4 and 2, still left out, were reported already).
+    lost.clear();
+    book.on_ack(8, ~((1u << 0) | (1u << 3) | (1u << 5)), &lost, 200000, 0);
+    EXPECT_TRUE(lost.empty());
+    // A late acknowledgement of 4 still makes its bones baselines.
+    EXPECT_FALSE(book.acked(3, g, 0, 124));
+    book.on_ack(4, 0, &lost, 210000, 30000);
+    EXPECT_TRUE(book.acked(3, g, 0, 124));
+    EXPECT_FALSE(book.acked(3, g, 0, 122));
+    // No `lost`: nothing reported, acknowledgements as before.
+    book.on_ack(9, 0);
+    EXPECT_TRUE(book.acked(3, g, 0, 129));
+}
+
 TEST(BaselineBook, PlanPredictsAcknowledgedBonesAndThePackerWritesThem) {
     const auto& assets = progskin::net::testing::default_assets();
     std::vector<InstanceSpec> specs(1);

@@ -77,10 +77,12 @@ struct Session {
     struct Tick {
         std::vector<Pick> picks;
         size_t estimate = 0, wire = 0;
+        const EncodedFrame* frame = nullptr;  // until the next tick
     };
     Tick tick(uint32_t t, size_t budget, bool commit = true) {
         Tick r;
         const EncodedFrame& f = enc.encode(t);
+        r.frame = &f;
         r.estimate = sched.select(f, assets, importance, budget, 30.0f, r.picks);
         expect_well_formed(f, importance, r.picks);
         std::vector<std::vector<uint8_t>> out;
@@ -480,6 +482,40 @@ TEST(Scheduler, ALivePoseNotChangedIsNotSentAgainUntilItsHoldRunsOut) {
     const Session::Tick r = s.tick(41, kUnlimited);
     ASSERT_FALSE(r.picks.empty());
     EXPECT_EQ(r.picks[0].k, s.bones(0));
+}
+
+// A lost datagram (Scheduler::lost, reported by BaselineBook::on_ack): the
+// unchanged live pose of the test above, its datagram of tick 1 lost, goes
+// again at the next tick instead of when its hold runs out. A loss of
+// another occupant of the id, or of a tick whose bones went again since,
+// changes nothing.
+TEST(Scheduler, BonesOfALostDatagramAreDueAgain) {
+    std::vector<InstanceSpec> specs(1);
+    specs[0].selection = -1;  // live
+    Session s(specs);
+    const ServerAsset& a = *s.assets[0];
+    const int B = s.bones(0);
+    std::vector<Mat34> rest(a.character.joint_count());
+    for (size_t j = 0; j < rest.size(); ++j) rest[j] = Mat34::from_glm(glm::dmat4(1.0));
+    ASSERT_TRUE(s.enc.push_pose(0, rest));
+    auto carried = [](const Session::Tick& r) {
+        int bones = 0;
+        for (const Pick& p : r.picks) bones += std::max(0, p.k - p.first);
+        return bones;
+    };
+    const Session::Tick first = s.tick(1, kUnlimited);
+    EXPECT_EQ(carried(first), B);
+    const uint32_t gen = first.frame->instances[0].generation;
+    EXPECT_EQ(carried(s.tick(2, kUnlimited)), 0) << "unchanged: nothing until the hold runs out";
+    s.sched.lost(0, gen + 1, 0, B, 1);  // another occupant's
+    EXPECT_EQ(carried(s.tick(3, kUnlimited)), 0);
+    s.sched.lost(0, gen, 0, B, 1);
+    EXPECT_EQ(carried(s.tick(4, kUnlimited)), B) << "the lost pose goes again";
+    s.sched.lost(0, gen, 0, B, 1);  // tick 1 again: its bones went at 4 since
+    EXPECT_EQ(carried(s.tick(5, kUnlimited)), 0);
+    s.sched.lost(0, gen, 0, 3, 4);  // part of tick 4's
+    EXPECT_GE(carried(s.tick(6, kUnlimited)), 3);
+    EXPECT_EQ(carried(s.tick(7, kUnlimited)), 0);
 }
 
 // The per-character floor (Scheduler::set_floor): under a budget far below
