@@ -543,6 +543,7 @@ TEST(NetSecurity, AcceptBacksOffWhenOutOfDescriptors) {
     to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
     to.sin_port = htons(s.server->tcp_port());
     const bool connected = c >= 0 && ::connect(c, reinterpret_cast<sockaddr*>(&to), sizeof to) == 0;
+    const int connect_errno = connected ? 0 : errno;
     rusage r0{}, r1{};
     ::getrusage(RUSAGE_SELF, &r0);
     std::this_thread::sleep_for(std::chrono::milliseconds(1000));
@@ -553,13 +554,13 @@ TEST(NetSecurity, AcceptBacksOffWhenOutOfDescriptors) {
         return double(r.ru_utime.tv_sec + r.ru_stime.tv_sec) + 1e-6 * double(r.ru_utime.tv_usec + r.ru_stime.tv_usec);
     };
     const double cpu = secs(r1) - secs(r0);
-    ASSERT_TRUE(connected);
+    ASSERT_TRUE(connected) << (c < 0 ? "socket: " : "connect: ") << std::strerror(connect_errno);
     EXPECT_LT(cpu, 0.3) << "the server spun on accept()";
     // With descriptors back, the waiting connection is served.
     const std::vector<uint8_t> hello = hello_message();
     ASSERT_EQ(::send(c, hello.data(), hello.size(), 0), ssize_t(hello.size()));
     pollfd p{c, POLLIN, 0};
-    EXPECT_EQ(::poll(&p, 1, 2000), 1);
+    EXPECT_EQ(::poll(&p, 1, 5000), 1) << "no answer within 5 s (the accept is retried every 100 ms)";
     ::close(c);
     std::printf("1 s out of descriptors: %.3f s of CPU, %llu failed accepts\n", cpu,
                 (unsigned long long)s.server->stats().accept_errors);
