@@ -7,8 +7,7 @@ namespace progskin::net {
 
 static bool newer(uint32_t a, uint32_t b) { return int32_t(a - b) > 0; }
 
-void BaselineBook::carried(uint32_t seq, uint32_t tick, int instance, uint32_t generation, int first, int count) {
-    if (instance < 0 || first < 0 || count < 1 || first + count > MAX_BONES) return;
+BaselineBook::Sent& BaselineBook::slot(uint32_t seq, uint32_t tick) {
     Sent& s = sent_[seq % kSentRing];
     if (!s.valid || s.seq != seq) {
         s.seq = seq;
@@ -18,7 +17,17 @@ void BaselineBook::carried(uint32_t seq, uint32_t tick, int instance, uint32_t g
         s.lost = false;
         s.runs.clear();  // capacity kept
     }
-    s.runs.push_back({uint16_t(instance), uint8_t(first), uint8_t(count), generation});
+    return s;
+}
+
+void BaselineBook::carried(uint32_t seq, uint32_t tick, int instance, uint32_t generation, int first, int count) {
+    if (instance < 0 || instance > 0xFFFF || first < 0 || count < 1 || first + count > MAX_BONES) return;
+    slot(seq, tick).runs.push_back({uint16_t(instance), uint8_t(first), uint8_t(count), generation});
+}
+
+void BaselineBook::carried_morphs(uint32_t seq, uint32_t tick, int instance, uint32_t generation) {
+    if (instance < 0 || instance > 0xFFFF) return;
+    slot(seq, tick).runs.push_back({uint16_t(instance), 0, 0, generation});
 }
 
 void BaselineBook::sent_at(uint32_t seq, uint32_t send_us) {
@@ -48,12 +57,13 @@ void BaselineBook::on_ack(uint32_t ack, uint32_t bits, std::vector<LostRun>* los
         const bool by_time = loss_delay_us > 0 && s.timed && int32_t(now_us - s.send_us) >= int32_t(loss_delay_us);
         if (!by_count && !by_time) continue;
         s.lost = true;
-        for (const Run& r : s.runs) lost->push_back({s.tick, r.generation, int(r.instance), int(r.first), int(r.count)});
+        for (const Run& r : s.runs) lost->push_back({s.tick, r.generation, int(r.instance), int(r.first), int(r.count), r.count == 0});
     }
 }
 
 void BaselineBook::mark(const Sent& s) {
     for (const Run& r : s.runs) {
+        if (r.count == 0) continue;  // a morph block: no baseline
         if (acks_.size() <= r.instance) acks_.resize(size_t(r.instance) + 1);
         Acks& a = acks_[r.instance];
         if (!a.any || newer(r.generation, a.generation)) {  // a new occupant of the id

@@ -46,6 +46,8 @@ public:
     // The packer: datagram `seq` (frame tick `tick`) carries bones
     // [first, first + count) of `instance`.
     void carried(uint32_t seq, uint32_t tick, int instance, uint32_t generation, int first, int count);
+    // ... and the instance's morph block (only reported lost, never a baseline).
+    void carried_morphs(uint32_t seq, uint32_t tick, int instance, uint32_t generation);
     // A datagram is taken as lost when an Ack leaves it out while it
     // acknowledges a newer one and either kLossReorder or more datagrams
     // were sent after it, or it was sent at least `loss_delay_us` before
@@ -54,10 +56,12 @@ public:
     // window (32).
     static constexpr uint32_t kLossReorder = 3;
     // The bones of a datagram taken as lost: [first, first + count) of
-    // `instance` (generation), sent at frame tick `tick`.
+    // `instance` (generation), sent at frame tick `tick`; or (morphs) its
+    // morph block (count 0).
     struct LostRun {
         uint32_t tick = 0, generation = 0;
         int instance = 0, first = 0, count = 0;
+        bool morphs = false;
     };
     // Datagram `seq` (its runs given to carried) left at `send_us`.
     void sent_at(uint32_t seq, uint32_t send_us);
@@ -120,7 +124,7 @@ public:
 private:
     struct Run {
         uint16_t instance = 0;
-        uint8_t first = 0, count = 0;
+        uint8_t first = 0, count = 0;  // count 0: the morph block
         uint32_t generation = 0;
     };
     struct Sent {
@@ -140,6 +144,7 @@ private:
         std::vector<uint16_t> mask;  // per bone: bit k set, tick newest - k acknowledged
     };
     void mark(const Sent& s);
+    Sent& slot(uint32_t seq, uint32_t tick);  // datagram seq's entry, started afresh for a new seq
     std::vector<Sent> sent_ = std::vector<Sent>(kSentRing);
     std::vector<Acks> acks_;  // by instance id
 };

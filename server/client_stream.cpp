@@ -470,7 +470,7 @@ DatagramVerdict ClientStream::on_ack(const wire::Ack& a, const PeerAddress& from
     // time threshold) while a later datagram arrived; at least 1 ms.
     const uint32_t loss_delay = rate_.rtt_ms() > 0 ? uint32_t(std::max(1000.0, 1125.0 * rate_.rtt_ms())) : 0;
     book_.on_ack(a.ack(), a.ack_bits(), selector_ ? nullptr : &lost_, now_us32(), loss_delay);
-    for (const BaselineBook::LostRun& r : lost_) scheduler_.lost(r.instance, r.generation, r.first, r.count, r.tick);
+    for (const BaselineBook::LostRun& r : lost_) scheduler_.lost(r.instance, r.generation, r.first, r.count, r.tick, r.morphs);
     return DatagramVerdict::accepted;
 }
 

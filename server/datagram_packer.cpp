@@ -110,6 +110,7 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
             payload_.insert(payload_.end(), planned.begin(), planned.end());
             if (morph_bytes > 0) {
                 flags |= CHUNK_MORPH;
+                if (book) book->carried_morphs(seq, frame.tick, instance, e.generation);
                 payload_.push_back(uint8_t((morph_bytes - 1) / MORPH_ENTRY_BYTES));
                 for (size_t m = 0; m < weights.size(); ++m)
                     if (morphs[m / 64] >> (m % 64) & 1) {

@@ -763,10 +763,13 @@ void Scheduler::sent(std::span<const Pick> picks, uint32_t tick) {
     }
 }
 
-void Scheduler::lost(int instance, uint32_t generation, int first, int count, uint32_t tick) {
-    if (instance < 0 || size_t(instance) >= state_.size() || generation_[size_t(instance)] != generation || first < 0 || count < 1)
-        return;
+void Scheduler::lost(int instance, uint32_t generation, int first, int count, uint32_t tick, bool morphs) {
+    if (instance < 0 || size_t(instance) >= state_.size() || generation_[size_t(instance)] != generation || first < 0) return;
     State& s = state_[size_t(instance)];
+    if (morphs)  // stale: refreshed as soon as the budget allows (morph_item)
+        for (size_t m = 0; m < s.morph_tick.size() && m < s.morph_sent.size(); ++m)
+            if (s.morph_sent[m] != kNoWeight && s.morph_tick[m] == tick) s.morph_tick[m] = tick - MORPH_REFRESH_TICKS;
+    if (count < 1) return;
     const size_t end = std::min(s.bone_tick.size(), std::min(s.prev_tick.size(), size_t(first) + size_t(count)));
     for (size_t b = size_t(first); b < end; ++b)
         if (s.bone_tick[b] == tick) s.bone_tick[b] = s.prev_tick[b];

@@ -129,8 +129,10 @@ public:
     // bones still last sent at that tick goes back to the tick it was sent
     // before (0: never), which is what the client holds, so the next select
     // values it as due again (a lost refresh is sent again within a tick or
-    // two instead of after the bone's next refresh period). O(count).
-    void lost(int instance, uint32_t generation, int first, int count, uint32_t tick);
+    // two instead of after the bone's next refresh period). morphs: the
+    // instance's morph block of that tick was lost: each weight last sent
+    // then is due again (as a stale one). O(count + morph weights).
+    void lost(int instance, uint32_t generation, int first, int count, uint32_t tick, bool morphs = false);
     // Fair share for the next selects: the characters of one owner (group[i]
     // > 0, the same number for one owner; 0 or beyond the span: the server's
     // own, no limit) take at most share_bytes of payload per tick, and at most

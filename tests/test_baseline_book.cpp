@@ -60,18 +60,23 @@ TEST(BaselineBook, LostDatagramsAreReportedOnceByCountOrByTime) {
     // Datagram s (1..9) carries bones 0..9 of instance 3 at tick 120 + s, sent at 10 ms x s.
     for (uint32_t s = 1; s < 10; ++s) {
         book.carried(s, 120 + s, 3, g, 0, 10);
+        if (s == 2) book.carried_morphs(s, 120 + s, 3, g);  // and its morph block
         book.sent_at(s, 10000 * s);
     }
     std::vector<BaselineBook::LostRun> lost;
     // At 55 ms: 5 arrived, 4 and 2 did not. 2 is three before 5 (count);
     // 4, one before and sent 15 ms ago, may still come (loss delay 30 ms).
     book.on_ack(5, ~((1u << 0) | (1u << 2)), &lost, 55000, 30000);
-    ASSERT_EQ(lost.size(), 1u);
+    ASSERT_EQ(lost.size(), 2u);
     EXPECT_EQ(lost[0].tick, 122u);
     EXPECT_EQ(lost[0].instance, 3);
     EXPECT_EQ(lost[0].generation, g);
     EXPECT_EQ(lost[0].first, 0);
     EXPECT_EQ(lost[0].count, 10);
+    EXPECT_FALSE(lost[0].morphs);
+    EXPECT_TRUE(lost[1].morphs);  // the morph block, with the tick's bones
+    EXPECT_EQ(lost[1].tick, 122u);
+    EXPECT_EQ(lost[1].count, 0);
     // At 80 ms: 6 arrived, 4 still not: sent 40 ms ago, lost by time; 2 not again.
     lost.clear();
     book.on_ack(6, ~((1u << 1) | (1u << 3)), &lost, 80000, 30000);

@@ -314,7 +314,8 @@ TEST(Scheduler, SentAgesBonesForTheRefreshRule) {
 
 // Morph weights (scheduler.h): weight m goes when its quantised value differs
 // from the one last sent, when it was last sent MORPH_REFRESH_TICKS or more
-// ago, or never; never when the encoder refused it. Checked against a
+// ago, or never; never when the encoder refused it; at once again (as
+// stale) when the block that carried it was lost. Checked against a
 // client-side record of what went, on skinned_morph's "talk" clip.
 TEST(Scheduler, MorphWeightsGoWhenChangedOrDueForRefresh) {
     const std::vector<std::shared_ptr<ServerAsset>> assets = {progskin::net::testing::skinned_morph_asset()};
@@ -327,11 +328,19 @@ TEST(Scheduler, MorphWeightsGoWhenChangedOrDueForRefresh) {
     const size_t M = assets[0]->character.morphs.size();
     std::vector<int32_t> sent_value(M, kNoWeight);
     std::vector<int64_t> sent_tick(M, -1);
-    size_t changed = 0, refreshed = 0;
+    size_t changed = 0, refreshed = 0, lost = 0;
     for (uint32_t t = 1; t <= 120; ++t) {
         const EncodedFrame& f = enc.encode(t);
         const auto q = f.morphs(0);
         ASSERT_EQ(q.size(), M);
+        if (t % 7 == 0) {  // the morph block of the tick before was lost (Scheduler::lost): its weights are stale
+            sched.lost(0, f.instances[0].generation, 0, 0, t - 1, true);
+            for (size_t m = 0; m < M; ++m)
+                if (sent_tick[m] == int64_t(t) - 1) {
+                    sent_tick[m] -= MORPH_REFRESH_TICKS;
+                    ++lost;
+                }
+        }
         std::vector<Pick> picks;
         sched.select(f, assets, imp, kUnlimited, 30.0f, picks);
         std::array<uint64_t, 4> mask{};
@@ -353,6 +362,7 @@ TEST(Scheduler, MorphWeightsGoWhenChangedOrDueForRefresh) {
     }
     EXPECT_GT(changed, 0u);    // the clip animates weights
     EXPECT_GT(refreshed, 0u);  // and holds some still long enough for a refresh
+    EXPECT_GT(lost, 0u);       // and some went in a lost block
 }
 
 TEST(Scheduler, MorphBlockBytes) {
