@@ -33,7 +33,8 @@
 // instance and tick: the weights that are due, sent together in the chunk's
 // morph block (1 + 3 bytes per weight). Weight m is due when its quantised
 // value differs from the one last sent to this client, or when it was last
-// sent MORPH_REFRESH_TICKS or more ago (or never: a lost datagram heals). The
+// sent MORPH_REFRESH_TICKS or more ago (or never), or when the datagram that
+// carried it was lost (lost(): due as a stale one). The
 // item is worth importance^2 x vertices x sum over due m of
 // morph_importance_m^2 x (d_m^2 + [stale] r^2), d_m the change since last
 // sent, r = MORPH_REFRESH_WEIGHT: the squared vertex error the client's stale
