@@ -57,7 +57,7 @@ void BaselineBook::on_ack(uint32_t ack, uint32_t bits, std::vector<LostRun>* los
         const bool by_time = loss_delay_us > 0 && s.timed && int32_t(now_us - s.send_us) >= int32_t(loss_delay_us);
         if (!by_count && !by_time) continue;
         s.lost = true;
-        for (const Run& r : s.runs) lost->push_back({s.tick, r.generation, int(r.instance), int(r.first), int(r.count), r.count == 0});
+        for (const Run& r : s.runs) lost->push_back({s.seq, s.tick, r.generation, int(r.instance), int(r.first), int(r.count), r.count == 0});
     }
 }
 

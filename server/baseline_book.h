@@ -59,6 +59,7 @@ public:
     // `instance` (generation), sent at frame tick `tick`; or (morphs) its
     // morph block (count 0).
     struct LostRun {
+        uint32_t seq = 0;  // the datagram
         uint32_t tick = 0, generation = 0;
         int instance = 0, first = 0, count = 0;
         bool morphs = false;

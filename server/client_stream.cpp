@@ -415,7 +415,7 @@ DatagramVerdict ClientStream::on_datagram(const wire::Datagram& d, size_t size, 
         case wire::DatagramBody::Bind: return on_bind(size, from, now, out);
         case wire::DatagramBody::ChallengeResponse:
             return on_challenge_response(*d.body_as_ChallengeResponse(), size, from, now, out);
-        case wire::DatagramBody::Ack: return on_ack(*d.body_as_Ack(), from, now);
+        case wire::DatagramBody::Ack: return on_ack(*d.body_as_Ack(), from, now, out);
         case wire::DatagramBody::Pose: return on_pose(*d.body_as_Pose(), from, now);
         default: return DatagramVerdict::rejected;  // Frame / BindAck / Challenge are server -> client only
     }
@@ -459,7 +459,7 @@ DatagramVerdict ClientStream::on_challenge_response(const wire::ChallengeRespons
     return DatagramVerdict::accepted;
 }
 
-DatagramVerdict ClientStream::on_ack(const wire::Ack& a, const PeerAddress& from, double now) {
+DatagramVerdict ClientStream::on_ack(const wire::Ack& a, const PeerAddress& from, double now, DatagramSink& out) {
     if (!bound_ || peer_ != from) return DatagramVerdict::rejected;  // counts only from the bound address
     last_heard_ = now;
     rate_.on_ack(a.ack(), a.ack_bits(), a.echo_time_us(), a.hold_us(), now_us32());
@@ -470,8 +470,28 @@ DatagramVerdict ClientStream::on_ack(const wire::Ack& a, const PeerAddress& from
     // time threshold) while a later datagram arrived; at least 1 ms.
     const uint32_t loss_delay = rate_.rtt_ms() > 0 ? uint32_t(std::max(1000.0, 1125.0 * rate_.rtt_ms())) : 0;
     book_.on_ack(a.ack(), a.ack_bits(), selector_ ? nullptr : &lost_, now_us32(), loss_delay);
-    for (const BaselineBook::LostRun& r : lost_) scheduler_.lost(r.instance, r.generation, r.first, r.count, r.tick, r.morphs);
+    for (size_t k = 0; k < lost_.size(); ++k) {
+        const BaselineBook::LostRun& r = lost_[k];
+        scheduler_.lost(r.instance, r.generation, r.first, r.count, r.tick, r.morphs);
+        if (k == 0 || lost_[k - 1].seq != r.seq) repair(r.seq, out);  // each datagram's runs are adjacent
+    }
     return DatagramVerdict::accepted;
+}
+
+void ClientStream::repair(uint32_t seq, DatagramSink& out) {
+    if (!core_.config().repair_lost || last_limited_ || !bound_) return;
+    Kept& k = kept_[seq % kKeptSent];
+    if (!k.valid || k.seq != seq || k.repaired || int32_t(newest_tick_sent_ - k.tick) > kRepairTicks) return;
+    const size_t wire = k.bytes.size() + UDP_IP_OVERHEAD;
+    if (rate_.budget() < wire) return;  // no room now: the scheduler sends its bones again (Scheduler::lost)
+    k.repaired = true;
+    out.send(k.bytes, peer_);
+    rate_.spend(wire);
+    core_.count([&](ServerStats& st) {
+        ++st.datagrams_repaired;
+        ++st.datagrams_sent;
+        st.wire_bytes_sent += wire;
+    });
 }
 
 DatagramVerdict ClientStream::on_pose(const wire::Pose& p, const PeerAddress& from, double now) {
@@ -691,10 +711,21 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
         const size_t sent = send_datagram(dgrams[i], peer_, out, scratch.sealed);
         if (adaptive_) rate_.on_sent(first_seq + uint32_t(i), now_us32(), sent + UDP_IP_OVERHEAD);
         book_.sent_at(first_seq + uint32_t(i), now_us32());
+        if (core_.config().repair_lost && adaptive_) {  // kept for a repair (ClientStream::repair)
+            Kept& k = kept_[(first_seq + uint32_t(i)) % kKeptSent];
+            k.seq = first_seq + uint32_t(i);
+            k.tick = frame.tick;
+            k.valid = true;
+            k.repaired = false;
+            const std::span<const uint8_t> bytes = sealer_ ? std::span<const uint8_t>(scratch.sealed) : std::span<const uint8_t>(dgrams[i]);
+            k.bytes.assign(bytes.begin(), bytes.end());
+        }
         wire += sent - dgrams[i].size();  // the seal's 32 bytes count against the rate
     }
     rate_.spend(wire);
     if (!selector_) scheduler_.sent(picks_, frame.tick);
+    newest_tick_sent_ = frame.tick;
+    last_limited_ = selector_ || scheduler_.limited();
     return {dgrams.size(), wire};
 }
 

@@ -262,7 +262,7 @@ private:
     DatagramVerdict on_bind(size_t size, const PeerAddress& from, double now, DatagramSink& out);
     DatagramVerdict on_challenge_response(const wire::ChallengeResponse& r, size_t size, const PeerAddress& from, double now,
                                           DatagramSink& out);
-    DatagramVerdict on_ack(const wire::Ack& a, const PeerAddress& from, double now);
+    DatagramVerdict on_ack(const wire::Ack& a, const PeerAddress& from, double now, DatagramSink& out);
     DatagramVerdict on_pose(const wire::Pose& p, const PeerAddress& from, double now);
     void bind_ack(size_t size, const PeerAddress& from, DatagramSink& out);
     void answer(const flatbuffers::FlatBufferBuilder& fbb, size_t size, const PeerAddress& from, bool unverified, DatagramSink& out);
@@ -308,6 +308,20 @@ private:
     Scheduler scheduler_;
     BaselineBook book_;   // what this client acknowledged: the baselines of predicted records
     std::vector<BaselineBook::LostRun> lost_;  // on_ack's scratch: the bones of datagrams it shows lost
+    // The last frame datagrams as sent (sealed when sealing), for repairs
+    // (ServerConfig::repair_lost): a ring, buffers reused.
+    static constexpr int kRepairTicks = 3;   // a lost datagram of a tick older than this is not sent again
+    static constexpr size_t kKeptSent = 16;
+    struct Kept {
+        uint32_t seq = 0, tick = 0;
+        bool valid = false, repaired = false;
+        std::vector<uint8_t> bytes;
+    };
+    std::array<Kept, kKeptSent> kept_;
+    uint32_t newest_tick_sent_ = 0;
+    bool last_limited_ = true;  // the last tick left something due unsent (no room for repairs)
+    // Sends kept datagram `seq` again when ServerConfig::repair_lost allows it.
+    void repair(uint32_t seq, DatagramSink& out);
     RecordPlan plan_;     // this tick's record choices (set before the scheduler runs)
     Selector selector_;
     ViewSpec view_;

@@ -58,6 +58,12 @@ struct ServerConfig {
     // (proto/crypto.h seal_datagram) with per-session keys sent in the Welcome;
     // unsealed or forged datagrams are dropped and counted.
     bool seal_datagrams = false;
+    // A frame datagram an Ack shows lost (docs/protocol.md "Ack") goes once
+    // more, byte for byte, when its tick is at most kRepairTicks old and the
+    // client's stream has room (its last tick sent everything due within the
+    // budget, and the budget holds it): the client then displays that tick
+    // as sent instead of interpolating across the gap. Off: never.
+    bool repair_lost = true;
     // >= 0 (off by default, -1): a WebSocket endpoint for browsers at
     // ws://bind_address:web_port/ws, or wss:// with TLS (tls_cert_file: the
     // same certificate as the control channel); 0: an ephemeral port
@@ -151,6 +157,9 @@ struct ServerStats {
     uint64_t ticks = 0, datagrams_sent = 0, wire_bytes_sent = 0;
     uint64_t datagrams_received = 0, malformed_datagrams = 0, rejected_datagrams = 0;
     uint64_t late_datagrams = 0;  // of a session closed less than 2 s before (ServerCore::erase)
+    // Frame datagrams sent again, as they were, when an Ack showed them lost
+    // while the client could still display them (ServerConfig::repair_lost).
+    uint64_t datagrams_repaired = 0;
     // The world bus (nats_url): messages and bytes each way, messages dropped
     // (a full queue, no instance id left), malformed, of another catalogue,
     // the other nodes' characters in this scene now.

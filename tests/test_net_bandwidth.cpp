@@ -118,7 +118,7 @@ TEST(NetBandwidth, LossReorderingAndDuplicationDoNoHarm) {
                 (unsigned long long)ls.reordered, (unsigned long long)ls.duplicated);
     EXPECT_GT(ls.dropped, 0u);
     EXPECT_EQ(r.characters, 4);
-    EXPECT_GT(r.loss, 0.03);
+    EXPECT_GT(r.loss, 0.0);  // what the relay dropped, less what went again in time (RepairsFillTheLostTicks)
     EXPECT_LT(r.loss, 0.25);
     EXPECT_GT(r.duplicates, 0u);
     EXPECT_EQ(r.malformed, 0u);
@@ -130,6 +130,47 @@ TEST(NetBandwidth, LossReorderingAndDuplicationDoNoHarm) {
     EXPECT_EQ(r.missing_baselines, 0u);
     for (double k : r.per_second_kbps) EXPECT_GT(k, 50.0);  // the stream keeps flowing every second
     EXPECT_LT(r.rms_pct, kLossyLinkRmsPct);
+}
+
+// ServerConfig::repair_lost: on the lossy link above (the same seeded
+// relay), a datagram an Ack shows lost goes once more while its tick can
+// still be displayed, so the client misses far fewer datagrams than with
+// repairs off (measured: 0.032 against 0.112 of the sequence numbers).
+TEST(NetBandwidth, RepairsFillTheLostTicks) {
+    auto run = [](bool repair, uint64_t& repaired, double& dropped) {
+        ServerConfig cfg;
+        cfg.repair_lost = repair;
+        RunningServer s({}, cfg);
+        LinkConfig lc;
+        lc.loss = 0.10;
+        lc.delay_ms = 10;
+        lc.jitter_ms = 5;
+        lc.seed = 7;
+        LinkEmulator link(lc, "127.0.0.1", s.server->udp_port());
+        link.start();
+        ClientOptions o = s.client(4.0);
+        o.udp_via_host = "127.0.0.1";
+        o.udp_via_port = link.port();
+        o.verify = true;
+        const ClientReport r = run_client(o);
+        link.stop();
+        const LinkStats ls = link.stats();
+        repaired = s.server->stats().datagrams_repaired;
+        dropped = double(ls.dropped) / double(std::max<uint64_t>(1, ls.dropped + ls.forwarded));
+        std::printf("repair %s: the relay dropped %.3f, the client saw %.3f missing, %llu repaired, RMS %.4f%% max %.4f%%\n",
+                    repair ? "on" : "off", dropped, r.loss, (unsigned long long)repaired, r.rms_pct, r.max_pct);
+        EXPECT_EQ(r.missing_baselines, 0u);
+        return r;
+    };
+    uint64_t repaired_on = 0, repaired_off = 0;
+    double dropped_on = 0, dropped_off = 0;
+    const ClientReport on = run(true, repaired_on, dropped_on);
+    const ClientReport off = run(false, repaired_off, dropped_off);
+    EXPECT_GT(repaired_on, 0u);
+    EXPECT_EQ(repaired_off, 0u);
+    ASSERT_GT(dropped_on, 0.03);
+    ASSERT_GT(dropped_off, 0.03);
+    EXPECT_LT(on.loss, 0.5 * off.loss) << "repairs filled fewer than half of the missing datagrams";
 }
 
 TEST(NetBandwidth, EstimateBacksOffOnASlowLink) {
