@@ -110,6 +110,8 @@ static const char* kUsage =
     "  --no-tls          plain TCP control channel, unsealed datagrams (clients: --no-tls)\n"
     "  --seal-datagrams  seal every datagram with per-session keys (default with TLS)\n"
     "  --no-seal-datagrams  TLS without sealed datagrams\n"
+    "  --no-repair       never send a lost frame datagram again (default: once, while its\n"
+    "                    tick can still be displayed and the client's stream has room)\n"
     "  --duration S      stop after S seconds (default: run until SIGINT/SIGTERM)\n"
     "  --stats-every S   every S seconds a line on stderr of what the last S seconds cost:\n"
     "                    sessions, ticks, mean tick, process CPU, datagrams and kbit/s sent,\n"
@@ -221,6 +223,7 @@ static int parse_options(int argc, char** argv, Options& o) {
             else if (a == "--tls-key") cfg.tls_key_file = need(i);
             else if (a == "--seal-datagrams") o.seal = o.seal_asked = true;
             else if (a == "--no-seal-datagrams") o.seal = false;
+            else if (a == "--no-repair") cfg.repair_lost = false;
             else if (a == "--no-tls") o.no_tls = true;
             else if (a == "--tls-dir") o.tls_dir = need(i);
             else if (a == "--duration") o.duration = cli::to_number(a, need(i));
@@ -425,11 +428,11 @@ static void serve(Server& server, double duration, double stats_every) {
 
 static void report(const ServerStats& st) {
     std::fprintf(stderr,
-                 "progskin-server: %llu sessions, %llu datagrams sent, %llu malformed + %llu rejected + %llu late datagrams, "
+                 "progskin-server: %llu sessions, %llu datagrams sent (%llu repairs), %llu malformed + %llu rejected + %llu late datagrams, "
                  "%llu poses received (%llu stale, %llu over the rate limit, %llu out of range, %llu without their baseline), "
                  "mean tick %.3f ms\n",
                  (unsigned long long)st.sessions_total, (unsigned long long)st.datagrams_sent,
-                 (unsigned long long)st.malformed_datagrams, (unsigned long long)st.rejected_datagrams,
+                 (unsigned long long)st.datagrams_repaired, (unsigned long long)st.malformed_datagrams, (unsigned long long)st.rejected_datagrams,
                  (unsigned long long)st.late_datagrams,
                  (unsigned long long)st.poses_received, (unsigned long long)st.poses_stale,
                  (unsigned long long)st.poses_rate_limited, (unsigned long long)st.poses_out_of_range,
