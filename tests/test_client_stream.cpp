@@ -4,6 +4,8 @@
 // times, a sink that keeps what would have been sent.
 #include <gtest/gtest.h>
 
+#include <map>
+
 #include <set>
 
 #include "client_stream.h"
@@ -34,9 +36,9 @@ std::vector<uint8_t> hello(uint32_t max_kbps) {
     return bytes_of(fbb);
 }
 
-std::vector<uint8_t> ack(const ClientStream& s, uint32_t seq) {
+std::vector<uint8_t> ack(const ClientStream& s, uint32_t seq, uint32_t bits = 0xffffffffu) {
     flatbuffers::FlatBufferBuilder fbb;
-    auto a = wire::CreateAck(fbb, s.id(), s.token(), seq, 0xffffffffu, now_us32(), 0);
+    auto a = wire::CreateAck(fbb, s.id(), s.token(), seq, bits, now_us32(), 0);
     fbb.Finish(wire::CreateDatagram(fbb, 0, 0, wire::DatagramBody::Ack, a.Union()), wire::DatagramIdentifier());
     return bytes_of(fbb);
 }
@@ -235,6 +237,54 @@ TEST(ClientStream, TickSendsFramesWithinTheBudget) {
         }
         EXPECT_EQ(bytes, r.wire_bytes);
         EXPECT_LE(r.wire_bytes, budget);
+    }
+}
+
+// Repairs (ServerConfig::repair_lost) under Acks that lie: a client that
+// acknowledges only its even datagrams, every odd one "lost",
+// gets each of its recent frame datagrams at most once more, byte for byte,
+// only at its bound address, and its stream stays within its cap; with
+// repairs off, none.
+TEST(ClientStream, LyingAcksGetEachDatagramAtMostOnceMoreWithinTheCap) {
+    for (const bool repair : {true, false}) {
+        Fixture f(256);
+        f.cfg.repair_lost = repair;  // read by the core's sessions through its config
+        f.core = std::make_unique<ServerCore>(f.cfg, default_assets(), default_instances(default_assets()));
+        f.core->set_udp_port(4242);
+        f.s = f.core->open(kTcp, 100.0);
+        ASSERT_TRUE(f.s->on_control(hello(256), 100.0));
+        f.bind(kHome, 101.0);
+        ASSERT_EQ(f.s->state(), SessionState::Streaming);
+        f.sink.sent.clear();
+        for (int t = 1; t <= 90; ++t) {
+            const double now = 102.0 + t / 30.0;
+            // Only the even datagrams are acknowledged: every odd one "lost".
+            if (f.s->seq() > 0 && (f.s->seq() - 1) % 2 == 0) f.core->on_datagram(ack(*f.s, f.s->seq() - 1, 0), kHome, now, f.sink);
+            f.core->tick(now, f.sink);
+        }
+        std::map<std::vector<uint8_t>, int> copies;
+        size_t wire = 0;
+        for (const auto& d : f.sink.sent) {
+            EXPECT_TRUE(d.to == kHome);
+            ++copies[d.bytes];
+            wire += d.bytes.size() + UDP_IP_OVERHEAD;
+        }
+        size_t repeated = 0;
+        for (const auto& [bytes, n] : copies) {
+            EXPECT_LE(n, 2) << "a datagram went more than once again";
+            repeated += size_t(n - 1);
+        }
+        const uint64_t repaired = f.core->stats().datagrams_repaired;
+        std::printf("repair %s: %zu datagrams, %llu repairs, %zu repeated, %.1f kbit/s (cap 256)\n", repair ? "on" : "off",
+                    f.sink.sent.size(), (unsigned long long)repaired, repeated, double(wire) * 8 / 1000 / 3.0);
+        EXPECT_EQ(repeated, size_t(repaired));
+        EXPECT_LE(double(wire), 1.04 * 3 * 256 * 125 + 4000);
+        if (repair) {
+            EXPECT_GT(repaired, 0u);
+            EXPECT_LT(repaired, f.sink.sent.size() / 2 + 1);
+        } else {
+            EXPECT_EQ(repaired, 0u);
+        }
     }
 }
 
