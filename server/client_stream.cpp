@@ -479,7 +479,7 @@ DatagramVerdict ClientStream::on_ack(const wire::Ack& a, const PeerAddress& from
 }
 
 void ClientStream::repair(uint32_t seq, DatagramSink& out) {
-    if (!core_.config().repair_lost || last_limited_ || !bound_) return;
+    if (!core_.config().repair_lost || last_limited_) return;  // on_ack: bound
     Kept& k = kept_[seq % kKeptSent];
     if (!k.valid || k.seq != seq || k.repaired || int32_t(newest_tick_sent_ - k.tick) > kRepairTicks) return;
     const size_t wire = k.bytes.size() + UDP_IP_OVERHEAD;

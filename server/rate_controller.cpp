@@ -135,7 +135,7 @@ void RateController::update(double now) {
     loss_lost_ += win_lost_;
     const uint64_t loss_judged = loss_acked_ + loss_lost_;
     if (loss_since_ < 0) loss_since_ = last_update_;
-    const bool judge_loss = loss_judged >= kLossSamples || (loss_judged >= 4 && now - loss_since_ >= 2.0);
+    const bool judge_loss = loss_judged >= loss_samples_ || (loss_judged >= 4 && now - loss_since_ >= 2.0);
     if (judge_loss) {
         loss_ = double(loss_lost_) / double(loss_judged);
         loss_acked_ = loss_lost_ = 0;

@@ -67,6 +67,9 @@ public:
     double target_kbps() const { return estimate_kbps_ < cap_kbps_ ? estimate_kbps_ : cap_kbps_; }
     // Loss is judged over at least this many datagrams (or 2 s, from 4).
     static constexpr uint64_t kLossSamples = 32;
+    // Another floor (tests: 4 judges about every 250 ms window at a
+    // datagram per tick, the rule before kLossSamples).
+    void set_loss_samples(uint64_t n) { loss_samples_ = n; }
     double loss() const { return loss_; }       // the last judged loss fraction (kLossSamples)
     bool in_slow_start() const { return slow_start_; }
     // Off: probe by 10% per window from the start (the behaviour before slow
@@ -92,6 +95,7 @@ private:
     bool any_ack_ = false;
     uint64_t win_acked_bytes_ = 0, win_acked_ = 0, win_lost_ = 0, acked_total_ = 0, lost_total_ = 0;
     uint64_t loss_acked_ = 0, loss_lost_ = 0;  // since the loss was last judged
+    uint64_t loss_samples_ = kLossSamples;
     double loss_since_ = -1;
     double loss_ = 0, srtt_ms_ = 0, min_rtt_ms_ = 1e9, min_rtt_age_ = 0;
     double last_update_ = -1;
