@@ -131,6 +131,11 @@ void Scheduler::reset(size_t n) {
     order_at_.assign(n, 0);
     order_state_.assign(n, 0);
     morph_.assign(n, {});
+    current_.assign(n, 0);
+    least_.assign(n, SIZE_MAX);
+    spent_.assign(n, 0);
+    floor_bytes_.assign(n, 0);
+    share_left_.assign(n, 0);
     heap_.clear();
     heap_.reserve(n * 2);
 }
@@ -153,6 +158,7 @@ void Scheduler::track_slots(const EncodedFrame& frame) {
         order_state_.resize(n, 0);
         morph_.resize(n);
         current_.resize(n, 0);
+        least_.resize(n, SIZE_MAX);
         spent_.resize(n, 0);
         floor_bytes_.resize(n, 0);
         share_left_.resize(n, 0);
@@ -170,7 +176,23 @@ size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::
                               std::span<const float> importance) {
     size_t full = 0;
     std::fill(group_full_.begin(), group_full_.end(), 0);
-    for (const uint32_t i : active_) {
+    // The first pass over this client's per-instance state this tick: the
+    // state of instances a few ahead is fetched from memory meanwhile (each
+    // client's state is cold: the other clients' ticks ran since).
+    constexpr size_t kAhead = 4;
+    for (size_t k = 0; k < active_.size(); ++k) {
+        if (k + 2 * kAhead < active_.size()) {
+            const uint32_t j = active_[k + 2 * kAhead];
+            __builtin_prefetch(&state_[j]);
+            __builtin_prefetch(reinterpret_cast<const char*>(&state_[j]) + 64);
+            __builtin_prefetch(&items_[j]);
+            __builtin_prefetch(&chain_[j]);
+        }
+        if (k + kAhead < active_.size()) {
+            const State& ahead = state_[active_[k + kAhead]];
+            if (!ahead.bone_tick.empty()) __builtin_prefetch(ahead.bone_tick.data());
+        }
+        const uint32_t i = active_[k];
         const auto& e = frame.instances[i];
         morph_[i] = MorphItem{};
         current_[i] = 0;
@@ -218,38 +240,51 @@ void Scheduler::pick_everything(const EncodedFrame& frame, bool except_over_shar
 
 // Instance i's segments as items: value and bytes (scheduler.h). Shown
 // segments (a prefix) are refresh items on their own; the ones after them
-// are offered as the steps of their hull (offer_chain).
-void Scheduler::segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30) {
+// are offered as the steps of their hull (offer_chain). One pass over the
+// segments (and over each segment's bones once), which also finds what
+// offer_items offers: the best shown item by value per (records + chunk
+// header) (offer_unpaid's choice before anything is taken), the first
+// unshown segment and the smallest item.
+Scheduler::Offer Scheduler::segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30) {
     auto& items = items_[i];
     const auto& e = frame.instances[i];
-    const State& st = state_[i];
+    const uint32_t* tick_of = state_[i].bone_tick.data();
     const uint32_t* bits = plan_ ? plan_->bit_prefix(frame, int(i)) : frame.bit_prefix(int(i));  // record_bits
+    const bool changed_now = e.changed_tick == frame.tick;
+    const double header = double(header_[i]);
+    const size_t n = a.segments.size();
+    items.resize(n);
+    Offer o;
+    o.unshown = n;
     bool shown = true;
-    for (size_t q = 0; q < a.segments.size(); ++q) {
+    size_t cb = 0;
+    double cv = 0;
+    for (size_t q = 0; q < n; ++q) {
         const ServerAsset::Segment& seg = a.segments[q];
         const int m = std::clamp(e.model, 0, int(seg.gap.size()) - 1);
         const size_t b = std::max<size_t>(1, (size_t(bits[seg.to] - bits[seg.from]) + 7) / 8);  // the real bits of its records
         // Shown: bone 0 once received (the client never drops it), every
-        // further bone up to here refreshed within the hold.
-        for (int x = seg.from; x < seg.to && shown; ++x) {
-            const uint32_t t = st.bone_tick[size_t(x)];
-            if (t == 0 || (x > 0 && int32_t(frame.tick - t) >= HOLD_TICKS)) shown = false;
-        }
-        // Current: every bone sent since the content last changed (a live
-        // character not posed again): worth nothing until its hold runs out.
-        bool current = true;
-        for (int x = seg.from; x < seg.to && current; ++x) {
-            const uint32_t t = st.bone_tick[size_t(x)];
-            current = e.changed_tick != frame.tick && t != 0 && int32_t(t - e.changed_tick) >= 0;
+        // further bone up to here refreshed within the hold. Current: every
+        // bone sent since the content last changed (a live character not
+        // posed again): worth nothing until its hold runs out.
+        bool current = !changed_now;
+        for (int x = seg.from; x < seg.to && (shown || current); ++x) {
+            const uint32_t t = tick_of[x];
+            if (t == 0) {
+                shown = current = false;
+                break;
+            }
+            if (x > 0 && int32_t(frame.tick - t) >= HOLD_TICKS) shown = false;
+            if (int32_t(t - e.changed_tick) < 0) current = false;
         }
         double v;
         bool idle = false;
         if (shown && current) {
-            const int32_t age = int32_t(frame.tick - st.bone_tick[size_t(seg.to - 1)]);
+            const int32_t age = int32_t(frame.tick - tick_of[seg.to - 1]);
             idle = q == 0 || age < HOLD_TICKS - 1;  // bone 0 is never dropped
             v = idle ? 0.0 : seg.show_value[size_t(m)];
         } else if (shown) {
-            const int32_t age = std::max(1, int32_t(frame.tick - st.bone_tick[size_t(seg.to - 1)]));
+            const int32_t age = std::max(1, int32_t(frame.tick - tick_of[seg.to - 1]));
             const double g = double(age) * to30;
             if (g == double(age) && age < ServerAsset::kGapTable) v = seg.refresh[size_t(m)][size_t(age)];
             else v = g * (g + 1.0) * (seg.gap_at(m, g + 1.0) - seg.gap_at(m, g));
@@ -260,24 +295,39 @@ void Scheduler::segment_items(size_t i, const EncodedFrame& frame, const ServerA
             // Not shown: worth its collapse error over the refresh period that
             // makes showing it most worthwhile (scene.h show_value).
             v = seg.show_value[size_t(m)];
+            if (o.unshown == n) o.unshown = q;
         }
-        items.push_back({w * v, b, seg.from, seg.to, shown, false, false, idle});
+        SegItem& it = items[q];
+        it = {w * v, b, seg.from, seg.to, shown, false, false, idle};
+        o.least = std::min(o.least, b);
+        if (!shown) {  // the hull's first vertex after the first unshown segment, as extend_chain finds it
+            cb += b;
+            cv += it.value;
+            const ChainPoint pt{int(q + 1), cb, cv};
+            if (q == o.unshown || double(o.hull.bytes) * pt.value - double(pt.bytes) * o.hull.value >= 0) o.hull = pt;
+        }
+        if (shown && it.value > 0) {
+            const double r = it.value / (double(it.bytes) + header);
+            if (r > o.ratio) {
+                o.ratio = r;
+                o.best = int(q);
+            }
+        }
     }
+    return o;
 }
 
 // The unshown segments of instance i can only be shown in order: the upper
 // concave hull of their cumulative (bytes, value), its first step offered.
 // The hull is built as the greedy walks it (extend_chain): one step is
 // offered at a time, and most instances take none or one in a tick.
-void Scheduler::offer_chain(size_t i, uint32_t age) {
-    const auto& items = items_[i];
+void Scheduler::offer_chain(size_t i, uint32_t age, const Offer& o) {
     auto& chain = chain_[i];
     chain.clear();
-    size_t u = 0;
-    while (u < items.size() && items[u].shown) ++u;
-    if (u == items.size()) return;
-    chain.push_back({int(u), 0, 0.0});
-    if (extend_chain(i) && chain[1].value > 0) {
+    if (o.unshown >= items_[i].size()) return;
+    chain.push_back({int(o.unshown), 0, 0.0});
+    chain.push_back(o.hull);  // extend_chain's first step, found by segment_items
+    if (chain[1].value > 0) {
         push({chain[1].value / double(chain[1].bytes + header_[i]), int(i), 1, age, true, false});
         chain_next_[i] = 1;
     }
@@ -311,6 +361,7 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
                             std::span<const float> importance, float tick_rate, bool only_over_share) {
     const double to30 = 30.0 / std::max(1.0f, tick_rate);
     heap_.clear();
+    least_unpaid_ = least_paid_ = SIZE_MAX;
     for (const uint32_t i : active_) {
         items_[i].clear();
         const auto& e = frame.instances[i];
@@ -325,12 +376,16 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
         // (the RMS of docs/metrics.md §2 pools all vertices of all characters).
         const double w = double(importance[i]) * double(importance[i]) * double(a.character.vertex_count());
         const uint32_t stale = st.bone_tick[0] != 0 ? frame.tick - st.bone_tick[0] : UINT32_MAX;
-        segment_items(i, frame, a, w, to30);
-        offer_unpaid(int(i), stale);
+        const Offer o = segment_items(i, frame, a, w, to30);
+        // The fewest bytes any of its steps can take (take_greedily's stop).
+        const size_t least = std::min(o.least, morph_[i].value > 0 ? morph_[i].bytes : SIZE_MAX);
+        least_[i] = least;
+        if (least != SIZE_MAX) least_unpaid_ = std::min(least_unpaid_, least + header_[i]);
+        if (o.best >= 0) push({o.ratio, int(i), o.best, stale, false, false});  // offer_unpaid's choice
         // The morph item: on its own only once bone 0 was sent (its chunk needs show >= 1).
         if (morph_[i].value > 0 && st.bone_tick[0] != 0)
             push({morph_[i].value / double(morph_[i].bytes + header_[i]), int(i), 0, stale, false, false, true});
-        offer_chain(i, stale);
+        offer_chain(i, stale, o);
     }
 }
 
@@ -339,7 +394,19 @@ void Scheduler::take_greedily(size_t budget, size_t payload) {
     taken_ = &payload;
     budget_ = budget;
     while (!heap_.empty()) {  // (push keeps heap_ a heap)
-        if (WireCost::wire(payload + 1) > budget) break;  // not even the smallest record fits
+        // Nothing left can fit: every step takes at least the bytes of
+        // its instance's smallest item (plus its chunk header until paid),
+        // and the payload only grows (the refusals would be all that is left).
+        const size_t least = std::max<size_t>(1, std::min(least_unpaid_, least_paid_));
+        if (least > budget || WireCost::wire(payload + least) > budget) break;
+        // No instance not paid yet can take anything (its header with its
+        // smallest item does not fit): its steps leave the heap at once
+        // rather than each being popped and refused.
+        if (least_unpaid_ != SIZE_MAX && (least_unpaid_ > budget || WireCost::wire(payload + least_unpaid_) > budget)) {
+            least_unpaid_ = SIZE_MAX;
+            keep_paid_steps();
+            continue;
+        }
         const Step s = pop();
         const size_t inst = size_t(s.instance);
         if (s.floor && spent_[inst] >= floor_bytes_[inst]) {  // its floor is spent: it waits its turn by ratio
@@ -375,21 +442,32 @@ Scheduler::Step Scheduler::pop() {
     const Step top = heap_.front();
     const Step last = heap_.back();
     heap_.pop_back();
+    if (!heap_.empty()) sift_down(0, last);
+    return top;
+}
+
+void Scheduler::sift_down(size_t k, const Step& s) {
     const size_t n = heap_.size();
-    if (n == 0) return top;
-    size_t k = 0;
     for (;;) {
         const size_t c = 4 * k + 1;
         if (c >= n) break;
         size_t best = c;
         for (size_t j = c + 1; j < std::min(c + 4, n); ++j)
             if (heap_[best] < heap_[j]) best = j;
-        if (!(last < heap_[best])) break;
+        if (!(s < heap_[best])) break;
         heap_[k] = heap_[best];
         k = best;
     }
-    heap_[k] = last;
-    return top;
+    heap_[k] = s;
+}
+
+// The steps of paid instances at their records-only ratio, made a heap
+// again (bottom up, O(steps)).
+void Scheduler::keep_paid_steps() {
+    heap_.erase(std::remove_if(heap_.begin(), heap_.end(), [&](const Step& s) { return !s.paid || !paid_[size_t(s.instance)]; }),
+                heap_.end());
+    for (size_t k = heap_.size() / 4 + 1; k-- > 0;)
+        if (k < heap_.size()) sift_down(k, Step(heap_[k]));
 }
 
 void Scheduler::charge(size_t inst, size_t bytes, size_t& payload) {
@@ -514,6 +592,7 @@ bool Scheduler::left_something() const {
 void Scheduler::chosen_picks(std::vector<Pick>& out) const {
     for (const uint32_t i : active_) {
         const auto& items = items_[i];
+        if (items.empty() || !paid_[i]) continue;  // nothing taken (every take pays the instance's header)
         int show = 0;
         for (const SegItem& it : items) {
             if (!(it.chosen || it.shown)) break;
@@ -695,6 +774,7 @@ size_t Scheduler::take_stale_roots(const EncodedFrame& frame, size_t budget, siz
 void Scheduler::pay(int instance, uint32_t age) {
     const size_t i = size_t(instance);
     paid_[i] = 1;
+    least_paid_ = std::min(least_paid_, least_[i]);
     order_state_[i] = 0;
     offer_paid(instance, age);
     if (morph_[i].value > 0 && !morph_[i].chosen) {

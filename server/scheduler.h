@@ -241,8 +241,21 @@ private:
     // only_over_share: the instances of groups over their share only.
     void offer_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                      std::span<const float> importance, float tick_rate, bool only_over_share);
-    void segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30);
-    void offer_chain(size_t i, uint32_t age);
+    struct ChainPoint {
+        int end;       // items [previous end, end) of the instance
+        size_t bytes;  // cumulative
+        double value;  // cumulative
+    };
+    // What offer_items offers of an instance, found as its items are made.
+    struct Offer {
+        int best = -1;        // the shown item of best value per (records + header), -1: none
+        double ratio = 0;     // its ratio
+        size_t unshown = 0;   // the first segment not shown (the segment count: none)
+        size_t least = SIZE_MAX;  // the smallest item's bytes
+        ChainPoint hull{};    // the hull's vertex after the first unshown segment's start (extend_chain)
+    };
+    Offer segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30);
+    void offer_chain(size_t i, uint32_t age, const Offer& o);
     bool extend_chain(size_t i);  // appends the hull's next vertex to chain_[i]; false at the end
     void take_greedily(size_t budget, size_t payload);  // payload: already taken
     // The floor (ROOT_REFRESH_TICKS): bone 0 of the stale instances, stalest
@@ -269,11 +282,6 @@ private:
     bool fits(size_t bytes) const { return !taken_ || WireCost::wire(*taken_ + bytes) <= budget_; }
     std::vector<State> state_;
     std::vector<uint32_t> generation_;              // per instance: the slot generation state_ belongs to
-    struct ChainPoint {
-        int end;       // items [previous end, end) of the instance
-        size_t bytes;  // cumulative
-        double value;  // cumulative
-    };
     // Value per record byte of hull step c (from point c - 1 to c).
     static double step_ratio(const std::vector<ChainPoint>& chain, int c);
     std::vector<std::vector<SegItem>> items_;       // per instance, per segment
@@ -287,6 +295,11 @@ private:
     std::vector<size_t> header_;                    // per instance: WireCost::header of its bones
     std::vector<MorphItem> morph_;                  // per instance
     std::vector<uint8_t> current_;                  // per instance: up_to_date this tick
+    // The fewest payload bytes a step can take: per offered instance, its
+    // smallest item (records or morph block); over the instances offered,
+    // that plus the chunk header; over the paid ones, that alone.
+    std::vector<size_t> least_;
+    size_t least_unpaid_ = SIZE_MAX, least_paid_ = SIZE_MAX;
     // This tick's instances (valid, importance > 0), ascending: the only
     // ones any per-instance pass reads or writes (per-instance arrays hold
     // stale values for the others).
@@ -295,6 +308,8 @@ private:
     // Offers step s (its floor flag set from its instance's spending).
     void push(Step s);
     Step pop();  // the greatest step (heap_ not empty)
+    void sift_down(size_t k, const Step& s);  // places s at k or below
+    void keep_paid_steps();  // drops the steps of instances not paid (and the unpaid offers of paid ones)
     // Instance inst takes `bytes` more payload (payload, its floor's count).
     void charge(size_t inst, size_t bytes, size_t& payload);
     // Each offered instance's floor this tick (set_floor), from the budget.
