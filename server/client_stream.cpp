@@ -690,7 +690,7 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
         const ServerConfig& cfg = core_.config();
         scheduler_.set_shares(core_.owner_groups(), cfg.owner_share_kbps > 0 ? size_t(cfg.owner_share_kbps * 125.0 / cfg.tick_rate) : 0);
         scheduler_.set_floor(cfg.fair_floor);
-        scheduler_.select(frame, core_.assets(), importance_, budget, cfg.tick_rate, picks_);
+        scheduler_.select(frame, core_.assets(), importance_, budget, cfg.tick_rate, picks_, scratch.schedule);
         if (scheduler_.limited()) rate_.mark_limited();
     }
     // Pose acks that changed go with the first datagram; with nothing else

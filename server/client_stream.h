@@ -93,6 +93,7 @@ enum class DatagramVerdict { accepted, rejected, malformed };
 // that sessions ticked at once on several threads share nothing writable.
 struct TickScratch {
     DatagramPacker packer;
+    Scheduler::Scratch schedule;  // the scheduler's per-tick working memory (Scheduler::Scratch)
     std::vector<std::vector<uint8_t>> datagrams;
     std::vector<uint8_t> sealed;
 };

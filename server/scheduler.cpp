@@ -121,13 +121,11 @@ static_assert(HOLD_TICKS < ServerAsset::kGapTable, "the gap and refresh tables c
 void Scheduler::reset(size_t n) {
     state_.assign(n, State{});
     generation_.assign(n, 0);
-    items_.assign(n, {});
-    chain_.assign(n, {});
+    slot_.assign(n, {});
     paid_.assign(n, 0);
     chain_next_.assign(n, 0);
     chain_tried_.assign(n, 0);
     header_.assign(n, 0);
-    order_.assign(n, {});
     order_at_.assign(n, 0);
     order_state_.assign(n, 0);
     morph_.assign(n, {});
@@ -136,8 +134,6 @@ void Scheduler::reset(size_t n) {
     spent_.assign(n, 0);
     floor_bytes_.assign(n, 0);
     share_left_.assign(n, 0);
-    heap_.clear();
-    heap_.reserve(n * 2);
 }
 
 // Slots added since the last tick: grow, keeping every other instance's
@@ -147,13 +143,11 @@ void Scheduler::track_slots(const EncodedFrame& frame) {
     if (state_.size() != n) {
         state_.resize(n);
         generation_.resize(n, 0);
-        items_.resize(n);
-        chain_.resize(n);
+        slot_.resize(n);
         paid_.resize(n, 0);
         chain_next_.resize(n, 0);
         chain_tried_.resize(n, 0);
         header_.resize(n, 0);
-        order_.resize(n);
         order_at_.resize(n, 0);
         order_state_.resize(n, 0);
         morph_.resize(n);
@@ -185,8 +179,7 @@ size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::
             const uint32_t j = active_[k + 2 * kAhead];
             __builtin_prefetch(&state_[j]);
             __builtin_prefetch(reinterpret_cast<const char*>(&state_[j]) + 64);
-            __builtin_prefetch(&items_[j]);
-            __builtin_prefetch(&chain_[j]);
+            __builtin_prefetch(&slot_[j]);
         }
         if (k + kAhead < active_.size()) {
             const State& ahead = state_[active_[k + kAhead]];
@@ -246,14 +239,13 @@ void Scheduler::pick_everything(const EncodedFrame& frame, bool except_over_shar
 // header) (offer_unpaid's choice before anything is taken), the first
 // unshown segment and the smallest item.
 Scheduler::Offer Scheduler::segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30) {
-    auto& items = items_[i];
+    const std::span<SegItem> items = items_of(i);
     const auto& e = frame.instances[i];
     const uint32_t* tick_of = state_[i].bone_tick.data();
     const uint32_t* bits = plan_ ? plan_->bit_prefix(frame, int(i)) : frame.bit_prefix(int(i));  // record_bits
     const bool changed_now = e.changed_tick == frame.tick;
     const double header = double(header_[i]);
-    const size_t n = a.segments.size();
-    items.resize(n);
+    const size_t n = items.size();  // a.segments.size(): offer_items placed them
     Offer o;
     o.unshown = n;
     bool shown = true;
@@ -322,9 +314,9 @@ Scheduler::Offer Scheduler::segment_items(size_t i, const EncodedFrame& frame, c
 // The hull is built as the greedy walks it (extend_chain): one step is
 // offered at a time, and most instances take none or one in a tick.
 void Scheduler::offer_chain(size_t i, uint32_t age, const Offer& o) {
-    auto& chain = chain_[i];
+    const Chain chain = chain_of(i);
     chain.clear();
-    if (o.unshown >= items_[i].size()) return;
+    if (o.unshown >= slot_[i].n) return;
     chain.push_back({int(o.unshown), 0, 0.0});
     chain.push_back(o.hull);  // extend_chain's first step, found by segment_items
     if (chain[1].value > 0) {
@@ -333,12 +325,12 @@ void Scheduler::offer_chain(size_t i, uint32_t age, const Offer& o) {
     }
 }
 
-// The hull's next vertex after chain_[i].back(): the point after it whose
+// The hull's next vertex after chain_of(i).back(): the point after it whose
 // step has the greatest value per byte (of equal ones the farthest, as the
 // hull drops collinear points). O(segments after it).
 bool Scheduler::extend_chain(size_t i) {
-    const auto& items = items_[i];
-    auto& chain = chain_[i];
+    const std::span<const SegItem> items = items_of(i);
+    const Chain chain = chain_of(i);
     const ChainPoint p0 = chain.back();
     if (size_t(p0.end) >= items.size()) return false;
     size_t cb = p0.bytes;
@@ -356,17 +348,37 @@ bool Scheduler::extend_chain(size_t i) {
     return true;
 }
 
+// Room in the scratch for instance i's n items, its hull (n + 1 points)
+// and its order (n); the scratch grows only past its largest tick.
+void Scheduler::place(size_t i, size_t n) {
+    Scratch& sc = *sc_;
+    Slot& s = slot_[i];
+    s.items = uint32_t(sc.items_used);
+    s.chain = uint32_t(sc.chain_used);
+    s.order = uint32_t(sc.order_used);
+    s.n = uint16_t(n);
+    s.chain_n = s.order_n = 0;
+    sc.items_used += n;
+    sc.chain_used += n + 1;
+    sc.order_used += n;
+    if (sc.items.size() < sc.items_used) sc.items.resize(sc.items_used);
+    if (sc.chain.size() < sc.chain_used) sc.chain.resize(sc.chain_used);
+    if (sc.order.size() < sc.order_used) sc.order.resize(sc.order_used);
+}
+
 // Every important instance's items offered to the heap (before any header is paid).
 void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                             std::span<const float> importance, float tick_rate, bool only_over_share) {
     const double to30 = 30.0 / std::max(1.0f, tick_rate);
-    heap_.clear();
+    sc_->heap.clear();
+    sc_->items_used = sc_->chain_used = sc_->order_used = 0;
     least_unpaid_ = least_paid_ = SIZE_MAX;
     for (const uint32_t i : active_) {
-        items_[i].clear();
+        slot_[i].n = 0;
         const auto& e = frame.instances[i];
         if (current_[i] || (only_over_share && !over_share(i))) continue;
         const ServerAsset& a = *assets[size_t(e.asset)];
+        place(i, a.segments.size());
         paid_[i] = 0;
         chain_next_[i] = 0;
         chain_tried_[i] = 0;
@@ -393,7 +405,7 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
 void Scheduler::take_greedily(size_t budget, size_t payload) {
     taken_ = &payload;
     budget_ = budget;
-    while (!heap_.empty()) {  // (push keeps heap_ a heap)
+    while (!sc_->heap.empty()) {  // (push keeps the heap a heap)
         // Nothing left can fit: every step takes at least the bytes of
         // its instance's smallest item (plus its chunk header until paid),
         // and the payload only grows (the refusals would be all that is left).
@@ -422,52 +434,52 @@ void Scheduler::take_greedily(size_t budget, size_t payload) {
     taken_ = nullptr;
 }
 
-// heap_ is a 4-ary max-heap (half the depth of a binary one; Step's order
+// The heap is a 4-ary max-heap (half the depth of a binary one; Step's order
 // is total, so any heap pops the same sequence).
 void Scheduler::push(Step s) {
     const size_t i = size_t(s.instance);
     s.floor = spent_[i] < floor_bytes_[i];
-    heap_.push_back(s);
-    size_t k = heap_.size() - 1;
+    sc_->heap.push_back(s);
+    size_t k = sc_->heap.size() - 1;
     while (k > 0) {
         const size_t parent = (k - 1) / 4;
-        if (!(heap_[parent] < s)) break;
-        heap_[k] = heap_[parent];
+        if (!(sc_->heap[parent] < s)) break;
+        sc_->heap[k] = sc_->heap[parent];
         k = parent;
     }
-    heap_[k] = s;
+    sc_->heap[k] = s;
 }
 
 Scheduler::Step Scheduler::pop() {
-    const Step top = heap_.front();
-    const Step last = heap_.back();
-    heap_.pop_back();
-    if (!heap_.empty()) sift_down(0, last);
+    const Step top = sc_->heap.front();
+    const Step last = sc_->heap.back();
+    sc_->heap.pop_back();
+    if (!sc_->heap.empty()) sift_down(0, last);
     return top;
 }
 
 void Scheduler::sift_down(size_t k, const Step& s) {
-    const size_t n = heap_.size();
+    const size_t n = sc_->heap.size();
     for (;;) {
         const size_t c = 4 * k + 1;
         if (c >= n) break;
         size_t best = c;
         for (size_t j = c + 1; j < std::min(c + 4, n); ++j)
-            if (heap_[best] < heap_[j]) best = j;
-        if (!(s < heap_[best])) break;
-        heap_[k] = heap_[best];
+            if (sc_->heap[best] < sc_->heap[j]) best = j;
+        if (!(s < sc_->heap[best])) break;
+        sc_->heap[k] = sc_->heap[best];
         k = best;
     }
-    heap_[k] = s;
+    sc_->heap[k] = s;
 }
 
 // The steps of paid instances at their records-only ratio, made a heap
 // again (bottom up, O(steps)).
 void Scheduler::keep_paid_steps() {
-    heap_.erase(std::remove_if(heap_.begin(), heap_.end(), [&](const Step& s) { return !s.paid || !paid_[size_t(s.instance)]; }),
-                heap_.end());
-    for (size_t k = heap_.size() / 4 + 1; k-- > 0;)
-        if (k < heap_.size()) sift_down(k, Step(heap_[k]));
+    sc_->heap.erase(std::remove_if(sc_->heap.begin(), sc_->heap.end(), [&](const Step& s) { return !s.paid || !paid_[size_t(s.instance)]; }),
+                sc_->heap.end());
+    for (size_t k = sc_->heap.size() / 4 + 1; k-- > 0;)
+        if (k < sc_->heap.size()) sift_down(k, Step(sc_->heap[k]));
 }
 
 void Scheduler::charge(size_t inst, size_t bytes, size_t& payload) {
@@ -517,7 +529,7 @@ void Scheduler::take_morph(const Step& s, size_t header, size_t budget, size_t& 
 
 void Scheduler::take_chain_step(const Step& s, size_t header, size_t budget, size_t& payload) {
     const size_t inst = size_t(s.instance);
-    const auto& chain = chain_[inst];
+    const Chain chain = chain_of(inst);
     const ChainPoint& p0 = chain[size_t(s.step - 1)];
     const ChainPoint& p1 = chain[size_t(s.step)];
     const size_t bytes = p1.bytes - p0.bytes + header;
@@ -533,7 +545,7 @@ void Scheduler::take_chain_step(const Step& s, size_t header, size_t budget, siz
         return;
     }
     charge(inst, bytes, payload);
-    for (int q = p0.end; q < p1.end; ++q) items_[inst][size_t(q)].chosen = true;
+    for (int q = p0.end; q < p1.end; ++q) items_of(inst)[size_t(q)].chosen = true;
     if (!paid_[inst]) pay(s.instance, s.age);
     if (size_t(s.step) + 1 < chain.size() || extend_chain(inst)) {
         const double r = step_ratio(chain, s.step + 1);
@@ -546,7 +558,7 @@ void Scheduler::take_chain_step(const Step& s, size_t header, size_t budget, siz
 
 void Scheduler::take_segment(const Step& s, size_t header, size_t budget, size_t& payload) {
     const size_t inst = size_t(s.instance);
-    SegItem& it = items_[inst][size_t(s.step)];
+    SegItem& it = items_of(inst)[size_t(s.step)];
     if (s.single) {  // an unshown segment on its own: the next one follows it if it goes
         if (it.chosen || WireCost::wire(payload + it.bytes + header) > budget || !share_allows(inst, it.bytes + header)) return;
         charge(inst, it.bytes + header, payload);
@@ -581,7 +593,7 @@ bool Scheduler::left_something() const {
     for (const uint32_t i : active_) {
         if (share_left_[i]) continue;  // its owner's share, not the rate, held it back
         if (morph_[i].value > 0 && !morph_[i].chosen) return true;
-        for (const SegItem& it : items_[i])
+        for (const SegItem& it : items_of(i))
             if (!it.chosen && !it.idle) return true;
     }
     return false;
@@ -591,7 +603,7 @@ bool Scheduler::left_something() const {
 // prefix of segments shown from now on (chosen now or refreshed within the hold).
 void Scheduler::chosen_picks(std::vector<Pick>& out) const {
     for (const uint32_t i : active_) {
-        const auto& items = items_[i];
+        const std::span<const SegItem> items = items_of(i);
         if (items.empty() || !paid_[i]) continue;  // nothing taken (every take pays the instance's header)
         int show = 0;
         for (const SegItem& it : items) {
@@ -625,6 +637,13 @@ size_t Scheduler::estimate(const EncodedFrame& frame, std::span<const Pick> pick
 
 size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                          std::span<const float> importance, size_t budget, float tick_rate, std::vector<Pick>& out) {
+    return select(frame, assets, importance, budget, tick_rate, out, own_);
+}
+
+size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
+                         std::span<const float> importance, size_t budget, float tick_rate, std::vector<Pick>& out,
+                         Scratch& scratch) {
+    sc_ = &scratch;
     out.clear();
     // The instances this tick weighs (valid, importance > 0), ascending:
     // every per-instance pass below walks them only, so a client's tick
@@ -700,12 +719,12 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     return estimate(frame, out);
 }
 
-double Scheduler::step_ratio(const std::vector<ChainPoint>& chain, int c) {
+double Scheduler::step_ratio(const Chain& chain, int c) {
     return (chain[size_t(c)].value - chain[size_t(c - 1)].value) / double(chain[size_t(c)].bytes - chain[size_t(c - 1)].bytes);
 }
 
 void Scheduler::offer_unpaid(int instance, uint32_t age) {
-    auto& items = items_[size_t(instance)];
+    const std::span<SegItem> items = items_of(size_t(instance));
     const double header = double(header_[size_t(instance)]);
     int best = -1;
     double best_ratio = 0;
@@ -728,7 +747,7 @@ void Scheduler::offer_unpaid(int instance, uint32_t age) {
 
 void Scheduler::offer_single(int instance, uint32_t age) {
     const size_t i = size_t(instance);
-    const auto& items = items_[i];
+    const std::span<const SegItem> items = items_of(i);
     size_t u = 0;
     while (u < items.size() && (items[u].shown || items[u].chosen)) ++u;
     if (u == items.size() || !(items[u].value > 0)) return;
@@ -744,14 +763,14 @@ size_t Scheduler::take_stale_roots(const EncodedFrame& frame, size_t budget, siz
     budget_ = budget;
     stale_.clear();
     for (const size_t i : active_) {
-        if (items_[i].empty() || items_[i][0].chosen) continue;  // not offered this tick (or up to date)
+        if (slot_[i].n == 0 || items_of(i)[0].chosen) continue;  // not offered this tick (or up to date)
         const uint32_t t = state_[i].bone_tick.empty() ? 0 : state_[i].bone_tick[0];
         const uint32_t age = t == 0 ? UINT32_MAX : frame.tick - t;
         if (age >= uint32_t(ROOT_REFRESH_TICKS)) stale_.push_back({age, i});
     }
     std::sort(stale_.begin(), stale_.end(), [](const auto& a, const auto& b) { return a.first > b.first || (a.first == b.first && a.second < b.second); });
     for (const auto& [age, i] : stale_) {
-        SegItem& it = items_[i][0];
+        SegItem& it = items_of(i)[0];
         const size_t bytes = it.bytes + (paid_[i] ? 0 : header_[i]);
         if (WireCost::wire(payload + bytes) > budget) continue;  // a smaller one may still fit
         // Within the owner's share, except its first root of the tick: every
@@ -781,7 +800,7 @@ void Scheduler::pay(int instance, uint32_t age) {
         push({morph_[i].value / double(morph_[i].bytes), instance, 0, age, false, true, true});
     }
     if (const int c = chain_next_[i]; c > 0) {
-        push({step_ratio(chain_[i], c), instance, c, age, true, true});
+        push({step_ratio(chain_of(i), c), instance, c, age, true, true});
     } else if (chain_tried_[i]) {
         offer_single(instance, age);  // its hull step did not fit: the segments one at a time, header paid
     }
@@ -793,7 +812,7 @@ void Scheduler::pay(int instance, uint32_t age) {
 // are sorted once (by ratio, then index: the scan's choice) and walked.
 void Scheduler::offer_paid(int instance, uint32_t age) {
     const size_t i = size_t(instance);
-    const auto& items = items_[i];
+    const std::span<const SegItem> items = items_of(i);
     auto before = [&](int a, int b) {
         const double l = items[size_t(a)].value * double(items[size_t(b)].bytes);
         const double r = items[size_t(b)].value * double(items[size_t(a)].bytes);
@@ -806,19 +825,21 @@ void Scheduler::offer_paid(int instance, uint32_t age) {
         for (size_t q = 0; q < items.size(); ++q)
             if (eligible(items[q]) && fits(items[q].bytes) && (best < 0 || before(int(q), best))) best = int(q);
     } else {
-        auto& order = order_[i];
+        int* const order = sc_->order.data() + slot_[i].order;
         size_t& at = order_at_[i];
         if (order_state_[i] == 1) {
             order_state_[i] = 2;
-            order.clear();
+            uint16_t n = 0;
             for (size_t q = 0; q < items.size(); ++q)
-                if (eligible(items[q])) order.push_back(int(q));
-            std::sort(order.begin(), order.end(), before);
+                if (eligible(items[q])) order[n++] = int(q);
+            slot_[i].order_n = n;
+            std::sort(order, order + n, before);
             at = 0;
         }
         // Passed over for good: taken, or too big (the budget only shrinks).
-        while (at < order.size() && (items[size_t(order[at])].chosen || !fits(items[size_t(order[at])].bytes))) ++at;
-        if (at < order.size()) best = order[at++];
+        const size_t n = slot_[i].order_n;
+        while (at < n && (items[size_t(order[at])].chosen || !fits(items[size_t(order[at])].bytes))) ++at;
+        if (at < n) best = order[at++];
     }
     if (best < 0) return;
     const SegItem& it = items[size_t(best)];

@@ -117,12 +117,24 @@ size_t morph_block_bytes(const std::array<uint64_t, 4>& mask);
 
 class Scheduler {
 public:
+    // select()'s working memory: the items, hulls and orders of the
+    // instances it offers and its heap, one tick's, laid out one after
+    // another. select() alone uses it, so the clients ticked by one thread
+    // share one (TickScratch), which stays in cache from one client's tick
+    // to the next (each client's own per-instance arrays would be cold:
+    // the other clients' ticks ran since). Grows to the largest tick, then
+    // allocates no more.
+    struct Scratch;
     void reset(size_t instance_count);
     // Fills `out` with picks (instance, bones first..k-1, show) in decreasing
     // importance, several disjoint ranges per instance possible, within budget
     // wire bytes. Returns the estimated wire bytes.
     size_t select(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                   std::span<const float> importance, size_t budget, float tick_rate, std::vector<Pick>& out);
+    // The same in `scratch` (shared by the schedulers one thread runs).
+    size_t select(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
+                  std::span<const float> importance, size_t budget, float tick_rate, std::vector<Pick>& out,
+                  Scratch& scratch);
     // Records that `picks` went out at `tick`.
     void sent(std::span<const Pick> picks, uint32_t tick);
     // A datagram carrying bones [first, first + count) of instance
@@ -194,7 +206,7 @@ private:
     struct Step {
         double ratio;
         int instance;
-        int step;      // shown segment: index into items_; chain step: index into chain_
+        int step;      // shown segment: index into its items; chain step: index into its hull
         uint32_t age;  // ticks since the instance was last sent (ties go to the stalest)
         bool chain;    // a step of the unshown segments' hull
         bool paid;     // ratio without the chunk header (offered once the instance's header is paid)
@@ -256,7 +268,8 @@ private:
     };
     Offer segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30);
     void offer_chain(size_t i, uint32_t age, const Offer& o);
-    bool extend_chain(size_t i);  // appends the hull's next vertex to chain_[i]; false at the end
+    void place(size_t i, size_t n);  // room in the scratch for instance i's n items (offer_items)
+    bool extend_chain(size_t i);  // appends the hull's next vertex to chain_of(i); false at the end
     void take_greedily(size_t budget, size_t payload);  // payload: already taken
     // The floor (ROOT_REFRESH_TICKS): bone 0 of the stale instances, stalest
     // first, within budget. Returns the payload taken.
@@ -282,14 +295,34 @@ private:
     bool fits(size_t bytes) const { return !taken_ || WireCost::wire(*taken_ + bytes) <= budget_; }
     std::vector<State> state_;
     std::vector<uint32_t> generation_;              // per instance: the slot generation state_ belongs to
+    // Where each instance's items, hull and order lie in the scratch this
+    // tick (offer_items places them; n 0: not offered).
+    struct Slot {
+        uint32_t items = 0, chain = 0, order = 0;
+        uint16_t n = 0;        // items (one per segment)
+        uint16_t chain_n = 0;  // hull points walked (at most n + 1)
+        uint16_t order_n = 0;  // shown items ordered (at most n)
+    };
+    std::vector<Slot> slot_;  // per instance
+    std::span<SegItem> items_of(size_t i) const { return {sc_->items.data() + slot_[i].items, slot_[i].n}; }
+    // Instance i's hull points so far (upper hull over its unshown segments).
+    struct Chain {
+        ChainPoint* p;
+        uint16_t* n;
+        size_t size() const { return *n; }
+        ChainPoint& operator[](size_t k) const { return p[k]; }
+        const ChainPoint& back() const { return p[*n - 1]; }
+        void push_back(const ChainPoint& c) const { p[(*n)++] = c; }
+        void clear() const { *n = 0; }
+    };
+    Chain chain_of(size_t i) { return {sc_->chain.data() + slot_[i].chain, &slot_[i].chain_n}; }
     // Value per record byte of hull step c (from point c - 1 to c).
-    static double step_ratio(const std::vector<ChainPoint>& chain, int c);
-    std::vector<std::vector<SegItem>> items_;       // per instance, per segment
-    std::vector<std::vector<ChainPoint>> chain_;    // per instance: upper hull over the unshown segments, as far as walked
+    static double step_ratio(const Chain& chain, int c);
     std::vector<uint8_t> paid_;                     // per instance: chunk header paid this tick
     std::vector<int> chain_next_;                   // per instance: chain step offered now (0: none)
     std::vector<uint8_t> chain_tried_;              // per instance: a hull step did not fit (singles offered)
-    std::vector<std::vector<int>> order_;           // per instance (from its second paid offer): shown items by value per byte
+    // per instance (from its second paid offer): shown items by value per
+    // byte, in the scratch at slot_[i].order
     std::vector<size_t> order_at_;                  // per instance: next in order_ to offer
     std::vector<uint8_t> order_state_;              // per instance since paid: 0 no offer yet, 1 one (a scan), 2 order_ sorted
     std::vector<size_t> header_;                    // per instance: WireCost::header of its bones
@@ -304,10 +337,21 @@ private:
     // ones any per-instance pass reads or writes (per-instance arrays hold
     // stale values for the others).
     std::vector<uint32_t> active_;
-    std::vector<Step> heap_;
+public:
+    struct Scratch {
+        std::vector<SegItem> items;
+        std::vector<ChainPoint> chain;
+        std::vector<int> order;
+        std::vector<Step> heap;
+        size_t items_used = 0, chain_used = 0, order_used = 0;  // this tick's
+    };
+
+private:
+    Scratch own_;             // select()'s scratch when the caller gives none
+    Scratch* sc_ = &own_;     // this select()'s
     // Offers step s (its floor flag set from its instance's spending).
     void push(Step s);
-    Step pop();  // the greatest step (heap_ not empty)
+    Step pop();  // the greatest step (the heap not empty)
     void sift_down(size_t k, const Step& s);  // places s at k or below
     void keep_paid_steps();  // drops the steps of instances not paid (and the unpaid offers of paid ones)
     // Instance inst takes `bytes` more payload (payload, its floor's count).
