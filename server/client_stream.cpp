@@ -579,9 +579,7 @@ DatagramVerdict ClientStream::on_pose(const wire::Pose& p, const PeerAddress& fr
 void ClientStream::update_importance(const EncodedFrame& frame) {
     // At every instance's current world position; none for instances this
     // client was not told about (yet) or owns.
-    compute_importance(view_, frame, core_.assets(), id_, importance_);
-    for (size_t i = 0; i < importance_.size(); ++i)
-        if (i >= known_.size() || known_[i] != frame.instances[i].generation) importance_[i] = 0.0f;
+    compute_importance(view_, frame, core_.assets(), id_, importance_, &known_);
     // Beyond the view radius from every centre: not seen (O(instances x centres)).
     const double r = core_.config().view_radius;
     centres_.clear();

@@ -42,7 +42,8 @@ const Weights& indexed_weights(const Weights& w, Weights& copy) {
 // O(instances + weights): the weights are walked beside the slots, never
 // scanned per instance (a View of thousands of weights costs what it is long).
 void compute_importance(const ViewSpec& view, const EncodedFrame& frame,
-                        const std::vector<std::shared_ptr<ServerAsset>>& assets, uint64_t viewer, std::vector<float>& imp) {
+                        const std::vector<std::shared_ptr<ServerAsset>>& assets, uint64_t viewer, std::vector<float>& imp,
+                        const std::vector<uint32_t>* known) {
     imp.assign(frame.instances.size(), 0.0f);
     Weights copy;
     const Weights& weights = indexed_weights(view.weights, copy);
@@ -52,6 +53,7 @@ void compute_importance(const ViewSpec& view, const EncodedFrame& frame,
         const EncodedInstance& e = frame.instances[i];
         while (next < weights.size() && weights[next].first < int(i)) ++next;
         if (!e.active || (viewer != 0 && e.owner == viewer)) continue;
+        if (known && (i >= known->size() || (*known)[i] != e.generation)) continue;
         const ServerAsset& a = *assets[size_t(e.asset)];
         if (!weights.empty()) {
             const float w = next < weights.size() && weights[next].first == int(i) ? weights[next].second : 0.0f;

@@ -88,8 +88,11 @@ std::vector<float> compute_importance(const ViewSpec& view, const std::vector<In
 // Over the frame's slots, at each instance's current world position; 0 for
 // inactive slots and for instances owned by `viewer` (a session never
 // receives its own characters). `out` is resized to the slot count.
+// known (optional): 0 too for every slot i whose generation is not
+// (*known)[i] (an instance the client was not told about yet).
 void compute_importance(const ViewSpec& view, const EncodedFrame& frame,
-                        const std::vector<std::shared_ptr<ServerAsset>>& assets, uint64_t viewer, std::vector<float>& out);
+                        const std::vector<std::shared_ptr<ServerAsset>>& assets, uint64_t viewer, std::vector<float>& out,
+                        const std::vector<uint32_t>* known = nullptr);
 
 inline constexpr int MORPH_REFRESH_TICKS = 30;        // a weight is re-sent at least this often
 // The floor no character falls under: bone 0 (with the root block) of every
