@@ -40,9 +40,14 @@
 // sent, r = MORPH_REFRESH_WEIGHT: the squared vertex error the client's stale
 // weights cause per tick (cross terms between targets ignored). It is offered
 // once bone 0 was sent (a chunk needs show >= 1), with the header like a shown
-// segment, or at its bytes alone once the instance's header is paid. Cost: O(instances x segments + S log S) per
-// client and tick for S items offered; O(instances) when everything fits
-// (fast path). No allocation after warm-up.
+// segment, or at its bytes alone once the instance's header is paid. The
+// greedy ends when no step left can fit (each takes at least its instance's
+// smallest item, plus the header until paid); once no unpaid instance's
+// header and smallest item fit, their steps leave the heap together.
+// Cost: one pass over each instance's segments (and their bones) plus
+// O(S log S) per client and tick for S steps popped; O(instances) when
+// everything fits (fast path). Working memory in a Scratch the clients of
+// one thread share; no allocation after warm-up.
 #pragma once
 #include <algorithm>
 #include <array>
