@@ -189,7 +189,6 @@ size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::
         }
         const uint32_t i = active_[k];
         const auto& e = frame.instances[i];
-        morph_[i] = MorphItem{};
         current_[i] = 0;
         const ServerAsset& a = *assets[size_t(e.asset)];
         if (state_[i].bone_tick.size() != size_t(a.bone_count())) {
@@ -199,7 +198,8 @@ size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::
         morph_item(i, frame, a, double(importance[i]) * double(importance[i]) * double(a.character.vertex_count()));
         current_[i] = up_to_date(i, frame);
         if (current_[i]) continue;  // nothing to send (the fast path and the greedy skip it)
-        const size_t bytes = header_of(frame, int(i)) + (record_bits(frame, int(i), 0, e.bone_count) + 7) / 8 + morph_[i].bytes;
+        header_[i] = header_of(frame, int(i));  // (offer_items reads it)
+        const size_t bytes = header_[i] + (record_bits(frame, int(i), 0, e.bone_count) + 7) / 8 + morph_[i].bytes;
         full += bytes;
         if (const uint32_t g = group_of(i); g > 0) {
             if (group_full_.size() <= g) group_full_.resize(size_t(g) + 1, 0);
@@ -384,7 +384,7 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
         paid_[i] = 0;
         chain_next_[i] = 0;
         chain_tried_[i] = 0;
-        header_[i] = header_of(frame, int(i));
+        // header_[i]: set by morph_items (every instance not up to date)
         const State& st = state_[i];
         // Squared error in screen units, summed over the instance's vertices
         // (the RMS of docs/metrics.md §2 pools all vertices of all characters).
