@@ -298,7 +298,7 @@ Scheduler::Offer Scheduler::segment_items(size_t i, const EncodedFrame& frame, c
             cb += b;
             cv += it.value;
             const ChainPoint pt{int(q + 1), cb, cv};
-            if (q == o.unshown || double(o.hull.bytes) * pt.value - double(pt.bytes) * o.hull.value >= 0) o.hull = pt;
+            if (q == o.unshown || no_less_steep(ChainPoint{int(o.unshown), 0, 0.0}, o.hull, pt)) o.hull = pt;
         }
         if (shown && it.value > 0) {
             const double r = it.value / (double(it.bytes) + header);
@@ -327,6 +327,12 @@ void Scheduler::offer_chain(size_t i, uint32_t age, const Offer& o) {
     }
 }
 
+// From p0, the step to pt has at least the value per byte of the step to
+// best (cross product; the hull keeps the farther of equal ones).
+bool Scheduler::no_less_steep(const ChainPoint& p0, const ChainPoint& best, const ChainPoint& pt) {
+    return double(best.bytes - p0.bytes) * (pt.value - p0.value) - double(pt.bytes - p0.bytes) * (best.value - p0.value) >= 0;
+}
+
 // The hull's next vertex after chain_of(i).back(): the point after it whose
 // step has the greatest value per byte (of equal ones the farthest, as the
 // hull drops collinear points). O(segments after it).
@@ -342,9 +348,7 @@ bool Scheduler::extend_chain(size_t i) {
         cb += items[q].bytes;
         cv += items[q].value;
         const ChainPoint pt{int(q + 1), cb, cv};
-        if (q == size_t(p0.end) ||
-            double(best.bytes - p0.bytes) * (pt.value - p0.value) - double(pt.bytes - p0.bytes) * (best.value - p0.value) >= 0)
-            best = pt;
+        if (q == size_t(p0.end) || no_less_steep(p0, best, pt)) best = pt;
     }
     chain.push_back(best);
     return true;
@@ -478,10 +482,11 @@ void Scheduler::sift_down(size_t k, const Step& s) {
 // The steps of paid instances at their records-only ratio, made a heap
 // again (bottom up, O(steps)).
 void Scheduler::keep_paid_steps() {
-    sc_->heap.erase(std::remove_if(sc_->heap.begin(), sc_->heap.end(), [&](const Step& s) { return !s.paid || !paid_[size_t(s.instance)]; }),
-                sc_->heap.end());
-    for (size_t k = sc_->heap.size() / 4 + 1; k-- > 0;)
-        if (k < sc_->heap.size()) sift_down(k, Step(sc_->heap[k]));
+    std::vector<Step>& heap = sc_->heap;
+    heap.erase(std::remove_if(heap.begin(), heap.end(), [&](const Step& s) { return !s.paid || !paid_[size_t(s.instance)]; }),
+               heap.end());
+    if (heap.size() > 1)
+        for (size_t k = (heap.size() - 2) / 4 + 1; k-- > 0;) sift_down(k, Step(heap[k]));  // from the last parent up
 }
 
 void Scheduler::charge(size_t inst, size_t bytes, size_t& payload) {

@@ -326,13 +326,14 @@ private:
     Chain chain_of(size_t i) { return {sc_->chain.data() + slot_[i].chain, &slot_[i].chain_n}; }
     // Value per record byte of hull step c (from point c - 1 to c).
     static double step_ratio(const Chain& chain, int c);
+    static bool no_less_steep(const ChainPoint& p0, const ChainPoint& best, const ChainPoint& pt);
     std::vector<uint8_t> paid_;                     // per instance: chunk header paid this tick
     std::vector<int> chain_next_;                   // per instance: chain step offered now (0: none)
     std::vector<uint8_t> chain_tried_;              // per instance: a hull step did not fit (singles offered)
     // per instance (from its second paid offer): shown items by value per
     // byte, in the scratch at slot_[i].order
-    std::vector<size_t> order_at_;                  // per instance: next in order_ to offer
-    std::vector<uint8_t> order_state_;              // per instance since paid: 0 no offer yet, 1 one (a scan), 2 order_ sorted
+    std::vector<size_t> order_at_;                  // per instance: next in its order to offer
+    std::vector<uint8_t> order_state_;              // per instance since paid: 0 no offer yet, 1 one (a scan), 2 its order sorted
     std::vector<size_t> header_;                    // per instance: WireCost::header of its bones
     std::vector<MorphItem> morph_;                  // per instance
     std::vector<uint8_t> current_;                  // per instance: up_to_date this tick
