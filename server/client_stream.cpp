@@ -576,7 +576,10 @@ DatagramVerdict ClientStream::on_pose(const wire::Pose& p, const PeerAddress& fr
 
 // ------------------------------------------------------------------- tick --
 
-void ClientStream::update_importance(const EncodedFrame& frame) {
+void ClientStream::update_importance(const EncodedFrame& frame, size_t most) {
+    near_valid_ = false;
+    if (near_importance(frame, most)) return;
+    weighed_ = frame.instances.size();
     // At every instance's current world position; none for instances this
     // client was not told about (yet) or owns.
     compute_importance(view_, frame, core_.assets(), id_, importance_, &known_);
@@ -592,6 +595,48 @@ void ClientStream::update_importance(const EncodedFrame& frame) {
             near = near || (w.x - c.x) * (w.x - c.x) + (w.z - c.z) * (w.z - c.z) <= r * r;
         if (!near) importance_[i] = 0.0f;
     }
+}
+
+// A camera (no explicit weights) over the frame's grid: the instances ring
+// by ring around the camera, until more than `most` of those weighed are
+// more important than anybody further out can be (an instance beyond the
+// ring's radius R is at least R away: at most the importance of one at R).
+// bound_candidates then keeps the same `most` (and finds the same cut) as
+// over every slot: every instance not weighed ranks below them.
+bool ClientStream::near_importance(const EncodedFrame& frame, size_t most) {
+    const float t = camera_tan(view_);
+    const float height = view_.viewport_height;
+    if (!view_.has_camera || !view_.weights.empty() || !frame.grid.built() || !(height > 0.0f) || !std::isfinite(height) ||
+        !(t > 0.0f) || !std::isfinite(t))
+        return false;
+    const double r = core_.config().view_radius;
+    const glm::dvec3 cam(view_.camera);
+    const auto& assets = core_.assets();
+    importance_.assign(frame.instances.size(), 0.0f);
+    near_.clear();
+    weighed_ = 0;
+    auto weigh = [&](uint32_t i) {
+        ++weighed_;
+        const EncodedInstance& e = frame.instances[i];
+        if (!e.active || (id_ != 0 && e.owner == id_)) return;
+        if (i >= known_.size() || known_[i] != e.generation) return;  // not announced (yet)
+        if (r > 0 && (e.world.x - cam.x) * (e.world.x - cam.x) + (e.world.z - cam.z) * (e.world.z - cam.z) > r * r) return;
+        const float v = camera_importance(view_, t, e.world, assets[size_t(e.asset)]->diagonal);
+        if (!(v > 0.0f)) return;
+        importance_[i] = v;
+        near_.push_back(i);
+    };
+    auto more_rings = [&](double radius) {
+        if (r > 0 && radius >= r) return false;  // every instance within the view radius weighed
+        if (!(radius > 0)) return true;
+        const float bound = height / (2.0f * float(radius) * t);  // camera_importance's at `radius`, rounded alike
+        size_t above = 0;
+        for (const uint32_t i : near_) above += importance_[i] > bound;
+        return above <= most;
+    };
+    if (!frame.grid.rings(cam, weigh, more_rings)) return false;
+    near_valid_ = true;
+    return true;
 }
 
 bool ClientStream::view_centres(const EncodedFrame& frame, std::vector<glm::dvec3>& out) const {
@@ -626,9 +671,12 @@ TickResult ClientStream::tick(const EncodedFrame& frame, double now, double dt, 
 // A chunk of one bone of a placed character: what the least useful pick costs.
 static constexpr size_t kSmallestChunk = WireCost::kChunk + 1 + kRootAbsoluteBytes + RecordFormat::kPlainSize;
 
-void ClientStream::bound_candidates(size_t budget, uint32_t tick) {
-    const size_t most = std::min<size_t>(size_t(std::max(1, core_.config().max_candidates)),
-                                         std::max<size_t>(kMinCandidates, budget / kSmallestChunk));
+size_t ClientStream::candidate_limit(size_t budget) const {
+    return std::min<size_t>(size_t(std::max(1, core_.config().max_candidates)),
+                            std::max<size_t>(kMinCandidates, budget / kSmallestChunk));
+}
+
+void ClientStream::bound_candidates(size_t most, uint32_t tick) {
     // Only those at or above a cut are ordered when at least `most` pass it:
     // the `most` most important are then all among them (every other one is
     // below each of them). The cut: most of the importance of the first left
@@ -636,9 +684,15 @@ void ClientStream::bound_candidates(size_t budget, uint32_t tick) {
     candidates_.clear();
     below_.clear();
     const float cut = cut_;
-    for (size_t i = 0; i < importance_.size(); ++i)
+    auto sort_out = [&](size_t i) {
         if (importance_[i] >= cut && importance_[i] > 0.0f) candidates_.push_back(i);
         else if (importance_[i] > 0.0f) below_.push_back(i);
+    };
+    if (near_valid_) {  // the weighed ones only (near_importance)
+        for (const uint32_t i : near_) sort_out(i);
+    } else {
+        for (size_t i = 0; i < importance_.size(); ++i) sort_out(i);
+    }
     if (candidates_.size() >= most) {
         for (const size_t i : below_) importance_[i] = 0.0f;
     } else {
@@ -664,8 +718,9 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
 }
 
 TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, DatagramSink& out, TickScratch& scratch) {
-    update_importance(frame);
-    bound_candidates(budget, frame.tick);
+    const size_t most = candidate_limit(budget);
+    update_importance(frame, most);
+    bound_candidates(most, frame.tick);
     const bool predict = core_.config().predict_records;
     plan_.begin(frame);
     if (predict) {

@@ -225,6 +225,9 @@ public:
     void set_selector(Selector s) { selector_ = std::move(s); }
     const std::vector<Pick>& picks() const { return picks_; }  // the last tick's
     const std::vector<float>& importance() const { return importance_; }
+    // Instances whose importance the last tick computed: the slots near the
+    // camera (the frame's grid), else every slot.
+    size_t weighed() const { return weighed_; }
 
 private:
     struct Owned {
@@ -270,10 +273,15 @@ private:
     // Sends one datagram to `to`, sealed (into `sealed`) when the session
     // seals; returns the bytes sent.
     size_t send_datagram(std::span<const uint8_t> plain, const PeerAddress& to, DatagramSink& out, std::vector<uint8_t>& sealed);
-    void update_importance(const EncodedFrame& frame);
-    // Leaves importance only to the characters that can matter: at most
-    // max_candidates, and no more than `budget` could carry a chunk of.
-    void bound_candidates(size_t budget, uint32_t tick);
+    // Each instance's importance this tick; `most`: candidate_limit (with a
+    // camera only the nearest are weighed: near_importance).
+    void update_importance(const EncodedFrame& frame, size_t most);
+    bool near_importance(const EncodedFrame& frame, size_t most);
+    // The characters that can matter: at most max_candidates, and no more
+    // than `budget` could carry a chunk of.
+    size_t candidate_limit(size_t budget) const;
+    // Leaves importance only to the `most` most important.
+    void bound_candidates(size_t most, uint32_t tick);
     static constexpr size_t kMinCandidates = 128;  // whatever the budget (a client sees at least its nearest 128)
     bool refuse_message(const std::string& reason, const std::string& why);
 
@@ -333,6 +341,9 @@ private:
     std::vector<std::pair<int, uint32_t>> pending_;  // (slot, generation) to announce, in order
     size_t pending_at_ = 0;          // next in pending_
     std::vector<size_t> candidates_, below_;  // bound_candidates' scratch
+    std::vector<uint32_t> near_;      // near_importance: the instances weighed this tick (importance > 0)
+    bool near_valid_ = false;         // this tick's importance came from near_importance (zero beyond near_)
+    size_t weighed_ = 0;              // weighed()
     float cut_ = 0.0f;                // bound_candidates: the importance cut tried first (0: none)
     std::vector<int> planned_;        // send_frame's scratch: the instances planned this tick
     uint64_t instances_seen_ = ~0ull;  // ServerCore::instances_version last synced

@@ -391,6 +391,10 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         e.valid = true;
         keep_baseline(i, tick, slot.generation);
     }
+    frame_.grid.begin();
+    for (size_t i = 0; i < slots_.size(); ++i)
+        if (frame_.instances[i].active) frame_.grid.add(uint32_t(i), frame_.instances[i].world);
+    frame_.grid.finish();
     return frame_;
 }
 

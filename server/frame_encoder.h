@@ -34,6 +34,7 @@
 #include <vector>
 
 #include "scene.h"
+#include "spatial_grid.h"
 #include "wire.h"
 
 namespace progskin::net {
@@ -89,6 +90,10 @@ struct PredictedRecords {
 struct EncodedFrame {
     uint32_t tick = 0;
     std::vector<EncodedInstance> instances;  // one per slot
+    // The active instances by ground cell (spatial_grid.h), for the
+    // clients' candidate search; not built in a frame made by hand (tests):
+    // every client then weighs every slot.
+    SpatialGrid grid;
     std::vector<uint8_t> bytes;  // records of every slot, stride bytes each
     std::vector<int32_t> morph;  // quantised morph weights (int16 values, or kNoWeight), morph stride per slot
     std::span<const int32_t> morphs(int i) const {

@@ -48,7 +48,7 @@ void compute_importance(const ViewSpec& view, const EncodedFrame& frame,
     Weights copy;
     const Weights& weights = indexed_weights(view.weights, copy);
     size_t next = 0;  // first weight whose instance is >= the slot
-    const float t = std::tan(std::clamp(view.fov_y, 0.01f, 3.0f) * 0.5f);  // once per view, not per instance
+    const float t = camera_tan(view);  // once per view, not per instance
     for (size_t i = 0; i < frame.instances.size(); ++i) {
         const EncodedInstance& e = frame.instances[i];
         while (next < weights.size() && weights[next].first < int(i)) ++next;
@@ -59,8 +59,7 @@ void compute_importance(const ViewSpec& view, const EncodedFrame& frame,
             const float w = next < weights.size() && weights[next].first == int(i) ? weights[next].second : 0.0f;
             imp[i] = std::max(0.0f, w) * float(1000.0 / a.diagonal);
         } else if (view.has_camera) {
-            float d = std::max(float(glm::length(e.world - glm::dvec3(view.camera))), float(0.05 * a.diagonal));
-            imp[i] = view.viewport_height / (2.0f * d * t);
+            imp[i] = camera_importance(view, t, e.world, a.diagonal);
         } else {
             imp[i] = float(1000.0 / a.diagonal);
         }

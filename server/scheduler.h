@@ -51,9 +51,12 @@
 #pragma once
 #include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <span>
 #include <vector>
+
+#include <glm/geometric.hpp>
 
 #include "baseline_book.h"
 #include "frame_encoder.h"
@@ -98,6 +101,15 @@ std::vector<float> compute_importance(const ViewSpec& view, const std::vector<In
 void compute_importance(const ViewSpec& view, const EncodedFrame& frame,
                         const std::vector<std::shared_ptr<ServerAsset>>& assets, uint64_t viewer, std::vector<float>& out,
                         const std::vector<uint32_t>* known = nullptr);
+
+// One instance's importance seen from view's camera (compute_importance's):
+// pixels per model unit at its distance, the distance no less than 5 % of
+// its diagonal. t: camera_tan(view), once per view.
+inline float camera_tan(const ViewSpec& view) { return std::tan(std::clamp(view.fov_y, 0.01f, 3.0f) * 0.5f); }
+inline float camera_importance(const ViewSpec& view, float t, const glm::dvec3& world, double diagonal) {
+    const float d = std::max(float(glm::length(world - glm::dvec3(view.camera))), float(0.05 * diagonal));
+    return view.viewport_height / (2.0f * d * t);
+}
 
 inline constexpr int MORPH_REFRESH_TICKS = 30;        // a weight is re-sent at least this often
 // The floor no character falls under: bone 0 (with the root block) of every

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <map>
+#include <random>
 
 #include <set>
 
@@ -415,6 +416,61 @@ TEST(ClientStream, OnlyTheMostImportantCharactersAreWeighed) {
         }
         ASSERT_EQ(kept, 20u) << "tick " << tick;
         ASSERT_GE(least_kept, most_left) << "tick " << tick << ": a more important character was left out";
+    }
+}
+
+// The frame's grid (spatial_grid.h): a client with a camera weighs only the
+// instances of the cells around it, and keeps exactly what it keeps when it
+// weighs every slot (the same frame without its grid): the same importance,
+// the same picks, tick after tick, for a crowd with a dense cluster, a
+// sparse field and a line, a camera walking through it, jumping out of it
+// and standing far away, with and without a view radius.
+TEST(ClientStream, TheGridFindsTheCandidatesEverySlotWould) {
+    for (const double radius : {0.0, 60.0}) {
+        ServerConfig cfg;
+        cfg.max_candidates = 30;
+        cfg.view_radius = radius;
+        std::vector<InstanceSpec> specs;
+        std::mt19937 rng(5);
+        std::uniform_real_distribution<float> u(-150.0f, 150.0f), near(-3.0f, 3.0f);
+        for (int k = 0; k < 300; ++k) {
+            InstanceSpec s;
+            s.asset = k % 2;
+            if (k < 120) s.position = glm::vec3(20.0f + near(rng), 0.0f, -10.0f + near(rng));  // a crowd
+            else if (k < 200) s.position = glm::vec3(u(rng), 0.0f, 40.0f);                  // a line
+            else s.position = glm::vec3(u(rng), 0.0f, u(rng));                              // a field
+            specs.push_back(s);
+        }
+        ServerCore core(cfg, default_assets(), specs);
+        auto with_grid = ClientStream::detached(core, 7, 400);
+        auto without = ClientStream::detached(core, 7, 400);
+        DatagramCollector sink_a, sink_b;
+        for (uint32_t tick = 1; tick <= 40; ++tick) {
+            ViewSpec v;
+            v.has_camera = true;
+            const float x = tick % 13 == 0 ? 900.0f : tick % 7 == 0 ? -140.0f : -60.0f + float(tick) * 4.1f;
+            v.camera = glm::vec3(x, 1.6f, tick % 2 ? -8.0f : 35.0f);
+            with_grid->set_view(v);
+            without->set_view(v);
+            const EncodedFrame& f = core.encoder().encode(tick);
+            ASSERT_TRUE(f.grid.built());
+            EncodedFrame bare = f;
+            bare.grid = SpatialGrid{};
+            with_grid->send_frame(f, 1 << 20, sink_a);
+            without->send_frame(bare, 1 << 20, sink_b);
+            ASSERT_EQ(with_grid->importance(), without->importance()) << "tick " << tick << " radius " << radius;
+            ASSERT_EQ(with_grid->picks().size(), without->picks().size()) << "tick " << tick;
+            for (size_t p = 0; p < with_grid->picks().size(); ++p) {
+                EXPECT_EQ(with_grid->picks()[p].instance, without->picks()[p].instance);
+                EXPECT_EQ(with_grid->picks()[p].k, without->picks()[p].k);
+            }
+            size_t kept = 0;
+            for (const float w : with_grid->importance()) kept += w > 0.0f;
+            if (radius == 0) EXPECT_EQ(kept, 30u) << "tick " << tick;
+            EXPECT_EQ(without->weighed(), specs.size());
+            // (a third of the scene stands in one cell: a grid's worst case)
+            EXPECT_LT(with_grid->weighed(), specs.size() * 3 / 4) << "tick " << tick;
+        }
     }
 }
 

@@ -1,0 +1,56 @@
+// spatial_grid.cpp — see spatial_grid.h.
+#include "spatial_grid.h"
+
+namespace progskin::net {
+
+void SpatialGrid::finish() {
+    built_ = false;
+    const size_t n = pts_.size();
+    double x1 = 0, z1 = 0;
+    x0_ = z0_ = 0;
+    if (n > 0) {
+        x0_ = x1 = pts_[0].x;
+        z0_ = z1 = pts_[0].z;
+        for (const Pt& q : pts_) {
+            x0_ = std::min(x0_, q.x);
+            x1 = std::max(x1, q.x);
+            z0_ = std::min(z0_, q.z);
+            z1 = std::max(z1, q.z);
+        }
+    }
+    const double w = x1 - x0_, h = z1 - z0_;
+    if (!std::isfinite(w) || !std::isfinite(h)) return;  // a span no double cell count indexes: not built (every query falls back)
+    // About kPerCell instances a cell over the bounding rectangle; no side
+    // of more than `cells` cells, so that there are at most 3 cells + 1
+    // (w h / c^2 <= cells, w / c <= cells, h / c <= cells).
+    const double cells = double(std::max<size_t>(1, n / kPerCell));
+    double c = std::max({std::sqrt(w * h / cells), w / cells, h / cells});
+    if (!(c > 0)) c = 1.0;  // all in one place
+    cell_ = c;
+    // Each point's cell by the formula rings() uses for its centre (no
+    // clamp: the rings' radius proof needs both on one formula).
+    cell_of_.resize(2 * n);
+    nx_ = nz_ = 1;
+    for (size_t k = 0; k < n; ++k) {
+        const int64_t x = index_of(pts_[k].x, x0_), z = index_of(pts_[k].z, z0_);
+        cell_of_[2 * k] = uint32_t(x);
+        cell_of_[2 * k + 1] = uint32_t(z);
+        nx_ = std::max(nx_, x + 1);
+        nz_ = std::max(nz_, z + 1);
+    }
+    start_.assign(size_t(nx_ * nz_) + 1, 0);
+    for (size_t k = 0; k < n; ++k) {
+        const uint32_t cell = uint32_t(int64_t(cell_of_[2 * k + 1]) * nx_ + int64_t(cell_of_[2 * k]));
+        cell_of_[k] = cell;  // (k <= 2k: the pair is read before it is overwritten)
+        ++start_[size_t(cell) + 1];
+    }
+    for (size_t c2 = 1; c2 < start_.size(); ++c2) start_[c2] += start_[c2 - 1];
+    ids_.resize(n);
+    // Counting sort, stable: each cell's ids in the order added.
+    for (size_t k = 0; k < n; ++k) ids_[start_[cell_of_[k]]++] = pts_[k].id;
+    for (size_t c2 = start_.size() - 1; c2 > 0; --c2) start_[c2] = start_[c2 - 1];
+    start_[0] = 0;
+    built_ = true;
+}
+
+}  // namespace progskin::net

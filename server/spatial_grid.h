@@ -1,0 +1,115 @@
+// spatial_grid.h — a tick's instances bucketed by ground cell (world x, z),
+// built once per tick (FrameEncoder::encode) and read by every client's tick
+// (ClientStream::update_importance): a client with a camera weighs the
+// instances of the cells around it, ring by ring outwards, until a ring's
+// radius proves that nobody further out can be among its candidates
+// (ServerConfig::max_candidates), instead of weighing every slot of the
+// world. Each client's tick then costs O(its neighbourhood), not
+// O(world): the difference between a world of 1,000 players and one of
+// 10,000 (docs/scaling.md).
+//
+// Cells are square, sized so that the cells hold about kPerCell instances
+// each on average over the instances' bounding rectangle, and never more
+// than 3 n / kPerCell + 1 of them (an elongated crowd gets longer cells, not
+// more of them). A position that is not finite has no cell: everywhere()
+// lists those, and every query visits them first.
+// Cost: finish() O(n + cells); rings() O(cells visited + instances in them).
+// No allocation after the largest tick.
+#pragma once
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include <glm/vec3.hpp>
+
+namespace progskin::net {
+
+class SpatialGrid {
+public:
+    static constexpr size_t kPerCell = 4;
+    // Build: begin(), add() each instance, finish().
+    void begin() {
+        pts_.clear();
+        everywhere_.clear();
+        built_ = false;
+    }
+    void add(uint32_t id, const glm::dvec3& world) {
+        if (std::isfinite(world.x) && std::isfinite(world.z)) pts_.push_back({id, world.x, world.z});
+        else everywhere_.push_back(id);
+    }
+    void finish();
+    bool built() const { return built_; }
+    double cell() const { return cell_; }
+    std::span<const uint32_t> everywhere() const { return everywhere_; }
+
+    // Visits every instance (visit(id)) ring by ring around p: ring k holds
+    // the cells at Chebyshev distance k from p's cell; after each ring it
+    // calls done(radius), every instance whose ground distance to p is at
+    // most `radius` having been visited by then (radius k x cell, less a
+    // rounding margin). Stops when done returns false or the grid is
+    // covered. Returns false, having visited nothing, when p is not finite
+    // or too far from the grid to index a cell: the caller weighs every slot.
+    template <class Visit, class Done>
+    bool rings(const glm::dvec3& p, Visit&& visit, Done&& done) const;
+
+private:
+    struct Pt {
+        uint32_t id;
+        double x, z;
+    };
+    std::vector<Pt> pts_;
+    std::vector<uint32_t> everywhere_;
+    std::vector<uint32_t> start_;  // per cell (row-major, z rows), first index into ids_; one more at the end
+    std::vector<uint32_t> ids_;    // instance ids by cell
+    std::vector<uint32_t> cell_of_;  // finish's scratch: each point's cell
+    double x0_ = 0, z0_ = 0, cell_ = 1;
+    int64_t nx_ = 0, nz_ = 0;
+    bool built_ = false;
+    int64_t index_of(double v, double v0) const { return int64_t(std::floor((v - v0) / cell_)); }
+    template <class Visit>
+    void visit_cells(int64_t z, int64_t x0, int64_t x1, Visit& visit) const {
+        if (z < 0 || z >= nz_) return;
+        x0 = std::max<int64_t>(x0, 0);
+        x1 = std::min<int64_t>(x1, nx_ - 1);
+        for (int64_t x = x0; x <= x1; ++x) {
+            const size_t c = size_t(z * nx_ + x);
+            for (uint32_t k = start_[c]; k < start_[c + 1]; ++k) visit(ids_[k]);
+        }
+    }
+};
+
+template <class Visit, class Done>
+bool SpatialGrid::rings(const glm::dvec3& p, Visit&& visit, Done&& done) const {
+    if (!built_ || !std::isfinite(p.x) || !std::isfinite(p.z)) return false;
+    const double fx = std::floor((p.x - x0_) / cell_), fz = std::floor((p.z - z0_) / cell_);
+    constexpr double kFar = double(int64_t(1) << 40);  // cell indices stay exact and their sums far from overflow
+    if (!(std::fabs(fx) < kFar && std::fabs(fz) < kFar)) return false;
+    const int64_t cx = int64_t(fx), cz = int64_t(fz);
+    for (const uint32_t id : everywhere_) visit(id);
+    // The first ring that meets the grid, and the ring that covers it.
+    const int64_t dx = cx < 0 ? -cx : cx >= nx_ ? cx - (nx_ - 1) : 0;
+    const int64_t dz = cz < 0 ? -cz : cz >= nz_ ? cz - (nz_ - 1) : 0;
+    const int64_t first = std::max(dx, dz);
+    const int64_t last = std::max(std::max(cx, nx_ - 1 - cx), std::max(cz, nz_ - 1 - cz));
+    for (int64_t k = first; k <= last; ++k) {
+        if (k == 0) {
+            visit_cells(cz, cx, cx, visit);
+        } else {
+            visit_cells(cz - k, cx - k, cx + k, visit);
+            visit_cells(cz + k, cx - k, cx + k, visit);
+            const int64_t z0 = std::max<int64_t>(cz - k + 1, 0), z1 = std::min<int64_t>(cz + k - 1, nz_ - 1);
+            if (cx - k >= 0 && cx - k < nx_)
+                for (int64_t z = z0; z <= z1; ++z) visit_cells(z, cx - k, cx - k, visit);
+            if (cx + k >= 0 && cx + k < nx_)
+                for (int64_t z = z0; z <= z1; ++z) visit_cells(z, cx + k, cx + k, visit);
+        }
+        // An instance in no ring up to k lies more than k cells from p on x
+        // or z (exact arithmetic); the margin covers the floors' rounding.
+        if (k < last && !done((double(k) - 1e-6) * cell_)) return true;
+    }
+    return true;
+}
+
+}  // namespace progskin::net
