@@ -609,32 +609,52 @@ bool ClientStream::near_importance(const EncodedFrame& frame, size_t most) {
     if (!view_.has_camera || !view_.weights.empty() || !frame.grid.built() || !(height > 0.0f) || !std::isfinite(height) ||
         !(t > 0.0f) || !std::isfinite(t))
         return false;
+    // The rings weigh about twice `most` (a square of cells around a disc)
+    // at two to three times the cost of an instance of the plain pass over
+    // every slot (memory in the grid's order, not the slots'): where `most`
+    // is a large part of the world, the plain pass is cheaper.
+    if (frame.instances.size() < kGridFrom * most) return false;
     const double r = core_.config().view_radius;
     const glm::dvec3 cam(view_.camera);
-    const auto& assets = core_.assets();
     importance_.assign(frame.instances.size(), 0.0f);
     near_.clear();
+    below_near_.clear();
     weighed_ = 0;
-    auto weigh = [&](uint32_t i) {
+    size_t above = 0;  // weighed ones above the last ring's bound (a bound only falls: they stay above)
+    auto weigh = [&](const SpatialGrid::Entry& e) {
         ++weighed_;
-        const EncodedInstance& e = frame.instances[i];
-        if (!e.active || (id_ != 0 && e.owner == id_)) return;
+        const uint32_t i = e.id;
+        if (id_ != 0 && e.owner == id_) return;
         if (i >= known_.size() || known_[i] != e.generation) return;  // not announced (yet)
         if (r > 0 && (e.world.x - cam.x) * (e.world.x - cam.x) + (e.world.z - cam.z) * (e.world.z - cam.z) > r * r) return;
-        const float v = camera_importance(view_, t, e.world, assets[size_t(e.asset)]->diagonal);
+        const float v = camera_importance(view_, t, e.world, e.diagonal);
         if (!(v > 0.0f)) return;
         importance_[i] = v;
         near_.push_back(i);
+        below_near_.push_back(i);
     };
     auto more_rings = [&](double radius) {
         if (r > 0 && radius >= r) return false;  // every instance within the view radius weighed
         if (!(radius > 0)) return true;
         const float bound = height / (2.0f * float(radius) * t);  // camera_importance's at `radius`, rounded alike
-        size_t above = 0;
-        for (const uint32_t i : near_) above += importance_[i] > bound;
+        for (size_t k = 0; k < below_near_.size();)
+            if (importance_[below_near_[k]] > bound) {
+                ++above;
+                below_near_[k] = below_near_.back();
+                below_near_.pop_back();
+            } else {
+                ++k;
+            }
         return above <= most;
     };
-    if (!frame.grid.rings(cam, weigh, more_rings)) return false;
+    // A run of entries: this client's announcements of them fetched first
+    // (cold: the other clients' ticks ran since), then weighed.
+    auto weigh_run = [&](std::span<const SpatialGrid::Entry> run) {
+        for (const SpatialGrid::Entry& e : run)
+            if (e.id < known_.size()) __builtin_prefetch(&known_[e.id]);
+        for (const SpatialGrid::Entry& e : run) weigh(e);
+    };
+    if (!frame.grid.rings(cam, weigh_run, more_rings)) return false;
     near_valid_ = true;
     return true;
 }

@@ -277,6 +277,7 @@ private:
     // camera only the nearest are weighed: near_importance).
     void update_importance(const EncodedFrame& frame, size_t most);
     bool near_importance(const EncodedFrame& frame, size_t most);
+    static constexpr size_t kGridFrom = 4;  // near_importance from this many slots per candidate
     // The characters that can matter: at most max_candidates, and no more
     // than `budget` could carry a chunk of.
     size_t candidate_limit(size_t budget) const;
@@ -342,6 +343,7 @@ private:
     size_t pending_at_ = 0;          // next in pending_
     std::vector<size_t> candidates_, below_;  // bound_candidates' scratch
     std::vector<uint32_t> near_;      // near_importance: the instances weighed this tick (importance > 0)
+    std::vector<uint32_t> below_near_;  // near_importance: those not yet above a ring's bound
     bool near_valid_ = false;         // this tick's importance came from near_importance (zero beyond near_)
     size_t weighed_ = 0;              // weighed()
     float cut_ = 0.0f;                // bound_candidates: the importance cut tried first (0: none)

@@ -393,7 +393,8 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
     }
     frame_.grid.begin();
     for (size_t i = 0; i < slots_.size(); ++i)
-        if (frame_.instances[i].active) frame_.grid.add(uint32_t(i), frame_.instances[i].world);
+        if (const EncodedInstance& e = frame_.instances[i]; e.active)
+            frame_.grid.add({uint32_t(i), e.generation, e.owner, e.world, assets_[size_t(e.asset)]->diagonal});
     frame_.grid.finish();
     return frame_;
 }

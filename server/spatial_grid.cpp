@@ -9,13 +9,13 @@ void SpatialGrid::finish() {
     double x1 = 0, z1 = 0;
     x0_ = z0_ = 0;
     if (n > 0) {
-        x0_ = x1 = pts_[0].x;
-        z0_ = z1 = pts_[0].z;
-        for (const Pt& q : pts_) {
-            x0_ = std::min(x0_, q.x);
-            x1 = std::max(x1, q.x);
-            z0_ = std::min(z0_, q.z);
-            z1 = std::max(z1, q.z);
+        x0_ = x1 = pts_[0].world.x;
+        z0_ = z1 = pts_[0].world.z;
+        for (const Entry& q : pts_) {
+            x0_ = std::min(x0_, q.world.x);
+            x1 = std::max(x1, q.world.x);
+            z0_ = std::min(z0_, q.world.z);
+            z1 = std::max(z1, q.world.z);
         }
     }
     const double w = x1 - x0_, h = z1 - z0_;
@@ -32,7 +32,7 @@ void SpatialGrid::finish() {
     cell_of_.resize(2 * n);
     nx_ = nz_ = 1;
     for (size_t k = 0; k < n; ++k) {
-        const int64_t x = index_of(pts_[k].x, x0_), z = index_of(pts_[k].z, z0_);
+        const int64_t x = index_of(pts_[k].world.x, x0_), z = index_of(pts_[k].world.z, z0_);
         cell_of_[2 * k] = uint32_t(x);
         cell_of_[2 * k + 1] = uint32_t(z);
         nx_ = std::max(nx_, x + 1);
@@ -47,7 +47,7 @@ void SpatialGrid::finish() {
     for (size_t c2 = 1; c2 < start_.size(); ++c2) start_[c2] += start_[c2 - 1];
     ids_.resize(n);
     // Counting sort, stable: each cell's ids in the order added.
-    for (size_t k = 0; k < n; ++k) ids_[start_[cell_of_[k]]++] = pts_[k].id;
+    for (size_t k = 0; k < n; ++k) ids_[start_[cell_of_[k]]++] = pts_[k];
     for (size_t c2 = start_.size() - 1; c2 > 0; --c2) start_[c2] = start_[c2 - 1];
     start_[0] = 0;
     built_ = true;

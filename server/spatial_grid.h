@@ -29,22 +29,34 @@ namespace progskin::net {
 class SpatialGrid {
 public:
     static constexpr size_t kPerCell = 4;
+    // What a query reads of an instance, kept in the grid cell by cell (a
+    // client's weighing walks memory in order, not the frame's slots).
+    struct Entry {
+        uint32_t id = 0;          // slot
+        uint32_t generation = 0;  // EncodedInstance::generation
+        uint64_t owner = 0;       // EncodedInstance::owner
+        glm::dvec3 world{0.0};
+        double diagonal = 0;      // its asset's
+    };
     // Build: begin(), add() each instance, finish().
     void begin() {
         pts_.clear();
         everywhere_.clear();
         built_ = false;
     }
-    void add(uint32_t id, const glm::dvec3& world) {
-        if (std::isfinite(world.x) && std::isfinite(world.z)) pts_.push_back({id, world.x, world.z});
-        else everywhere_.push_back(id);
+    void add(const Entry& e) {
+        if (std::isfinite(e.world.x) && std::isfinite(e.world.z)) pts_.push_back(e);
+        else everywhere_.push_back(e);
     }
     void finish();
     bool built() const { return built_; }
     double cell() const { return cell_; }
-    std::span<const uint32_t> everywhere() const { return everywhere_; }
+    std::span<const Entry> everywhere() const { return everywhere_; }
 
-    // Visits every instance (visit(id)) ring by ring around p: ring k holds
+    // Visits every instance ring by ring around p, a run of entries at a
+    // time (visit(std::span<const Entry>): the cells of a ring's row lie
+    // side by side, so a caller may fetch what it reads of a whole run
+    // before it weighs them): ring k holds
     // the cells at Chebyshev distance k from p's cell; after each ring it
     // calls done(radius), every instance whose ground distance to p is at
     // most `radius` having been visited by then (radius k x cell, less a
@@ -55,14 +67,10 @@ public:
     bool rings(const glm::dvec3& p, Visit&& visit, Done&& done) const;
 
 private:
-    struct Pt {
-        uint32_t id;
-        double x, z;
-    };
-    std::vector<Pt> pts_;
-    std::vector<uint32_t> everywhere_;
-    std::vector<uint32_t> start_;  // per cell (row-major, z rows), first index into ids_; one more at the end
-    std::vector<uint32_t> ids_;    // instance ids by cell
+    std::vector<Entry> pts_;         // as added
+    std::vector<Entry> everywhere_;  // no cell (a position not finite)
+    std::vector<uint32_t> start_;    // per cell (row-major, z rows), first index into ids_; one more at the end
+    std::vector<Entry> ids_;         // the entries by cell
     std::vector<uint32_t> cell_of_;  // finish's scratch: each point's cell
     double x0_ = 0, z0_ = 0, cell_ = 1;
     int64_t nx_ = 0, nz_ = 0;
@@ -73,10 +81,10 @@ private:
         if (z < 0 || z >= nz_) return;
         x0 = std::max<int64_t>(x0, 0);
         x1 = std::min<int64_t>(x1, nx_ - 1);
-        for (int64_t x = x0; x <= x1; ++x) {
-            const size_t c = size_t(z * nx_ + x);
-            for (uint32_t k = start_[c]; k < start_[c + 1]; ++k) visit(ids_[k]);
-        }
+        if (x0 > x1) return;
+        // Row-major cells: those of one row from x0 to x1 hold one run of entries.
+        const uint32_t from = start_[size_t(z * nx_ + x0)], to = start_[size_t(z * nx_ + x1) + 1];
+        if (to > from) visit(std::span<const Entry>(ids_.data() + from, to - from));
     }
 };
 
@@ -87,7 +95,7 @@ bool SpatialGrid::rings(const glm::dvec3& p, Visit&& visit, Done&& done) const {
     constexpr double kFar = double(int64_t(1) << 40);  // cell indices stay exact and their sums far from overflow
     if (!(std::fabs(fx) < kFar && std::fabs(fz) < kFar)) return false;
     const int64_t cx = int64_t(fx), cz = int64_t(fz);
-    for (const uint32_t id : everywhere_) visit(id);
+    if (!everywhere_.empty()) visit(std::span<const Entry>(everywhere_));
     // The first ring that meets the grid, and the ring that covers it.
     const int64_t dx = cx < 0 ? -cx : cx >= nx_ ? cx - (nx_ - 1) : 0;
     const int64_t dz = cz < 0 ? -cz : cz >= nz_ ? cz - (nz_ - 1) : 0;

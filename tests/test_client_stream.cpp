@@ -466,7 +466,9 @@ TEST(ClientStream, TheGridFindsTheCandidatesEverySlotWould) {
             }
             size_t kept = 0;
             for (const float w : with_grid->importance()) kept += w > 0.0f;
-            if (radius == 0) EXPECT_EQ(kept, 30u) << "tick " << tick;
+            if (radius == 0) {
+                EXPECT_EQ(kept, 30u) << "tick " << tick;
+            }
             EXPECT_EQ(without->weighed(), specs.size());
             // (a third of the scene stands in one cell: a grid's worst case)
             EXPECT_LT(with_grid->weighed(), specs.size() * 3 / 4) << "tick " << tick;

@@ -62,7 +62,7 @@ TEST(SpatialGrid, RingsVisitEveryoneOnceAndTheirRadiusHolds) {
     int checks = 0;
     for (const Scene& s : scenes()) {
         grid.begin();
-        for (size_t i = 0; i < s.at.size(); ++i) grid.add(uint32_t(i), s.at[i]);
+        for (size_t i = 0; i < s.at.size(); ++i) grid.add({uint32_t(i), 0, 0, s.at[i], 1.0});
         grid.finish();
         ASSERT_TRUE(grid.built());
         std::vector<glm::dvec3> centres{{0, 0, 0}, {1.0, 2.0, 3.0}, {-3e4, 0, 2e4}, {499.9, 0, -499.9}};
@@ -70,7 +70,7 @@ TEST(SpatialGrid, RingsVisitEveryoneOnceAndTheirRadiusHolds) {
         for (const glm::dvec3& c : centres) {
             std::vector<int> seen(s.at.size(), 0);
             bool ok = grid.rings(
-                c, [&](uint32_t id) { ++seen.at(id); },
+                c, [&](std::span<const SpatialGrid::Entry> run) { for (const auto& e : run) ++seen.at(e.id); },
                 [&](double radius) {
                     for (size_t i = 0; i < s.at.size(); ++i)
                         if (std::isfinite(s.at[i].x) && std::isfinite(s.at[i].z) && ground(s.at[i], c) <= radius) {
@@ -89,20 +89,20 @@ TEST(SpatialGrid, RingsVisitEveryoneOnceAndTheirRadiusHolds) {
 TEST(SpatialGrid, StopsWhenAskedAndRefusesCentresItCannotIndex) {
     SpatialGrid grid;
     grid.begin();
-    for (int k = 0; k < 1000; ++k) grid.add(uint32_t(k), {double(k % 40) * 10.0, 0.0, double(k / 40) * 10.0});
+    for (int k = 0; k < 1000; ++k) grid.add({uint32_t(k), 0, 0, {double(k % 40) * 10.0, 0.0, double(k / 40) * 10.0}, 1.0});
     grid.finish();
     size_t visited = 0, rings = 0;
-    grid.rings({200.0, 0.0, 120.0}, [&](uint32_t) { ++visited; }, [&](double) { return ++rings < 2; });
+    grid.rings({200.0, 0.0, 120.0}, [&](std::span<const SpatialGrid::Entry> run) { visited += run.size(); }, [&](double) { return ++rings < 2; });
     EXPECT_EQ(rings, 2u);
     EXPECT_GT(visited, 0u);
     EXPECT_LT(visited, 200u);  // two rings of cells of about 4, not the world
-    EXPECT_FALSE(grid.rings({std::nan(""), 0.0, 0.0}, [](uint32_t) {}, [](double) { return true; }));
-    EXPECT_FALSE(grid.rings({1e300, 0.0, 0.0}, [](uint32_t) {}, [](double) { return true; }));
+    EXPECT_FALSE(grid.rings({std::nan(""), 0.0, 0.0}, [](std::span<const SpatialGrid::Entry>) {}, [](double) { return true; }));
+    EXPECT_FALSE(grid.rings({1e300, 0.0, 0.0}, [](std::span<const SpatialGrid::Entry>) {}, [](double) { return true; }));
     // A span no cell count covers: not built, every query refused (the caller weighs every slot).
     grid.begin();
-    grid.add(0, {-1.7e308, 0.0, 0.0});
-    grid.add(1, {1.7e308, 0.0, 0.0});
+    grid.add({0, 0, 0, {-1.7e308, 0.0, 0.0}, 1.0});
+    grid.add({1, 0, 0, {1.7e308, 0.0, 0.0}, 1.0});
     grid.finish();
     EXPECT_FALSE(grid.built());
-    EXPECT_FALSE(grid.rings({0.0, 0.0, 0.0}, [](uint32_t) {}, [](double) { return true; }));
+    EXPECT_FALSE(grid.rings({0.0, 0.0, 0.0}, [](std::span<const SpatialGrid::Entry>) {}, [](double) { return true; }));
 }
