@@ -268,6 +268,96 @@ BENCHMARK(BM_PublishingPlayers)
     ->Args({1000, 2, 2})
     ->Unit(benchmark::kMillisecond);
 
+// A node whose scene holds a whole world of `characters` players'
+// characters (docs/scaling.md "every node holds the whole world"), spread at
+// one density (1,000 over a disc of 1 km radius, the world's
+// radius growing with the square root of its players), 200 of them this
+// node's clients, each viewing from its character and weighing its nearest
+// 100 at 256 kbit/s. Per tick: every character's pose arrives and the frame
+// is encoded (world_ms_per_tick: the node's cost per tick for its scene),
+// then the 200 clients tick (client_us_per_tick: CPU per client tick). How
+// a player's tick grows with the world it is in.
+static void BM_CrowdedWorld(benchmark::State& st) {
+    const int characters = int(st.range(0)), clients = 200;
+    const bool acked = st.range(1) != 0;  // every client acknowledges each datagram before the next tick (records predicted)
+    std::vector<InstanceSpec> specs;
+    for (int p = 0; p < characters; ++p) {
+        InstanceSpec s;
+        s.asset = p % 2;
+        s.selection = -1;
+        s.owner = uint64_t(p + 1);
+        specs.push_back(s);
+    }
+    ServerConfig cfg;
+    cfg.max_candidates = 100;
+    ServerCore core(cfg, assets(), specs);
+    FrameEncoder& enc = core.encoder();
+    std::vector<std::vector<std::vector<uint8_t>>> poses(2);  // per asset, 30 frames of records
+    for (int a = 0; a < 2; ++a) {
+        const ServerAsset& as = *assets()[size_t(a)];
+        std::vector<glm::dmat4> m(as.character.joint_count());
+        for (int f = 0; f < 30; ++f) {
+            sample_skinning_matrices(as.character, as.selections[0], as.selections[0].start + f / 30.0 * as.selections[0].duration(), m);
+            std::vector<uint8_t> rec(size_t(as.bone_count()) * size_t(as.format.size()));
+            for (int b = 0; b < as.bone_count(); ++b)
+                encode_bone(decompose(Mat34::from_glm(m[size_t(as.skin.order[size_t(b)])])), as.format,
+                            rec.data() + size_t(b) * size_t(as.format.size()));
+            poses[size_t(a)].push_back(std::move(rec));
+        }
+    }
+    const double radius = 1000.0 * std::sqrt(characters / 1000.0);
+    std::vector<glm::dvec3> where(static_cast<size_t>(characters));
+    for (int p = 0; p < characters; ++p) {
+        const double ang = 2.399963 * p, r = radius * std::sqrt((p + 0.5) / characters);
+        where[size_t(p)] = glm::dvec3(r * std::cos(ang), 0.0, r * std::sin(ang));
+    }
+    std::vector<std::unique_ptr<ClientStream>> client;  // every (characters / clients)-th player is this node's
+    for (int c = 0; c < clients; ++c) {
+        const int p = int(int64_t(c) * characters / clients);
+        client.push_back(ClientStream::detached(core, uint64_t(p + 1), 256));
+        ViewSpec v;
+        v.has_camera = true;
+        v.camera = glm::vec3(where[size_t(p)]);
+        client.back()->set_view(v);
+    }
+    NoSockets sink;
+    std::array<uint8_t, ROOT_BYTES> root{};
+    uint32_t tick = 0;
+    double world = 0, ticking = 0, weighed = 0;
+    auto one_tick = [&](bool timed) {
+        const double t0 = thread_seconds();
+        ++tick;
+        for (int p = 0; p < characters; ++p) {
+            RootPose rp;
+            rp.position = where[size_t(p)];
+            encode_root(rp, root.data());
+            enc.push_records(p, tick, 0, 0, poses[size_t(p % 2)][(tick + uint32_t(p)) % 30], root);
+        }
+        const EncodedFrame& f = enc.encode(tick);
+        const double t1 = thread_seconds();
+        for (auto& c : client) {
+            const TickResult r = c->tick(f, tick / 30.0, 1.0 / 30.0, sink);
+            if (acked && r.datagrams > 0) c->acknowledge(c->next_seq() - 1, ~0u);
+        }
+        const double t2 = thread_seconds();
+        if (!timed) return;
+        world += t1 - t0;
+        ticking += t2 - t1;
+        for (auto& c : client) weighed += double(c->weighed());
+    };
+    // The first ticks send every character whole (nothing was sent yet):
+    // a second of them first, untimed.
+    for (int k = 0; k < 30; ++k) one_tick(false);
+    for (auto _ : st) one_tick(true);
+    const double ticks = double(st.iterations());
+    st.counters["world_ms_per_tick"] = 1e3 * world / ticks;
+    st.counters["client_us_per_tick"] = 1e6 * ticking / ticks / clients;
+    st.counters["weighed_per_client"] = weighed / ticks / clients;
+    st.SetLabel(acked ? "200 clients of a world held whole, each weighing its nearest 100 at 256 kbit/s, acknowledged"
+                      : "200 clients of a world held whole, each weighing its nearest 100 at 256 kbit/s, never acknowledged");
+}
+BENCHMARK(BM_CrowdedWorld)->ArgNames({"characters", "acked"})->ArgsProduct({{1000, 3000, 10000}, {0, 1}})->Unit(benchmark::kMillisecond);
+
 // How the tick's workers send (server.cpp UdpSink): sendto(2) from T threads
 // at once on one UDP socket, 1,100-byte datagrams to a loopback socket that
 // nobody reads (the kernel drops them once its queue is full, after the

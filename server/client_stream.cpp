@@ -577,8 +577,8 @@ DatagramVerdict ClientStream::on_pose(const wire::Pose& p, const PeerAddress& fr
 // ------------------------------------------------------------------- tick --
 
 void ClientStream::update_importance(const EncodedFrame& frame, size_t most) {
-    near_valid_ = false;
     if (near_importance(frame, most)) return;
+    near_valid_ = false;
     weighed_ = frame.instances.size();
     // At every instance's current world position; none for instances this
     // client was not told about (yet) or owns.
@@ -616,7 +616,15 @@ bool ClientStream::near_importance(const EncodedFrame& frame, size_t most) {
     if (frame.instances.size() < kGridFrom * most) return false;
     const double r = core_.config().view_radius;
     const glm::dvec3 cam(view_.camera);
-    importance_.assign(frame.instances.size(), 0.0f);
+    // Zero: after a tick of this path only the ones it weighed can be
+    // non-zero (not the whole world's slots again).
+    if (near_valid_ && importance_.size() <= frame.instances.size()) {
+        for (const uint32_t i : near_) importance_[i] = 0.0f;
+        importance_.resize(frame.instances.size(), 0.0f);
+    } else {
+        importance_.assign(frame.instances.size(), 0.0f);
+    }
+    near_valid_ = false;
     near_.clear();
     below_near_.clear();
     weighed_ = 0;
@@ -741,6 +749,17 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
     const size_t most = candidate_limit(budget);
     update_importance(frame, most);
     bound_candidates(most, frame.tick);
+    // The instances left with importance, ascending: from the few weighed
+    // near the camera, else from every slot.
+    weighed_list_.clear();
+    if (near_valid_) {
+        for (const uint32_t i : near_)
+            if (importance_[i] > 0.0f) weighed_list_.push_back(i);
+        std::sort(weighed_list_.begin(), weighed_list_.end());
+    } else {
+        for (size_t i = 0; i < importance_.size(); ++i)
+            if (importance_[i] > 0.0f) weighed_list_.push_back(uint32_t(i));
+    }
     const bool predict = core_.config().predict_records;
     plan_.begin(frame);
     if (predict) {
@@ -748,8 +767,7 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
         // memory while the current one is planned (each client's book is cold).
         constexpr size_t kAhead = 4;
         planned_.clear();
-        for (size_t i = 0; i < importance_.size(); ++i)
-            if (importance_[i] > 0.0f) planned_.push_back(int(i));
+        for (const uint32_t i : weighed_list_) planned_.push_back(int(i));
         for (size_t k = 0; k < std::min(kAhead, planned_.size()); ++k) book_.prefetch(planned_[k]);
         for (size_t k = 0; k < planned_.size(); ++k) {
             if (k + kAhead < planned_.size()) book_.prefetch(planned_[k + kAhead]);
@@ -763,6 +781,7 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
         const ServerConfig& cfg = core_.config();
         scheduler_.set_shares(core_.owner_groups(), cfg.owner_share_kbps > 0 ? size_t(cfg.owner_share_kbps * 125.0 / cfg.tick_rate) : 0);
         scheduler_.set_floor(cfg.fair_floor);
+        scheduler_.set_candidates(weighed_list_);
         scheduler_.select(frame, core_.assets(), importance_, budget, cfg.tick_rate, picks_, scratch.schedule);
         if (scheduler_.limited()) rate_.mark_limited();
     }

@@ -344,6 +344,7 @@ private:
     std::vector<size_t> candidates_, below_;  // bound_candidates' scratch
     std::vector<uint32_t> near_;      // near_importance: the instances weighed this tick (importance > 0)
     std::vector<uint32_t> below_near_;  // near_importance: those not yet above a ring's bound
+    std::vector<uint32_t> weighed_list_;  // send_frame: the instances of non-zero importance after bound_candidates, ascending
     bool near_valid_ = false;         // this tick's importance came from near_importance (zero beyond near_)
     size_t weighed_ = 0;              // weighed()
     float cut_ = 0.0f;                // bound_candidates: the importance cut tried first (0: none)

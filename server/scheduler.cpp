@@ -656,8 +656,16 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     // costs O(its candidates), not O(the world's instances), beyond this
     // one pass over the importance.
     active_.clear();
-    for (size_t i = 0; i < importance.size() && i < frame.instances.size(); ++i)
-        if (importance[i] > 0.0f && frame.instances[i].valid) active_.push_back(uint32_t(i));
+    if (has_candidates_) {
+        for (const uint32_t i : candidates_)
+            if (i < importance.size() && i < frame.instances.size() && importance[i] > 0.0f && frame.instances[i].valid)
+                active_.push_back(i);
+        has_candidates_ = false;
+        candidates_ = {};
+    } else {
+        for (size_t i = 0; i < importance.size() && i < frame.instances.size(); ++i)
+            if (importance[i] > 0.0f && frame.instances[i].valid) active_.push_back(uint32_t(i));
+    }
     track_slots(frame);
     auto by_importance = [&](const Pick& a, const Pick& b) {
         return importance[a.instance] > importance[b.instance] ||

@@ -203,11 +203,22 @@ public:
         return plan_ ? WireCost::header(e.bone_count) + plan_->root_bytes(frame, i) + (e.sample ? 1 : 0) : WireCost::header(e);
     }
 
+    // The instances of non-zero importance, ascending, when the caller has
+    // them (ClientStream: the nearest found by the frame's grid): the next
+    // select walks them instead of scanning the importance of every slot.
+    // Applies to the next select only; the span must outlive it.
+    void set_candidates(std::span<const uint32_t> ascending) {
+        candidates_ = ascending;
+        has_candidates_ = true;
+    }
+
     // The last select left something unsent (so the rate estimate may probe up).
     bool limited() const { return limited_; }
 
 private:
     const RecordPlan* plan_ = nullptr;
+    std::span<const uint32_t> candidates_;  // set_candidates
+    bool has_candidates_ = false;
     struct State {
         std::vector<uint32_t> bone_tick;  // per progressive bone, tick last sent (0: never)
         std::vector<uint32_t> prev_tick;  // per progressive bone, the tick it was sent before bone_tick (lost)
