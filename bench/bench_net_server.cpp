@@ -274,7 +274,8 @@ BENCHMARK(BM_PublishingPlayers)
 // radius growing with the square root of its players), 200 of them this
 // node's clients, each viewing from its character and weighing its nearest
 // 100 at 256 kbit/s. Per tick: every character's pose arrives and the frame
-// is encoded (world_ms_per_tick: the node's cost per tick for its scene),
+// is encoded (world_ms_per_tick: the node's cost per tick for its scene, on
+// the tick thread; encode_ms_per_tick: of which FrameEncoder::encode),
 // then the 200 clients tick (client_us_per_tick: CPU per client tick). How
 // a player's tick grows with the world it is in.
 static void BM_CrowdedWorld(benchmark::State& st) {
@@ -323,7 +324,7 @@ static void BM_CrowdedWorld(benchmark::State& st) {
     NoSockets sink;
     std::array<uint8_t, ROOT_BYTES> root{};
     uint32_t tick = 0;
-    double world = 0, ticking = 0, weighed = 0;
+    double world = 0, encoding = 0, ticking = 0, weighed = 0;
     auto one_tick = [&](bool timed) {
         const double t0 = thread_seconds();
         ++tick;
@@ -333,6 +334,7 @@ static void BM_CrowdedWorld(benchmark::State& st) {
             encode_root(rp, root.data());
             enc.push_records(p, tick, 0, 0, poses[size_t(p % 2)][(tick + uint32_t(p)) % 30], root);
         }
+        const double tp = thread_seconds();
         const EncodedFrame& f = enc.encode(tick);
         const double t1 = thread_seconds();
         for (auto& c : client) {
@@ -342,6 +344,7 @@ static void BM_CrowdedWorld(benchmark::State& st) {
         const double t2 = thread_seconds();
         if (!timed) return;
         world += t1 - t0;
+        encoding += t1 - tp;
         ticking += t2 - t1;
         for (auto& c : client) weighed += double(c->weighed());
     };
@@ -350,13 +353,67 @@ static void BM_CrowdedWorld(benchmark::State& st) {
     for (int k = 0; k < 30; ++k) one_tick(false);
     for (auto _ : st) one_tick(true);
     const double ticks = double(st.iterations());
-    st.counters["world_ms_per_tick"] = 1e3 * world / ticks;
+    st.counters["world_ms_per_tick"] = 1e3 * world / ticks;  // poses in (push_records) and the encode
+    st.counters["encode_ms_per_tick"] = 1e3 * encoding / ticks;  // of which FrameEncoder::encode
     st.counters["client_us_per_tick"] = 1e6 * ticking / ticks / clients;
     st.counters["weighed_per_client"] = weighed / ticks / clients;
     st.SetLabel(acked ? "200 clients of a world held whole, each weighing its nearest 100 at 256 kbit/s, acknowledged"
                       : "200 clients of a world held whole, each weighing its nearest 100 at 256 kbit/s, never acknowledged");
 }
 BENCHMARK(BM_CrowdedWorld)->ArgNames({"characters", "acked"})->ArgsProduct({{1000, 3000, 10000}, {0, 1}})->Unit(benchmark::kMillisecond);
+
+// The encode of a tick (FrameEncoder::encode, on the server's tick pool,
+// FrameEncoder::set_pool) of `characters` players' characters, each posed
+// every tick: wall and CPU per tick at 1 or more threads.
+static void BM_EncodeWorld(benchmark::State& st) {
+    const int characters = int(st.range(0)), threads = int(st.range(1));
+    std::vector<InstanceSpec> specs;
+    for (int p = 0; p < characters; ++p) {
+        InstanceSpec s;
+        s.asset = p % 2;
+        s.selection = -1;
+        s.owner = uint64_t(p + 1);
+        specs.push_back(s);
+    }
+    FrameEncoder enc(assets(), specs, 30.0f);
+    TickPool pool(threads);
+    enc.set_pool(&pool);
+    std::vector<std::vector<std::vector<uint8_t>>> poses(2);
+    for (int a = 0; a < 2; ++a) {
+        const ServerAsset& as = *assets()[size_t(a)];
+        std::vector<glm::dmat4> m(as.character.joint_count());
+        for (int f = 0; f < 30; ++f) {
+            sample_skinning_matrices(as.character, as.selections[0], as.selections[0].start + f / 30.0 * as.selections[0].duration(), m);
+            std::vector<uint8_t> rec(size_t(as.bone_count()) * size_t(as.format.size()));
+            for (int b = 0; b < as.bone_count(); ++b)
+                encode_bone(decompose(Mat34::from_glm(m[size_t(as.skin.order[size_t(b)])])), as.format,
+                            rec.data() + size_t(b) * size_t(as.format.size()));
+            poses[size_t(a)].push_back(std::move(rec));
+        }
+    }
+    std::array<uint8_t, ROOT_BYTES> root{};
+    uint32_t tick = 0;
+    double cpu = 0, wall = 0;
+    for (auto _ : st) {
+        ++tick;
+        st.PauseTiming();
+        for (int p = 0; p < characters; ++p) {
+            RootPose rp;
+            rp.position = glm::dvec3(double(p % 100), 0.0, double(p / 100));
+            encode_root(rp, root.data());
+            enc.push_records(p, tick, 0, 0, poses[size_t(p % 2)][(tick + uint32_t(p)) % 30], root);
+        }
+        st.ResumeTiming();
+        const double c0 = process_seconds(), w0 = now_seconds();
+        benchmark::DoNotOptimize(enc.encode(tick).tick);
+        cpu += process_seconds() - c0;
+        wall += now_seconds() - w0;
+    }
+    st.counters["encode_wall_ms"] = 1e3 * wall / double(st.iterations());
+    st.counters["encode_cpu_ms"] = 1e3 * cpu / double(st.iterations());
+    st.SetLabel("every character posed every tick (push_records untimed)");
+}
+BENCHMARK(BM_EncodeWorld)->ArgNames({"characters", "threads"})->ArgsProduct({{1000, 10000}, {1, 2}})->Unit(benchmark::kMillisecond);
 
 // How the tick's workers send (server.cpp UdpSink): sendto(2) from T threads
 // at once on one UDP socket, 1,100-byte datagrams to a loopback socket that

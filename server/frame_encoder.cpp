@@ -4,6 +4,8 @@
 #include <random>
 
 #include <algorithm>
+#include <atomic>
+#include <utility>
 #include <cmath>
 
 #include "errors.h"
@@ -22,12 +24,10 @@ FrameEncoder::FrameEncoder(std::vector<std::shared_ptr<ServerAsset>> assets, std
         rel_stride_ = std::max(rel_stride_, (size_t(a->bone_count()) * size_t(kMaxRecordBits) + 7) / 8);
         max_joints = std::max(max_joints, a->character.joint_count());
         morph_stride_ = std::max(morph_stride_, std::min<size_t>(a->character.morphs.size(), MAX_MORPHS));
-        weights_.resize(std::max(weights_.size(), a->character.morphs.size()));
+        max_morphs_ = std::max(max_morphs_, a->character.morphs.size());
     }
-    scratch_.resize(max_joints);
-    model_.resize(max_bones_);
-    decoded_.resize(max_bones_);
-    bits_.reserve(rel_stride_);
+    max_joints_ = max_joints;
+    set_pool(nullptr);
     std::vector<glm::dmat4> first(max_joints), last(max_joints);
     for (const auto& a : assets_) {
         auto& keys = keys_.emplace_back();
@@ -242,21 +242,34 @@ bool FrameEncoder::push_relative(int instance, uint32_t pose_seq, uint8_t epoch,
     return true;
 }
 
-bool FrameEncoder::compose_live(Slot& slot, const ServerAsset& a) {
+bool FrameEncoder::compose_live(Slot& slot, const ServerAsset& a, Work& w) {
     const RelativeFormat& f = a.relative;
     const size_t rs = size_t(a.format.size());
     for (int b = 0; b < a.bone_count(); ++b) {
         const BonePose rel = dequantise_record(slot.rel[size_t(b)], f.pivots[size_t(b)], f);
         const int p = f.parents[size_t(b)];
-        BonePose& m = model_[size_t(b)];
-        m = p < 0 ? rel : compose_relative(model_[size_t(p)], rel);
+        BonePose& m = w.model[size_t(b)];
+        m = p < 0 ? rel : compose_relative(w.model[size_t(p)], rel);
         if (!bone_in_range(m, a.format)) {
-            ++stats_.poses_out_of_range;
+            ++w.stats.poses_out_of_range;
             return false;
         }
     }
-    for (int b = 0; b < a.bone_count(); ++b) encode_bone(model_[size_t(b)], a.format, slot.records.data() + size_t(b) * rs);
+    for (int b = 0; b < a.bone_count(); ++b) encode_bone(w.model[size_t(b)], a.format, slot.records.data() + size_t(b) * rs);
     return true;
+}
+
+void FrameEncoder::set_pool(TickPool* pool) {
+    std::lock_guard lock(mutex_);
+    pool_ = pool;
+    work_.resize(pool ? size_t(pool->threads()) : 1);
+    for (Work& w : work_) {
+        w.bits.reserve(rel_stride_);
+        w.model.resize(max_bones_);
+        w.decoded.resize(max_bones_);
+        w.mats.resize(max_joints_);
+        w.weights.resize(max_morphs_);
+    }
 }
 
 bool FrameEncoder::set_root(int instance, const RootPose& root, bool teleport) {
@@ -302,94 +315,25 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         for (size_t k = 0; k < EncodedFrame::OwnCache::kEntries; ++k) frame_.own_cache->entries[k].store(0, std::memory_order_relaxed);
         frame_.epoch = 1;
     }
-    for (size_t i = 0; i < slots_.size(); ++i) {
-        Slot& slot = slots_[i];
-        auto& e = frame_.instances[i];
-        e.active = slot.active;
-        e.valid = false;
-        if (!slot.active) continue;
-        const auto& s = slot.spec;
-        const ServerAsset& a = *assets_[s.asset];
-        e.asset = s.asset;
-        e.bone_count = a.bone_count();
-        e.record_size = a.format.size();
-        e.offset = i * stride_;
-        e.generation = slot.generation;
-        e.owner = s.owner;
-        e.morph_count = 0;
-        e.morph_offset = i * morph_stride_;
-        e.rel_offset = i * rel_stride_;
-        e.bit_index = i * (max_bones_ + 1);
-        uint8_t* out = frame_.bytes.data() + e.offset;
-        e.model = slot.live || s.selection < 0 ? int(a.selections.size()) : s.selection;
-        e.flags = uint8_t((a.format.scaled ? CHUNK_SCALED : 0) | (slot.has_root ? CHUNK_ROOT : 0));
-        e.sample = 0;
-        if (slot.has_root) {
-            e.root = slot.root;
-            e.world = decode_root(slot.root.data()).position;
-        } else {
-            e.world = glm::dvec3(s.position);
-        }
-        if (slot.changed || !slot.live) slot.changed_tick = tick;
-        const bool changed = slot.changed;
-        slot.changed = false;
-        e.changed_tick = slot.changed_tick;
-        if (slot.live) {
-            if (!slot.has_pose) continue;
-            if (slot.relative && (changed || !slot.rel_ready) && !compose_live(slot, a)) {
-                slot.rel_ready = false;
-                continue;  // counted; not sent this tick
-            }
-            std::copy(slot.records.begin(), slot.records.end(), out);
-            if (changed || !slot.rel_ready) {
-                const size_t rs = size_t(e.record_size);
-                if (!slot.relative)
-                    for (int b = 0; b < e.bone_count; ++b) model_[size_t(b)] = decode_bone(out + size_t(b) * rs, a.format);
-                slot.rel_ready = encode_relative(i, a);
-                if (!slot.rel_ready) continue;  // counted; not sent this tick
-            }
-            if (!slot.morphs.empty()) {
-                e.morph_count = int(slot.morphs.size());
-                std::copy(slot.morphs.begin(), slot.morphs.end(), frame_.morph.begin() + long(e.morph_offset));
-            }
-            e.epoch = uint8_t(slot.teleports + slot.live_epoch);
-            e.valid = true;
-            keep_baseline(i, tick, slot.generation);
-            continue;
-        }
-        const int J = int(a.character.joint_count());
-        std::span<glm::dmat4> mats(scratch_.data(), size_t(J));
-        const ClipSelection& sel = a.selections[size_t(s.selection)];
-        int64_t loops = 0;
-        const double at_tick = sel.played(s.time_offset + double(tick) / tick_rate_ * s.speed, s.once, &loops);
-        const double t = key_sample(s, sel, keys_[size_t(s.asset)][size_t(s.selection)], tick, at_tick, loops, e.sample);
-        sample_skinning_matrices(a.character, sel, t, mats);
-        const size_t rs = size_t(e.record_size);
-        for (int b = 0; b < e.bone_count; ++b) {
-            const BonePose p = decompose(Mat34::from_glm(mats[size_t(a.skin.order[b])]));
-            if (!bone_in_range(p, a.format)) ++stats_.poses_out_of_range;  // the box covers the clips: never expected
-            encode_bone(p, a.format, out + size_t(b) * rs);
-            model_[size_t(b)] = p;
-        }
-        if (!encode_relative(i, a)) continue;  // counted; not sent this tick
-        if (!a.character.morphs.empty()) {
-            sample_morph_weights(a.character, sel, t, std::span<float>(weights_.data(), a.character.morphs.size()));
-            e.morph_count = int(std::min<size_t>(a.character.morphs.size(), MAX_MORPHS));
-            int32_t* w = frame_.morph.data() + e.morph_offset;
-            for (int m = 0; m < e.morph_count; ++m) {
-                int16_t q;
-                if (encode_morph_weight(weights_[size_t(m)], q)) {
-                    w[m] = q;
-                } else {
-                    w[m] = kNoWeight;
-                    ++stats_.morphs_out_of_range;
-                }
-            }
-        }
-        if (seamless_[size_t(s.asset)][size_t(s.selection)]) loops = 0;  // the wrap is no discontinuity
-        e.epoch = uint8_t(int64_t(slot.teleports) + loops);
-        e.valid = true;
-        keep_baseline(i, tick, slot.generation);
+    // Every slot by one thread, with that thread's scratch: a run of
+    // kPoolRun slots at a time, so that threads share out a tick of mixed
+    // clip and live characters.
+    const size_t n = slots_.size();
+    if (pool_ && pool_->threads() > 1 && n >= kPoolFrom) {
+        std::atomic<size_t> next{0};
+        auto job = [&](int t) {
+            Work& w = work_[size_t(t)];
+            for (size_t at = next.fetch_add(kPoolRun); at < n; at = next.fetch_add(kPoolRun))
+                for (size_t i = at; i < std::min(n, at + kPoolRun); ++i) encode_slot(i, tick, w);
+        };
+        pool_->run(job);
+    } else {
+        for (size_t i = 0; i < n; ++i) encode_slot(i, tick, work_[0]);
+    }
+    for (Work& w : work_) {
+        stats_.poses_out_of_range += std::exchange(w.stats.poses_out_of_range, 0);
+        stats_.morphs_out_of_range += std::exchange(w.stats.morphs_out_of_range, 0);
+        stats_.records_refused += std::exchange(w.stats.records_refused, 0);
     }
     frame_.grid.begin();
     for (size_t i = 0; i < slots_.size(); ++i)
@@ -397,6 +341,96 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
             frame_.grid.add({uint32_t(i), e.generation, e.owner, e.world, assets_[size_t(e.asset)]->diagonal});
     frame_.grid.finish();
     return frame_;
+}
+
+void FrameEncoder::encode_slot(size_t i, uint32_t tick, Work& w) {
+    Slot& slot = slots_[i];
+    auto& e = frame_.instances[i];
+    e.active = slot.active;
+    e.valid = false;
+    if (!slot.active) return;
+    const auto& s = slot.spec;
+    const ServerAsset& a = *assets_[s.asset];
+    e.asset = s.asset;
+    e.bone_count = a.bone_count();
+    e.record_size = a.format.size();
+    e.offset = i * stride_;
+    e.generation = slot.generation;
+    e.owner = s.owner;
+    e.morph_count = 0;
+    e.morph_offset = i * morph_stride_;
+    e.rel_offset = i * rel_stride_;
+    e.bit_index = i * (max_bones_ + 1);
+    uint8_t* out = frame_.bytes.data() + e.offset;
+    e.model = slot.live || s.selection < 0 ? int(a.selections.size()) : s.selection;
+    e.flags = uint8_t((a.format.scaled ? CHUNK_SCALED : 0) | (slot.has_root ? CHUNK_ROOT : 0));
+    e.sample = 0;
+    if (slot.has_root) {
+        e.root = slot.root;
+        e.world = decode_root(slot.root.data()).position;
+    } else {
+        e.world = glm::dvec3(s.position);
+    }
+    if (slot.changed || !slot.live) slot.changed_tick = tick;
+    const bool changed = slot.changed;
+    slot.changed = false;
+    e.changed_tick = slot.changed_tick;
+    if (slot.live) {
+        if (!slot.has_pose) return;
+        if (slot.relative && (changed || !slot.rel_ready) && !compose_live(slot, a, w)) {
+            slot.rel_ready = false;
+            return;  // counted; not sent this tick
+        }
+        std::copy(slot.records.begin(), slot.records.end(), out);
+        if (changed || !slot.rel_ready) {
+            const size_t rs = size_t(e.record_size);
+            if (!slot.relative)
+                for (int b = 0; b < e.bone_count; ++b) w.model[size_t(b)] = decode_bone(out + size_t(b) * rs, a.format);
+            slot.rel_ready = encode_relative(i, a, w);
+            if (!slot.rel_ready) return;  // counted; not sent this tick
+        }
+        if (!slot.morphs.empty()) {
+            e.morph_count = int(slot.morphs.size());
+            std::copy(slot.morphs.begin(), slot.morphs.end(), frame_.morph.begin() + long(e.morph_offset));
+        }
+        e.epoch = uint8_t(slot.teleports + slot.live_epoch);
+        e.valid = true;
+        keep_baseline(i, tick, slot.generation);
+        return;
+    }
+    const int J = int(a.character.joint_count());
+    std::span<glm::dmat4> mats(w.mats.data(), size_t(J));
+    const ClipSelection& sel = a.selections[size_t(s.selection)];
+    int64_t loops = 0;
+    const double at_tick = sel.played(s.time_offset + double(tick) / tick_rate_ * s.speed, s.once, &loops);
+    const double t = key_sample(s, sel, keys_[size_t(s.asset)][size_t(s.selection)], tick, at_tick, loops, e.sample);
+    sample_skinning_matrices(a.character, sel, t, mats);
+    const size_t rs = size_t(e.record_size);
+    for (int b = 0; b < e.bone_count; ++b) {
+        const BonePose p = decompose(Mat34::from_glm(mats[size_t(a.skin.order[b])]));
+        if (!bone_in_range(p, a.format)) ++w.stats.poses_out_of_range;  // the box covers the clips: never expected
+        encode_bone(p, a.format, out + size_t(b) * rs);
+        w.model[size_t(b)] = p;
+    }
+    if (!encode_relative(i, a, w)) return;  // counted; not sent this tick
+    if (!a.character.morphs.empty()) {
+        sample_morph_weights(a.character, sel, t, std::span<float>(w.weights.data(), a.character.morphs.size()));
+        e.morph_count = int(std::min<size_t>(a.character.morphs.size(), MAX_MORPHS));
+        int32_t* q_out = frame_.morph.data() + e.morph_offset;
+        for (int m = 0; m < e.morph_count; ++m) {
+            int16_t q;
+            if (encode_morph_weight(w.weights[size_t(m)], q)) {
+                q_out[m] = q;
+            } else {
+                q_out[m] = kNoWeight;
+                ++w.stats.morphs_out_of_range;
+            }
+        }
+    }
+    if (seamless_[size_t(s.asset)][size_t(s.selection)]) loops = 0;  // the wrap is no discontinuity
+    e.epoch = uint8_t(int64_t(slot.teleports) + loops);
+    e.valid = true;
+    keep_baseline(i, tick, slot.generation);
 }
 
 // A linearly keyed clip moves along straight lines between its keys: a
@@ -425,17 +459,17 @@ double FrameEncoder::key_sample(const InstanceSpec& s, const ClipSelection& sel,
     return std::max(wrapped ? double(sel.start) : tp, t - double(q) / 254 * step);
 }
 
-bool FrameEncoder::encode_relative(size_t i, const ServerAsset& a) {
+bool FrameEncoder::encode_relative(size_t i, const ServerAsset& a, Work& w) {
     const EncodedInstance& e = frame_.instances[i];
     const size_t B = size_t(a.bone_count());
-    bits_.clear();
+    w.bits.clear();
     std::span<uint32_t> offsets(frame_.bit_offsets.data() + e.bit_index, B + 1);
-    if (!encode_pose(std::span<const BonePose>(model_.data(), B), a.relative, bits_, offsets,
-                     std::span<BonePose>(decoded_.data(), B), std::span<RecordInts>(frame_.ints.data() + i * max_bones_, B))) {
-        ++stats_.records_refused;
+    if (!encode_pose(std::span<const BonePose>(w.model.data(), B), a.relative, w.bits, offsets,
+                     std::span<BonePose>(w.decoded.data(), B), std::span<RecordInts>(frame_.ints.data() + i * max_bones_, B))) {
+        ++w.stats.records_refused;
         return false;
     }
-    std::copy(bits_.begin(), bits_.end(), frame_.rel.begin() + long(e.rel_offset));
+    std::copy(w.bits.begin(), w.bits.end(), frame_.rel.begin() + long(e.rel_offset));
     return true;
 }
 

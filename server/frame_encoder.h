@@ -35,6 +35,7 @@
 
 #include "scene.h"
 #include "spatial_grid.h"
+#include "tick_pool.h"
 #include "wire.h"
 
 namespace progskin::net {
@@ -186,7 +187,17 @@ public:
     void set_key_samples(bool on) { key_samples_ = on; }
     // Samples and encodes every active instance at `tick`. No allocation
     // after the first call unless instances were added past the capacity.
+    // With a pool (set_pool) of more than one thread and at least
+    // kPoolFrom slots, the slots are spread over its threads, a run of
+    // kPoolRun at a time; what each slot encodes to does not depend on the
+    // thread (the frame is the same bit for bit).
     const EncodedFrame& encode(uint32_t tick);
+    // The threads encode() may use (nullptr: the caller's alone). The pool
+    // must outlive the encoder's use of it, and nobody else may run it
+    // during encode() (ServerCore: the tick thread encodes, then ticks the
+    // clients on the same pool).
+    void set_pool(TickPool* pool);
+    static constexpr size_t kPoolFrom = 64, kPoolRun = 16;
     const EncodedFrame& frame() const { return frame_; }
 
     // Adds an instance; returns its id. Throws Error for a bad asset or clip
@@ -260,8 +271,19 @@ private:
     size_t stride_ = 0;             // bytes per slot (the largest asset's records)
     size_t rel_stride_ = 0;         // relative record bytes per slot (the largest asset's worst case)
     size_t max_bones_ = 0;          // bones of the largest asset
-    std::vector<uint8_t> bits_;     // encode_pose scratch
-    std::vector<BonePose> model_, decoded_;
+    // encode's scratch, one per thread that encodes (work_[0]: the caller's;
+    // then the pool's workers): each slot is encoded by one thread with its own.
+    struct Work {
+        std::vector<uint8_t> bits;            // encode_pose's
+        std::vector<BonePose> model, decoded;
+        std::vector<glm::dmat4> mats;         // a clip's skinning matrices
+        std::vector<float> weights;           // sample_morph_weights'
+        EncoderStats stats;                   // added to stats_ after the tick
+    };
+    std::vector<Work> work_;
+    TickPool* pool_ = nullptr;
+    // Samples (or takes the live pose of) slot i and encodes it into frame_.
+    void encode_slot(size_t i, uint32_t tick, Work& w);
     // The slot a player's pose (sequence pose_seq, weights morphs) goes into,
     // mutex_ held: nullptr when the instance is not active, the pose is older
     // than the kept one (counted stale) or the weights are not one per target.
@@ -271,9 +293,9 @@ private:
                    std::span<const int16_t> morphs, bool relative);
     // A push_relative pose composed into model_ and the slot's absolute
     // records; false (counted) when a bone leaves the asset's box.
-    bool compose_live(Slot& slot, const ServerAsset& a);
-    // Codes slot i's poses (model_) as relative records into the frame; false when refused.
-    bool encode_relative(size_t i, const ServerAsset& a);
+    bool compose_live(Slot& slot, const ServerAsset& a, Work& w);
+    // Codes slot i's poses (w.model) as relative records into the frame; false when refused.
+    bool encode_relative(size_t i, const ServerAsset& a, Work& w);
     // Keeps slot i's integers of this tick in the baseline ring.
     void keep_baseline(size_t i, uint32_t tick, uint32_t generation);
     // Per asset and clip selection: the loop is seamless (its last pose is
@@ -294,9 +316,8 @@ private:
     double key_sample(const InstanceSpec& s, const ClipSelection& sel, const Keys& keys, uint32_t tick, double t,
                       int64_t loops, uint8_t& sample) const;
     EncodedFrame frame_;
-    std::vector<glm::dmat4> scratch_;
     size_t morph_stride_ = 0;       // weights per slot (the largest streamed morph count)
-    std::vector<float> weights_;    // sample_morph_weights scratch
+    size_t max_joints_ = 0, max_morphs_ = 0;  // the largest asset's (Work's sizes)
     mutable std::mutex mutex_;      // slots_, free_, stats_
     uint32_t world_tag_ = 0;        // random, 24 bits, nonzero: the high bits of this encoder's world ids
     std::vector<Slot> slots_;

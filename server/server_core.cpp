@@ -378,6 +378,7 @@ void ServerCore::on_datagram(std::span<const uint8_t> bytes, const PeerAddress& 
 
 void ServerCore::set_pool(TickPool* pool) {
     pool_ = pool;
+    encoder_.set_pool(pool);  // the tick's encode on the same threads, before the clients' ticks
     const size_t n = pool ? size_t(pool->threads()) : 0;
     pool_scratch_.clear();
     for (size_t i = 0; i < n; ++i) pool_scratch_.push_back(std::make_unique<TickScratch>());

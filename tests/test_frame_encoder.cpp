@@ -349,3 +349,68 @@ TEST(FrameEncoder, TeleportChangesTheEpoch) {
     r.position = glm::dvec3(1e10, 0, 0);  // outside the root block's +-2147 km
     EXPECT_FALSE(enc.set_root(0, r, false));
 }
+
+// set_pool: a tick's slots spread over several threads encode to the same
+// frame, bit for bit, as on one thread: clip instances (some with morph
+// weights), live instances posed every tick, some every few ticks, some
+// never, instances added and removed between ticks; and the counters add
+// up alike (a refused pose counted once, whichever thread met it).
+TEST(FrameEncoder, APoolEncodesTheSameFrameAsOneThread) {
+    std::vector<std::shared_ptr<ServerAsset>> assets = fox_and_cesium();
+    assets.push_back(progskin::net::testing::skinned_morph_asset());
+    std::vector<InstanceSpec> specs;
+    for (int k = 0; k < 150; ++k) {
+        InstanceSpec s;
+        s.asset = k % 3;
+        s.selection = k % 5 == 0 ? -1 : int(k % int(assets[size_t(s.asset)]->selections.size()));
+        s.position = glm::vec3(float(k), 0.0f, float(k % 9));
+        s.time_offset = 0.1f * float(k);
+        specs.push_back(s);
+    }
+    FrameEncoder one(assets, specs, 30.0f), many(assets, specs, 30.0f);
+    TickPool pool(3);
+    many.set_pool(&pool);
+    size_t compared = 0;
+    for (uint32_t tick = 1; tick <= 40; ++tick) {
+        for (FrameEncoder* enc : {&one, &many}) {
+            for (int k = 0; k < 150; k += 5) {  // the live ones
+                if ((k / 5) % 4 == 3 || tick % (1 + (k / 5) % 3) != 0) continue;  // some never, some every few ticks
+                const ServerAsset& a = *assets[size_t(k % 3)];
+                ASSERT_TRUE(enc->push_pose(k, sampled_palette(a, a.selections[0], 0.05 * tick + 0.01 * k)));
+            }
+            if (tick == 10) {
+                enc->remove_instance(7);
+                enc->remove_instance(8);
+            }
+            if (tick == 20) {
+                InstanceSpec s = specs[3];
+                s.position = glm::vec3(-5.0f, 0.0f, 2.0f);
+                enc->add_instance(s);
+            }
+            if (tick == 25 && enc->push_pose(0, out_of_range_pose(*assets[0]))) ADD_FAILURE() << "an out-of-range pose was taken";
+        }
+        const EncodedFrame& a = one.encode(tick);
+        const EncodedFrame& b = many.encode(tick);
+        ASSERT_EQ(a.instances.size(), b.instances.size());
+        for (size_t i = 0; i < a.instances.size(); ++i) {
+            const EncodedInstance &x = a.instances[i], &y = b.instances[i];
+            ASSERT_EQ(x.active, y.active) << "tick " << tick << " slot " << i;
+            ASSERT_EQ(x.valid, y.valid) << "tick " << tick << " slot " << i;
+            if (!x.valid) continue;
+            ++compared;
+            EXPECT_EQ(x.epoch, y.epoch);
+            EXPECT_EQ(x.changed_tick, y.changed_tick);
+            EXPECT_EQ(x.sample, y.sample);
+            EXPECT_EQ(x.morph_count, y.morph_count);
+            ASSERT_EQ(0, std::memcmp(a.records(int(i)), b.records(int(i)), size_t(x.bone_count * x.record_size)))
+                << "tick " << tick << " slot " << i;
+            ASSERT_EQ(a.record_bits(int(i), 0, x.bone_count), b.record_bits(int(i), 0, y.bone_count));
+            const size_t bits = a.record_bits(int(i), 0, x.bone_count);
+            ASSERT_EQ(0, std::memcmp(a.relative(int(i)), b.relative(int(i)), bits / 8)) << "tick " << tick << " slot " << i;
+            for (int m = 0; m < x.morph_count; ++m) EXPECT_EQ(a.morphs(int(i))[size_t(m)], b.morphs(int(i))[size_t(m)]);
+        }
+    }
+    EXPECT_GT(compared, 4000u);
+    EXPECT_EQ(one.stats().poses_out_of_range, many.stats().poses_out_of_range);
+    EXPECT_EQ(one.stats().records_refused, many.stats().records_refused);
+}
