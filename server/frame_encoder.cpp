@@ -563,7 +563,7 @@ static uint64_t own_key(uint32_t epoch, int i, int b, uint8_t base) {
     return (uint64_t(epoch) << 44) | (uint64_t(i) << 28) | (uint64_t(b) << 20) | (uint64_t((age - 1) * 2 + linear) << 15);
 }
 static size_t own_slot(uint64_t key) {
-    return size_t((key * 0x9E3779B97F4A7C15ull) >> 48) & (EncodedFrame::OwnCache::kEntries - 1);
+    return size_t((key * 0x9E3779B97F4A7C15ull) >> 40) & (EncodedFrame::OwnCache::kEntries - 1);
 }
 
 void EncodedFrame::own_prefetch(int i, int b, uint8_t base) const {

@@ -160,7 +160,7 @@ struct EncodedFrame {
     // predictable). The encoder bumps the epoch every tick and clears the
     // table when the epoch's 20 bits wrap.
     struct OwnCache {
-        static constexpr size_t kEntries = size_t(1) << 16;
+        static constexpr size_t kEntries = size_t(1) << 18;
         std::unique_ptr<std::atomic<uint64_t>[]> entries = std::make_unique<std::atomic<uint64_t>[]>(kEntries);
     };
     uint32_t epoch = 0;
