@@ -163,7 +163,9 @@ static double process_seconds() {
 // mode 0: everyone sees everyone alike (no view) at 1 Mbit/s each; mode 1:
 // players spread over a 2 km world, each viewing from its own character
 // (far characters cheap), 256 kbit/s each; mode 2: as mode 1, each player
-// weighing only the nearest 100 characters (ServerConfig::max_candidates 100).
+// weighing only the nearest 100 characters (ServerConfig::max_candidates 100);
+// mode 3: as mode 2, each player acknowledging its datagrams before the next
+// tick, as real players do (records go predicted from its own baselines).
 // Third argument: tick threads (ServerConfig::threads; the per-player part
 // spread over a TickPool by ServerCore::tick_streams, as in the server; the
 // poses and the encoding stay on this thread). core_load_at_30Hz: the
@@ -175,6 +177,7 @@ static void BM_PublishingPlayers(benchmark::State& st) {
     const int players = int(st.range(0));
     const int mode = int(st.range(1));
     const bool views = mode != 0;
+    const bool acked = mode == 3;
     const int threads = std::max(1, int(st.range(2)));
     const double kbps = views ? 256 : 1000;
     std::vector<InstanceSpec> specs;
@@ -186,7 +189,7 @@ static void BM_PublishingPlayers(benchmark::State& st) {
         specs.push_back(s);
     }
     ServerConfig cfg;
-    if (mode == 2) cfg.max_candidates = 100;
+    if (mode >= 2) cfg.max_candidates = 100;
     ServerCore core(cfg, assets(), specs);
     TickPool pool(threads);
     core.set_pool(&pool);
@@ -220,6 +223,7 @@ static void BM_PublishingPlayers(benchmark::State& st) {
     }
     std::vector<ClientStream*> streams;
     for (auto& c : client) streams.push_back(c.get());
+    std::vector<uint32_t> seq_before(client.size());
     NoSockets sink;
     std::array<uint8_t, ROOT_BYTES> root{};
     uint32_t tick = 0;
@@ -239,7 +243,13 @@ static void BM_PublishingPlayers(benchmark::State& st) {
         }
         const EncodedFrame& f = enc.encode(tick);
         g_hash_on = tick <= 20;
+        if (acked)
+            for (size_t p = 0; p < client.size(); ++p) seq_before[p] = client[p]->next_seq();
         sent += double(core.tick_streams(streams, f, tick / 30.0, 1.0 / 30.0, sink).wire_bytes);
+        // Mode 3: each player acknowledges what it was sent before the next tick (records go predicted).
+        if (acked)
+            for (size_t p = 0; p < client.size(); ++p)
+                if (client[p]->next_seq() != seq_before[p]) client[p]->acknowledge(client[p]->next_seq() - 1, ~0u);
         busy += process_seconds() - t0;
         wall += now_seconds() - w0;
         for (const ClientStream* c : streams) weighed += double(c->weighed());
@@ -255,7 +265,8 @@ static void BM_PublishingPlayers(benchmark::State& st) {
     st.counters["weighed_per_player"] = weighed / ticks / players;  // instances whose importance a player's tick computed
     st.SetLabel(mode == 0   ? "everyone sees everyone, 1 Mbit/s"
                 : mode == 1 ? "players over 2 km, each viewing from its character, 256 kbit/s"
-                            : "players over 2 km, each weighing its nearest 100, 256 kbit/s");
+                : mode == 2 ? "players over 2 km, each weighing its nearest 100, 256 kbit/s"
+                            : "players over 2 km, each weighing its nearest 100, 256 kbit/s, acknowledging");
 }
 BENCHMARK(BM_PublishingPlayers)
     ->ArgNames({"players", "mode", "threads"})
@@ -266,6 +277,9 @@ BENCHMARK(BM_PublishingPlayers)
     ->Args({200, 2, 2})
     ->Args({1000, 2, 1})
     ->Args({1000, 2, 2})
+    ->Args({200, 3, 1})
+    ->Args({1000, 3, 1})
+    ->Args({1000, 3, 2})
     ->Unit(benchmark::kMillisecond);
 
 // A node whose scene holds a whole world of `characters` players'

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # tsan.sh — the networking tests under ThreadSanitizer: configures build-tsan
 # (-DPROGSKIN_TSAN=ON, no benchmarks), builds the multiplayer, security and
-# threads tests, progskin-client and examples/game_loop (which the
+# threads tests and the encoder's (its tick on a pool), progskin-client and examples/game_loop (which the
 # multiplayer tests start), and runs them with every in-process server at
 # $PROGSKIN_TEST_THREADS tick threads (default 3: more threads than this
 # machine's cores, the control thread beside them). A ThreadSanitizer report
@@ -22,7 +22,7 @@ launcher=()
 command -v ccache >/dev/null && launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache -DCMAKE_C_COMPILER_LAUNCHER=ccache)
 cmake -S . -B build-tsan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPROGSKIN_TSAN=ON -DPROGSKIN_BUILD_BENCH=OFF \
   "${launcher[@]}" >/dev/null
-tests=(test_net_threads test_net_multiplayer test_net_security)
+tests=(test_net_threads test_net_multiplayer test_net_security test_frame_encoder)
 cmake --build build-tsan -j"$jobs" --target "${tests[@]}" progskin-client game_loop
 built=$(date +%s)
 export PROGSKIN_TEST_THREADS=${PROGSKIN_TEST_THREADS:-3}
