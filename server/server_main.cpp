@@ -58,7 +58,7 @@ static const char* kUsage =
     "                    and publish their own characters: progskin-client --publish)\n"
     "  --play loop|once  clips loop (default) or play once and hold their last frame\n"
     "  --tick-rate HZ    ticks per second (default 30)\n"
-    "  --threads N       threads of the tick's per-client work (1..256; default: the\n"
+    "  --threads N       threads of the tick (its encode, then the per-client work; 1..256; default: the\n"
     "                    machine's cores). With more than 1, connections (TLS handshakes,\n"
     "                    control messages, asset downloads) also get a thread of their own\n"
     "                    and never delay a tick; 1: one thread for everything\n"
