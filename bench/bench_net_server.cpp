@@ -172,30 +172,24 @@ static double process_seconds() {
 // process's CPU time (every thread) per tick x 30; players_per_core = P /
 // load (at this P); cpu_us_per_player_tick: CPU per player per tick;
 // wall_ms_per_tick: elapsed time per tick (what threads shorten).
-static void BM_PublishingPlayers(benchmark::State& st) {
-    digest_begin();
-    const int players = int(st.range(0));
-    const int mode = int(st.range(1));
-    const bool views = mode != 0;
-    const bool acked = mode == 3;
-    const int threads = std::max(1, int(st.range(2)));
-    const double kbps = views ? 256 : 1000;
+// Players' characters: n live instances (no clip), alternately of the two
+// assets, player p + 1 owning instance p.
+static std::vector<InstanceSpec> players_characters(int n) {
     std::vector<InstanceSpec> specs;
-    for (int p = 0; p < players; ++p) {
+    for (int p = 0; p < n; ++p) {
         InstanceSpec s;
         s.asset = p % 2;
         s.selection = -1;
         s.owner = uint64_t(p + 1);
         specs.push_back(s);
     }
-    ServerConfig cfg;
-    if (mode >= 2) cfg.max_candidates = 100;
-    ServerCore core(cfg, assets(), specs);
-    TickPool pool(threads);
-    core.set_pool(&pool);
-    FrameEncoder& enc = core.encoder();
-    // Each player's pose source: its asset's clip, sampled as a publisher does.
-    std::vector<std::vector<std::vector<uint8_t>>> poses(2);  // per asset, 30 frames of records
+    return specs;
+}
+
+// A player's pose source: per asset, 30 frames of its first clip as the
+// records a publisher sends.
+static std::vector<std::vector<std::vector<uint8_t>>> published_poses() {
+    std::vector<std::vector<std::vector<uint8_t>>> poses(2);
     for (int a = 0; a < 2; ++a) {
         const ServerAsset& as = *assets()[size_t(a)];
         std::vector<glm::dmat4> m(as.character.joint_count());
@@ -208,6 +202,26 @@ static void BM_PublishingPlayers(benchmark::State& st) {
             poses[size_t(a)].push_back(std::move(rec));
         }
     }
+    return poses;
+}
+
+static void BM_PublishingPlayers(benchmark::State& st) {
+    digest_begin();
+    const int players = int(st.range(0));
+    const int mode = int(st.range(1));
+    const bool views = mode != 0;
+    const bool acked = mode == 3;
+    const int threads = std::max(1, int(st.range(2)));
+    const double kbps = views ? 256 : 1000;
+    const std::vector<InstanceSpec> specs = players_characters(players);
+    ServerConfig cfg;
+    if (mode >= 2) cfg.max_candidates = 100;
+    ServerCore core(cfg, assets(), specs);
+    TickPool pool(threads);
+    core.set_pool(&pool);
+    FrameEncoder& enc = core.encoder();
+    // Each player's pose source: its asset's clip, sampled as a publisher does.
+    const auto poses = published_poses();  // per asset, 30 frames of records
     std::vector<glm::dvec3> where(static_cast<size_t>(players));
     std::vector<std::unique_ptr<ClientStream>> client;  // player p's session (id p + 1: never sent its own)
     for (int p = 0; p < players; ++p) {
@@ -295,31 +309,12 @@ BENCHMARK(BM_PublishingPlayers)
 static void BM_CrowdedWorld(benchmark::State& st) {
     const int characters = int(st.range(0)), clients = 200;
     const bool acked = st.range(1) != 0;  // every client acknowledges each datagram before the next tick (records predicted)
-    std::vector<InstanceSpec> specs;
-    for (int p = 0; p < characters; ++p) {
-        InstanceSpec s;
-        s.asset = p % 2;
-        s.selection = -1;
-        s.owner = uint64_t(p + 1);
-        specs.push_back(s);
-    }
+    const std::vector<InstanceSpec> specs = players_characters(characters);
     ServerConfig cfg;
     cfg.max_candidates = 100;
     ServerCore core(cfg, assets(), specs);
     FrameEncoder& enc = core.encoder();
-    std::vector<std::vector<std::vector<uint8_t>>> poses(2);  // per asset, 30 frames of records
-    for (int a = 0; a < 2; ++a) {
-        const ServerAsset& as = *assets()[size_t(a)];
-        std::vector<glm::dmat4> m(as.character.joint_count());
-        for (int f = 0; f < 30; ++f) {
-            sample_skinning_matrices(as.character, as.selections[0], as.selections[0].start + f / 30.0 * as.selections[0].duration(), m);
-            std::vector<uint8_t> rec(size_t(as.bone_count()) * size_t(as.format.size()));
-            for (int b = 0; b < as.bone_count(); ++b)
-                encode_bone(decompose(Mat34::from_glm(m[size_t(as.skin.order[size_t(b)])])), as.format,
-                            rec.data() + size_t(b) * size_t(as.format.size()));
-            poses[size_t(a)].push_back(std::move(rec));
-        }
-    }
+    const auto poses = published_poses();  // per asset, 30 frames of records
     const double radius = 1000.0 * std::sqrt(characters / 1000.0);
     std::vector<glm::dvec3> where(static_cast<size_t>(characters));
     for (int p = 0; p < characters; ++p) {
@@ -381,30 +376,11 @@ BENCHMARK(BM_CrowdedWorld)->ArgNames({"characters", "acked"})->ArgsProduct({{100
 // every tick: wall and CPU per tick at 1 or more threads.
 static void BM_EncodeWorld(benchmark::State& st) {
     const int characters = int(st.range(0)), threads = int(st.range(1));
-    std::vector<InstanceSpec> specs;
-    for (int p = 0; p < characters; ++p) {
-        InstanceSpec s;
-        s.asset = p % 2;
-        s.selection = -1;
-        s.owner = uint64_t(p + 1);
-        specs.push_back(s);
-    }
+    const std::vector<InstanceSpec> specs = players_characters(characters);
     FrameEncoder enc(assets(), specs, 30.0f);
     TickPool pool(threads);
     enc.set_pool(&pool);
-    std::vector<std::vector<std::vector<uint8_t>>> poses(2);
-    for (int a = 0; a < 2; ++a) {
-        const ServerAsset& as = *assets()[size_t(a)];
-        std::vector<glm::dmat4> m(as.character.joint_count());
-        for (int f = 0; f < 30; ++f) {
-            sample_skinning_matrices(as.character, as.selections[0], as.selections[0].start + f / 30.0 * as.selections[0].duration(), m);
-            std::vector<uint8_t> rec(size_t(as.bone_count()) * size_t(as.format.size()));
-            for (int b = 0; b < as.bone_count(); ++b)
-                encode_bone(decompose(Mat34::from_glm(m[size_t(as.skin.order[size_t(b)])])), as.format,
-                            rec.data() + size_t(b) * size_t(as.format.size()));
-            poses[size_t(a)].push_back(std::move(rec));
-        }
-    }
+    const auto poses = published_poses();
     std::array<uint8_t, ROOT_BYTES> root{};
     uint32_t tick = 0;
     double cpu = 0, wall = 0;
