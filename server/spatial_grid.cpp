@@ -1,10 +1,46 @@
 // spatial_grid.cpp — see spatial_grid.h.
 #include "spatial_grid.h"
 
+#include <algorithm>
+
 namespace progskin::net {
+
+// The box most of the points lie in: their 5th to 95th percentiles on x
+// and z, widened by that span on each side. A point outside it (a
+// character placed far from everybody) has no cell but goes to
+// everywhere(): a few far points do not stretch every cell (one player
+// could otherwise put the whole world in one cell, and every client's
+// search back to weighing all of it).
+void SpatialGrid::keep_outliers_apart() {
+    const size_t n = pts_.size();
+    if (n < kOutliersFrom) return;
+    auto box = [&](auto coord, double& lo, double& hi) {
+        scratch_.resize(n);
+        for (size_t k = 0; k < n; ++k) scratch_[k] = coord(pts_[k]);
+        const size_t a = n / 20, b = n - 1 - n / 20;
+        std::nth_element(scratch_.begin(), scratch_.begin() + long(a), scratch_.end());
+        lo = scratch_[a];
+        std::nth_element(scratch_.begin(), scratch_.begin() + long(b), scratch_.end());
+        hi = scratch_[b];
+        const double span = hi - lo;
+        lo -= span;
+        hi += span;
+    };
+    double x0, x1, z0, z1;
+    box([](const Entry& e) { return e.world.x; }, x0, x1);
+    box([](const Entry& e) { return e.world.z; }, z0, z1);
+    size_t kept = 0;
+    for (size_t k = 0; k < n; ++k) {
+        const Entry& e = pts_[k];
+        if (e.world.x >= x0 && e.world.x <= x1 && e.world.z >= z0 && e.world.z <= z1) pts_[kept++] = e;
+        else everywhere_.push_back(e);
+    }
+    pts_.resize(kept);
+}
 
 void SpatialGrid::finish() {
     built_ = false;
+    keep_outliers_apart();
     const size_t n = pts_.size();
     double x1 = 0, z1 = 0;
     x0_ = z0_ = 0;

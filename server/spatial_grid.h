@@ -11,9 +11,13 @@
 // Cells are square, sized so that the cells hold about kPerCell instances
 // each on average over the instances' bounding rectangle, and never more
 // than 3 n / kPerCell + 1 of them (an elongated crowd gets longer cells, not
-// more of them). A position that is not finite has no cell: everywhere()
-// lists those, and every query visits them first.
-// Cost: finish() O(n + cells); rings() O(cells visited + instances in them).
+// more of them). A position that is not finite has no cell, nor has one far
+// outside the box most positions lie in (from 16 instances: their 5th to
+// 95th percentiles on x and z, widened by that span on each side, so that
+// one far character cannot stretch every cell): everywhere() lists those,
+// and every query visits them first.
+// Cost: finish() O(n + cells); rings() O(cells visited + instances in them
+// + those of everywhere()).
 // No allocation after the largest tick.
 #pragma once
 #include <algorithm>
@@ -72,6 +76,9 @@ private:
     std::vector<uint32_t> start_;    // per cell (row-major, z rows), first index into ids_; one more at the end
     std::vector<Entry> ids_;         // the entries by cell
     std::vector<uint32_t> cell_of_;  // finish's scratch: each point's cell
+    std::vector<double> scratch_;    // keep_outliers_apart's
+    static constexpr size_t kOutliersFrom = 16;
+    void keep_outliers_apart();  // moves the points far outside the box of most to everywhere_
     double x0_ = 0, z0_ = 0, cell_ = 1;
     int64_t nx_ = 0, nz_ = 0;
     bool built_ = false;

@@ -86,6 +86,43 @@ TEST(SpatialGrid, RingsVisitEveryoneOnceAndTheirRadiusHolds) {
     EXPECT_GT(checks, 10000);  // the radius claims were tested, not vacuous
 }
 
+// A few characters far from everybody (one player's, placed a million
+// metres away) neither stretch the cells nor slow a search near the crowd:
+// they are visited apart, and the radius claims still hold.
+TEST(SpatialGrid, FarCharactersDoNotStretchTheCells) {
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<double> u(-1000.0, 1000.0);
+    std::vector<glm::dvec3> at;
+    for (int k = 0; k < 1000; ++k) at.push_back({u(rng), 0.0, u(rng)});
+    at.push_back({1e6, 0.0, 1e6});
+    at.push_back({-1e6, 0.0, 5.0});
+    at.push_back({3.0, 0.0, 4e6});
+    SpatialGrid grid;
+    grid.begin();
+    for (size_t i = 0; i < at.size(); ++i) grid.add({uint32_t(i), 0, 0, at[i], 1.0});
+    grid.finish();
+    ASSERT_TRUE(grid.built());
+    EXPECT_LT(grid.cell(), 200.0);  // about 4 of the 1,000 per cell (126 m), not the far ones' span
+    EXPECT_EQ(grid.everywhere().size(), 3u);
+    for (const glm::dvec3 c : {glm::dvec3(0, 0, 0), glm::dvec3(1e6, 0, 1e6), glm::dvec3(-900, 0, 900)}) {
+        std::vector<int> seen(at.size(), 0);
+        size_t visited = 0;
+        grid.rings(
+            c, [&](std::span<const SpatialGrid::Entry> run) { for (const auto& e : run) ++seen.at(e.id), ++visited; },
+            [&](double radius) {
+                for (size_t i = 0; i < at.size(); ++i) {
+                    if (std::hypot(at[i].x - c.x, at[i].z - c.z) <= radius) {
+                        EXPECT_EQ(seen[i], 1) << "instance " << i;
+                    }
+                }
+                return visited < 100;  // a search for about 100
+            });
+        if (c.x == 0) {
+            EXPECT_LT(visited, 300u);
+        }
+    }
+}
+
 TEST(SpatialGrid, StopsWhenAskedAndRefusesCentresItCannotIndex) {
     SpatialGrid grid;
     grid.begin();
