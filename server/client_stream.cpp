@@ -712,15 +712,10 @@ void ClientStream::bound_candidates(size_t most, uint32_t tick) {
     candidates_.clear();
     below_.clear();
     const float cut = cut_;
-    auto sort_out = [&](size_t i) {
+    each_weighed([&](size_t i) {
         if (importance_[i] >= cut && importance_[i] > 0.0f) candidates_.push_back(i);
         else if (importance_[i] > 0.0f) below_.push_back(i);
-    };
-    if (near_valid_) {  // the weighed ones only (near_importance)
-        for (const uint32_t i : near_) sort_out(i);
-    } else {
-        for (size_t i = 0; i < importance_.size(); ++i) sort_out(i);
-    }
+    });
     if (candidates_.size() >= most) {
         for (const size_t i : below_) importance_[i] = 0.0f;
     } else {
@@ -752,26 +747,21 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
     // The instances left with importance, ascending: from the few weighed
     // near the camera, else from every slot.
     weighed_list_.clear();
-    if (near_valid_) {
-        for (const uint32_t i : near_)
-            if (importance_[i] > 0.0f) weighed_list_.push_back(i);
-        std::sort(weighed_list_.begin(), weighed_list_.end());
-    } else {
-        for (size_t i = 0; i < importance_.size(); ++i)
-            if (importance_[i] > 0.0f) weighed_list_.push_back(uint32_t(i));
-    }
+    each_weighed([&](size_t i) {
+        if (importance_[i] > 0.0f) weighed_list_.push_back(uint32_t(i));
+    });
+    if (near_valid_) std::sort(weighed_list_.begin(), weighed_list_.end());  // (near_ is in the rings' order)
     const bool predict = core_.config().predict_records;
     plan_.begin(frame);
     if (predict) {
         // A few instances ahead, their acknowledgements are fetched from
         // memory while the current one is planned (each client's book is cold).
         constexpr size_t kAhead = 4;
-        planned_.clear();
-        for (const uint32_t i : weighed_list_) planned_.push_back(int(i));
-        for (size_t k = 0; k < std::min(kAhead, planned_.size()); ++k) book_.prefetch(planned_[k]);
-        for (size_t k = 0; k < planned_.size(); ++k) {
-            if (k + kAhead < planned_.size()) book_.prefetch(planned_[k + kAhead]);
-            plan_.plan(frame, planned_[k], book_);
+        const std::vector<uint32_t>& planned = weighed_list_;
+        for (size_t k = 0; k < std::min(kAhead, planned.size()); ++k) book_.prefetch(int(planned[k]));
+        for (size_t k = 0; k < planned.size(); ++k) {
+            if (k + kAhead < planned.size()) book_.prefetch(int(planned[k + kAhead]));
+            plan_.plan(frame, int(planned[k]), book_);
         }
     }
     scheduler_.set_plan(predict ? &plan_ : nullptr);

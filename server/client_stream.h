@@ -283,6 +283,16 @@ private:
     size_t candidate_limit(size_t budget) const;
     // Leaves importance only to the `most` most important.
     void bound_candidates(size_t most, uint32_t tick);
+    // Calls f(slot) for every slot this tick's importance may be non-zero
+    // for: those near_importance weighed, else every slot.
+    template <class F>
+    void each_weighed(F f) const {
+        if (near_valid_) {
+            for (const uint32_t i : near_) f(size_t(i));
+        } else {
+            for (size_t i = 0; i < importance_.size(); ++i) f(i);
+        }
+    }
     static constexpr size_t kMinCandidates = 128;  // whatever the budget (a client sees at least its nearest 128)
     bool refuse_message(const std::string& reason, const std::string& why);
 
@@ -348,7 +358,6 @@ private:
     bool near_valid_ = false;         // this tick's importance came from near_importance (zero beyond near_)
     size_t weighed_ = 0;              // weighed()
     float cut_ = 0.0f;                // bound_candidates: the importance cut tried first (0: none)
-    std::vector<int> planned_;        // send_frame's scratch: the instances planned this tick
     uint64_t instances_seen_ = ~0ull;  // ServerCore::instances_version last synced
     std::vector<Owned> owned_;       // characters this session spawned
 };
