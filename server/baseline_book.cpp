@@ -133,7 +133,6 @@ void RecordPlan::begin(const EncodedFrame& frame) {
     entries_.clear();
     bones_ = 0;
     prefix_.clear();
-    roots_.clear();
 }
 
 void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book) {
@@ -235,8 +234,8 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
             if (2 * age < uint32_t(kBaselineRing) && v.acked_any(t0 - age) && (b2 = frame.root_at(i, t0 - age)) != nullptr)
                 base |= kBaseLinear;
         }
-        en.root_at = uint32_t(roots_.size());
-        en.root_len = uint32_t(write_root(e.root.data(), base, b1, b2, roots_));
+        en.root_base = base;  // written when it goes (root()); its length shared between clients
+        en.root_len = uint32_t(base ? frame.root_block_bytes(i, base) : kRootAbsoluteBytes);
     }
     entry_of_[size_t(i)] = int32_t(entries_.size());
     entries_.push_back(en);
@@ -272,15 +271,19 @@ size_t RecordPlan::write_own(const EncodedFrame& frame, int i, int b, BitWriter&
     return write_predicted(now[b], pred, (frame.instances[size_t(i)].flags & CHUNK_SCALED) != 0, w);
 }
 
-std::span<const uint8_t> RecordPlan::root(int i) const {
+std::span<const uint8_t> RecordPlan::root(const EncodedFrame& frame, int i, std::vector<uint8_t>& out) const {
+    out.clear();
     if (i < 0 || size_t(i) >= entry_of_.size() || entry_of_[size_t(i)] < 0) return {};
     const Entry& en = entries_[size_t(entry_of_[size_t(i)])];
-    return {roots_.data() + en.root_at, en.root_len};
+    if (en.root_len == 0) return {};
+    frame.write_root_block(i, en.root_base, out);
+    return out;
 }
 
 size_t RecordPlan::root_bytes(const EncodedFrame& frame, int i) const {
     if (!(frame.instances[size_t(i)].flags & CHUNK_ROOT)) return 0;
-    const size_t n = root(i).size();
+    if (i < 0 || size_t(i) >= entry_of_.size() || entry_of_[size_t(i)] < 0) return kRootAbsoluteBytes;
+    const size_t n = entries_[size_t(entry_of_[size_t(i)])].root_len;
     return n ? n : kRootAbsoluteBytes;
 }
 

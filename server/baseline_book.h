@@ -175,10 +175,13 @@ public:
     size_t write_own(const EncodedFrame& frame, int i, int b, BitWriter& w) const;
     // Instance i's root block for this client (root_block.h), predicted from
     // its root at the newest tick the client acknowledged (linear when the
-    // tick as far before that is acknowledged too); empty when not planned
-    // (the packer writes it absolute). root_bytes: its size, or
-    // kRootAbsoluteBytes when not planned (0 when the instance has no root).
-    std::span<const uint8_t> root(int i) const;
+    // tick as far before that is acknowledged too), written to out (cleared)
+    // and returned; empty when not planned (the packer writes it absolute).
+    // root_bytes: its size, or kRootAbsoluteBytes when not planned (0 when
+    // the instance has no root). The plan keeps only the block's baseline
+    // and length (EncodedFrame::root_block_bytes, shared between clients):
+    // the block is written for the characters that go.
+    std::span<const uint8_t> root(const EncodedFrame& frame, int i, std::vector<uint8_t>& out) const;
     size_t root_bytes(const EncodedFrame& frame, int i) const;
 
 private:
@@ -187,7 +190,8 @@ private:
         const PredictedRecords* records = nullptr;
         size_t at = 0;      // into flags_ (bone_count)
         size_t prefix = 0;  // into prefix_ (bone_count + 1)
-        uint32_t root_at = 0, root_len = 0;  // into root_bytes_ (len 0: no root)
+        uint8_t root_base = 0;  // the root block's baseline (root_block.h)
+        uint32_t root_len = 0;  // its bytes (0: no root)
     };
     std::vector<int32_t> entry_of_;  // per instance: index into entries_, -1 none
     std::vector<Entry> entries_;
@@ -200,7 +204,6 @@ private:
     std::vector<uint8_t> own_base_;    // per bone: its own baseline (Own)
     std::vector<uint32_t> own_len_;      // per bone: its own-baseline record's bits (EncodedFrame::own_bits)
     std::vector<std::pair<uint8_t, uint8_t>> own_try_;  // plan()'s scratch: (bone, own baseline) to price
-    std::vector<uint8_t> roots_;  // the planned root blocks
 };
 
 }  // namespace progskin::net

@@ -78,7 +78,7 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
         bone = next_bone();
         // The root block: this client's (predicted, RecordPlan::root), else absolute.
         const bool root = (e.flags & CHUNK_ROOT) != 0;
-        std::span<const uint8_t> planned = plan && root ? plan->root(instance) : std::span<const uint8_t>{};
+        std::span<const uint8_t> planned = plan && root ? plan->root(frame, instance, root_) : std::span<const uint8_t>{};
         if (root && planned.empty()) {
             root_.clear();
             write_root(e.root.data(), 0, nullptr, nullptr, root_);

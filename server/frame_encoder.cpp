@@ -9,6 +9,7 @@
 #include <cmath>
 
 #include "errors.h"
+#include "root_block.h"
 
 namespace progskin::net {
 
@@ -564,6 +565,32 @@ static uint64_t own_key(uint32_t epoch, int i, int b, uint8_t base) {
 }
 static size_t own_slot(uint64_t key) {
     return size_t((key * 0x9E3779B97F4A7C15ull) >> 40) & (EncodedFrame::OwnCache::kEntries - 1);
+}
+
+static constexpr int kRootKeyBone = 255;
+static_assert(MAX_BONES <= kRootKeyBone, "bone 255 of the own-bits cache is the root block's");
+
+size_t EncodedFrame::write_root_block(int i, uint8_t base, std::vector<uint8_t>& out) const {
+    const uint32_t age = base & kBaseAgeMask;
+    const uint8_t* b1 = age ? root_at(i, tick - age) : nullptr;
+    const uint8_t* b2 = age && (base & kBaseLinear) ? root_at(i, tick - 2 * age) : nullptr;
+    return write_root(instances[size_t(i)].root.data(), base, b1, b2, out);
+}
+
+size_t EncodedFrame::root_block_bytes(int i, uint8_t base) const {
+    const uint64_t key = own_key(epoch, i, kRootKeyBone, base);
+    constexpr uint64_t kBitsMask = 0xFFF, kKeyMask = ~kBitsMask & ~(uint64_t(7) << 12);
+    std::atomic<uint64_t>* entry = nullptr;
+    if (key) {
+        entry = &own_cache->entries[own_slot(key)];
+        const uint64_t v = entry->load(std::memory_order_relaxed);
+        if ((v & kKeyMask) == key) return size_t(v & kBitsMask);
+    }
+    thread_local std::vector<uint8_t> scratch;  // (grows once per thread)
+    scratch.clear();
+    const size_t n = write_root_block(i, base, scratch);
+    if (entry) entry->store(key | uint64_t(n), std::memory_order_relaxed);
+    return n;
 }
 
 void EncodedFrame::own_prefetch(int i, int b, uint8_t base) const {

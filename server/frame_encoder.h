@@ -155,9 +155,18 @@ struct EncodedFrame {
     bool baseline(int i, uint8_t base, Baseline& out) const;  // false when the ring lacks a tick of it
     size_t own_bits(int i, int b, uint8_t base) const;
     void own_prefetch(int i, int b, uint8_t base) const;  // a hint: own_bits(i, b, base) comes soon
-    // Each entry: the tick's epoch (20 bits), slot (16), bone (8), base
-    // index (5: (age - 1) * 2 + linear) and bits (12; all ones: not
-    // predictable). The encoder bumps the epoch every tick and clears the
+    // Instance i's root block predicted from `base` (root_block.h: age |
+    // kBaseLinear, the roots at tick - age and tick - 2 age; 0: absolute):
+    // write_root_block appends it to out and returns its bytes;
+    // root_block_bytes is that length, coded once per (slot, base) and tick
+    // on first use and shared like own_bits (the OwnCache under bone 255,
+    // which no bone has: MAX_BONES). A client plans every candidate's root
+    // but writes only those of the characters it sends.
+    size_t write_root_block(int i, uint8_t base, std::vector<uint8_t>& out) const;
+    size_t root_block_bytes(int i, uint8_t base) const;
+    // Each entry: the tick's epoch (20 bits), slot (16), bone (8; 255: the
+    // root block), base index (5: (age - 1) * 2 + linear) and bits (12; all
+    // ones: not predictable; the root block: its bytes). The encoder bumps the epoch every tick and clears the
     // table when the epoch's 20 bits wrap.
     struct OwnCache {
         static constexpr size_t kEntries = size_t(1) << 18;

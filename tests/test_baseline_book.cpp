@@ -245,6 +245,8 @@ TEST(BaselineBook, RootBlocksArePredictedFromAcknowledgedTicksOnly) {
             const wire::Frame* fr = verify_datagram(d)->body_as_Frame();
             ASSERT_NE(fr, nullptr);
             std::span<const uint8_t> root;
+            // The block sent is as long as planned (EncodedFrame::root_block_bytes, shared between clients).
+            const auto sent_as_planned = [&] { EXPECT_EQ(root.size(), plan.root_bytes(f, 0)) << "tick " << t; };
             ASSERT_TRUE(read_frame(
                 *fr, [&](uint16_t) { return a.format.size(); },
                 [&](uint16_t, int first, int count, int show, const RecordRun& rec) {
@@ -255,6 +257,7 @@ TEST(BaselineBook, RootBlocksArePredictedFromAcknowledgedTicksOnly) {
                     ASSERT_FALSE(block.empty());
                     root = block;
                 }));
+            sent_as_planned();
         }
         ++received;
         RootPose got;
@@ -318,4 +321,40 @@ TEST(BaselineBook, SharedOwnBaselineLengthsAreTheRecordsWritten) {
     }
     EXPECT_GT(predictable, 10000u);
     EXPECT_GT(not_predictable, 1000u) << "the first ticks lack the older baselines";
+}
+
+// EncodedFrame::root_block_bytes, a root block's length from each baseline,
+// coded once per tick and shared between clients: the length of the block
+// write_root_block writes, on first use and from the cache, at every
+// baseline age, linear or not.
+TEST(BaselineBook, SharedRootLengthsAreTheBlocksWritten) {
+    const auto& assets = progskin::net::testing::default_assets();
+    std::vector<InstanceSpec> specs(3);
+    FrameEncoder enc(assets, specs, 30.0f);
+    size_t predicted = 0, absolute = 0;
+    std::vector<uint8_t> block;
+    for (uint32_t t = 1; t <= 40; ++t) {
+        for (int i = 0; i < int(specs.size()); ++i) {
+            RootPose r;
+            r.position = {double(i) + 2.0 * std::cos(0.07 * t), 0.0, 2.0 * std::sin(0.07 * t)};
+            r.rotation = glm::angleAxis(0.03f * float(t * (i + 1)), glm::vec3(0, 1, 0));
+            r.source_us = 1'000'000 + uint64_t(t) * 33'333;
+            ASSERT_TRUE(enc.set_root(i, r, false));
+        }
+        const EncodedFrame& f = enc.encode(t);
+        for (int pass = 0; pass < 2; ++pass)
+            for (int i = 0; i < int(specs.size()); ++i)
+                for (uint32_t age = 1; age <= kMaxBaseAge; ++age)
+                    for (const uint8_t linear : {uint8_t(0), kBaseLinear}) {
+                        const uint8_t base = uint8_t(age) | linear;
+                        block.clear();
+                        const size_t want = f.write_root_block(i, base, block);
+                        ASSERT_EQ(want, block.size());
+                        ASSERT_EQ(f.root_block_bytes(i, base), want)
+                            << "tick " << t << " pass " << pass << " instance " << i << " base " << int(base);
+                        (want < kRootAbsoluteBytes ? predicted : absolute) += 1;
+                    }
+    }
+    EXPECT_GT(predicted, 1000u);
+    EXPECT_GT(absolute, 100u) << "the first ticks lack the older roots";
 }
