@@ -567,9 +567,17 @@ void ClientSession::on_datagram(std::span<const uint8_t> bytes, bool from_server
     const wire::Datagram* d = nullptr;
     if (opener_) {  // sealed session: unsealed, forged and replayed datagrams are dropped
         uint64_t seq = 0;
-        if (from_server &&
-            crypto::open_datagram(*opener_, session_, PROTOCOL_VERSION, bytes, opened_buf_, seq) == crypto::OpenResult::ok)
-            d = verify_datagram(opened_buf_);
+        const crypto::OpenResult r =
+            from_server ? crypto::open_datagram(*opener_, session_, PROTOCOL_VERSION, bytes, opened_buf_, seq, crypto::Stale::authenticate)
+                        : crypto::OpenResult::forged;
+        // The server's sealing, of a sequence already opened (or older than
+        // the window): the network duplicated it (or someone replayed it),
+        // as an unsealed duplicate; anything else that fails is malformed.
+        if (r == crypto::OpenResult::replayed) {
+            ++st_.duplicates;
+            return;
+        }
+        if (r == crypto::OpenResult::ok) d = verify_datagram(opened_buf_);
     } else {
         d = verify_datagram(bytes);
     }

@@ -98,10 +98,11 @@ const char* to_string(OpenResult r) {
 }
 
 OpenResult Opener::open(std::span<const uint8_t> sealed, std::span<const uint8_t> ad, std::vector<uint8_t>& plain,
-                        uint64_t& seq) {
+                        uint64_t& seq, Stale stale) {
     if (sealed.size() < SEAL_OVERHEAD) return OpenResult::too_short;
     seq = get_u64(sealed.data());
-    if (!window_.fresh(seq)) return OpenResult::replayed;  // before spending time on the tag
+    const bool fresh = window_.fresh(seq);
+    if (!fresh && stale == Stale::drop) return OpenResult::replayed;  // before spending time on the tag
     uint8_t nonce[crypto_aead_xchacha20poly1305_ietf_NPUBBYTES];
     make_nonce(seq, nonce);
     plain.resize(sealed.size() - SEAL_OVERHEAD);
@@ -110,6 +111,10 @@ OpenResult Opener::open(std::span<const uint8_t> sealed, std::span<const uint8_t
                                                    ad.size(), nonce, key_.data()) != 0) {
         plain.clear();
         return OpenResult::forged;
+    }
+    if (!fresh) {  // authentic, but opened before (or too old): never opened twice
+        plain.clear();
+        return OpenResult::replayed;
     }
     plain.resize(size_t(n));
     window_.accept(seq);
@@ -139,11 +144,11 @@ uint64_t sealed_session_id(std::span<const uint8_t> wire) {
 }
 
 OpenResult open_datagram(Opener& opener, uint64_t session_id, uint16_t version, std::span<const uint8_t> wire,
-                         std::vector<uint8_t>& plain, uint64_t& seq) {
+                         std::vector<uint8_t>& plain, uint64_t& seq, Stale stale) {
     if (wire.size() < SEALED_DATAGRAM_OVERHEAD) return OpenResult::too_short;
     if (get_u64(wire.data()) != session_id) return OpenResult::forged;
     const auto ad = datagram_ad(session_id, version);
-    return opener.open(wire.subspan(8), ad, plain, seq);
+    return opener.open(wire.subspan(8), ad, plain, seq, stale);
 }
 
 // ------------------------------------------------------------ tokens --

@@ -81,12 +81,20 @@ private:
 enum class OpenResult { ok, too_short, replayed, forged };
 const char* to_string(OpenResult r);
 
+// What open() does with a sequence already accepted or older than the
+// window: drop it before the tag (replayed, whatever its bytes: a server
+// spends nothing on a flood of stale sequences), or check its tag first
+// (replayed only when authentic, a duplicate of the network; else forged),
+// for a receiver that counts the two apart (the client).
+enum class Stale { drop, authenticate };
+
 // Opens sealed datagrams of one Sealer's key, dropping replays.
 class Opener {
 public:
     explicit Opener(const Key& key) : key_(key) {}
     // On ok, `plain` holds the datagram and `seq` its sequence.
-    OpenResult open(std::span<const uint8_t> sealed, std::span<const uint8_t> ad, std::vector<uint8_t>& plain, uint64_t& seq);
+    OpenResult open(std::span<const uint8_t> sealed, std::span<const uint8_t> ad, std::vector<uint8_t>& plain, uint64_t& seq,
+                    Stale stale = Stale::drop);
 
 private:
     Key key_;
@@ -103,7 +111,7 @@ void seal_datagram(Sealer& sealer, uint64_t session_id, uint16_t version, std::s
 // The session id a sealed datagram names (0 when it is too short to be one).
 uint64_t sealed_session_id(std::span<const uint8_t> wire);
 OpenResult open_datagram(Opener& opener, uint64_t session_id, uint16_t version, std::span<const uint8_t> wire,
-                         std::vector<uint8_t>& plain, uint64_t& seq);
+                         std::vector<uint8_t>& plain, uint64_t& seq, Stale stale = Stale::drop);
 
 // ------------------------------------------------------------ tokens --
 

@@ -372,9 +372,15 @@ TEST_F(ClientSessionTest, DatagramKeysSealBothWaysAndNeedTls) {
     feed(sealed);
     EXPECT_EQ(c.phase(), SessionPhase::Streaming);
     EXPECT_EQ(c.stats(g_now).wire_bytes, sealed.size() + UDP_IP_OVERHEAD);
-    feed(sealed);  // replayed: dropped before it could count as a duplicate
+    feed(sealed);  // replayed (a duplicate on the network): dropped, counted a duplicate
+    EXPECT_EQ(c.stats(g_now).malformed, 1u);
+    EXPECT_EQ(c.stats(g_now).duplicates, 1u);
+    Bytes forged;
+    crypto::seal_datagram(sealer, kSession, PROTOCOL_VERSION, frame(2, 1), forged);
+    forged[forged.size() / 2] ^= 1;  // one bit of the ciphertext: the tag fails
+    feed(forged);
     EXPECT_EQ(c.stats(g_now).malformed, 2u);
-    EXPECT_EQ(c.stats(g_now).duplicates, 0u);
+    EXPECT_EQ(c.stats(g_now).duplicates, 1u);
 }
 
 // apply_frame, the one frame application: epochs and root blocks reach the
