@@ -376,9 +376,9 @@ void ClientStream::announce_pending() {
 
 bool ClientStream::accepts(uint64_t token) const { return equal_u64(token_, token) && welcomed(); }
 
-bool ClientStream::open_sealed(std::span<const uint8_t> wire, std::vector<uint8_t>& plain) {
+crypto::OpenResult ClientStream::open_sealed(std::span<const uint8_t> wire, std::vector<uint8_t>& plain) {
     uint64_t seq = 0;
-    return opener_ && crypto::open_datagram(*opener_, id_, PROTOCOL_VERSION, wire, plain, seq) == crypto::OpenResult::ok;
+    return opener_ ? crypto::open_datagram(*opener_, id_, PROTOCOL_VERSION, wire, plain, seq) : crypto::OpenResult::forged;
 }
 
 size_t ClientStream::send_datagram(std::span<const uint8_t> plain, const PeerAddress& to, DatagramSink& out,

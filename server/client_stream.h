@@ -175,7 +175,7 @@ public:
     bool accepts(uint64_t token) const;
     // Opens a sealed datagram with this session's key; false when it does not
     // seal, or the datagram is forged, replayed or unsealed.
-    bool open_sealed(std::span<const uint8_t> wire, std::vector<uint8_t>& plain);
+    crypto::OpenResult open_sealed(std::span<const uint8_t> wire, std::vector<uint8_t>& plain);
     bool sealed() const { return opener_ != nullptr; }  // keys were sent in the Welcome
     // A WebSocket session (web_endpoint.h): its datagrams travel inside the
     // connection (TLS with wss://) and are never sealed, even with

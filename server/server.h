@@ -157,6 +157,10 @@ struct ServerStats {
     uint64_t ticks = 0, datagrams_sent = 0, wire_bytes_sent = 0;
     uint64_t datagrams_received = 0, malformed_datagrams = 0, rejected_datagrams = 0;
     uint64_t late_datagrams = 0;  // of a session closed less than 2 s before (ServerCore::erase)
+    // Sealed datagrams naming a live session whose sequence was already opened
+    // or is older than the replay window: the network's duplicates, or replays
+    // (dropped before the tag, so not authenticated); not counted rejected.
+    uint64_t stale_datagrams = 0;
     // Frame datagrams sent again, as they were, when an Ack showed them lost
     // while the client could still display them (ServerConfig::repair_lost).
     uint64_t datagrams_repaired = 0;

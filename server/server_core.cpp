@@ -360,8 +360,14 @@ void ServerCore::on_datagram(std::span<const uint8_t> bytes, const PeerAddress& 
     if (cfg_.seal_datagrams && !web) {
         auto it = sessions_.find(crypto::sealed_session_id(bytes));
         if (it == sessions_.end() && closed_recently(crypto::sealed_session_id(bytes), now)) return late();
-        if (it == sessions_.end() || !it->second.stream->open_sealed(bytes, opened_))
-            return reject(false);  // forged, replayed, or unsealed
+        if (it == sessions_.end()) return reject(false);  // unsealed, or no such session
+        const crypto::OpenResult opened = it->second.stream->open_sealed(bytes, opened_);
+        if (opened == crypto::OpenResult::replayed)
+            return count([&](ServerStats& st) {
+                ++st.stale_datagrams;
+                st.unverified_bytes_in += n;
+            });
+        if (opened != crypto::OpenResult::ok) return reject(false);  // forged
         sealed_by = it->second.stream.get();
         bytes = opened_;
     }

@@ -428,12 +428,12 @@ static void serve(Server& server, double duration, double stats_every) {
 
 static void report(const ServerStats& st) {
     std::fprintf(stderr,
-                 "progskin-server: %llu sessions, %llu datagrams sent (%llu repairs), %llu malformed + %llu rejected + %llu late datagrams, "
+                 "progskin-server: %llu sessions, %llu datagrams sent (%llu repairs), %llu malformed + %llu rejected + %llu late + %llu stale datagrams, "
                  "%llu poses received (%llu stale, %llu over the rate limit, %llu out of range, %llu without their baseline), "
                  "mean tick %.3f ms\n",
                  (unsigned long long)st.sessions_total, (unsigned long long)st.datagrams_sent,
                  (unsigned long long)st.datagrams_repaired, (unsigned long long)st.malformed_datagrams, (unsigned long long)st.rejected_datagrams,
-                 (unsigned long long)st.late_datagrams,
+                 (unsigned long long)st.late_datagrams, (unsigned long long)st.stale_datagrams,
                  (unsigned long long)st.poses_received, (unsigned long long)st.poses_stale,
                  (unsigned long long)st.poses_rate_limited, (unsigned long long)st.poses_out_of_range,
                  (unsigned long long)st.poses_missing_baseline, st.ticks ? 1000.0 * st.tick_seconds / double(st.ticks) : 0.0);
