@@ -577,20 +577,27 @@ size_t EncodedFrame::write_root_block(int i, uint8_t base, std::vector<uint8_t>&
     return write_root(instances[size_t(i)].root.data(), base, b1, b2, out);
 }
 
-size_t EncodedFrame::root_block_bytes(int i, uint8_t base) const {
-    const uint64_t key = own_key(epoch, i, kRootKeyBone, base);
+// The length the cache holds under `key` (0: not cached) this tick, else
+// compute()'s (SIZE_MAX: none), kept for the next asker.
+template <class Compute>
+static size_t cached_length(EncodedFrame::OwnCache& cache, uint64_t key, Compute compute) {
     constexpr uint64_t kBitsMask = 0xFFF, kKeyMask = ~kBitsMask & ~(uint64_t(7) << 12);
-    std::atomic<uint64_t>* entry = nullptr;
-    if (key) {
-        entry = &own_cache->entries[own_slot(key)];
+    std::atomic<uint64_t>* const entry = key ? &cache.entries[own_slot(key)] : nullptr;
+    if (entry) {
         const uint64_t v = entry->load(std::memory_order_relaxed);
-        if ((v & kKeyMask) == key) return size_t(v & kBitsMask);
+        if ((v & kKeyMask) == key) return (v & kBitsMask) == kBitsMask ? SIZE_MAX : size_t(v & kBitsMask);
     }
-    thread_local std::vector<uint8_t> scratch;  // (grows once per thread)
-    scratch.clear();
-    const size_t n = write_root_block(i, base, scratch);
-    if (entry) entry->store(key | uint64_t(n), std::memory_order_relaxed);
+    const size_t n = compute();
+    if (entry && (n == SIZE_MAX || n < kBitsMask)) entry->store(key | (n == SIZE_MAX ? kBitsMask : uint64_t(n)), std::memory_order_relaxed);
     return n;
+}
+
+size_t EncodedFrame::root_block_bytes(int i, uint8_t base) const {
+    return cached_length(*own_cache, own_key(epoch, i, kRootKeyBone, base), [&] {
+        thread_local std::vector<uint8_t> scratch;  // (grows once per thread)
+        scratch.clear();
+        return write_root_block(i, base, scratch);
+    });
 }
 
 void EncodedFrame::own_prefetch(int i, int b, uint8_t base) const {
@@ -598,20 +605,11 @@ void EncodedFrame::own_prefetch(int i, int b, uint8_t base) const {
 }
 
 size_t EncodedFrame::own_bits(int i, int b, uint8_t base) const {
-    const uint64_t key = own_key(epoch, i, b, base);
-    constexpr uint64_t kBitsMask = 0xFFF, kKeyMask = ~kBitsMask & ~(uint64_t(7) << 12);
-    std::atomic<uint64_t>* entry = nullptr;
-    if (key) {
-        entry = &own_cache->entries[own_slot(key)];
-        const uint64_t v = entry->load(std::memory_order_relaxed);
-        if ((v & kKeyMask) == key) return (v & kBitsMask) == kBitsMask ? SIZE_MAX : size_t(v & kBitsMask);
-    }
-    RecordInts pred;
-    size_t n = SIZE_MAX;
-    if (own_prediction(i, b, base, pred))
-        n = predicted_bits(ints[size_t(i) * ring_bones + size_t(b)], pred, (instances[size_t(i)].flags & CHUNK_SCALED) != 0);
-    if (entry && (n == SIZE_MAX || n < kBitsMask)) entry->store(key | (n == SIZE_MAX ? kBitsMask : uint64_t(n)), std::memory_order_relaxed);
-    return n;
+    return cached_length(*own_cache, own_key(epoch, i, b, base), [&] {
+        RecordInts pred;
+        if (!own_prediction(i, b, base, pred)) return SIZE_MAX;
+        return predicted_bits(ints[size_t(i) * ring_bones + size_t(b)], pred, (instances[size_t(i)].flags & CHUNK_SCALED) != 0);
+    });
 }
 
 }  // namespace progskin::net
