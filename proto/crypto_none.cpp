@@ -23,11 +23,11 @@ void random_bytes(std::span<uint8_t>) { unavailable(); }
 Key random_key() { unavailable(); }
 void Sealer::seal(std::span<const uint8_t>, std::span<const uint8_t>, std::vector<uint8_t>&) { unavailable(); }
 void Sealer::seal_to(std::span<const uint8_t>, std::span<const uint8_t>, uint8_t*) { unavailable(); }
-OpenResult Opener::open(std::span<const uint8_t>, std::span<const uint8_t>, std::vector<uint8_t>&, uint64_t&) {
+OpenResult Opener::open(std::span<const uint8_t>, std::span<const uint8_t>, std::vector<uint8_t>&, uint64_t&, Stale) {
     unavailable();
 }
 void seal_datagram(Sealer&, uint64_t, uint16_t, std::span<const uint8_t>, std::vector<uint8_t>&) { unavailable(); }
-OpenResult open_datagram(Opener&, uint64_t, uint16_t, std::span<const uint8_t>, std::vector<uint8_t>&, uint64_t&) {
+OpenResult open_datagram(Opener&, uint64_t, uint16_t, std::span<const uint8_t>, std::vector<uint8_t>&, uint64_t&, Stale) {
     unavailable();
 }
 void signing_keypair(PublicKey&, SecretKey&) { unavailable(); }
