@@ -520,9 +520,9 @@ DatagramVerdict ClientStream::on_pose(const wire::Pose& p, const PeerAddress& fr
         return DatagramVerdict::accepted;
     }
     o->tokens -= 1.0;
-    if (o->ints.size() != size_t(B) * POSE_BASELINES) {  // the first Pose of this character
-        o->ints.assign(size_t(B) * POSE_BASELINES, RecordInts{});
-        o->have.assign(size_t(B) * POSE_BASELINES, 0);
+    if (o->ints.size() != size_t(B) * kPoseRing) {  // the first Pose of this character
+        o->ints.assign(size_t(B) * kPoseRing, RecordInts{});
+        o->have.assign(size_t(B) * kPoseRing, 0);
         pose_ints_.reserve(size_t(B));
     }
     // The baseline: a pose held whole (the publisher predicts only from
@@ -530,7 +530,7 @@ DatagramVerdict ClientStream::on_pose(const wire::Pose& p, const PeerAddress& fr
     const RecordInts* pred = nullptr;
     const uint8_t* base_root = nullptr;
     if (p.base_seq() != 0) {
-        const size_t k = p.base_seq() % POSE_BASELINES;
+        const size_t k = p.base_seq() % kPoseRing;
         if (o->seq[k] != p.base_seq() || o->received[k] != B) {
             core_.count([](ServerStats& st) { ++st.poses_missing_baseline; });
             return DatagramVerdict::accepted;
@@ -548,7 +548,7 @@ DatagramVerdict ClientStream::on_pose(const wire::Pose& p, const PeerAddress& fr
                            pose_ints_))
         return DatagramVerdict::malformed;
     // Kept as a baseline unless older than the ring's entry for it.
-    const size_t k = p.pose_seq() % POSE_BASELINES;
+    const size_t k = p.pose_seq() % kPoseRing;
     if (o->seq[k] != p.pose_seq() && (o->seq[k] == 0 || int32_t(p.pose_seq() - o->seq[k]) > 0)) {
         o->seq[k] = p.pose_seq();
         o->received[k] = 0;

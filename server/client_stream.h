@@ -230,17 +230,24 @@ public:
     size_t weighed() const { return weighed_; }
 
 private:
+    // Published poses kept per character: twice the publisher's window
+    // (POSE_BASELINES). A publisher predicts pose P from an acknowledged
+    // pose A less than POSE_BASELINES older; with a ring of only
+    // POSE_BASELINES, pose A + POSE_BASELINES overtaking P on the network
+    // (one pose of reordering when P = A + 7) took A's place, and P was
+    // dropped (poses_missing_baseline) though the publisher was honest.
+    static constexpr uint32_t kPoseRing = 2 * POSE_BASELINES;
     struct Owned {
         int instance = 0;
         double tokens = 0, refilled = 0;  // pose rate limit (token bucket)
-        // The newest POSE_BASELINES published poses (ring by pose_seq): each
+        // The newest kPoseRing published poses (ring by pose_seq): each
         // one's record integers and which bones arrived (the baselines of
         // predicted Pose records); allocated at the first Pose.
-        std::array<uint32_t, POSE_BASELINES> seq{};
-        std::array<uint16_t, POSE_BASELINES> received{};  // bones of each
-        std::vector<RecordInts> ints;                     // POSE_BASELINES x bones
-        std::vector<uint8_t> have;                        // POSE_BASELINES x bones
-        std::array<std::array<uint8_t, ROOT_BYTES>, POSE_BASELINES> roots{};  // each one's root (absolute)
+        std::array<uint32_t, kPoseRing> seq{};
+        std::array<uint16_t, kPoseRing> received{};  // bones of each
+        std::vector<RecordInts> ints;                // kPoseRing x bones
+        std::vector<uint8_t> have;                   // kPoseRing x bones
+        std::array<std::array<uint8_t, ROOT_BYTES>, kPoseRing> roots{};  // each one's root (absolute)
         uint32_t acked = 0, acked_sent = 0;  // newest pose held whole; the newest told (Frame.pose_acks)
     };
     std::vector<RecordInts> pose_ints_;        // on_pose: one Pose's records

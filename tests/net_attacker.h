@@ -250,6 +250,7 @@ public:
         send_datagram(fbb);
     }
     uint32_t pose_seq() const { return pose_seq_; }
+    void set_pose_seq(uint32_t s) { pose_seq_ = s; }  // the next Pose goes as s + 1 (reordering)
     int bones(int asset) const { return assets_[size_t(asset)].bones; }
 
     void pose(int instance, int asset) {

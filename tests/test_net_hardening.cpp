@@ -535,6 +535,50 @@ TEST(NetHardening, SaturatingAttackerWhileAnHonestClientStreams) {
     EXPECT_GT(st.refusals_total(), 0u);
 }
 
+// Reordering on the uplink: pose A + 8 overtakes pose A + 7, which is
+// predicted from A (the newest the server acknowledged; the publisher's
+// window is POSE_BASELINES = 8). A + 8 must not take A's place: A + 7 still
+// decodes, as it would have arrived in order.
+TEST(NetHardening, APoseOvertakenByTheNextStillFindsItsBaseline) {
+    RunningServer s({}, hardened());
+    Attacker a(source(2), s.server->tcp_port(), s.server->udp_port());
+    ASSERT_TRUE(a.join()) << a.refused();
+    ASSERT_TRUE(a.bind());
+    const int inst = a.spawn(0, {});
+    ASSERT_GE(inst, 0);
+    const int B = a.bones(0);
+    auto settle = [&](uint64_t ServerStats::*field, uint64_t want) {
+        for (int i = 0; i < 100 && s.server->stats().*field < want; ++i) a.pump_and_ack(20);
+        return s.server->stats().*field;
+    };
+    a.pump_and_ack(500);  // the pose rate limit's bucket fills
+    a.pose(inst, 0);      // pose A: whole, standalone (all-zero records but bone 0)
+    const uint32_t base = a.pose_seq();
+    ASSERT_EQ(settle(&ServerStats::poses_received, 1), 1u);
+    std::vector<uint8_t> standalone;
+    {
+        BitWriter w(standalone);
+        for (int b = 0; b < B; ++b) write_record(RecordInts{}, false, w);
+    }
+    a.set_pose_seq(base + 7);  // A + 8 first, whole
+    a.pose_raw(inst, standalone, B);
+    ASSERT_EQ(settle(&ServerStats::poses_received, 2), 2u);
+    std::vector<uint8_t> same;  // every record "as predicted": one bit each
+    {
+        BitWriter w(same);
+        for (int b = 0; b < B; ++b) w.put(1, 1);
+    }
+    a.set_pose_seq(base + 6);  // then A + 7, predicted from A
+    a.pose_raw(inst, same, B, 0, base);
+    // Decoded, then stale (older than A + 8, which the character shows):
+    // not dropped for want of its baseline, not malformed.
+    EXPECT_EQ(settle(&ServerStats::poses_stale, 1), 1u);
+    const ServerStats st = s.server->stats();
+    EXPECT_EQ(st.poses_missing_baseline, 0u);
+    EXPECT_EQ(st.malformed_datagrams, 0u);
+    EXPECT_EQ(st.poses_received, 2u);
+}
+
 // Published poses are parent-relative records predicted from poses the
 // server acknowledged (docs/protocol.md "Pose"). A Pose predicted from a pose
 // the server does not hold whole is dropped and counted, never decoded
