@@ -535,6 +535,21 @@ TEST(NetHardening, SaturatingAttackerWhileAnHonestClientStreams) {
     EXPECT_GT(st.refusals_total(), 0u);
 }
 
+// A session of `a` joined, bound, with a character of asset 0 spawned (inst).
+static void spawn_publisher(Attacker& a, int& inst) {
+    ASSERT_TRUE(a.join()) << a.refused();
+    ASSERT_TRUE(a.bind());
+    inst = a.spawn(0, {});
+    ASSERT_GE(inst, 0);
+}
+
+// The server's counter `field` once it reaches `want` (a's datagrams
+// pumped and acknowledged meanwhile), or after 100 rounds.
+static uint64_t settle_stat(RunningServer& s, Attacker& a, uint64_t ServerStats::*field, uint64_t want) {
+    for (int i = 0; i < 100 && s.server->stats().*field < want; ++i) a.pump_and_ack(20);
+    return s.server->stats().*field;
+}
+
 // Reordering on the uplink: pose A + 8 overtakes pose A + 7, which is
 // predicted from A (the newest the server acknowledged; the publisher's
 // window is POSE_BASELINES = 8). A + 8 must not take A's place: A + 7 still
@@ -542,15 +557,10 @@ TEST(NetHardening, SaturatingAttackerWhileAnHonestClientStreams) {
 TEST(NetHardening, APoseOvertakenByTheNextStillFindsItsBaseline) {
     RunningServer s({}, hardened());
     Attacker a(source(2), s.server->tcp_port(), s.server->udp_port());
-    ASSERT_TRUE(a.join()) << a.refused();
-    ASSERT_TRUE(a.bind());
-    const int inst = a.spawn(0, {});
-    ASSERT_GE(inst, 0);
+    int inst = -1;
+    ASSERT_NO_FATAL_FAILURE(spawn_publisher(a, inst));
     const int B = a.bones(0);
-    auto settle = [&](uint64_t ServerStats::*field, uint64_t want) {
-        for (int i = 0; i < 100 && s.server->stats().*field < want; ++i) a.pump_and_ack(20);
-        return s.server->stats().*field;
-    };
+    auto settle = [&](uint64_t ServerStats::*field, uint64_t want) { return settle_stat(s, a, field, want); };
     a.pump_and_ack(500);  // the pose rate limit's bucket fills
     a.pose(inst, 0);      // pose A: whole, standalone (all-zero records but bone 0)
     const uint32_t base = a.pose_seq();
@@ -588,10 +598,8 @@ TEST(NetHardening, APoseOvertakenByTheNextStillFindsItsBaseline) {
 TEST(NetHardening, HostilePoseRecordsAreDroppedAndCounted) {
     RunningServer s({}, hardened());
     Attacker a(source(2), s.server->tcp_port(), s.server->udp_port());
-    ASSERT_TRUE(a.join()) << a.refused();
-    ASSERT_TRUE(a.bind());
-    const int inst = a.spawn(0, {});
-    ASSERT_GE(inst, 0);
+    int inst = -1;
+    ASSERT_NO_FATAL_FAILURE(spawn_publisher(a, inst));
     const int B = a.bones(0);
     auto standalone = [&](int count, bool pad_bit) {
         std::vector<uint8_t> bits;
@@ -603,10 +611,7 @@ TEST(NetHardening, HostilePoseRecordsAreDroppedAndCounted) {
         }
         return bits;
     };
-    auto settle = [&](uint64_t ServerStats::*field, uint64_t want) {
-        for (int i = 0; i < 100 && s.server->stats().*field < want; ++i) a.pump_and_ack(20);
-        return s.server->stats().*field;
-    };
+    auto settle = [&](uint64_t ServerStats::*field, uint64_t want) { return settle_stat(s, a, field, want); };
     a.pump_and_ack(500);  // the pose rate limit's bucket fills (2 poses per tick)
     a.pose(inst, 0);      // a whole, valid pose (standalone)
     const uint32_t held = a.pose_seq();
