@@ -228,11 +228,9 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
     if (e.flags & CHUNK_ROOT) {
         const uint32_t age = frame.tick - t0;
         uint8_t base = 0;
-        const uint8_t *b1 = nullptr, *b2 = nullptr;
-        if (age >= 1 && age <= kMaxBaseAge && (b1 = frame.root_at(i, t0)) != nullptr) {
+        if (age >= 1 && age <= kMaxBaseAge && frame.root_at(i, t0)) {
             base = uint8_t(age);
-            if (2 * age < uint32_t(kBaselineRing) && v.acked_any(t0 - age) && (b2 = frame.root_at(i, t0 - age)) != nullptr)
-                base |= kBaseLinear;
+            if (2 * age < uint32_t(kBaselineRing) && v.acked_any(t0 - age) && frame.root_at(i, t0 - age)) base |= kBaseLinear;
         }
         en.root_base = base;  // written when it goes (root()); its length shared between clients
         en.root_len = uint32_t(base ? frame.root_block_bytes(i, base) : kRootAbsoluteBytes);

@@ -81,7 +81,7 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
         std::span<const uint8_t> planned = plan && root ? plan->root(frame, instance, root_) : std::span<const uint8_t>{};
         if (root && planned.empty()) {
             root_.clear();
-            write_root(e.root.data(), 0, nullptr, nullptr, root_);
+            frame.write_root_block(instance, 0, root_);  // absolute
             planned = root_;
         }
         const size_t root_bytes = planned.size();

@@ -166,8 +166,8 @@ struct EncodedFrame {
     size_t root_block_bytes(int i, uint8_t base) const;
     // Each entry: the tick's epoch (20 bits), slot (16), bone (8; 255: the
     // root block), base index (5: (age - 1) * 2 + linear) and bits (12; all
-    // ones: not predictable; the root block: its bytes). The encoder bumps the epoch every tick and clears the
-    // table when the epoch's 20 bits wrap.
+    // ones: not predictable; the root block: its bytes). The encoder bumps
+    // the epoch every tick and clears the table when the epoch's 20 bits wrap.
     struct OwnCache {
         static constexpr size_t kEntries = size_t(1) << 18;
         std::unique_ptr<std::atomic<uint64_t>[]> entries = std::make_unique<std::atomic<uint64_t>[]>(kEntries);
