@@ -156,7 +156,7 @@ struct ServerStats {
     uint64_t sessions_total = 0, sessions_active = 0, refused = 0, timeouts = 0;
     uint64_t ticks = 0, datagrams_sent = 0, wire_bytes_sent = 0;
     uint64_t datagrams_received = 0, malformed_datagrams = 0, rejected_datagrams = 0;
-    uint64_t late_datagrams = 0;  // of a session closed less than 2 s before (ServerCore::erase)
+    uint64_t late_datagrams = 0;  // of a session saying goodbye or closed less than 2 s before (ServerCore::ending)
     // Sealed datagrams naming a live session whose sequence was already opened
     // or is older than the replay window: the network's duplicates, or replays
     // (dropped before the tag, so not authenticated); not counted rejected.

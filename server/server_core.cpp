@@ -331,6 +331,15 @@ uint64_t ServerCore::datagram_session(const wire::Datagram& d) {
     return session_and_token(d, id, token) ? id : 0;
 }
 
+// Session `id` (sealed: the one whose key opened the datagram) is saying
+// goodbye or was erased in the last kClosedRememberSeconds: what its client
+// sent meanwhile (an Ack crossing the Goodbye) is late, not an attack.
+bool ServerCore::ending(const ClientStream* sealed_by, uint64_t id, double now) {
+    if (sealed_by) return !sealed_by->is_open();
+    auto it = sessions_.find(id);
+    return it != sessions_.end() ? !it->second.stream->is_open() : closed_recently(id, now);
+}
+
 ClientStream* ServerCore::route(const wire::Datagram& d, ClientStream* sealed_by) {
     uint64_t id = 0, token = 0;
     if (!session_and_token(d, id, token)) return nullptr;
@@ -374,7 +383,7 @@ void ServerCore::on_datagram(std::span<const uint8_t> bytes, const PeerAddress& 
     const wire::Datagram* d = verify_datagram(bytes);
     if (!d) return reject(true);
     ClientStream* s = route(*d, sealed_by);
-    if (!s && !sealed_by && closed_recently(datagram_session(*d), now)) return late();
+    if (!s && ending(sealed_by, datagram_session(*d), now)) return late();
     if (!s || (web && s->sealed())) return reject(false);
     const DatagramVerdict v = s->on_datagram(*d, bytes.size(), from, now, out);
     if (v != DatagramVerdict::accepted) reject(v == DatagramVerdict::malformed);

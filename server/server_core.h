@@ -142,6 +142,7 @@ private:
     ClientStream* route(const wire::Datagram& d, ClientStream* sealed_by);
     static uint64_t datagram_session(const wire::Datagram& d);  // 0 for server -> client bodies
     bool closed_recently(uint64_t id, double now);  // and forgets those older than kClosedRememberSeconds
+    bool ending(const ClientStream* sealed_by, uint64_t id, double now);  // closing, or closed_recently
     // Per IP address (its port ignored): new connections and asset bytes,
     // token buckets that outlive the address's sessions (pruned once full).
     struct AddressBudget {

@@ -731,15 +731,22 @@ TEST(ServerCore, AcksCountAsOfTheLastTimeTheQueueWasEmpty) {
     EXPECT_NE(f.s->state(), SessionState::Streaming);
 }
 
-// An Ack crossing the Goodbye: the session is erased, its datagram arrives
-// after. Counted as late (not as an attack) for 2 s, then rejected.
+// An Ack crossing the Goodbye: the session is saying goodbye, or erased,
+// when its datagram arrives. Counted as late (not as an attack) while it
+// closes and for 2 s after, then rejected.
 TEST(ClientStream, DatagramsOfAJustClosedSessionAreLateNotRejected) {
     Fixture f;
     f.bind(kHome, 101.0);
     ASSERT_EQ(f.s->state(), SessionState::Streaming);
     const std::vector<uint8_t> a = ack(*f.s, 0);
     const uint64_t id = f.s->id();
-    const ServerStats before = f.core->stats();
+    ServerStats before = f.core->stats();
+    f.s->goodbye("shutdown", 101.5);
+    ASSERT_FALSE(f.s->is_open());
+    f.core->on_datagram(a, kHome, 101.6, f.sink);
+    EXPECT_EQ(f.core->stats().late_datagrams, before.late_datagrams + 1);
+    EXPECT_EQ(f.core->stats().rejected_datagrams, before.rejected_datagrams);
+    before = f.core->stats();
     f.core->erase(id, 102.0);
     f.core->on_datagram(a, kHome, 102.5, f.sink);
     ServerStats st = f.core->stats();
