@@ -100,6 +100,7 @@ void RateController::on_ack(uint32_t ack, uint32_t bits, uint32_t echo_us, uint3
         if (rtt >= 0 && rtt < 10000) {
             srtt_ms_ = srtt_ms_ == 0 ? rtt : 0.875 * srtt_ms_ + 0.125 * rtt;
             min_rtt_ms_ = std::min(min_rtt_ms_, rtt);
+            win_min_rtt_ms_ = std::min(win_min_rtt_ms_, rtt);
         }
     }
     // A datagram left out of this Ack while the 2 after it arrived is lost
@@ -141,20 +142,64 @@ void RateController::update(double now) {
         loss_acked_ = loss_lost_ = 0;
         loss_since_ = now;
     }
-    bool delay_growth = srtt_ms_ > 0 && min_rtt_ms_ < 1e9 &&
-                        srtt_ms_ > min_rtt_ms_ + std::max(25.0, 0.5 * min_rtt_ms_);
+    // The RTT includes the datagram's own time on the link, which on a slow
+    // link is long and varies with its size (750 bytes at 48 kbit/s: 125
+    // ms): a queue is read only beyond the largest datagram the bucket lets
+    // go, at the rate last carried. Loss is congestion above 20%, or above 5%
+    // while the RTT shows a queue (half that growth): random loss has no
+    // queue behind it, a queue that overflows has.
+    const double carried_before = carried_kbps();
+    const double largest_ms = carried_before > 0 ? std::min(1228.0, depth_bytes(target_kbps())) * 8.0 / carried_before : 0.0;
+    // The queue: the window's smallest RTT above the smallest in 10 s (a
+    // queue that stood all window long; one that drained shows at once,
+    // where the smoothed RTT of a few acks a second lagged by seconds).
+    if (win_min_rtt_ms_ < 1e9) window_rtt_ms_ = win_min_rtt_ms_;
+    win_min_rtt_ms_ = 1e9;
+    const double queue_ms = window_rtt_ms_ > 0 && min_rtt_ms_ < 1e9 ? std::max(0.0, window_rtt_ms_ - min_rtt_ms_) : 0.0;
+    const double queue_threshold_ms = std::max({25.0, 0.5 * min_rtt_ms_, largest_ms});
+    const bool delay_growth = queue_ms > queue_threshold_ms;
+    // (A queue that overflows swings: the window's smallest RTT can miss it;
+    // the smoothed one does not.)
+    const double mean_queue_ms = srtt_ms_ > 0 && min_rtt_ms_ < 1e9 ? srtt_ms_ - min_rtt_ms_ : 0.0;
+    const bool lossy_queue = judge_loss && loss_ > 0.05 && mean_queue_ms > 0.5 * queue_threshold_ms;
     // What the client actually received over the window (acked wire bytes).
     const double window = now - last_update_;
     const double delivered_kbps = window > 0 ? double(win_acked_bytes_) * 8.0 / 1000.0 / window : 0.0;
     last_update_ = now;
+    // This window's span: back from it, until kSpanDatagrams acknowledged.
+    window_at_ = (window_at_ + 1) % kSpanWindows;
+    windows_[window_at_] = Window{win_acked_bytes_, win_acked_, window};
+    {
+        Window span;
+        for (size_t k = 0; k < kSpanWindows; ++k) {
+            const Window& w = windows_[(window_at_ + kSpanWindows - k) % kSpanWindows];
+            span.bytes += w.bytes;
+            span.datagrams += w.datagrams;
+            span.seconds += w.seconds;
+            if (k >= 1 && span.datagrams >= kSpanDatagrams) break;
+        }
+        std::rotate(rates_.begin(), rates_.begin() + 1, rates_.end());
+        rates_.back() = span.datagrams >= kSpanDatagrams && span.seconds > 0 ? double(span.bytes) * 8.0 / 1000.0 / span.seconds : 0.0;
+    }
+    const double carried = carried_kbps();
     if (hold_ > 0) {
         --hold_;  // let the last back-off take effect before judging again
-    } else if ((judge_loss && loss_ > 0.20) || delay_growth) {
+    } else if ((judge_loss && loss_ > 0.20) || delay_growth || lossy_queue) {
         hold_ = 2;
         slow_start_ = false;
+        // Below what the path carries, so that its queue drains, and no
+        // lower: a queue that takes longer than the hold to drain backs off
+        // again to the same rate, not to 85% of 85%.
+        // A long queue (slow start's overshoot into a deep buffer) drains
+        // within about a second: to 1 - its seconds of what is carried, at
+        // least half.
+        const double drain = std::clamp(1.0 - queue_ms / 1000.0, 0.5, kBackoff);
         double e = estimate_kbps_ * 0.8;
-        if (delivered_kbps > 0) e = std::min(e, 0.95 * delivered_kbps);  // straight to what got through
+        if (carried > 0) e = std::min(estimate_kbps_, drain * carried);
+        else if (delivered_kbps > 0) e = std::min(e, 0.95 * delivered_kbps);  // nothing measured over a span yet
         estimate_kbps_ = std::max(kMinKbps, e);
+        // A path that became slower is learnt from the last two spans on.
+        std::fill(rates_.begin(), rates_.end() - 2, 0.0);
     } else if (limited_) {
         // Slow start: double while the client keeps up with what was sent
         // (at least half of the target acknowledged in the window; acks lag
@@ -162,8 +207,14 @@ void RateController::update(double now) {
         if (slow_start_ && judged >= 4 && delivered_kbps < 0.5 * target_kbps()) slow_start_ = false;
         if (slow_start_ && judged >= 4)
             estimate_kbps_ = std::min(cap_kbps_, estimate_kbps_ * 2.0);
-        else
-            estimate_kbps_ = std::min(cap_kbps_, estimate_kbps_ * 1.10 + 4.0);
+        else {
+            // While the RTT shows a queue building, slowly: it shows the
+            // back-off's threshold before a queue of 200 ms overflows.
+            const bool queueing = queue_ms > 0.5 * queue_threshold_ms;
+            double e = queueing ? estimate_kbps_ * 1.02 + 1.0 : estimate_kbps_ * 1.10 + 4.0;
+            if (carried > 0) e = std::min(e, std::max(estimate_kbps_, kProbeGain * carried));  // not far above what gets through
+            estimate_kbps_ = std::min(cap_kbps_, e);
+        }
     }
     // Let the minimum RTT forget after ~10 s so a changed path is learnt.
     min_rtt_age_ += 0.25;
@@ -176,15 +227,23 @@ void RateController::update(double now) {
     recent_[recent_at_++ % recent_.size()] = estimate_kbps_;
 }
 
+double RateController::carried_kbps() const {
+    double r = 0;
+    for (double x : rates_) r = std::max(r, x);
+    return r;
+}
+
 void RateController::on_path_change() {
     for (auto& s : ring_)
         if (s.valid) s.counted = true;  // neither acked nor lost: sent to a path that is gone
     win_acked_ = win_lost_ = win_acked_bytes_ = 0;
+    windows_.fill(Window{});
+    rates_.fill(0);
     loss_acked_ = loss_lost_ = 0;
     loss_since_ = -1;
     loss_ = 0;
-    srtt_ms_ = 0;
-    min_rtt_ms_ = 1e9;
+    srtt_ms_ = window_rtt_ms_ = 0;
+    min_rtt_ms_ = win_min_rtt_ms_ = 1e9;
     min_rtt_age_ = 0;
     hold_ = 0;
     double before = estimate_kbps_;

@@ -1,14 +1,33 @@
 // rate_controller.h — one client's sending rate: a cap (kbit/s, docs/metrics.md §3)
-// and an estimate that adapts to measured loss and delay (multiplicative back
-// off, to at most 95% of the rate the client acknowledged, on loss > 20%
-// over at least kLossSamples datagrams or 2 s, or on
-// RTT growing 25 ms / 50% above its minimum, then hold for two
-// windows; probe up otherwise while the budget is used), never above the cap.
-// Probing starts in slow start, as TCP's: the estimate doubles every 250 ms
-// window in which the budget was used and the client acknowledged at least
-// half of the window's target, until the first loss or delay back-off (or a
-// window whose deliveries fall short); from then on it grows by 10% + 4
-// kbit/s per window.
+// and an estimate that adapts to measured loss and delay, never above the cap.
+//
+// What the path carries (carried_kbps()): the highest rate at which the
+// client acknowledged bytes over the last kBwWindows 250 ms windows, each rate
+// taken over the shortest span of 2 to kSpanWindows windows that holds at
+// least kSpanDatagrams acknowledged datagrams (500 ms on a fast link, up to
+// 3 s on a slow one, so that a window of one or two datagrams is not read as
+// the link's rate). Behind a queue it reads the queue's output rate, the
+// link's; on a path with room, the sender's own rate.
+//
+// A queue is the smoothed RTT above its minimum by more than the larger of
+// 25 ms, half the minimum and the time the largest datagram the bucket lets
+// go takes at the rate carried (on a slow link a datagram's own time on the
+// link varies with its size: 750 bytes at 48 kbit/s take 125 ms).
+// Back off on loss > 20% over at least kLossSamples datagrams or 2 s (random
+// loss is not congestion), on loss > 5% with half such a queue (a queue that
+// overflows), or on such a queue: to kBackoff (85%) of what the path carries
+// (with nothing carried measured yet, to 80% of the estimate), then hold for
+// two windows. A back-off never goes lower, so back-offs do not compound
+// while a queue drains (to 95% of one window's deliveries, on a slow link one
+// or two datagrams, they did: docs/performance.md "Behind a capped
+// bottleneck").
+// Probe up otherwise while the budget is used: slow start first, as TCP's
+// (the estimate doubles every window in which the budget was used and the
+// client acknowledged at least half of the window's target, until the first
+// back-off or a window whose deliveries fall short); from then on by 10% +
+// 4 kbit/s per window, by 2% + 1 kbit/s while half a queue shows (so that the
+// RTT shows a growing queue before it overflows), and never above kProbeGain
+// (1.25) times what the path carries.
 //
 // Pacing is a token bucket in wire bytes: 10% of a second of the target deep,
 // 12.5% (at most 1,000 bytes) below 80 kbit/s, or 470 bytes on slow links
@@ -76,6 +95,11 @@ public:
     // start, kept for comparisons; tests/test_net_rate.cpp).
     void set_slow_start(bool on) { slow_start_ = on; }
     double rtt_ms() const { return srtt_ms_; }
+    // What the path was measured to carry (kbit/s; 0: nothing measured yet).
+    double carried_kbps() const;
+    static constexpr size_t kBwWindows = 10, kSpanWindows = 12;
+    static constexpr uint64_t kSpanDatagrams = 10;
+    static constexpr double kBackoff = 0.85, kProbeGain = 1.25;
     uint64_t acked() const { return acked_total_; }
     uint64_t lost() const { return lost_total_; }
 
@@ -99,6 +123,16 @@ private:
     double loss_since_ = -1;
     double loss_ = 0, srtt_ms_ = 0, min_rtt_ms_ = 1e9, min_rtt_age_ = 0;
     double last_update_ = -1;
+    // Per window, newest last: acknowledged bytes and datagrams, duration;
+    // and the rate each window's span measured.
+    struct Window {
+        uint64_t bytes = 0, datagrams = 0;
+        double seconds = 0;
+    };
+    std::array<Window, kSpanWindows> windows_{};
+    std::array<double, kBwWindows> rates_{};
+    size_t window_at_ = 0;
+    double win_min_rtt_ms_ = 1e9, window_rtt_ms_ = 0;  // the smallest RTT of this window; of the last with one
     int hold_ = 0;  // windows to wait after a back-off
     bool slow_start_ = true;  // doubling until the first back-off or short delivery
     // The estimate at the last 8 updates (2 s): what on_path_change restores.
