@@ -146,14 +146,15 @@ void RateController::update(double now) {
     // link is long and varies with its size (750 bytes at 48 kbit/s: 125
     // ms): a queue is read only beyond the largest datagram the bucket lets
     // go, at the rate last carried. Loss is congestion above 20%, or above 5%
-    // while the RTT shows a queue (half that growth): random loss has no
-    // queue behind it, a queue that overflows has.
+    // while the RTT shows a queue: random loss has no queue behind it, a
+    // queue that overflows has.
     const double carried_before = carried_kbps();
     const double largest_ms = carried_before > 0 ? std::min(1228.0, depth_bytes(target_kbps())) * 8.0 / carried_before : 0.0;
     // The queue: the window's smallest RTT above the smallest in 10 s (a
     // queue that stood all window long; one that drained shows at once,
     // where the smoothed RTT of a few acks a second lagged by seconds).
     if (win_min_rtt_ms_ < 1e9) window_rtt_ms_ = win_min_rtt_ms_;
+    period_min_rtt_ms_ = std::min(period_min_rtt_ms_, win_min_rtt_ms_);
     win_min_rtt_ms_ = 1e9;
     const double queue_ms = window_rtt_ms_ > 0 && min_rtt_ms_ < 1e9 ? std::max(0.0, window_rtt_ms_ - min_rtt_ms_) : 0.0;
     const double queue_threshold_ms = std::max({25.0, 0.5 * min_rtt_ms_, largest_ms});
@@ -161,7 +162,7 @@ void RateController::update(double now) {
     // (A queue that overflows swings: the window's smallest RTT can miss it;
     // the smoothed one does not.)
     const double mean_queue_ms = srtt_ms_ > 0 && min_rtt_ms_ < 1e9 ? srtt_ms_ - min_rtt_ms_ : 0.0;
-    const bool lossy_queue = judge_loss && loss_ > 0.05 && mean_queue_ms > 0.5 * queue_threshold_ms;
+    const bool lossy_queue = judge_loss && loss_ > 0.05 && mean_queue_ms > queue_threshold_ms;
     // What the client actually received over the window (acked wire bytes).
     const double window = now - last_update_;
     const double delivered_kbps = window > 0 ? double(win_acked_bytes_) * 8.0 / 1000.0 / window : 0.0;
@@ -208,19 +209,27 @@ void RateController::update(double now) {
         if (slow_start_ && judged >= 4)
             estimate_kbps_ = std::min(cap_kbps_, estimate_kbps_ * 2.0);
         else {
-            // While the RTT shows a queue building, slowly: it shows the
-            // back-off's threshold before a queue of 200 ms overflows.
+            // While the RTT shows a queue building, slowly (the RTT shows the
+            // back-off's threshold before a queue of 200 ms overflows) and by
+            // the same step whatever the rate: clients sharing a bottleneck
+            // then converge to equal parts (each back-off takes the same
+            // fraction of each), where a step in proportion to the rate kept
+            // whatever parts they had.
             const bool queueing = queue_ms > 0.5 * queue_threshold_ms;
-            double e = queueing ? estimate_kbps_ * 1.02 + 1.0 : estimate_kbps_ * 1.10 + 4.0;
+            double e = queueing ? estimate_kbps_ + kQueueingStepKbps : estimate_kbps_ * 1.10 + 4.0;
             if (carried > 0) e = std::min(e, std::max(estimate_kbps_, kProbeGain * carried));  // not far above what gets through
             estimate_kbps_ = std::min(cap_kbps_, e);
         }
     }
-    // Let the minimum RTT forget after ~10 s so a changed path is learnt.
+    // Let the minimum RTT forget after ~10 s so a changed path is learnt:
+    // to the smallest of the last 10 s (to the smoothed RTT, as before, a
+    // queue that stood at that moment became the path's delay, and no queue
+    // showed from then on).
     min_rtt_age_ += 0.25;
     if (min_rtt_age_ > 10.0) {
         min_rtt_age_ = 0;
-        min_rtt_ms_ = srtt_ms_ > 0 ? srtt_ms_ : 1e9;
+        min_rtt_ms_ = period_min_rtt_ms_ < 1e9 ? period_min_rtt_ms_ : srtt_ms_ > 0 ? srtt_ms_ : 1e9;
+        period_min_rtt_ms_ = 1e9;
     }
     win_acked_ = win_lost_ = win_acked_bytes_ = 0;
     limited_ = false;
@@ -243,7 +252,7 @@ void RateController::on_path_change() {
     loss_since_ = -1;
     loss_ = 0;
     srtt_ms_ = window_rtt_ms_ = 0;
-    min_rtt_ms_ = win_min_rtt_ms_ = 1e9;
+    min_rtt_ms_ = win_min_rtt_ms_ = period_min_rtt_ms_ = 1e9;
     min_rtt_age_ = 0;
     hold_ = 0;
     double before = estimate_kbps_;

@@ -9,14 +9,19 @@
 // the link's rate). Behind a queue it reads the queue's output rate, the
 // link's; on a path with room, the sender's own rate.
 //
-// A queue is the smoothed RTT above its minimum by more than the larger of
+// A queue is an RTT above the smallest of the last 10-20 s (forgotten to the
+// smallest of the last 10 s, so a queue that stands does not become the
+// path's delay) by more than the larger of
 // 25 ms, half the minimum and the time the largest datagram the bucket lets
 // go takes at the rate carried (on a slow link a datagram's own time on the
 // link varies with its size: 750 bytes at 48 kbit/s take 125 ms).
 // Back off on loss > 20% over at least kLossSamples datagrams or 2 s (random
-// loss is not congestion), on loss > 5% with half such a queue (a queue that
-// overflows), or on such a queue: to kBackoff (85%) of what the path carries
-// (with nothing carried measured yet, to 80% of the estimate), then hold for
+// loss is not congestion), on loss > 5% while the smoothed RTT shows such a
+// queue (a queue that overflows swings below it at times), or on such a
+// queue in the window's smallest RTT: to kBackoff (85%) of what the path carries,
+// down to 50% for a queue of 500 ms or more (so that slow start's overshoot
+// into a deep buffer drains in about a second; with nothing carried measured
+// yet, to 80% of the estimate), then hold for
 // two windows. A back-off never goes lower, so back-offs do not compound
 // while a queue drains (to 95% of one window's deliveries, on a slow link one
 // or two datagrams, they did: docs/performance.md "Behind a capped
@@ -25,8 +30,9 @@
 // (the estimate doubles every window in which the budget was used and the
 // client acknowledged at least half of the window's target, until the first
 // back-off or a window whose deliveries fall short); from then on by 10% +
-// 4 kbit/s per window, by 2% + 1 kbit/s while half a queue shows (so that the
-// RTT shows a growing queue before it overflows), and never above kProbeGain
+// 4 kbit/s per window, by kQueueingStepKbps (3) while half a queue shows (so
+// that the RTT shows a growing queue before it overflows, and so that clients
+// sharing a bottleneck converge to equal parts), and never above kProbeGain
 // (1.25) times what the path carries.
 //
 // Pacing is a token bucket in wire bytes: 10% of a second of the target deep,
@@ -99,7 +105,7 @@ public:
     double carried_kbps() const;
     static constexpr size_t kBwWindows = 10, kSpanWindows = 12;
     static constexpr uint64_t kSpanDatagrams = 10;
-    static constexpr double kBackoff = 0.85, kProbeGain = 1.25;
+    static constexpr double kBackoff = 0.85, kProbeGain = 1.25, kQueueingStepKbps = 3.0;
     uint64_t acked() const { return acked_total_; }
     uint64_t lost() const { return lost_total_; }
 
@@ -133,6 +139,7 @@ private:
     std::array<double, kBwWindows> rates_{};
     size_t window_at_ = 0;
     double win_min_rtt_ms_ = 1e9, window_rtt_ms_ = 0;  // the smallest RTT of this window; of the last with one
+    double period_min_rtt_ms_ = 1e9;  // the smallest since the minimum last forgot
     int hold_ = 0;  // windows to wait after a back-off
     bool slow_start_ = true;  // doubling until the first back-off or short delivery
     // The estimate at the last 8 updates (2 s): what on_path_change restores.

@@ -455,6 +455,12 @@ const EncodedFrame* ServerCore::prepare_tick(double now, std::vector<std::shared
         if (e.stream->expired(now)) drop.push_back(e.stream);
         else if (e.stream->state() == SessionState::Streaming && frame) streaming_.push_back(e.stream.get());
     }
+    // Whose datagrams go first turns with the tick: clients behind one
+    // bottleneck (a household's link) otherwise always met its queue in the
+    // same order, the first one's datagrams always found room and the last
+    // one's the drops (two clients through a 128 kbit/s relay: 118 and 7
+    // kbit/s; docs/performance.md "Behind a capped bottleneck").
+    if (!streaming_.empty()) std::rotate(streaming_.begin(), streaming_.begin() + long(tick_ % streaming_.size()), streaming_.end());
     return frame;
 }
 

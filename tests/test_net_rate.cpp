@@ -279,20 +279,21 @@ TEST(NetRate, ASlowCapStillSendsADatagramEveryTwoSeconds) {
 
 namespace {
 
-// One sender behind a bottleneck: a FIFO link of `link_kbps` that drops what
+// Senders behind one bottleneck: a FIFO link of `link_kbps` that drops what
 // arrives while more than `queue_ms` of bytes wait (as progskin-netem
-// --rate-kbps --queue-ms), `delay_ms` each way, 30 ticks per second, a
-// sender that always wants `demand_kbps`, the client acknowledging each tick
-// what arrived (with its hold time, as ClientSession does). Figures over
-// the seconds from `from` on.
+// --rate-kbps --queue-ms), `delay_ms` each way, 30 ticks per second, each
+// sender starting at its own time and always wanting `demand_kbps`, its
+// client acknowledging each tick what arrived (with its hold time, as
+// ClientSession does). The senders take turns to send first in a tick.
+// Figures per sender over the seconds from `from` on.
 struct Bottleneck {
     double delivered_kbps = 0, loss = 0, lowest_estimate = 1e9, mean_queue_ms = 0;
 };
 
-Bottleneck through_bottleneck(double link_kbps, double queue_ms, double delay_ms, double demand_kbps, double seconds = 40,
-                              double from = 5) {
-    RateController rc(100000, 1000);
+std::vector<Bottleneck> through_bottleneck(double link_kbps, double queue_ms, double delay_ms, double demand_kbps,
+                                           std::vector<double> starts = {0.0}, double seconds = 40, double from = 5) {
     struct InFlight {
+        size_t sender;
         uint32_t seq;
         double arrive, sent;
         size_t bytes;
@@ -302,13 +303,18 @@ Bottleneck through_bottleneck(double link_kbps, double queue_ms, double delay_ms
         uint32_t ack, bits;
         double echo, hold;
     };
+    struct Sender {
+        RateController rc{100000, 1000};
+        std::deque<AckMsg> acks;
+        std::vector<bool> got = std::vector<bool>(1, false);
+        double credit = 0, newest_sent = 0, newest_arrive = 0, queued_ms = 0;
+        uint32_t seq = 0, newest = 0;
+        size_t delivered = 0, sent = 0, dropped = 0, queued = 0;
+        Bottleneck r;
+    };
+    std::vector<Sender> senders(starts.size());
     std::deque<InFlight> link;
-    std::deque<AckMsg> acks;
-    std::vector<bool> got(1, false);
-    double link_free = 0, credit = 0, newest_sent = 0, newest_arrive = 0, queued_ms = 0;
-    uint32_t seq = 0, newest = 0;
-    size_t delivered = 0, sent = 0, dropped = 0, queued = 0;
-    Bottleneck r;
+    double link_free = 0;
     const double tick = 1.0 / 30.0;
     for (int k = 0; k * tick < seconds; ++k) {
         const double t = k * tick;
@@ -316,54 +322,65 @@ Bottleneck through_bottleneck(double link_kbps, double queue_ms, double delay_ms
         while (!link.empty() && link.front().arrive <= t) {
             const InFlight p = link.front();
             link.pop_front();
-            got[p.seq] = true;
-            if (measured) delivered += p.bytes;
-            if (p.seq > newest) {
-                newest = p.seq;
-                newest_sent = p.sent;
-                newest_arrive = p.arrive;
+            Sender& s = senders[p.sender];
+            s.got[p.seq] = true;
+            if (measured) s.delivered += p.bytes;
+            if (p.seq > s.newest) {
+                s.newest = p.seq;
+                s.newest_sent = p.sent;
+                s.newest_arrive = p.arrive;
             }
         }
-        if (newest) {
-            uint32_t bits = 0;
-            for (uint32_t i = 0; i < 32 && i + 1 < newest; ++i)
-                if (got[newest - 1 - i]) bits |= 1u << i;
-            acks.push_back({t + delay_ms / 1000, newest, bits, newest_sent, t - newest_arrive});
-        }
-        while (!acks.empty() && acks.front().at <= t) {
-            const AckMsg a = acks.front();
-            acks.pop_front();
-            rc.on_ack(a.ack, a.bits, uint32_t(a.echo * 1e6), uint32_t(a.hold * 1e6), uint32_t(a.at * 1e6));
-        }
-        rc.refill(tick);
-        rc.update(t);
-        if (measured) r.lowest_estimate = std::min(r.lowest_estimate, rc.estimate_kbps());
-        credit = std::min(credit + demand_kbps * 125.0 * tick, 5000.0);
-        if (credit > double(rc.budget()) + 100) rc.mark_limited();  // the scheduler had more than the budget
-        for (size_t b = rc.budget(); b > 0 && credit > 100; b = rc.budget()) {
-            const size_t d = std::min<size_t>({b, MAX_DATAGRAM + UDP_IP_OVERHEAD, size_t(credit) + 60});
-            rc.spend(d);
-            credit -= double(d);
-            rc.on_sent(++seq, uint32_t(t * 1e6), d);
-            got.push_back(false);
-            if (measured) ++sent;
-            link_free = std::max(link_free, t);
-            if (link_free - t > queue_ms / 1000) {
-                if (measured) ++dropped;
-                continue;
+        for (size_t turn = 0; turn < senders.size(); ++turn) {
+            const size_t i = (turn + size_t(k)) % senders.size();
+            Sender& s = senders[i];
+            if (t < starts[i]) continue;
+            RateController& rc = s.rc;
+            if (s.newest) {
+                uint32_t bits = 0;
+                for (uint32_t j = 0; j < 32 && j + 1 < s.newest; ++j)
+                    if (s.got[s.newest - 1 - j]) bits |= 1u << j;
+                s.acks.push_back({t + delay_ms / 1000, s.newest, bits, s.newest_sent, t - s.newest_arrive});
             }
-            link_free += double(d) * 8.0 / (link_kbps * 1000.0);
-            if (measured) {
-                queued_ms += 1000 * (link_free - t);
-                ++queued;
+            while (!s.acks.empty() && s.acks.front().at <= t) {
+                const AckMsg a = s.acks.front();
+                s.acks.pop_front();
+                rc.on_ack(a.ack, a.bits, uint32_t(a.echo * 1e6), uint32_t(a.hold * 1e6), uint32_t(a.at * 1e6));
             }
-            link.push_back({seq, link_free + delay_ms / 1000, t, d});
+            rc.refill(tick);
+            rc.update(t);
+            if (measured) s.r.lowest_estimate = std::min(s.r.lowest_estimate, rc.estimate_kbps());
+            s.credit = std::min(s.credit + demand_kbps * 125.0 * tick, 5000.0);
+            if (s.credit > double(rc.budget()) + 100) rc.mark_limited();  // the scheduler had more than the budget
+            for (size_t b = rc.budget(); b > 0 && s.credit > 100; b = rc.budget()) {
+                const size_t d = std::min<size_t>({b, MAX_DATAGRAM + UDP_IP_OVERHEAD, size_t(s.credit) + 60});
+                rc.spend(d);
+                s.credit -= double(d);
+                rc.on_sent(++s.seq, uint32_t(t * 1e6), d);
+                s.got.push_back(false);
+                if (measured) ++s.sent;
+                link_free = std::max(link_free, t);
+                if (link_free - t > queue_ms / 1000) {
+                    if (measured) ++s.dropped;
+                    continue;
+                }
+                link_free += double(d) * 8.0 / (link_kbps * 1000.0);
+                if (measured) {
+                    s.queued_ms += 1000 * (link_free - t);
+                    ++s.queued;
+                }
+                link.push_back({i, s.seq, link_free + delay_ms / 1000, t, d});
+            }
         }
     }
-    r.delivered_kbps = double(delivered) * 8.0 / 1000.0 / (seconds - from);
-    r.loss = sent ? double(dropped) / double(sent) : 0.0;
-    r.mean_queue_ms = queued ? queued_ms / double(queued) : 0.0;
-    return r;
+    std::vector<Bottleneck> out;
+    for (Sender& s : senders) {
+        s.r.delivered_kbps = double(s.delivered) * 8.0 / 1000.0 / (seconds - from);
+        s.r.loss = s.sent ? double(s.dropped) / double(s.sent) : 0.0;
+        s.r.mean_queue_ms = s.queued ? s.queued_ms / double(s.queued) : 0.0;
+        out.push_back(s.r);
+    }
+    return out;
 }
 
 }  // namespace
@@ -379,11 +396,33 @@ TEST(NetRate, ABottleneckIsFilledWithoutCollapsing) {
     };
     for (const Link l : {Link{64, 200, 10, 110}, Link{48, 1000, 10, 110}, Link{32, 500, 20, 110}, Link{256, 100, 10, 400},
                          Link{1000, 50, 5, 3000}}) {
-        const Bottleneck b = through_bottleneck(l.kbps, l.queue_ms, l.delay_ms, l.demand);
+        const Bottleneck b = through_bottleneck(l.kbps, l.queue_ms, l.delay_ms, l.demand)[0];
         std::printf("link %4.0f kbit/s, %4.0f ms queue: delivered %6.1f kbit/s (%3.0f %%), loss %.3f, mean queue %3.0f ms, lowest estimate %.1f\n",
                     l.kbps, l.queue_ms, b.delivered_kbps, 100 * b.delivered_kbps / l.kbps, b.loss, b.mean_queue_ms, b.lowest_estimate);
         EXPECT_GE(b.delivered_kbps, 0.85 * l.kbps) << l.kbps << " kbit/s";
         EXPECT_LE(b.loss, 0.10) << l.kbps << " kbit/s";
         EXPECT_GE(b.lowest_estimate, 0.5 * l.kbps) << l.kbps << " kbit/s";
+    }
+}
+
+// Two clients behind one bottleneck (a household's link): the second, which
+// starts 5 s later into the first one's queue, gets a fair part of it. With
+// the controller before 2026-11-28 the first kept the link (90 and 11 kbit/s
+// at 128, 212 and 23 at 256): its back-offs went to what the last window
+// delivered, and its minimum RTT forgot to the smoothed RTT, so a standing
+// queue became the path's delay and no queue showed from then on.
+TEST(NetRate, TwoClientsShareABottleneck) {
+    struct Link {
+        double kbps, queue_ms, delay_ms, demand;
+    };
+    for (const Link l : {Link{128, 200, 10, 110}, Link{256, 200, 10, 400}, Link{1000, 200, 5, 2000}}) {
+        const std::vector<Bottleneck> b = through_bottleneck(l.kbps, l.queue_ms, l.delay_ms, l.demand, {0.0, 5.0}, 60, 10);
+        std::printf("link %4.0f kbit/s, %3.0f ms queue, two clients: %6.1f and %6.1f kbit/s, loss %.3f and %.3f\n", l.kbps,
+                    l.queue_ms, b[0].delivered_kbps, b[1].delivered_kbps, b[0].loss, b[1].loss);
+        EXPECT_GE(b[0].delivered_kbps + b[1].delivered_kbps, 0.85 * l.kbps) << l.kbps << " kbit/s";
+        for (const Bottleneck& x : b) {
+            EXPECT_GE(x.delivered_kbps, 0.25 * l.kbps) << l.kbps << " kbit/s";
+            EXPECT_LE(x.loss, 0.10) << l.kbps << " kbit/s";
+        }
     }
 }
