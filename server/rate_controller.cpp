@@ -3,6 +3,8 @@
 
 #include <algorithm>
 
+#include "wire.h"
+
 namespace progskin::net {
 
 static constexpr double kMinKbps = 8.0;
@@ -149,7 +151,7 @@ void RateController::update(double now) {
     // while the RTT shows a queue: random loss has no queue behind it, a
     // queue that overflows has.
     const double carried_before = carried_kbps();
-    const double largest_ms = carried_before > 0 ? std::min(1228.0, depth_bytes(target_kbps())) * 8.0 / carried_before : 0.0;
+    const double largest_ms = carried_before > 0 ? std::min(double(MAX_DATAGRAM + UDP_IP_OVERHEAD), depth_bytes(target_kbps())) * 8.0 / carried_before : 0.0;
     // The queue: the window's smallest RTT above the smallest in 10 s (a
     // queue that stood all window long; one that drained shows at once,
     // where the smoothed RTT of a few acks a second lagged by seconds).
