@@ -491,35 +491,44 @@ bool encode_pose(std::span<const BonePose> model, const RelativeFormat& f, std::
 
 void copy_bits(const uint8_t* src, size_t from, size_t count, BitWriter& w) { w.append_bits(src, from, count); }
 
-// 56 bits at a time through 64-bit windows, the output grown once.
+// The output is grown once; the bits go through a 64-bit accumulator that
+// is stored 8 bytes at a time (fewer at the end) and never loaded back: the
+// only byte of the output read is the partial one the run starts in. (Loading
+// 8 bytes of output that the previous window had just stored stalled on
+// store forwarding: most of the packer's time at the full rate.)
 void BitWriter::append_bits(const uint8_t* src, size_t from, size_t count) {
     if (count == 0) return;
     const size_t pos = out_.size() * 8 - size_t(free_), end = pos + count;
-    if ((end + 7) / 8 > out_.size()) out_.resize((end + 7) / 8, 0);
-    free_ = int(out_.size() * 8 - end);
+    const size_t bytes = (end + 7) / 8;
+    if (bytes > out_.size()) out_.resize(bytes);
+    free_ = int(bytes * 8 - end);
     const size_t src_end = (from + count + 7) / 8;
-    uint8_t* dst = out_.data();
-    const size_t dst_end = out_.size();
-    for (size_t done = 0; done < count;) {
-        const size_t n = std::min<size_t>(56, count - done);
-        const size_t s = from + done, d = pos + done;
-        uint64_t v = 0, o = 0;
-        const size_t sl = std::min<size_t>(8, src_end - s / 8), dl = std::min<size_t>(8, dst_end - d / 8);
+    uint8_t* dst = out_.data() + pos / 8;
+    const size_t dst_len = bytes - pos / 8;  // bytes from dst on that this run writes
+    int nacc = int(pos % 8);
+    uint64_t acc = nacc ? uint64_t(dst[0]) & ((uint64_t(1) << nacc) - 1) : 0;
+    size_t at_dst = 0;
+    while (count > 0) {
+        const int n = int(std::min<size_t>(56, count));
+        const size_t at = from / 8;
+        uint64_t v = 0;
+        if (std::endian::native == std::endian::little && at + 8 <= src_end) std::memcpy(&v, src + at, 8);
+        else  // the last bytes one by one, in registers (a short memcpy into v stalled the load of v)
+            for (size_t i = 0; at + i < src_end && i < 8; ++i) v |= uint64_t(src[at + i]) << (8 * i);
+        acc |= ((v >> (from % 8)) & ((uint64_t(1) << n) - 1)) << nacc;  // nacc < 8, n <= 56
+        nacc += n;
+        from += size_t(n);
+        count -= size_t(n);
+        const size_t whole = size_t(nacc) / 8;  // <= 7
         if constexpr (std::endian::native == std::endian::little) {
-            std::memcpy(&v, src + s / 8, sl);
-            std::memcpy(&o, dst + d / 8, dl);
+            if (at_dst + 8 <= dst_len) std::memcpy(dst + at_dst, &acc, 8);  // the bytes past `whole` are written again next
+            else std::memcpy(dst + at_dst, &acc, std::min<size_t>(8, dst_len - at_dst));
         } else {
-            for (size_t i = 0; i < sl; ++i) v |= uint64_t(src[s / 8 + i]) << (8 * i);
-            for (size_t i = 0; i < dl; ++i) o |= uint64_t(dst[d / 8 + i]) << (8 * i);
+            for (size_t i = 0; i < 8 && at_dst + i < dst_len; ++i) dst[at_dst + i] = uint8_t(acc >> (8 * i));
         }
-        v = (v >> (s % 8)) & ((uint64_t(1) << n) - 1);
-        o |= v << (d % 8);
-        if constexpr (std::endian::native == std::endian::little) {
-            std::memcpy(dst + d / 8, &o, dl);
-        } else {
-            for (size_t i = 0; i < dl; ++i) dst[d / 8 + i] = uint8_t(o >> (8 * i));
-        }
-        done += n;
+        at_dst += whole;
+        acc >>= 8 * whole;
+        nacc -= int(8 * whole);
     }
 }
 

@@ -132,22 +132,33 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
                 if (book && run_first >= 0) book->carried(seq, frame.tick, instance, e.generation, run_first, run_end - run_first);
                 run_first = -1;
             };
-            while (bone >= 0 && rec_bits + bits_of(bone) <= room_bits) {
+            // Absolute records of consecutive bones lie one after another in
+            // the frame's bits: they are copied as one run.
+            size_t copy_from = 0, copy_count = 0;
+            auto copy_run = [&] {
+                copy_bits(src, copy_from, copy_count, w);
+                copy_count = 0;
+            };
+            for (size_t nbits; bone >= 0 && rec_bits + (nbits = bits_of(bone)) <= room_bits;) {
                 payload_[mask_at + size_t(bone - first) / 8] |= uint8_t(1u << ((bone - first) % 8));
-                const RecordPrefix how = base ? plan->prefix(instance, bone) : RecordPrefix{};
-                if (base) write_prefix(how, w);
-                if (how.kind == RecordPrefix::Chunk) {
-                    copy_bits(pred->bits.data(), pred->offsets[size_t(bone)], pred->record_bits(bone), w);
-                } else if (how.kind == RecordPrefix::Own) {
-                    plan->write_own(frame, instance, bone, w);
+                if (base) {
+                    const RecordPrefix how = plan->prefix(instance, bone);
+                    write_prefix(how, w);
+                    if (how.kind == RecordPrefix::Chunk) copy_bits(pred->bits.data(), pred->offsets[size_t(bone)], pred->record_bits(bone), w);
+                    else if (how.kind == RecordPrefix::Own) plan->write_own(frame, instance, bone, w);
+                    else copy_bits(src, frame.bit_offset(instance, bone), frame.record_bits(instance, bone, bone + 1), w);
                 } else {
-                    copy_bits(src, frame.bit_offset(instance, bone), frame.record_bits(instance, bone, bone + 1), w);
+                    const size_t at = frame.bit_offset(instance, bone);
+                    if (copy_count > 0 && copy_from + copy_count != at) copy_run();
+                    if (copy_count == 0) copy_from = at;
+                    copy_count += nbits;
                 }
-                rec_bits += bits_of(bone);
+                rec_bits += nbits;
                 if (bone != run_end) end_run(), run_first = bone;
                 run_end = bone + 1;
                 bone = next_bone();
             }
+            if (copy_count > 0) copy_run();
             end_run();
             chunks_.emplace_back(uint16_t(instance), uint8_t(first), uint8_t(show), e.epoch, uint8_t(flags | base_to_flags(base)));
         }

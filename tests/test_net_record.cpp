@@ -16,6 +16,34 @@
 using namespace progskin;
 using namespace progskin::net;
 
+// append_bits (the packer's copy of a run of records) against a bit-by-bit
+// copy: every start bit in the output and the source, runs from 1 bit to
+// several windows, the source's bytes past the run never read (the run ends
+// at the buffer's end), the output's unused high bits zero.
+TEST(NetRecord, AppendBitsCopiesAnyRunBitForBit) {
+    std::mt19937 rng(11);
+    auto bit = [](const std::vector<uint8_t>& v, size_t i) { return (v[i / 8] >> (i % 8)) & 1; };
+    for (int trial = 0; trial < 4000; ++trial) {
+        const size_t lead = rng() % 70, from = rng() % 20;
+        const size_t count = trial % 4 == 0 ? 1 + rng() % 8 : 1 + rng() % 300;
+        std::vector<uint8_t> src((from + count + 7) / 8);  // exactly the bytes the run touches
+        for (uint8_t& b : src) b = uint8_t(rng());
+        std::vector<uint8_t> lead_bits(lead);
+        for (uint8_t& b : lead_bits) b = uint8_t(rng() & 1);
+        std::vector<uint8_t> out;
+        BitWriter w(out);
+        for (uint8_t b : lead_bits) w.put(b, 1);
+        w.append_bits(src.data(), from, count);
+        ASSERT_EQ(w.bits(), lead + count);
+        ASSERT_EQ(out.size(), (lead + count + 7) / 8);
+        for (size_t i = 0; i < lead; ++i) ASSERT_EQ(bit(out, i), lead_bits[i]) << trial;
+        for (size_t i = 0; i < count; ++i) ASSERT_EQ(bit(out, lead + i), bit(src, from + i)) << trial << " bit " << i;
+        for (size_t i = lead + count; i < out.size() * 8; ++i) ASSERT_EQ(bit(out, i), 0) << trial;
+        w.put(1, 1);  // the writer goes on where the run ended
+        ASSERT_EQ(bit(out, lead + count), 1);
+    }
+}
+
 TEST(NetRecord, ExpGolombRoundTripsEveryOrderAndWidth) {
     std::vector<uint8_t> bytes;
     BitWriter w(bytes);
