@@ -1,6 +1,8 @@
 // scheduler.cpp — see scheduler.h.
 #include "scheduler.h"
 
+#include <cassert>
+
 #include <algorithm>
 #include <bit>
 #include <cmath>
@@ -441,9 +443,18 @@ void Scheduler::take_greedily(size_t budget, size_t payload) {
 
 // The heap is a 4-ary max-heap (half the depth of a binary one; Step's order
 // is total, so any heap pops the same sequence).
+void Scheduler::Step::order_key() {
+    assert(ratio > 0 && instance >= 0 && instance <= 0xFFFF && step >= 0 && step < 0x1000);
+    const double r = ratio > 0 ? ratio : 0.0;  // (NaN and <= 0 are never pushed)
+    key_hi = (uint64_t(floor) << 63) | std::bit_cast<uint64_t>(r);
+    key_lo = (uint64_t(age) << 32) | (uint64_t(0xFFFF - (uint32_t(instance) & 0xFFFF)) << 16) |
+             (uint64_t(0xFFF - (uint32_t(step) & 0xFFF)) << 4) | uint64_t(15 - kind());
+}
+
 void Scheduler::push(Step s) {
     const size_t i = size_t(s.instance);
     s.floor = spent_[i] < floor_bytes_[i];
+    s.order_key();
     sc_->heap.push_back(s);
     size_t k = sc_->heap.size() - 1;
     while (k > 0) {

@@ -246,14 +246,15 @@ private:
         bool floor = false;  // its instance is under its floor (set_floor): goes before every other step
         // A total order (ties of ratio and age go to the lower instance,
         // then the lower step): the picks do not depend on the heap's history.
-        bool operator<(const Step& o) const {
-            if (floor != o.floor) return o.floor;
-            if (ratio != o.ratio) return ratio < o.ratio;
-            if (age != o.age) return age < o.age;
-            if (instance != o.instance) return instance > o.instance;
-            if (step != o.step) return step > o.step;
-            return kind() > o.kind();
-        }
+        // The order is that of (floor, ratio, age, -instance, -step, -kind)
+        // packed by push() into two words (order_key), so that the heap
+        // compares two integers: ratio > 0 (its IEEE bits order as the
+        // values; push never gets another, asserted), instance <= 65535
+        // (MAX_INSTANCES), step < 4096 (items and hull steps: at most one
+        // per bone, MAX_BONES).
+        uint64_t key_hi = 0, key_lo = 0;
+        bool operator<(const Step& o) const { return key_hi < o.key_hi || (key_hi == o.key_hi && key_lo < o.key_lo); }
+        void order_key();
         int kind() const { return (chain ? 1 : 0) | (paid ? 2 : 0) | (morph ? 4 : 0) | (single ? 8 : 0); }
     };
     struct SegItem {
