@@ -83,6 +83,7 @@ std::vector<float> compute_importance(const ViewSpec& view, const std::vector<In
 }
 
 size_t morph_block_bytes(const std::array<uint64_t, 4>& mask) {
+    if ((mask[0] | mask[1] | mask[2] | mask[3]) == 0) return 0;  // most chunks (std::popcount is a call without -mpopcnt)
     size_t n = 0;
     for (uint64_t w : mask) n += size_t(std::popcount(w));
     return n ? 1 + n * MORPH_ENTRY_BYTES : 0;
