@@ -151,7 +151,7 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
                     const size_t at = frame.bit_offset(instance, bone);
                     if (copy_count > 0 && copy_from + copy_count != at) copy_run();
                     if (copy_count == 0) copy_from = at;
-                    copy_count += nbits;
+                    copy_count += frame.record_bits(instance, bone, bone + 1);
                 }
                 rec_bits += nbits;
                 if (bone != run_end) end_run(), run_first = bone;
