@@ -445,8 +445,10 @@ void Scheduler::take_greedily(size_t budget, size_t payload) {
 // The heap is a 4-ary max-heap (half the depth of a binary one; Step's order
 // is total, so any heap pops the same sequence).
 void Scheduler::Step::order_key() {
-    assert(ratio > 0 && instance >= 0 && instance <= 0xFFFF && step >= 0 && step < 0x1000);
-    const double r = ratio > 0 ? ratio : 0.0;  // (NaN and <= 0 are never pushed)
+    assert(instance >= 0 && instance <= 0xFFFF && step >= 0 && step < 0x1000);
+    // Every push has value > 0 (a quotient that underflowed to 0 ties at 0,
+    // as the plain comparison of doubles tied it; nothing negative is pushed).
+    const double r = ratio > 0 ? ratio : 0.0;
     key_hi = (uint64_t(floor) << 63) | std::bit_cast<uint64_t>(r);
     key_lo = (uint64_t(age) << 32) | (uint64_t(0xFFFF - (uint32_t(instance) & 0xFFFF)) << 16) |
              (uint64_t(0xFFF - (uint32_t(step) & 0xFFF)) << 4) | uint64_t(15 - kind());

@@ -248,8 +248,8 @@ private:
         // then the lower step): the picks do not depend on the heap's history.
         // The order is that of (floor, ratio, age, -instance, -step, -kind)
         // packed by push() into two words (order_key), so that the heap
-        // compares two integers: ratio > 0 (its IEEE bits order as the
-        // values; push never gets another, asserted), instance <= 65535
+        // compares two integers: ratio >= 0 (its IEEE bits order as the
+        // values; every push has a positive value), instance <= 65535
         // (MAX_INSTANCES), step < 4096 (items and hull steps: at most one
         // per bone, MAX_BONES).
         uint64_t key_hi = 0, key_lo = 0;
