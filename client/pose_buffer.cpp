@@ -244,6 +244,15 @@ double PoseBuffer::sample_of(uint32_t t) const {
     return f ? sample_time(*f) : tick_time(t);
 }
 
+double PoseBuffer::needed_from(uint32_t tick, int b) const {
+    const Frame* before = nullptr;
+    for (const auto& f : frames_)
+        if (f.used && int32_t(tick - f.tick) > 0 && b >= 0 && size_t(b) < f.have.size() && f.have[size_t(b)] &&
+            (!before || int32_t(f.tick - before->tick) > 0))
+            before = &f;
+    return before ? sample_time(*before) : tick_time(tick);
+}
+
 int PoseBuffer::bones_at(double d) const {
     const Frame* newest_before = nullptr;
     const Frame* first_after = nullptr;

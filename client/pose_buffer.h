@@ -93,6 +93,11 @@ public:
     // or it was sampled at the tick (a display snapped to ticks shows each
     // frame as it came: ClientSession --snap-to-ticks).
     double sample_of(uint32_t t) const;
+    // For a frame of `tick` that came after a newer one (late, or a repair):
+    // the display tick from which the display needed it, the sample time of
+    // the newest kept frame before it that carries bone b (the display
+    // interpolates from there towards it); tick when none. O(kHistory).
+    double needed_from(uint32_t tick, int b) const;
     // The largest gap (ticks) between a bone's previous frame and the frame
     // of the last accepted chunk, over the chunk's bones, counting gaps of at
     // most HOLD_TICKS (longer ones are a bone shown again, not a refresh); 0

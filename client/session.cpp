@@ -100,7 +100,9 @@ FrameApplied apply_frame(const wire::Frame& f, std::span<const PoseTarget> insta
         if (!had) return;
         // The gap since the instance's newest frame and the gap since these
         // bones' previous frames (deep bones are refreshed less often, scheduler.h).
-        double since = int32_t(f.tick() - prev) > 0 ? double(prev) : tick;
+        // A frame older than the newest (late, or a repair) was needed from
+        // the frame before it on.
+        double since = int32_t(f.tick() - prev) > 0 ? double(prev) : b.needed_from(f.tick(), first);
         if (b.last_gap() > 0) since = std::min(since, tick - b.last_gap());
         r.reach_from = std::min(r.reach_from, since);
     };
@@ -224,6 +226,7 @@ void ClientSession::restart(double now, std::string peer) {
     ack_echo_ = 0;
     ack_arrival_ = last_ack_sent_ = next_bind_ = last_datagram_ = 0;
     since_ack_ = 0;
+    ack_now_ = false;
     tick_offset_ = -1e300;
     last_display_time_ = needed_delay_ = 0;
     shown_dirty_ = true;
@@ -634,6 +637,11 @@ void ClientSession::handle_frame(const wire::Datagram& d, size_t n, double t) {
     // not acknowledged: the server then never predicts from what it carried
     // (baseline_book.h), so the stream heals instead of refusing on.
     if (a.missing_baselines > 0) return;
+    // A gap (a datagram skipped, or one that fills a gap) is acknowledged at
+    // the next update rather than up to 33 ms later (QUIC's immediate
+    // acknowledgement of out-of-order packets, RFC 9000 13.2.1): the server
+    // learns of a loss, and repairs it, a tick sooner.
+    if (window_.started && seq != window_.ack + 1) ack_now_ = true;
     window_.add(seq);
     if (seq == window_.ack) {
         ack_echo_ = d.send_time_us();
@@ -716,7 +724,7 @@ void ClientSession::update(double now, DatagramSource* source) {
     double arrival = 0;
     while (source && source->next(bytes, from_server, arrival)) on_datagram(bytes, from_server, arrival);
     if (!stream_checks(now)) return;
-    if (window_.started && since_ack_ > 0 && (since_ack_ >= 8 || now - last_ack_sent_ > 0.033)) send_ack(now);
+    if (window_.started && since_ack_ > 0 && (since_ack_ >= 8 || ack_now_ || now - last_ack_sent_ > 0.033)) send_ack(now);
     if (now >= next_stats_) send_stats(now);
     display(now);
 }
@@ -749,6 +757,7 @@ void ClientSession::send_ack(double now) {
     fbb_.Finish(wire::CreateDatagram(fbb_, 0, now_us32(), wire::DatagramBody::Ack, a.Union()), wire::DatagramIdentifier());
     send_datagram(fbb_);
     since_ack_ = 0;
+    ack_now_ = false;
     last_ack_sent_ = now;
 }
 
@@ -775,7 +784,9 @@ ClientStats ClientSession::stats(double now) const {
 
 // The display clock: at least delay_ms behind the newest frame, raised
 // to cover the gaps between an instance's frames (plus their lateness)
-// so the display interpolates rather than holds; it changes by at most
+// so the display interpolates rather than holds (a late frame, or a
+// repair, counts from the frame before it: the display needed it from
+// there); it changes by at most
 // 25% of the elapsed time (the clock runs at 0.75x..1.25x while it
 // adapts), up to max_delay_ms.
 double ClientSession::display_tick(double now) const {
@@ -800,7 +811,7 @@ void ClientSession::display(double now) {
     const double target = std::clamp(needed_delay_ + 0.5, base_delay_, max_delay_);
     const double step = 0.25 * elapsed;
     delay_ticks_ += std::clamp(target - delay_ticks_, -step, step);
-    needed_delay_ *= std::pow(0.7, elapsed / tick_rate_);  // forget over a few seconds
+    needed_delay_ *= std::pow(kDelayMemory, elapsed / tick_rate_);  // forget over about ten seconds
     st_.delay_ms = std::max(st_.delay_ms, delay_ticks_ / tick_rate_ * 1000.0);
     double d = now * tick_rate_ + tick_offset_ - delay_ticks_;
     if (cfg_.snap_to_ticks) d = std::floor(d);

@@ -356,6 +356,7 @@ private:
     uint32_t ack_echo_ = 0;
     double ack_arrival_ = 0, last_ack_sent_ = 0, next_bind_ = 0, next_stats_ = 0, last_datagram_ = 0;
     uint64_t since_ack_ = 0;
+    bool ack_now_ = false;  // a gap in the sequence: acknowledge at the next update
     double t_first_ = 0;
     double last_frame_at_ = 0;  // newest frame datagram (ClientStats::max_gap_ms)
     ClientStats st_;
@@ -366,6 +367,10 @@ private:
 
     // display clock (display())
     double base_delay_ = 0, max_delay_ = 0, delay_ticks_ = 0, needed_delay_ = 0, last_display_time_ = 0;
+    // The needed delay decays by this factor per second: the display keeps
+    // covering the latest gaps and late frames (a lossy link's repairs come
+    // every second or so) for about ten seconds.
+    static constexpr double kDelayMemory = 0.9;
     double tick_offset_ = -1e300;
 
     // view and cap

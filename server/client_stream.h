@@ -229,6 +229,13 @@ public:
     // camera (the frame's grid), else every slot.
     size_t weighed() const { return weighed_; }
 
+public:
+    // Repairs (ServerConfig::repair_lost): a frame datagram of a tick older
+    // than kRepairTicks is not sent again; one datagram goes again at most
+    // kMaxRepairs times (each a lost repair: repair_again).
+    static constexpr int kRepairTicks = 6;
+    static constexpr int kMaxRepairs = 3;
+
 private:
     // Published poses kept per character: twice the publisher's window
     // (POSE_BASELINES). A publisher predicts pose P from an acknowledged
@@ -336,12 +343,17 @@ private:
     BaselineBook book_;   // what this client acknowledged: the baselines of predicted records
     std::vector<BaselineBook::LostRun> lost_;  // on_ack's scratch: the bones of datagrams it shows lost
     // The last frame datagrams as sent (sealed when sealing), for repairs
-    // (ServerConfig::repair_lost): a ring, buffers reused.
-    static constexpr int kRepairTicks = 3;   // a lost datagram of a tick older than this is not sent again
-    static constexpr size_t kKeptSent = 16;
+    // (ServerConfig::repair_lost): a ring as long as an Ack's window, buffers
+    // reused. A lost datagram goes again up to kMaxRepairs times while its
+    // tick is at most kRepairTicks old: once when an Ack shows it lost, and
+    // again when an Ack of a datagram sent after the repair leaves it out
+    // while the repair left 9/8 of the RTT before (the repair was lost too).
+    static constexpr size_t kKeptSent = 32;
     struct Kept {
         uint32_t seq = 0, tick = 0;
-        bool valid = false, repaired = false;
+        uint32_t sent_us = 0;   // its last send (the first, or the last repair)
+        uint8_t repairs = 0;    // sent again this many times
+        bool valid = false, acked = false;
         std::vector<uint8_t> bytes;
     };
     std::array<Kept, kKeptSent> kept_;
@@ -349,6 +361,10 @@ private:
     bool last_limited_ = true;  // the last tick left something due unsent (no room for repairs)
     // Sends kept datagram `seq` again when ServerConfig::repair_lost allows it.
     void repair(uint32_t seq, DatagramSink& out);
+    // On an Ack (ack, bits, loss_delay as on_ack's): marks the kept datagrams
+    // it acknowledges, and sends again those repaired whose repair it shows
+    // lost. O(kKeptSent).
+    void repair_again(uint32_t ack, uint32_t bits, uint32_t loss_delay_us, DatagramSink& out);
     RecordPlan plan_;     // this tick's record choices (set before the scheduler runs)
     Selector selector_;
     ViewSpec view_;

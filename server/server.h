@@ -58,11 +58,13 @@ struct ServerConfig {
     // (proto/crypto.h seal_datagram) with per-session keys sent in the Welcome;
     // unsealed or forged datagrams are dropped and counted.
     bool seal_datagrams = false;
-    // A frame datagram an Ack shows lost (docs/protocol.md "Ack") goes once
-    // more, byte for byte, when its tick is at most kRepairTicks old and the
-    // client's stream has room (its last tick sent everything due within the
-    // budget, and the budget holds it): the client then displays that tick
-    // as sent instead of interpolating across the gap. Off: never.
+    // A frame datagram an Ack shows lost (docs/protocol.md "Ack") goes again,
+    // byte for byte, when its tick is at most ClientStream::kRepairTicks old
+    // and the client's stream has room (its last tick sent everything due
+    // within the budget, and the budget holds it), and again when the repair
+    // is lost too (at most ClientStream::kMaxRepairs times): the client then
+    // displays that tick as sent instead of interpolating across the gap.
+    // Off: never.
     bool repair_lost = true;
     // >= 0 (off by default, -1): a WebSocket endpoint for browsers at
     // ws://bind_address:web_port/ws, or wss:// with TLS (tls_cert_file: the

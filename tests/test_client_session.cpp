@@ -428,3 +428,38 @@ TEST(ClientSessionFrames, ApplyFrameKeepsEpochsAndRoots) {
     EXPECT_NEAR(root_at_11(1), 1.0, 1e-3);  // one epoch: interpolated
     EXPECT_NEAR(root_at_11(2), 0.0, 1e-3);  // a new epoch: the older frame held
 }
+
+// A frame that comes after a newer one (late, or a server's repair) was
+// needed by the display from the frame before it on (FrameApplied::
+// reach_from, which the display delay covers): frames 10, 11 and 13, then
+// 12 late, reaches back to 11; a frame in order to the newest before it.
+TEST(ClientSessionFrames, ALateFrameReachesBackToTheFrameBeforeIt) {
+    const RecordFormat fmt;
+    auto frame_at = [&](uint32_t tick) {
+        Bytes payload;
+        payload.push_back(1);  // mask: bone 0
+        {
+            BitWriter w(payload);
+            write_record(RecordInts{}, false, w);
+        }
+        const std::vector<wire::Chunk> chunks{wire::Chunk(0, 0, 1, 0, 0)};
+        flatbuffers::FlatBufferBuilder b;
+        auto f = wire::CreateFrame(b, tick, b.CreateVectorOfStructs(chunks), b.CreateVector(payload));
+        return datagram(b, tick, 0, wire::DatagramBody::Frame, f);
+    };
+    PoseBuffer buffer(chain_format(1, fmt));
+    const std::vector<PoseTarget> targets{{&buffer, fmt.size()}};
+    auto reach = [&](uint32_t tick) {
+        const Bytes d = frame_at(tick);
+        const FrameApplied a = apply_frame(*verify_datagram(d)->body_as_Frame(), targets);
+        EXPECT_TRUE(a.read);
+        EXPECT_EQ(a.applied, 1);
+        return a.reach_from;
+    };
+    EXPECT_TRUE(std::isinf(reach(10)));  // the first frame: nothing to reach back to
+    EXPECT_DOUBLE_EQ(reach(11), 10.0);
+    EXPECT_DOUBLE_EQ(reach(13), 11.0);
+    EXPECT_DOUBLE_EQ(reach(12), 11.0) << "the late frame was needed from tick 11 on, not from its own tick";
+    EXPECT_DOUBLE_EQ(buffer.needed_from(12, 0), 11.0);
+    EXPECT_DOUBLE_EQ(buffer.needed_from(10, 0), 10.0);  // none before it: its own tick
+}

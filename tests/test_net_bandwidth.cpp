@@ -131,7 +131,8 @@ TEST(NetBandwidth, LossReorderingAndDuplicationDoNoHarm) {
                 (unsigned long long)ls.reordered, (unsigned long long)ls.duplicated);
     EXPECT_GT(ls.dropped, 0u);
     EXPECT_EQ(r.characters, 4);
-    EXPECT_GT(r.loss, 0.0);  // what the relay dropped, less what went again in time (RepairsFillTheLostTicks)
+    // What the relay dropped, less what went again in time: repairs
+    // (RepairsFillTheLostTicks) usually leave nothing missing.
     EXPECT_LT(r.loss, 0.25);
     EXPECT_GT(r.duplicates, 0u);
     EXPECT_EQ(r.malformed, 0u);
