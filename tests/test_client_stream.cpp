@@ -38,9 +38,10 @@ std::vector<uint8_t> hello(uint32_t max_kbps) {
     return bytes_of(fbb);
 }
 
-std::vector<uint8_t> ack(const ClientStream& s, uint32_t seq, uint32_t bits = 0xffffffffu) {
+// rtt_us: the echo as if the datagram left that long ago (the server's RTT sample).
+std::vector<uint8_t> ack(const ClientStream& s, uint32_t seq, uint32_t bits = 0xffffffffu, uint32_t rtt_us = 0) {
     flatbuffers::FlatBufferBuilder fbb;
-    auto a = wire::CreateAck(fbb, s.id(), s.token(), seq, bits, now_us32(), 0);
+    auto a = wire::CreateAck(fbb, s.id(), s.token(), seq, bits, now_us32() - rtt_us, 0);
     fbb.Finish(wire::CreateDatagram(fbb, 0, 0, wire::DatagramBody::Ack, a.Union()), wire::DatagramIdentifier());
     return bytes_of(fbb);
 }
@@ -306,10 +307,10 @@ TEST(ClientStream, ALostRepairGoesAgainUntilAcknowledged) {
         uint32_t bits = 0xffffffffu;
         for (int64_t skip : {skip_a, skip_b})
             if (skip >= 0 && a - uint32_t(skip) >= 1 && a - uint32_t(skip) <= 32) bits &= ~(1u << (a - uint32_t(skip) - 1));
-        // Lost by time: the Ack comes at least the loss delay (1 ms here:
-        // the echo makes the RTT about 0) after the datagram left.
-        std::this_thread::sleep_for(std::chrono::milliseconds(3));
-        f.core->on_datagram(ack(*f.s, a, bits), kHome, now, f.sink);
+        // Lost by time: the Ack comes at least the loss delay (9/8 of the
+        // RTT, 1 ms here: the echo makes it 1 ms) after the datagram left.
+        std::this_thread::sleep_for(std::chrono::milliseconds(4));
+        f.core->on_datagram(ack(*f.s, a, bits, 1000), kHome, now, f.sink);
     };
     for (int t = 0; t < 40; ++t) {  // past the rate's start and the baselines' grace
         now += 1.0 / 30;
