@@ -96,7 +96,8 @@ public:
     // For a frame of `tick` that came after a newer one (late, or a repair):
     // the display tick from which the display needed it, the sample time of
     // the newest kept frame before it that carries bone b (the display
-    // interpolates from there towards it); tick when none. O(kHistory).
+    // interpolates from there towards it); tick when none, when that frame
+    // is more than HOLD_TICKS older, or of another epoch. O(kHistory).
     double needed_from(uint32_t tick, int b) const;
     // The largest gap (ticks) between a bone's previous frame and the frame
     // of the last accepted chunk, over the chunk's bones, counting gaps of at

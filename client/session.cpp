@@ -101,8 +101,10 @@ FrameApplied apply_frame(const wire::Frame& f, std::span<const PoseTarget> insta
         // The gap since the instance's newest frame and the gap since these
         // bones' previous frames (deep bones are refreshed less often, scheduler.h).
         // A frame older than the newest (late, or a repair) was needed from
-        // the frame before it on.
-        double since = int32_t(f.tick() - prev) > 0 ? double(prev) : b.needed_from(f.tick(), first);
+        // the frame before it on; another run or datagram of the newest
+        // tick, from that tick (and its bones' gaps, below).
+        const int32_t newer = int32_t(f.tick() - prev);
+        double since = newer > 0 ? double(prev) : newer == 0 ? tick : b.needed_from(f.tick(), first);
         if (b.last_gap() > 0) since = std::min(since, tick - b.last_gap());
         r.reach_from = std::min(r.reach_from, since);
     };

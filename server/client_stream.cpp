@@ -509,10 +509,11 @@ void ClientStream::repair_again(uint32_t ack, uint32_t bits, uint32_t loss_delay
             continue;
         }
         // A repair is lost (RFC 9002's time threshold, as for the first
-        // send): a datagram sent after it was acknowledged, and it left at
-        // least loss_delay before now.
+        // send): a datagram first sent after it was acknowledged (the first
+        // send: a repaired datagram's Ack may be of its original), and it
+        // left at least loss_delay before now.
         if (k.repairs == 0 || d == 0 || d > 32 || !timed || loss_delay_us == 0) continue;
-        if (int32_t(newest.sent_us - k.sent_us) <= 0 || now - k.sent_us < loss_delay_us) continue;
+        if (int32_t(newest.first_us - k.sent_us) <= 0 || now - k.sent_us < loss_delay_us) continue;
         repair(k.seq, out);
     }
 }
@@ -820,7 +821,7 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
             Kept& k = kept_[(first_seq + uint32_t(i)) % kKeptSent];
             k.seq = first_seq + uint32_t(i);
             k.tick = frame.tick;
-            k.sent_us = now_us32();
+            k.sent_us = k.first_us = now_us32();
             k.valid = true;
             k.acked = false;
             k.repairs = 0;

@@ -352,6 +352,7 @@ private:
     struct Kept {
         uint32_t seq = 0, tick = 0;
         uint32_t sent_us = 0;   // its last send (the first, or the last repair)
+        uint32_t first_us = 0;  // its first send (an Ack of it proves nothing sent later arrived: Karn)
         uint8_t repairs = 0;    // sent again this many times
         bool valid = false, acked = false;
         std::vector<uint8_t> bytes;
