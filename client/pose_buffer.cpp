@@ -245,12 +245,15 @@ double PoseBuffer::sample_of(uint32_t t) const {
 }
 
 double PoseBuffer::needed_from(uint32_t tick, int b) const {
-    const Frame* at = frame_at(tick);
+    const Frame* at = nullptr;
     const Frame* before = nullptr;
-    for (const auto& f : frames_)
-        if (f.used && int32_t(tick - f.tick) > 0 && b >= 0 && size_t(b) < f.have.size() && f.have[size_t(b)] &&
-            (!before || int32_t(f.tick - before->tick) > 0))
+    for (const auto& f : frames_) {
+        if (!f.used) continue;
+        if (f.tick == tick) at = &f;
+        else if (int32_t(tick - f.tick) > 0 && b >= 0 && size_t(b) < f.have.size() && f.have[size_t(b)] &&
+                 (!before || int32_t(f.tick - before->tick) > 0))
             before = &f;
+    }
     // As last_gap: a frame more than HOLD_TICKS before shows the bone again
     // rather than refreshing it, and the display never interpolates across
     // an epoch (a wrap, a teleport): the frame was needed from its own tick.

@@ -785,12 +785,11 @@ ClientStats ClientSession::stats(double now) const {
 }
 
 // The display clock: at least delay_ms behind the newest frame, raised
-// to cover the gaps between an instance's frames (plus their lateness)
-// so the display interpolates rather than holds (a late frame, or a
-// repair, counts from the frame before it: the display needed it from
-// there); it changes by at most
-// 25% of the elapsed time (the clock runs at 0.75x..1.25x while it
-// adapts), up to max_delay_ms.
+// to cover the gaps between an instance's frames (plus their lateness) so
+// the display interpolates rather than holds (a late frame, or a repair,
+// counts from the frame before it: the display needed it from there); it
+// changes by at most 25% of the elapsed time (the clock runs at
+// 0.75x..1.25x while it adapts), up to max_delay_ms.
 double ClientSession::display_tick(double now) const {
     if (!window_.started) return std::numeric_limits<double>::quiet_NaN();
     return now * tick_rate_ + tick_offset_ - delay_ticks_;

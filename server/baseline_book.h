@@ -66,6 +66,20 @@ public:
     };
     // Datagram `seq` (its runs given to carried) left at `send_us`.
     void sent_at(uint32_t seq, uint32_t send_us);
+    // Whether datagram seq (its runs given to carried, among the last
+    // kSentRing) is still unacknowledged.
+    bool unacked(uint32_t seq) const {
+        const Sent& s = sent_[seq % kSentRing];
+        return s.valid && s.seq == seq;
+    }
+    // When datagram seq first left (sent_at), acknowledged or not; false
+    // when not known.
+    bool sent_time(uint32_t seq, uint32_t& us) const {
+        const Sent& s = sent_[seq % kSentRing];
+        if (s.seq != seq || !s.timed) return false;
+        us = s.send_us;
+        return true;
+    }
     // An Ack: datagram `ack` and those of ack_bits (bit i: ack - 1 - i).
     // lost (optional): the runs of the datagrams this Ack shows lost
     // (kLossReorder; by time from now_us when loss_delay_us > 0) are

@@ -470,7 +470,7 @@ DatagramVerdict ClientStream::on_ack(const wire::Ack& a, const PeerAddress& from
     // time threshold) while a later datagram arrived; at least 1 ms.
     const uint32_t loss_delay = rate_.rtt_ms() > 0 ? uint32_t(std::max(1000.0, 1125.0 * rate_.rtt_ms())) : 0;
     book_.on_ack(a.ack(), a.ack_bits(), selector_ ? nullptr : &lost_, now_us32(), loss_delay);
-    if (core_.config().repair_lost && adaptive_) repair_again(a.ack(), a.ack_bits(), loss_delay, out);
+    if (core_.config().repair_lost && adaptive_) repair_again(a.ack(), loss_delay, out);
     for (size_t k = 0; k < lost_.size(); ++k) {
         const BaselineBook::LostRun& r = lost_[k];
         scheduler_.lost(r.instance, r.generation, r.first, r.count, r.tick, r.morphs);
@@ -482,7 +482,8 @@ DatagramVerdict ClientStream::on_ack(const wire::Ack& a, const PeerAddress& from
 void ClientStream::repair(uint32_t seq, DatagramSink& out) {
     if (!core_.config().repair_lost || last_limited_) return;  // on_ack: bound
     Kept& k = kept_[seq % kKeptSent];
-    if (!k.valid || k.seq != seq || k.acked || k.repairs >= kMaxRepairs || int32_t(newest_tick_sent_ - k.tick) > kRepairTicks)
+    if (!k.valid || k.seq != seq || !book_.unacked(seq) || k.repairs >= kMaxRepairs ||
+        int32_t(newest_tick_sent_ - k.tick) > kRepairTicks)
         return;
     const size_t wire = k.bytes.size() + UDP_IP_OVERHEAD;
     if (rate_.budget() < wire) return;  // no room now: the scheduler sends its bones again (Scheduler::lost)
@@ -497,24 +498,20 @@ void ClientStream::repair(uint32_t seq, DatagramSink& out) {
     });
 }
 
-void ClientStream::repair_again(uint32_t ack, uint32_t bits, uint32_t loss_delay_us, DatagramSink& out) {
-    const Kept& newest = kept_[ack % kKeptSent];
-    const bool timed = newest.valid && newest.seq == ack;  // the acknowledged datagram's send time is known
+void ClientStream::repair_again(uint32_t ack, uint32_t loss_delay_us, DatagramSink& out) {
+    // A repair is lost (RFC 9002's time threshold, as for the first send):
+    // the Ack leaves its datagram out (the book still has it unacknowledged)
+    // while it acknowledges one first sent after the repair (the first send:
+    // a repaired datagram's Ack may be of its original), and the repair
+    // left at least loss_delay before now.
+    uint32_t acked_first = 0;
+    if (loss_delay_us == 0 || !book_.sent_time(ack, acked_first)) return;
     const uint32_t now = now_us32();
-    for (Kept& k : kept_) {
-        if (!k.valid || k.acked) continue;
-        const uint32_t d = ack - k.seq;  // 0: the Ack's own datagram; 1..32: ack_bits
-        if (d == 0 || (d >= 1 && d <= 32 && ((bits >> (d - 1)) & 1))) {
-            k.acked = true;
-            continue;
-        }
-        // A repair is lost (RFC 9002's time threshold, as for the first
-        // send): a datagram first sent after it was acknowledged (the first
-        // send: a repaired datagram's Ack may be of its original), and it
-        // left at least loss_delay before now.
-        if (k.repairs == 0 || d == 0 || d > 32 || !timed || loss_delay_us == 0) continue;
-        if (int32_t(newest.first_us - k.sent_us) <= 0 || now - k.sent_us < loss_delay_us) continue;
-        repair(k.seq, out);
+    for (const Kept& k : kept_) {
+        const uint32_t d = ack - k.seq;  // 1..32: within the Ack's window
+        if (k.valid && k.repairs > 0 && d >= 1 && d <= 32 && book_.unacked(k.seq) && int32_t(acked_first - k.sent_us) > 0 &&
+            now - k.sent_us >= loss_delay_us)
+            repair(k.seq, out);
     }
 }
 
@@ -821,9 +818,8 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
             Kept& k = kept_[(first_seq + uint32_t(i)) % kKeptSent];
             k.seq = first_seq + uint32_t(i);
             k.tick = frame.tick;
-            k.sent_us = k.first_us = now_us32();
+            k.sent_us = now_us32();
             k.valid = true;
-            k.acked = false;
             k.repairs = 0;
             const std::span<const uint8_t> bytes = sealer_ ? std::span<const uint8_t>(scratch.sealed) : std::span<const uint8_t>(dgrams[i]);
             k.bytes.assign(bytes.begin(), bytes.end());

@@ -229,7 +229,6 @@ public:
     // camera (the frame's grid), else every slot.
     size_t weighed() const { return weighed_; }
 
-public:
     // Repairs (ServerConfig::repair_lost): a frame datagram of a tick older
     // than kRepairTicks is not sent again; one datagram goes again at most
     // kMaxRepairs times (each a lost repair: repair_again).
@@ -352,9 +351,8 @@ private:
     struct Kept {
         uint32_t seq = 0, tick = 0;
         uint32_t sent_us = 0;   // its last send (the first, or the last repair)
-        uint32_t first_us = 0;  // its first send (an Ack of it proves nothing sent later arrived: Karn)
         uint8_t repairs = 0;    // sent again this many times
-        bool valid = false, acked = false;
+        bool valid = false;
         std::vector<uint8_t> bytes;
     };
     std::array<Kept, kKeptSent> kept_;
@@ -362,10 +360,10 @@ private:
     bool last_limited_ = true;  // the last tick left something due unsent (no room for repairs)
     // Sends kept datagram `seq` again when ServerConfig::repair_lost allows it.
     void repair(uint32_t seq, DatagramSink& out);
-    // On an Ack (ack, bits, loss_delay as on_ack's): marks the kept datagrams
-    // it acknowledges, and sends again those repaired whose repair it shows
-    // lost. O(kKeptSent).
-    void repair_again(uint32_t ack, uint32_t bits, uint32_t loss_delay_us, DatagramSink& out);
+    // On an Ack (after book_.on_ack; ack and loss_delay as on_ack's): sends
+    // again the kept datagrams whose repair it shows lost (acknowledgement
+    // and first send times: book_). O(kKeptSent).
+    void repair_again(uint32_t ack, uint32_t loss_delay_us, DatagramSink& out);
     RecordPlan plan_;     // this tick's record choices (set before the scheduler runs)
     Selector selector_;
     ViewSpec view_;

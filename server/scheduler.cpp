@@ -1,10 +1,9 @@
 // scheduler.cpp — see scheduler.h.
 #include "scheduler.h"
 
-#include <cassert>
-
 #include <algorithm>
 #include <bit>
+#include <cassert>
 #include <cmath>
 
 #include "wire.h"
