@@ -130,6 +130,9 @@ std::shared_ptr<ClientAsset> load_client_asset(const wire::Asset* a, const std::
     if (a->t_min()) ca->format.t_min = {a->t_min()->x(), a->t_min()->y(), a->t_min()->z()};
     if (a->t_max()) ca->format.t_max = {a->t_max()->x(), a->t_max()->y(), a->t_max()->z()};
     ca->format.scaled = a->scaled();
+    ca->format.scale = a->scale();
+    if (!(ca->format.scale >= kMinReferenceScale && ca->format.scale <= kMaxReferenceScale))
+        throw Error("server sent a bad reference scale for " + ca->name);
     return ca;
 }
 

@@ -132,7 +132,7 @@ bool PoseBuffer::add_chunk(uint32_t tick, int first, int count, int total, const
         f->ints[size_t(b)] = scratch_[size_t(i)];
         // Kept about the bone's pivot (the translation is the pivot's image),
         // so that interpolation turns the bone about its joint (pose()).
-        BonePose rel = dequantise_record(scratch_[size_t(i)], fmt_.pivots[size_t(b)], fmt_);
+        BonePose rel = dequantise_record(scratch_[size_t(i)], b, fmt_);
         rel.t += rel.s * (rel.r * fmt_.pivots[size_t(b)]);
         f->bones[b] = rel;
         if (!f->have[b]) ++f->count;

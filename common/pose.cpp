@@ -1,6 +1,7 @@
 // pose.cpp — see pose.h.
 #include "pose.h"
 
+#include <algorithm>
 #include <cmath>
 
 namespace progskin {
@@ -72,6 +73,16 @@ BonePose interpolate_between(const BonePose* p0, const BonePose& a, const BonePo
                              double ta, double tb, double t3, double t) {
     if (p0 && p3) return interpolate_cubic(*p0, a, b, *p3, t0, ta, tb, t3, t);
     return interpolate(a, b, float((t - ta) / (tb - ta)));
+}
+
+float reference_scale(std::span<float> scales) {
+    if (scales.empty()) return 1.0f;
+    const auto mid = scales.begin() + std::ptrdiff_t(scales.size() / 2);
+    std::nth_element(scales.begin(), mid, scales.end());
+    const float m = *mid;
+    if (!std::isfinite(m) || !(m >= kMinReferenceScale && m <= kMaxReferenceScale) || std::abs(m - 1.0f) <= 1e-4f)
+        return 1.0f;
+    return m;
 }
 
 }  // namespace progskin

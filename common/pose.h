@@ -4,8 +4,9 @@
 // and the server's cost tables interpolate them with the same policy
 // (interpolate_between), so what the cost model predicts is what a client shows.
 //
-// Every function is O(1), allocation-free and pure.
+// Every function is O(1), allocation-free and pure (reference_scale: O(n)).
 #pragma once
+#include <span>
 #include "mat34.h"
 
 namespace progskin {
@@ -46,5 +47,13 @@ BonePose interpolate_cubic(const BonePose& p0, const BonePose& a, const BonePose
 // slerp/lerp. p0 and p3 may be null.
 BonePose interpolate_between(const BonePose* p0, const BonePose& a, const BonePose& b, const BonePose* p3, double t0,
                              double ta, double tb, double t3, double t);
+
+// Bounds of a skin's reference scale (RecordFormat::scale, proto/bone_codec.h):
+// a received one outside them, or not finite, is refused.
+inline constexpr float kMinReferenceScale = 1.0f / 65536.0f, kMaxReferenceScale = 65536.0f;
+// The reference scale of a skin whose skinning matrices have these scales
+// (decompose's s): their median, or 1 when that is within 1e-4 of 1, not
+// finite or outside the bounds above. `scales` is reordered. O(n).
+float reference_scale(std::span<float> scales);
 
 }  // namespace progskin

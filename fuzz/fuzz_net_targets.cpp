@@ -173,7 +173,7 @@ int bone_records(const uint8_t* data, size_t size) {
             if (!ok) return 0;
             prev[b] = r;
             const int p = fs.parents[b];
-            pose[b] = compose_relative(p >= 0 ? pose[size_t(p)] : BonePose{}, dequantise_record(r, fs.pivots[b], fs));
+            pose[b] = compose_relative(p >= 0 ? pose[size_t(p)] : BonePose{}, dequantise_record(r, int(b), fs));
             if (!std::isfinite(pose[b].t.x) || !std::isfinite(pose[b].r.w) || !(pose[b].s > 0)) return 0;
         }
     }

@@ -218,6 +218,8 @@ void record_range(AssetTables& t, const FrameSet& frames) {
     glm::vec3 lo(1e30f), hi(-1e30f);
     t.scaled = false;
     t.max_scale = 1;
+    std::vector<float> scales;
+    scales.reserve(frames.frame_count() * size_t(std::max(0, frames.joint_count)));
     for (size_t f = 0; f < frames.frame_count(); ++f) {
         const Mat34* m = frames.frame(f);
         for (int j = 0; j < frames.joint_count; ++j) {
@@ -225,10 +227,14 @@ void record_range(AssetTables& t, const FrameSet& frames) {
             lo = glm::min(lo, x);
             hi = glm::max(hi, x);
             BonePose p = decompose(m[j]);
-            if (std::fabs(p.s - 1.0f) > 1e-4f) t.scaled = true;
             t.max_scale = std::max(t.max_scale, double(p.s));
+            scales.push_back(p.s);
         }
     }
+    // Scaled: a matrix's scale differs from the reference scale (most share it).
+    const std::vector<float> all = scales;
+    t.ref_scale = reference_scale(scales);
+    for (float s : all) t.scaled = t.scaled || std::fabs(s / t.ref_scale - 1.0f) > 1e-4f;
     glm::vec3 ext = hi - lo;
     glm::vec3 margin = ext * 0.25f + glm::vec3(float(0.05 * t.diagonal));
     t.t_min = lo - margin;
@@ -347,7 +353,7 @@ nlohmann::json asset_tables_json(const AssetTables& t, int bones, size_t selecti
     j["motion"] = t.motion;
     j["bind_radius"] = t.bind_radius;
     j["max_scale"] = t.max_scale;
-    j["format"] = {{"t_min", vec3_json(t.t_min)}, {"t_max", vec3_json(t.t_max)}, {"scaled", t.scaled}};
+    j["format"] = {{"t_min", vec3_json(t.t_min)}, {"t_max", vec3_json(t.t_max)}, {"scaled", t.scaled}, {"scale", t.ref_scale}};
     j["segments"] = nlohmann::json::array();
     for (const CostSegment& s : t.segments)
         j["segments"].push_back({{"from", s.from},
@@ -387,6 +393,8 @@ bool read_asset_tables(const nlohmann::json& j, int bones, size_t selections, As
     if (!read_numbers(f.value("t_max", nlohmann::json()), 3, v)) return no("bad stored format");
     t.t_max = glm::vec3(float(v[0]), float(v[1]), float(v[2]));
     t.scaled = f.value("scaled", false);
+    t.ref_scale = f.value("scale", 1.0f);
+    if (!(t.ref_scale >= kMinReferenceScale && t.ref_scale <= kMaxReferenceScale)) return no("bad stored reference scale");
     const nlohmann::json& segs = j.contains("segments") ? j["segments"] : nlohmann::json();
     if (!segs.is_array() || segs.empty()) return no("no stored segments");
     int expect_from = 0;

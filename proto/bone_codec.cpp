@@ -52,7 +52,7 @@ bool bone_in_range(const BonePose& p, const RecordFormat& fmt) {
         const float l = std::log2(p.s) * kScaleUnit;
         return p.s > 0.0f && l >= -32768.0f && l <= 32767.0f;
     }
-    return std::fabs(p.s - 1.0f) <= 1e-3f;
+    return std::fabs(p.s / fmt.scale - 1.0f) <= 1e-3f;
 }
 
 bool encode_root(const RootPose& r, uint8_t* out) {
@@ -136,6 +136,8 @@ BonePose decode_bone(const uint8_t* in, const RecordFormat& fmt) {
     if (fmt.scaled) {
         int16_t v = int16_t(uint16_t(in[12]) | uint16_t(in[13]) << 8);
         p.s = std::exp2(float(v) / kScaleUnit);
+    } else {
+        p.s = fmt.scale;  // a plain record's bone has the reference scale
     }
     return p;
 }

@@ -25,7 +25,14 @@ namespace progskin::net {
 
 struct RecordFormat {
     glm::vec3 t_min{-1.0f}, t_max{1.0f};
-    bool scaled = false;
+    bool scaled = false;  // records carry a scale: some skinning matrix's differs from `scale`
+    // The skin's reference scale: the scale most of its skinning matrices
+    // share (reference_scale, pose.h), 1 for most files; 0.01 for one whose
+    // armature node turns centimetres into metres. A plain (not scaled)
+    // record's bone has this scale. The parent-relative records code bone 0's
+    // scale against it and the other bones' translations in their parent's
+    // units (bone_record.h), so such a skin codes as it would unscaled.
+    float scale = 1.0f;
     static constexpr int kPlainSize = 12, kScaledSize = 14;  // record bytes
     int size() const { return scaled ? kScaledSize : kPlainSize; }
 };
@@ -36,8 +43,8 @@ BonePose decode_bone(const uint8_t* in, const RecordFormat& fmt);
 
 // True when encode_bone represents p within its stated precision: every
 // value finite, the translation inside [t_min, t_max] (to half a step), the
-// scale inside the int16 log2 range (scaled formats) or 1 to 1e-3 (plain
-// formats, which carry no scale). Out-of-range poses are refused by their
+// scale inside the int16 log2 range (scaled formats) or fmt.scale to 1e-3
+// relative (plain formats, which carry no scale). Out-of-range poses are refused by their
 // producers, never clamped into a wrong pose (docs/protocol.md).
 bool bone_in_range(const BonePose& p, const RecordFormat& fmt);
 

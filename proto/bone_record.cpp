@@ -71,6 +71,9 @@ RelativeFormat relative_format(std::span<const int16_t> parents, std::span<const
     const glm::vec3 ext = box.t_max - box.t_min;
     f.t_step = std::max({ext.x, ext.y, ext.z, 1e-9f}) / 65535.0f;
     f.scaled = box.scaled;
+    if (!(box.scale >= kMinReferenceScale && box.scale <= kMaxReferenceScale))
+        throw std::invalid_argument("relative_format: a reference scale outside [2^-16, 2^16]");
+    f.s_ref = box.scale;
     return f;
 }
 
@@ -90,8 +93,10 @@ RelativeFormat relative_format(const ProgressiveSkin& skin, const Character& c, 
     return relative_format(skin.parents, ib, box);
 }
 
-bool quantise_record(const BonePose& parent_decoded, const BonePose& m, const glm::vec3& pivot, const RelativeFormat& f,
-                     RecordInts& out) {
+bool quantise_record(const BonePose& parent_decoded, const BonePose& m, int b, const RelativeFormat& f, RecordInts& out) {
+    if (b < 0 || size_t(b) >= f.pivots.size()) return false;
+    const glm::vec3& pivot = f.pivots[size_t(b)];
+    const double s0 = f.scale_unit(b), step = f.trans_step(b);
     const DPose p = widen(parent_decoded), c = widen(m);
     if (!(p.s > 0) || !(c.s > 0)) return false;
     const glm::dquat ip = glm::conjugate(p.r);
@@ -108,19 +113,19 @@ bool quantise_record(const BonePose& parent_decoded, const BonePose& m, const gl
     const double s_rel = c.s / p.s;
     if (f.scaled) {
         int32_t l = 0;
-        if (!round_to(std::log2(s_rel) * 2048.0, kMaxScaleInt, l)) return false;
+        if (!round_to(std::log2(s_rel / s0) * 2048.0, kMaxScaleInt, l)) return false;
         r.scale = l;
         r.has_scale = l != 0;
     }
     // The translation R would have if the joint turned rigidly about its pivot.
     const glm::dquat qh = rotation_of(r.rot);
-    const double sh = r.has_scale ? std::exp2(double(r.scale) / 2048.0) : 1.0;
+    const double sh = s0 * (r.has_scale ? std::exp2(double(r.scale) / 2048.0) : 1.0);
     const glm::dvec3 j(pivot);
-    const glm::dvec3 pred = j - sh * (qh * j);
+    const glm::dvec3 pred = s0 * j - sh * (qh * j);
     const glm::dvec3 t_rel = (ip * (c.t - p.t)) / p.s;
     bool big = false;
     for (int a = 0; a < 3; ++a) {
-        if (!round_to((t_rel[a] - pred[a]) / double(f.t_step), kMaxTransInt, r.trans[a])) return false;
+        if (!round_to((t_rel[a] - pred[a]) / step, kMaxTransInt, r.trans[a])) return false;
         big = big || std::abs(r.trans[a]) > kTransDeadZone;
     }
     r.has_trans = big;
@@ -129,12 +134,12 @@ bool quantise_record(const BonePose& parent_decoded, const BonePose& m, const gl
     return true;
 }
 
-BonePose dequantise_record(const RecordInts& r, const glm::vec3& pivot, const RelativeFormat& f) {
+BonePose dequantise_record(const RecordInts& r, int b, const RelativeFormat& f) {
     const glm::dquat q = rotation_of(r.rot);
-    const double s = f.scaled && r.has_scale ? std::exp2(double(r.scale) / 2048.0) : 1.0;
-    const glm::dvec3 j(pivot);
-    glm::dvec3 t = j - s * (q * j);
-    if (r.has_trans) t += glm::dvec3(r.trans[0], r.trans[1], r.trans[2]) * double(f.t_step);
+    const double s0 = f.scale_unit(b), s = s0 * (f.scaled && r.has_scale ? std::exp2(double(r.scale) / 2048.0) : 1.0);
+    const glm::dvec3 j(b >= 0 && size_t(b) < f.pivots.size() ? glm::dvec3(f.pivots[size_t(b)]) : glm::dvec3(0.0));
+    glm::dvec3 t = s0 * j - s * (q * j);
+    if (r.has_trans) t += glm::dvec3(r.trans[0], r.trans[1], r.trans[2]) * f.trans_step(b);
     BonePose out;
     out.r = glm::quat(glm::normalize(q));
     out.t = glm::vec3(t);
@@ -479,11 +484,11 @@ bool encode_pose(std::span<const BonePose> model, const RelativeFormat& f, std::
         const int p = f.parents[b];
         const BonePose& parent = p >= 0 ? decoded[size_t(p)] : identity;
         RecordInts r;
-        if (!quantise_record(parent, model[b], f.pivots[b], f, r)) return false;
+        if (!quantise_record(parent, model[b], int(b), f, r)) return false;
         offsets[b] = uint32_t(w.bits() - base);
         write_record(r, f.scaled, w);
         if (!ints.empty()) ints[b] = r;
-        decoded[b] = compose_relative(parent, dequantise_record(r, f.pivots[b], f));
+        decoded[b] = compose_relative(parent, dequantise_record(r, int(b), f));
     }
     offsets[B] = uint32_t(w.bits() - base);
     return true;
@@ -536,8 +541,11 @@ double relative_bound(const RelativeFormat& f, double bind_radius, double max_sc
     double pivot_radius = 0.0;
     for (const glm::vec3& j : f.pivots) pivot_radius = std::max(pivot_radius, double(glm::length(j)));
     const double angle = 2.0 * std::sqrt(3.0) * ROT_STEP * 1.01;  // 4 x half a step per component, |dp| <= sqrt3/2 step
-    const double trans = std::sqrt(3.0) * (kTransDeadZone + 0.5) * double(f.t_step);
-    return max_scale * (angle * (bind_radius + pivot_radius) + trans) * 1.001 + 1e-6 * bind_radius;
+    // A bone past 0 steps in its parent's units, t_step / s_ref: at most
+    // t_step max_scale / s_ref in model units.
+    const double trans = std::sqrt(3.0) * (kTransDeadZone + 0.5) * double(f.t_step) *
+                         std::max(1.0, max_scale / double(f.s_ref));
+    return (max_scale * angle * (bind_radius + pivot_radius) + trans) * 1.001 + 1e-6 * bind_radius;
 }
 
 std::vector<double> record_bits_per_bone(const Character& c, const ProgressiveSkin& s, const FrameSet& frames) {
@@ -545,6 +553,7 @@ std::vector<double> record_bits_per_bone(const Character& c, const ProgressiveSk
     std::vector<double> bits(B, 0.0);
     if (B == 0 || F == 0 || frames.joint_count != int(c.joint_count())) return bits;
     std::vector<BonePose> model(F * B);
+    std::vector<float> scales(F * B);
     RecordFormat box;
     box.t_min = glm::vec3(std::numeric_limits<float>::max());
     box.t_max = glm::vec3(-std::numeric_limits<float>::max());
@@ -554,8 +563,10 @@ std::vector<double> record_bits_per_bone(const Character& c, const ProgressiveSk
             p = decompose(frames.frame(f)[size_t(s.order[b])]);
             box.t_min = glm::min(box.t_min, p.t);
             box.t_max = glm::max(box.t_max, p.t);
-            box.scaled = box.scaled || std::abs(p.s - 1.0f) > 1e-4f;
+            scales[f * B + b] = p.s;
         }
+    box.scale = reference_scale(scales);
+    for (const BonePose& p : model) box.scaled = box.scaled || std::abs(p.s / box.scale - 1.0f) > 1e-4f;
     box.t_max = glm::max(box.t_max, box.t_min + glm::vec3(1e-3f));  // a box of some size
     const RelativeFormat fmt = relative_format(s, c, box);
     std::vector<uint8_t> scratch;

@@ -13,11 +13,19 @@
 //                ROT_STEP = 7.0e-5 rad near identity, half that at 180°).
 //   translation  the residual of R's translation after the prediction of a
 //                rigid joint turning about its bind pivot j_b (the joint's
-//                bind position in model space): t_R - (j_b - Q j_b), in steps
-//                of the asset's translation step (its box's largest extent /
-//                65535); residuals within +-kTransDeadZone steps on every axis
-//                are not sent (the prediction stands).
-//   scale        (scaled assets) round(log2(s_R) * 2048), 0 not sent.
+//                bind position in model space): t_R - (s0 j_b - s Q j_b),
+//                s the record's scale (s0 when none is sent), in
+//                steps of RelativeFormat::trans_step(b): bone 0 the asset's
+//                translation step (its box's largest extent / 65535), the
+//                others that step / s_ref, their parent's units; residuals
+//                within +-kTransDeadZone steps on every axis are not sent
+//                (the prediction stands).
+//   scale        (scaled assets) round(log2(s_R / s0) * 2048), 0 not sent;
+//                s0 = s_ref for bone 0, 1 for the others.
+// s_ref is the asset's reference scale (RecordFormat::scale, most often 1):
+// a skin whose matrices all carry one scale (an armature node turning
+// centimetres into metres) codes as the same skin unscaled, with no scale
+// field (not `scaled`).
 // The decoded pose is D_b = D_p * R^ (pose.h composition).
 //
 // Bit layout (least significant bit first, docs/protocol.md): 2 bits
@@ -67,8 +75,13 @@ struct RelativeFormat {
     std::vector<glm::vec3> pivots;  // bind position of each bone's joint (model space)
     float t_step = 1.0f;            // translation step (model units)
     bool scaled = false;
+    float s_ref = 1.0f;             // reference scale (RecordFormat::scale)
     int bone_count() const { return int(parents.size()); }
+    // Bone b's scale unit s0 and translation step (the record's units, above).
+    double scale_unit(int b) const { return b == 0 ? double(s_ref) : 1.0; }
+    double trans_step(int b) const { return b > 0 ? double(t_step) / double(s_ref) : double(t_step); }
 };
+// (reference_scale and its bounds: pose.h)
 // parents: ProgressiveSkin::parents; inverse_binds: each bone's inverse bind
 // matrix in progressive order (the joint of bone b is inverse_binds[b]^-1's
 // translation). Throws std::invalid_argument when the sizes differ or a
@@ -92,10 +105,9 @@ struct RecordInts {
 // Quantises bone b's model-space pose m against its parent's decoded pose
 // (identity for bone 0), closed loop. Returns false when a value is not
 // finite or outside the integers' bounds (nothing written). O(1).
-bool quantise_record(const BonePose& parent_decoded, const BonePose& m, const glm::vec3& pivot, const RelativeFormat& f,
-                     RecordInts& out);
-// The relative pose R^ of a record (pivot: the bone's bind pivot). O(1).
-BonePose dequantise_record(const RecordInts& r, const glm::vec3& pivot, const RelativeFormat& f);
+bool quantise_record(const BonePose& parent_decoded, const BonePose& m, int b, const RelativeFormat& f, RecordInts& out);
+// The relative pose R^ of bone b's record (about f.pivots[b]). O(1).
+BonePose dequantise_record(const RecordInts& r, int b, const RelativeFormat& f);
 // D_p * R^ (pose.h composition, normalised rotation).
 BonePose compose_relative(const BonePose& parent, const BonePose& rel);
 

@@ -247,7 +247,7 @@ bool FrameEncoder::compose_live(Slot& slot, const ServerAsset& a, Work& w) {
     const RelativeFormat& f = a.relative;
     const size_t rs = size_t(a.format.size());
     for (int b = 0; b < a.bone_count(); ++b) {
-        const BonePose rel = dequantise_record(slot.rel[size_t(b)], f.pivots[size_t(b)], f);
+        const BonePose rel = dequantise_record(slot.rel[size_t(b)], b, f);
         const int p = f.parents[size_t(b)];
         BonePose& m = w.model[size_t(b)];
         m = p < 0 ? rel : compose_relative(w.model[size_t(p)], rel);

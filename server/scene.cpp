@@ -35,6 +35,7 @@ static RecordFormat record_format(const AssetTables& t) {
     f.t_min = t.t_min;
     f.t_max = t.t_max;
     f.scaled = t.scaled;
+    f.scale = t.ref_scale;
     return f;
 }
 

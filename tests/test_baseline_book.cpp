@@ -194,7 +194,7 @@ TEST(BaselineBook, PartialRefreshesPredictFromTheirOwnBaselinesAndDecodeExactly)
         for (int b = 0; b < pick.k; ++b) {
             BonePose got;
             ASSERT_TRUE(client.pose(b, double(t), got));
-            const BonePose want = dequantise_record(f.ints[size_t(b)], a.relative.pivots[size_t(b)], a.relative);
+            const BonePose want = dequantise_record(f.ints[size_t(b)], b, a.relative);
             ASSERT_LT(glm::length(got.t - want.t), 1e-4f * float(a.diagonal)) << "tick " << t << " bone " << b;
         }
     }

@@ -50,7 +50,7 @@ Records records(int n, glm::vec3 t, float angle = 0.0f) {
         p.t = t + glm::vec3(float(b), 0, 0);
         p.r = glm::angleAxis(angle, glm::vec3(0, 0, 1));
         RecordInts r;
-        EXPECT_TRUE(quantise_record(BonePose{}, p, glm::vec3(0.0f), f, r));
+        EXPECT_TRUE(quantise_record(BonePose{}, p, b, f, r));
         out.at.push_back(w.bits());
         write_record(r, false, w);
     }
@@ -126,7 +126,7 @@ TEST(PoseBuffer, ExactAtTicksAndCloseBetweenThemOnARealClip) {
     EXPECT_EQ(pb.last_gap(), 1);
     for (uint32_t t = first; t <= last; t += 5)
         for (int b = 0; b < B; ++b) {
-            const BonePose want = dequantise_record(kept[t - first][size_t(b)], a.relative.pivots[size_t(b)], a.relative);
+            const BonePose want = dequantise_record(kept[t - first][size_t(b)], b, a.relative);
             const BonePose got = pose_of(pb, b, t);
             EXPECT_LT(glm::length(got.t - want.t), 1e-5f * float(a.diagonal)) << "bone " << b << " tick " << t;
             EXPECT_LT(rotation_angle(got.r, want.r), 1e-5) << "bone " << b << " tick " << t;

@@ -14,6 +14,9 @@ Outputs (next to this script):
                           with its own target; clips animate weights (CUBICSPLINE, STEP)
                           together with a joint (three.js reference: tests/data/threejs)
   external_buffer.gltf/.bin, basic.glb   the basic character in the other containers
+  armature_cm.gltf, armature_m.gltf      a tail of six joints under an armature node that
+                          scales centimetres to metres (every skinning matrix scaled
+                          0.01), and the same character in metres
   broken/*                one defect each (see BROKEN below)
 Only the standard library is used; the output is deterministic.
 """
@@ -465,7 +468,65 @@ def skinned_morph_json():
         return json.load(f)
 
 
+# ---------------------------------------------------------------------------
+# A tail of six joints under an armature node, as tools that export from
+# centimetre scenes write it: the armature turns -90 degrees about x and
+# scales by `scale`; joints, inverse bind matrices, vertices and the clip's
+# translations are in 1/scale units (centimetres for 0.01), so every skinning
+# matrix carries the armature's scale. armature_m.gltf is the same character
+# with scale 1 (metres): both skin the same mesh in the world.
+
+def armature(scale, name):
+    u = 1.0 / scale
+    g = Gltf()
+    n_joints, seg = 6, 0.3
+    g.node(name='Armature', rotation=[-math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)], scale=[scale] * 3, children=[1, n_joints + 1])
+    for j in range(n_joints):
+        kw = {'name': 'joint%d' % j, 'translation': [0.0, (seg if j else 0.1) * u, 0.0]}
+        if j + 1 < n_joints:
+            kw['children'] = [j + 2]
+        g.node(**kw)
+    g.node(name='tail', mesh=0, skin=0)
+    # A box around the chain, 4 vertices per ring, one ring per joint and a tip.
+    pos, joints, weights = [], [], []
+    for r in range(n_joints + 1):
+        y = 0.1 + seg * r
+        for dx, dz in ((-0.05, -0.05), (0.05, -0.05), (0.05, 0.05), (-0.05, 0.05)):
+            pos.append((dx * u, y * u, dz * u))
+            a, b = min(r, n_joints - 1), max(r - 1, 0)
+            joints.append((a, b, 0, 0))
+            weights.append((0.7, 0.3, 0, 0) if a != b else (1, 0, 0, 0))
+    idx = []
+    for r in range(n_joints):
+        for k in range(4):
+            a, b = r * 4 + k, r * 4 + (k + 1) % 4
+            idx += [(a,), (b,), (a + 4,), (b,), (b + 4,), (a + 4,)]
+    pa = g.accessor(FLOAT, 'VEC3', pos, minmax=True)
+    ja = g.accessor(UBYTE, 'VEC4', joints)
+    wa = g.accessor(FLOAT, 'VEC4', weights)
+    ia = g.accessor(USHORT, 'SCALAR', idx)
+    g.j['meshes'].append({'primitives': [{'attributes': {'POSITION': pa, 'JOINTS_0': ja, 'WEIGHTS_0': wa}, 'indices': ia}]})
+    ibm = g.accessor(FLOAT, 'MAT4', [translation(0, -(0.1 + seg * j) * u, 0) for j in range(n_joints)])
+    g.j['skins'].append({'joints': list(range(1, n_joints + 1)), 'inverseBindMatrices': ibm})
+    # Two seconds at 30 keys per second: every joint swings, the root walks.
+    keys = 61
+    times = g.accessor(FLOAT, 'SCALAR', [(k / 30.0,) for k in range(keys)])
+    samplers, channels = [], []
+    for j in range(n_joints):
+        rot = [quat_z(25 * math.sin(2 * math.pi * (k / 60.0) + 0.7 * j)) for k in range(keys)]
+        samplers.append({'input': times, 'output': g.accessor(FLOAT, 'VEC4', rot)})
+        channels.append({'sampler': j, 'target': {'node': j + 1, 'path': 'rotation'}})
+    walk = [(0.4 * math.sin(2 * math.pi * k / 60.0) * u, 0.1 * u, 0.05 * math.cos(4 * math.pi * k / 60.0) * u)
+            for k in range(keys)]
+    samplers.append({'input': times, 'output': g.accessor(FLOAT, 'VEC3', walk)})
+    channels.append({'sampler': n_joints, 'target': {'node': 1, 'path': 'translation'}})
+    g.j['animations'].append({'name': 'swing', 'samplers': samplers, 'channels': channels})
+    write_json(name, g.finish())
+
+
 def main():
+    armature(0.01, 'armature_cm.gltf')
+    armature(1.0, 'armature_m.gltf')
     sparse_quantized()
     eight_influences()
     multi_skin()
