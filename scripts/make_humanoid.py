@@ -444,6 +444,10 @@ def main():
                     help="hold the root's horizontal translation at its first frame's (no walk; for comparisons)")
     ap.add_argument('--scale', type=positive_float, default=CMU_SCALE,
                     help='metres per BVH unit (default 0.0254/0.45 = %.5f, the CMU ASF unit)' % CMU_SCALE)
+    ap.add_argument('--armature-scale', type=positive_float, metavar='A',
+                    help='write every length in metres / A and put the skeleton and the mesh under an '
+                         '"Armature" node scaling by A, as tools exporting from centimetre scenes do '
+                         '(A = 0.01): the same character in the world, every skinning matrix scaled by A')
     a = ap.parse_args()
     if a.fps > 1000:
         ap.error('--fps %g: at most 1000 keys per second' % a.fps)
@@ -458,6 +462,7 @@ def main():
         print('%s: %s: %d joints, more than the 255 this writer indexes' % (PROG, a.bvh, len(bones)), file=sys.stderr)
         return 1
     s = a.scale
+    per_m = 1.0 / (a.armature_scale or 1.0)  # written lengths per metre
     B = len(bones)
 
     # Per BVH frame: every BVH joint's translation (metres) and rotation, signs continuous.
@@ -486,11 +491,13 @@ def main():
                                  'BVH conversion by Bruce Hahne; finger motion synthetic')
     for i, b in enumerate(bones):
         t = list(root_bind) if b.parent is None else [c * s for c in b.offset]
-        g.node(name=b.name, translation=t)
+        g.node(name=b.name, translation=[c * per_m for c in t] if a.armature_scale else t)
     for i, b in enumerate(bones):
         if b.children:
             g.j['nodes'][i]['children'] = list(b.children)
     pos, jnt, wgt, tris = build_mesh(bones, origin, s)
+    if a.armature_scale:
+        pos = [tuple(c * per_m for c in p) for p in pos]
     g.node(name='body', mesh=0, skin=0)
     p_acc = g.accessor(FLOAT, 'VEC3', pos, minmax=True)
     j_acc = g.accessor(UBYTE, 'VEC4', jnt)
@@ -498,7 +505,7 @@ def main():
     i_acc = g.accessor(UINT, 'SCALAR', [(v,) for tri in tris for v in tri])
     g.j['meshes'].append({'name': 'body', 'primitives': [{'attributes': {'POSITION': p_acc, 'JOINTS_0': j_acc,
                                                                          'WEIGHTS_0': w_acc}, 'indices': i_acc}]})
-    ibm = g.accessor(FLOAT, 'MAT4', [translation(-o[0], -o[1], -o[2]) for o in origin])
+    ibm = g.accessor(FLOAT, 'MAT4', [translation(-o[0] * per_m, -o[1] * per_m, -o[2] * per_m) for o in origin])
     g.j['skins'].append({'name': 'humanoid', 'joints': list(range(B)), 'inverseBindMatrices': ibm, 'skeleton': 0})
 
     # The clip: BVH frames resampled at --fps (rotations slerped, translations lerped).
@@ -529,13 +536,15 @@ def main():
                     v = [(t0[k] + u * (t1[k] - t0[k])) * s for k in range(3)]
                     if a.in_place and b.parent is None:
                         v[0], v[2] = poses[0][b.bvh][0][0] * s, poses[0][b.bvh][0][2] * s
-                    vals.append(tuple(v))
+                    vals.append(tuple(c * per_m for c in v))
                 channel(i, 'translation', vals)
             if any(kind == 'rotation' for kind, _ in j.channels):
                 channel(i, 'rotation', [qslerp(poses[f0][b.bvh][1], poses[f1][b.bvh][1], u) for f0, f1, u in samples])
         elif b.curl is not None:
             channel(i, 'rotation', [curl_rotation(b.curl, t) for t in times])
     g.j['animations'].append({'name': 'mocap', 'samplers': samplers, 'channels': channels})
+    if a.armature_scale:
+        g.node(name='Armature', scale=[a.armature_scale] * 3, children=[0, B])
     try:
         with open(out, 'wb') as f:
             f.write(g.glb())
