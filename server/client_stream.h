@@ -233,7 +233,7 @@ public:
     // than kRepairTicks is not sent again; one datagram goes again at most
     // kMaxRepairs times (each a lost repair: repair_again).
     static constexpr int kRepairTicks = 6;
-    static constexpr int kMaxRepairs = 3;
+    static constexpr int kMaxRepairs = 5;
 
 private:
     // Published poses kept per character: twice the publisher's window
