@@ -75,14 +75,15 @@ BonePose interpolate_between(const BonePose* p0, const BonePose& a, const BonePo
     return interpolate(a, b, float((t - ta) / (tb - ta)));
 }
 
-float reference_scale(std::span<float> scales) {
-    if (scales.empty()) return 1.0f;
+ReferenceScale reference_scale(std::span<float> scales) {
+    ReferenceScale r;
+    if (scales.empty()) return r;
     const auto mid = scales.begin() + std::ptrdiff_t(scales.size() / 2);
-    std::nth_element(scales.begin(), mid, scales.end());
+    std::nth_element(scales.begin(), mid, scales.end());  // reorders, keeps the set
     const float m = *mid;
-    if (!std::isfinite(m) || !(m >= kMinReferenceScale && m <= kMaxReferenceScale) || std::abs(m - 1.0f) <= 1e-4f)
-        return 1.0f;
-    return m;
+    if (std::isfinite(m) && m >= kMinReferenceScale && m <= kMaxReferenceScale && std::abs(m - 1.0f) > 1e-4f) r.scale = m;
+    for (float s : scales) r.scaled = r.scaled || std::fabs(s / r.scale - 1.0f) > 1e-4f;
+    return r;
 }
 
 }  // namespace progskin

@@ -53,7 +53,13 @@ BonePose interpolate_between(const BonePose* p0, const BonePose& a, const BonePo
 inline constexpr float kMinReferenceScale = 1.0f / 65536.0f, kMaxReferenceScale = 65536.0f;
 // The reference scale of a skin whose skinning matrices have these scales
 // (decompose's s): their median, or 1 when that is within 1e-4 of 1, not
-// finite or outside the bounds above. `scales` is reordered. O(n).
-float reference_scale(std::span<float> scales);
+// finite or outside the bounds above; `scaled` when some scale differs from
+// it by more than 1e-4 relative (records then carry a scale). `scales` is
+// reordered. O(n).
+struct ReferenceScale {
+    float scale = 1.0f;
+    bool scaled = false;
+};
+ReferenceScale reference_scale(std::span<float> scales);
 
 }  // namespace progskin

@@ -216,7 +216,6 @@ void value_tables(AssetTables& t, size_t M) {
 // Translation box (with a margin) and scale range of the skinning matrices.
 void record_range(AssetTables& t, const FrameSet& frames) {
     glm::vec3 lo(1e30f), hi(-1e30f);
-    t.scaled = false;
     t.max_scale = 1;
     std::vector<float> scales;
     scales.reserve(frames.frame_count() * size_t(std::max(0, frames.joint_count)));
@@ -231,10 +230,9 @@ void record_range(AssetTables& t, const FrameSet& frames) {
             scales.push_back(p.s);
         }
     }
-    // Scaled: a matrix's scale differs from the reference scale (most share it).
-    const std::vector<float> all = scales;
-    t.ref_scale = reference_scale(scales);
-    for (float s : all) t.scaled = t.scaled || std::fabs(s / t.ref_scale - 1.0f) > 1e-4f;
+    const ReferenceScale rs = reference_scale(scales);
+    t.ref_scale = rs.scale;
+    t.scaled = rs.scaled;
     glm::vec3 ext = hi - lo;
     glm::vec3 margin = ext * 0.25f + glm::vec3(float(0.05 * t.diagonal));
     t.t_min = lo - margin;

@@ -565,8 +565,9 @@ std::vector<double> record_bits_per_bone(const Character& c, const ProgressiveSk
             box.t_max = glm::max(box.t_max, p.t);
             scales[f * B + b] = p.s;
         }
-    box.scale = reference_scale(scales);
-    for (const BonePose& p : model) box.scaled = box.scaled || std::abs(p.s / box.scale - 1.0f) > 1e-4f;
+    const ReferenceScale rs = reference_scale(scales);
+    box.scale = rs.scale;
+    box.scaled = rs.scaled;
     box.t_max = glm::max(box.t_max, box.t_min + glm::vec3(1e-3f));  // a box of some size
     const RelativeFormat fmt = relative_format(s, c, box);
     std::vector<uint8_t> scratch;
