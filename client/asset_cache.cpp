@@ -133,6 +133,9 @@ std::shared_ptr<ClientAsset> load_client_asset(const wire::Asset* a, const std::
     ca->format.scale = a->scale();
     if (!(ca->format.scale >= kMinReferenceScale && ca->format.scale <= kMaxReferenceScale))
         throw Error("server sent a bad reference scale for " + ca->name);
+    ca->format.t_step = a->t_step();
+    if (!translation_step_fits(ca->format.t_min, ca->format.t_max, ca->format.t_step))
+        throw Error("server sent a bad translation step for " + ca->name);
     return ca;
 }
 

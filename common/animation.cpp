@@ -29,6 +29,7 @@ struct LocalPose {
 // Scratch reused across the frames of one sampling call.
 struct PoseScratch {
     std::vector<LocalPose> locals;
+    std::vector<glm::dmat4> local_matrices;
     std::vector<glm::dmat4> globals;
 };
 
@@ -138,39 +139,16 @@ void evaluate_globals(const Character& c, const ClipSelection& sel, double t, Po
             p.animated = !ch.times.empty() || p.animated;
         }
     }
-    // Parents normally precede children (the importer orders them so); otherwise resolve chains.
-    auto local = [&](size_t i) {
+    s.local_matrices.resize(count);
+    for (size_t i = 0; i < count; ++i) {
         const Node& n = c.nodes[i];
         const LocalPose& p = s.locals[i];
-        if (n.has_matrix && !p.animated) return n.matrix;
-        return glm::translate(glm::dmat4(1.0), p.translation) * glm::mat4_cast(p.rotation) *
-               glm::scale(glm::dmat4(1.0), p.scale);
-    };
-    bool ordered = true;
-    for (size_t i = 0; i < count && ordered; ++i) ordered = c.nodes[i].parent < int(i);
-    if (ordered) {
-        for (size_t i = 0; i < count; ++i) {
-            const int parent = c.nodes[i].parent;
-            s.globals[i] = parent < 0 ? local(i) : s.globals[size_t(parent)] * local(i);
-        }
-        return;
+        s.local_matrices[i] = n.has_matrix && !p.animated ? n.matrix
+                                                          : glm::translate(glm::dmat4(1.0), p.translation) *
+                                                                glm::mat4_cast(p.rotation) *
+                                                                glm::scale(glm::dmat4(1.0), p.scale);
     }
-    std::vector<char> done(count, 0);
-    std::vector<size_t> chain;
-    for (size_t i = 0; i < count; ++i) {
-        chain.clear();  // unresolved nodes from i up to the first resolved ancestor or root
-        for (size_t n = i; !done[n];) {
-            chain.push_back(n);
-            if (chain.size() > count) throw Error(c.source + ": cyclic node hierarchy in character " + c.name);
-            if (c.nodes[n].parent < 0) break;
-            n = size_t(c.nodes[n].parent);
-        }
-        for (auto it = chain.rbegin(); it != chain.rend(); ++it) {
-            const int parent = c.nodes[*it].parent;
-            s.globals[*it] = parent < 0 ? local(*it) : s.globals[size_t(parent)] * local(*it);
-            done[*it] = 1;
-        }
-    }
+    compose_node_globals(c, s.local_matrices, s.globals);
 }
 
 // Morph weights at time t into out (size c.morphs.size()): defaults, then every
@@ -325,6 +303,39 @@ void sample_node_globals(const Character& c, const ClipSelection& sel, double t,
     PoseScratch s;
     evaluate_globals(c, sel, t, s);
     std::copy(s.globals.begin(), s.globals.end(), out.begin());
+}
+
+void compose_node_globals(const Character& c, std::span<const glm::dmat4> locals, std::span<glm::dmat4> globals) {
+    const size_t count = c.nodes.size();
+    if (locals.size() != count || globals.size() != count)
+        throw Error("compose_node_globals: " + std::to_string(locals.size()) + " local and " +
+                    std::to_string(globals.size()) + " global matrices for " + std::to_string(count) + " nodes");
+    // Parents normally precede children (the importer orders them so); otherwise resolve chains.
+    bool ordered = true;
+    for (size_t i = 0; i < count && ordered; ++i) ordered = c.nodes[i].parent < int(i);
+    if (ordered) {
+        for (size_t i = 0; i < count; ++i) {
+            const int parent = c.nodes[i].parent;
+            globals[i] = parent < 0 ? locals[i] : globals[size_t(parent)] * locals[i];
+        }
+        return;
+    }
+    std::vector<char> done(count, 0);
+    std::vector<size_t> chain;
+    for (size_t i = 0; i < count; ++i) {
+        chain.clear();  // unresolved nodes from i up to the first resolved ancestor or root
+        for (size_t n = i; !done[n];) {
+            chain.push_back(n);
+            if (chain.size() > count) throw Error(c.source + ": cyclic node hierarchy in character " + c.name);
+            if (c.nodes[n].parent < 0) break;
+            n = size_t(c.nodes[n].parent);
+        }
+        for (auto it = chain.rbegin(); it != chain.rend(); ++it) {
+            const int parent = c.nodes[*it].parent;
+            globals[*it] = parent < 0 ? locals[*it] : globals[size_t(parent)] * locals[*it];
+            done[*it] = 1;
+        }
+    }
 }
 
 void sample_skinning_matrices(const Character& c, const ClipSelection& sel, double t, std::span<glm::dmat4> out) {

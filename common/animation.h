@@ -52,6 +52,11 @@ void sample_skinning_matrices(const Character& c, const ClipSelection& sel, doub
 void sample_node_globals(const Character& c, const ClipSelection& sel, double t,
                          std::span<glm::dmat4> out);
 
+// Global matrices of every node from every node's local matrix (both of
+// c.nodes.size()): parents first, whatever the order of the nodes. Throws
+// Error on a size mismatch or a cyclic hierarchy. O(nodes).
+void compose_node_globals(const Character& c, std::span<const glm::dmat4> locals, std::span<glm::dmat4> globals);
+
 // Morph weights of every morph target at time t (out.size() == morphs.size()):
 // what a streamed instance needs per frame besides its bones. Channels clamp to
 // their keys like T/R/S; a target without a channel keeps its default weight.

@@ -18,7 +18,7 @@ namespace progskin {
 
 // Whoever changes what the tables hold or how compute_asset_tables computes
 // them must bump this, so that stale stored tables are recomputed, not read.
-inline constexpr int kServerTablesVersion = 2;
+inline constexpr int kServerTablesVersion = 3;
 
 // One step of a lower convex hull of an error table: going from `from`
 // bones to `to` bones removes `gain` of error.
@@ -64,6 +64,7 @@ struct AssetTables {
     glm::vec3 t_min{-1.0f}, t_max{1.0f};
     bool scaled = false;
     float ref_scale = 1.0f;  // the records' reference scale (RecordFormat::scale)
+    float t_step = 0.0f;     // the relative records' translation step (RecordFormat::t_step)
     std::vector<CostSegment> segments;
 };
 

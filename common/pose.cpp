@@ -75,6 +75,14 @@ BonePose interpolate_between(const BonePose* p0, const BonePose& a, const BonePo
     return interpolate(a, b, float((t - ta) / (tb - ta)));
 }
 
+bool translation_step_fits(const glm::vec3& t_min, const glm::vec3& t_max, float t_step) {
+    if (t_step == 0.0f) return true;
+    if (!(t_step > 0.0f) || !std::isfinite(t_step)) return false;
+    const glm::vec3 ext = t_max - t_min;
+    const float most = std::max({ext.x, ext.y, ext.z});
+    return std::isfinite(most) && double(most) / double(t_step) <= double(1 << 22);
+}
+
 ReferenceScale reference_scale(std::span<float> scales) {
     ReferenceScale r;
     if (scales.empty()) return r;

@@ -51,6 +51,14 @@ BonePose interpolate_between(const BonePose* p0, const BonePose& a, const BonePo
 // Bounds of a skin's reference scale (RecordFormat::scale, proto/bone_codec.h):
 // a received one outside them, or not finite, is refused.
 inline constexpr float kMinReferenceScale = 1.0f / 65536.0f, kMaxReferenceScale = 65536.0f;
+// Whether a translation step (RecordFormat::t_step, proto/bone_codec.h) suits
+// the translation box [t_min, t_max]: 0 (the box's own step, its largest
+// extent / 65,535), or finite and positive with the box's largest extent at
+// most 2^22 steps (every translation of the box, and any difference of two,
+// within the relative records' integers, bone_record.h kMaxTransInt). A
+// received step that does not is refused. O(1).
+bool translation_step_fits(const glm::vec3& t_min, const glm::vec3& t_max, float t_step);
+
 // The reference scale of a skin whose skinning matrices have these scales
 // (decompose's s): their median, or 1 when that is within 1e-4 of 1, not
 // finite or outside the bounds above; `scaled` when some scale differs from

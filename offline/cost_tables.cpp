@@ -9,6 +9,7 @@
 #include "error_metric.h"
 #include "errors.h"
 #include "pose.h"
+#include "range_of_motion.h"
 
 namespace progskin {
 
@@ -39,14 +40,16 @@ namespace {
 // Segment layout and collapse values: segment 0 is bone 0, then one segment
 // per step of the hull of the squared error table over all frames; collapse
 // per model from that model's own table (models: selections, then all).
+// rom: the range-of-motion frames that stand in for clips that do not move
+// the skeleton (range_of_motion.h), else null.
 void layout_segments(AssetTables& t, const Character& c, const ProgressiveSkin& s,
-                     const std::vector<ClipSelection>& selections) {
+                     const std::vector<ClipSelection>& selections, const FrameSet* rom) {
     const size_t M = selections.size() + 1;
     std::vector<double> mse;
     for (const auto& e : s.error) mse.push_back(e.rms * e.rms);
     std::vector<std::vector<double>> sel_mse(M);
     for (size_t m = 0; m + 1 < M; ++m)
-        for (const auto& e : evaluate_error_table(c, s, sample_frames(c, {selections[m]}, 30.0)))
+        for (const auto& e : evaluate_error_table(c, s, rom ? *rom : sample_frames(c, {selections[m]}, 30.0)))
             sel_mse[m].push_back(e.rms * e.rms);
     sel_mse[M - 1] = mse;
     t.segments.clear();
@@ -213,8 +216,57 @@ void value_tables(AssetTables& t, size_t M) {
     }
 }
 
-// Translation box (with a margin) and scale range of the skinning matrices.
-void record_range(AssetTables& t, const FrameSet& frames) {
+// The translations of the skinning matrices that any rigid pose of the
+// skeleton gives, about the roots' positions in `frames`: a live pose (a game
+// driving the character) may turn every joint beyond what the clips do.
+// Joint j at q_j, bind-space position b_j = IBM_j^-1 (0): its skinning matrix
+// M_j = G_j IBM_j moves the bind-space origin to t_j = q_j - s_j R_j b_j, and
+// q_j lies within the chain length L_j (joint to joint, to its root joint r)
+// of q_r. So t_j is within L_j + s_j |b_j| of q_r. O(frames * joints).
+void reach_box(const Character& c, const FrameSet& frames, glm::dvec3& lo, glm::dvec3& hi) {
+    const size_t J = c.joint_count();
+    if (J == 0 || frames.frame_count() == 0) return;
+    std::vector<glm::dvec3> bind(J);
+    for (size_t j = 0; j < J; ++j) bind[j] = glm::dvec3(glm::inverse(c.inverse_bind[j])[3]);
+    std::vector<double> link(J, 0.0), scale(J, 0.0);  // max over frames: |q_j - q_parent|, skinning scale
+    std::vector<glm::dvec3> q(J), root_lo(J, glm::dvec3(1e300)), root_hi(J, glm::dvec3(-1e300));
+    for (size_t f = 0; f < frames.frame_count(); ++f) {
+        const Mat34* m = frames.frame(f);
+        for (size_t j = 0; j < J; ++j) {
+            const float* x = m[j].m;
+            const glm::dvec3 b = bind[j];
+            q[j] = {x[0] * b.x + x[1] * b.y + x[2] * b.z + x[3], x[4] * b.x + x[5] * b.y + x[6] * b.z + x[7],
+                    x[8] * b.x + x[9] * b.y + x[10] * b.z + x[11]};
+            scale[j] = std::max(scale[j], double(decompose(m[j]).s));
+        }
+        for (size_t j = 0; j < J; ++j) {
+            const int p = c.joint_parent[j];
+            if (p >= 0) {
+                link[j] = std::max(link[j], glm::length(q[j] - q[size_t(p)]));
+            } else {
+                root_lo[j] = glm::min(root_lo[j], q[j]);
+                root_hi[j] = glm::max(root_hi[j], q[j]);
+            }
+        }
+    }
+    for (size_t j = 0; j < J; ++j) {
+        double reach = scale[j] * glm::length(bind[j]);
+        size_t r = j;
+        for (size_t hops = 0; c.joint_parent[r] >= 0 && hops <= J; ++hops) {
+            reach += link[r];
+            r = size_t(c.joint_parent[r]);
+        }
+        if (c.joint_parent[r] >= 0) continue;  // a cycle: the importer refuses those
+        lo = glm::min(lo, root_lo[r] - glm::dvec3(reach));
+        hi = glm::max(hi, root_hi[r] + glm::dvec3(reach));
+    }
+}
+
+// Translation box and scale range of the skinning matrices: the frames' box
+// with a margin, grown to the reach box (every rigid pose, reach_box) and
+// kLiveRootReach of the diagonal around it.
+constexpr double kLiveRootReach = 0.25;
+void record_range(AssetTables& t, const Character& c, const FrameSet& frames) {
     glm::vec3 lo(1e30f), hi(-1e30f);
     t.max_scale = 1;
     std::vector<float> scales;
@@ -237,6 +289,17 @@ void record_range(AssetTables& t, const FrameSet& frames) {
     glm::vec3 margin = ext * 0.25f + glm::vec3(float(0.05 * t.diagonal));
     t.t_min = lo - margin;
     t.t_max = hi + margin;
+    const glm::vec3 box = t.t_max - t.t_min;
+    t.t_step = std::max({box.x, box.y, box.z, 1e-9f}) / 65535.0f;  // the frames' own step, before the reach
+    glm::dvec3 reach_lo(1e300), reach_hi(-1e300);
+    reach_box(c, frames, reach_lo, reach_hi);
+    if (reach_lo.x <= reach_hi.x) {
+        // The root joint itself may move (a crouch, a jump) by a quarter of
+        // the diagonal beyond where the frames put it.
+        const glm::dvec3 pad(kLiveRootReach * t.diagonal);
+        t.t_min = glm::min(t.t_min, glm::vec3(reach_lo - pad));
+        t.t_max = glm::max(t.t_max, glm::vec3(reach_hi + pad));
+    }
 }
 
 // RMS vertex motion per second between consecutive frames of one selection.
@@ -271,11 +334,14 @@ AssetTables compute_asset_tables(const Character& c, const ProgressiveSkin& s,
     if (!(t.diagonal > 0)) t.diagonal = 1;
     t.bind_radius = 0;
     for (const auto& p : c.positions) t.bind_radius = std::max(t.bind_radius, double(glm::length(p)));
-    const FrameSet frames = sample_frames(c, selections, 30.0);
-    record_range(t, frames);
+    // Clips that do not move the skeleton: the range-of-motion poses stand in
+    // for every model (what the build trained on, range_of_motion.h).
+    bool rom = false;
+    const FrameSet frames = training_frames(c, selections, 30.0, &rom);
+    record_range(t, c, frames);
     t.motion = rms_motion(c, frames);
     const size_t M = selections.size() + 1;  // models: selections, then all
-    layout_segments(t, c, s, selections);
+    layout_segments(t, c, s, selections, rom ? &frames : nullptr);
     gap_tables(t, c, s, frames, M);
     value_tables(t, M);
     return t;
@@ -351,7 +417,7 @@ nlohmann::json asset_tables_json(const AssetTables& t, int bones, size_t selecti
     j["motion"] = t.motion;
     j["bind_radius"] = t.bind_radius;
     j["max_scale"] = t.max_scale;
-    j["format"] = {{"t_min", vec3_json(t.t_min)}, {"t_max", vec3_json(t.t_max)}, {"scaled", t.scaled}, {"scale", t.ref_scale}};
+    j["format"] = {{"t_min", vec3_json(t.t_min)}, {"t_max", vec3_json(t.t_max)}, {"scaled", t.scaled}, {"scale", t.ref_scale}, {"t_step", t.t_step}};
     j["segments"] = nlohmann::json::array();
     for (const CostSegment& s : t.segments)
         j["segments"].push_back({{"from", s.from},
@@ -393,6 +459,8 @@ bool read_asset_tables(const nlohmann::json& j, int bones, size_t selections, As
     t.scaled = f.value("scaled", false);
     t.ref_scale = f.value("scale", 1.0f);
     if (!(t.ref_scale >= kMinReferenceScale && t.ref_scale <= kMaxReferenceScale)) return no("bad stored reference scale");
+    t.t_step = f.value("t_step", 0.0f);
+    if (!translation_step_fits(t.t_min, t.t_max, t.t_step)) return no("bad stored translation step");
     const nlohmann::json& segs = j.contains("segments") ? j["segments"] : nlohmann::json();
     if (!segs.is_array() || segs.empty()) return no("no stored segments");
     int expect_from = 0;

@@ -33,6 +33,12 @@ struct RecordFormat {
     // scale against it and the other bones' translations in their parent's
     // units (bone_record.h), so such a skin codes as it would unscaled.
     float scale = 1.0f;
+    // The parent-relative records' translation step (protocol 10, Asset.t_step;
+    // bone_record.h RelativeFormat::t_step); 0: the box's largest extent /
+    // 65,535. The box covers every rigid pose of the skeleton (live poses go
+    // beyond the clips); the step is that of the clips' own box, so that the
+    // clips stream as finely as a box of theirs alone would give.
+    float t_step = 0.0f;
     static constexpr int kPlainSize = 12, kScaledSize = 14;  // record bytes
     int size() const { return scaled ? kScaledSize : kPlainSize; }
 };

@@ -69,7 +69,7 @@ RelativeFormat relative_format(std::span<const int16_t> parents, std::span<const
         f.pivots[b] = glm::vec3(bind[3]);
     }
     const glm::vec3 ext = box.t_max - box.t_min;
-    f.t_step = std::max({ext.x, ext.y, ext.z, 1e-9f}) / 65535.0f;
+    f.t_step = box.t_step > 0.0f ? box.t_step : std::max({ext.x, ext.y, ext.z, 1e-9f}) / 65535.0f;
     f.scaled = box.scaled;
     if (!(box.scale >= kMinReferenceScale && box.scale <= kMaxReferenceScale))
         throw std::invalid_argument("relative_format: a reference scale outside [2^-16, 2^16]");

@@ -15,6 +15,7 @@
 #include "animation.h"
 #include "cli_args.h"
 #include "collapse.h"
+#include "range_of_motion.h"
 #include "errors.h"
 #include "figure.h"
 #include "gltf_export.h"
@@ -76,7 +77,7 @@ int render_command(int argc, char** argv) {
                              "render: %s has no progressive skin; building one (the lower-error strategy, "
                              "30 fps; `progskin build` once to skip this)\n",
                              pos[0].c_str());
-            asset.skin = build_best_progressive_skin(c, sample_frames(c, default_training_set(c), 30.0));
+            asset.skin = build_best_progressive_skin(c, training_frames(c, default_training_set(c), 30.0));
             asset.progressive = true;
         }
         const ProgressiveSkin& s = asset.skin;

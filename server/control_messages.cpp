@@ -81,7 +81,7 @@ flatbuffers::Offset<wire::Asset> asset_table(flatbuffers::FlatBufferBuilder& fbb
     wire::Vec3 lo(a.format.t_min.x, a.format.t_min.y, a.format.t_min.z);
     wire::Vec3 hi(a.format.t_max.x, a.format.t_max.y, a.format.t_max.z);
     return wire::CreateAsset(fbb, a.id, name, a.bytes.size(), uint16_t(a.bone_count()), a.format.scaled, vo, vp, vc, ve,
-                             float(a.diagonal), &lo, &hi, float(a.motion), a.format.scale);
+                             float(a.diagonal), &lo, &hi, float(a.motion), a.format.scale, a.format.t_step);
 }
 
 // One Instance table (control.fbs) for an active instance.

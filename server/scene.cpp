@@ -12,6 +12,7 @@
 #include <nlohmann/json.hpp>
 
 #include "collapse.h"
+#include "range_of_motion.h"
 #include "cost_tables.h"
 #include "errors.h"
 #include "error_metric.h"
@@ -36,6 +37,7 @@ static RecordFormat record_format(const AssetTables& t) {
     f.t_max = t.t_max;
     f.scaled = t.scaled;
     f.scale = t.ref_scale;
+    f.t_step = t.t_step;
     return f;
 }
 
@@ -78,7 +80,7 @@ std::shared_ptr<ServerAsset> load_server_asset(const std::string& path) {
         a->skin = std::move(pa.skin);  // progressive glTF: joints already in progressive order
         a->progressive_file = true;
     } else {
-        a->skin = build_best_progressive_skin(a->character, sample_frames(a->character, a->selections, 30.0));
+        a->skin = build_best_progressive_skin(a->character, training_frames(a->character, a->selections, 30.0));
     }
     prepare_morphs(*a, path);
     finish_server_asset(*a);
@@ -386,7 +388,12 @@ std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const Ass
             }
         }
     } else if (!load_cached_build(p, cache, options.build_by_rate, *a)) {
-        const FrameSet frames = sample_frames(a->character, a->selections, 30.0);
+        bool range_of_motion = false;
+        const FrameSet frames = training_frames(a->character, a->selections, 30.0, &range_of_motion);
+        if (range_of_motion)
+            a->warnings.push_back(p.path + ": no clip moves the skeleton: its bones are ordered by " +
+                               std::to_string(int(kRangeOfMotionSeconds)) +
+                               " s of range-of-motion poses (docs/algorithms.md \"Characters without animation\")");
         BuildOptions bo;
         const Character& c = a->character;
         if (options.build_by_rate) bo.bone_bits = [&](const ProgressiveSkin& s) { return record_bits_per_bone(c, s, frames); };

@@ -9,11 +9,15 @@
 
 #include <array>
 #include <chrono>
+#include <cmath>
+#include <cstring>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <string>
 
+#include "animation.h"
+#include "frame_encoder.h"
 #include "gltf_import.h"
 #include "scene.h"
 #include "vertex_animation.h"
@@ -275,4 +279,98 @@ TEST(ServerAssets, PointCacheNeedsFromVertices) {
     const auto a = build_server_asset(pending[0], o);
     EXPECT_LE(a->bone_count(), 3);
     EXPECT_EQ(a->character.vertex_count(), progskin::load_pc2(pc2).vertex_count);
+}
+
+namespace {
+
+// A copy of a .glb with its animations taken out (an avatar exported for a
+// game to drive): the JSON chunk rewritten, the binary chunk kept.
+void write_without_animations(const std::string& in, const std::string& out) {
+    std::ifstream f(in, std::ios::binary);
+    std::vector<char> d{std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
+    ASSERT_GE(d.size(), 20u);
+    uint32_t json_len = 0;
+    std::memcpy(&json_len, d.data() + 12, 4);
+    nlohmann::json j = nlohmann::json::parse(d.begin() + 20, d.begin() + 20 + json_len);
+    j.erase("animations");
+    std::string text = j.dump();
+    while (text.size() % 4) text.push_back(' ');
+    const std::vector<char> bin(d.begin() + 20 + json_len, d.end());  // the BIN chunk, header included
+    const uint32_t total = uint32_t(12 + 8 + text.size() + bin.size()), len = uint32_t(text.size()), type = 0x4E4F534A;
+    std::ofstream o(out, std::ios::binary);
+    o.write(d.data(), 8);
+    o.write(reinterpret_cast<const char*>(&total), 4);
+    o.write(reinterpret_cast<const char*>(&len), 4);
+    o.write(reinterpret_cast<const char*>(&type), 4);
+    o.write(text.data(), std::streamsize(text.size()));
+    o.write(bin.data(), std::streamsize(bin.size()));
+}
+
+}  // namespace
+
+// A character exported without animation, for a game to drive (the bundled
+// CesiumMan with its animations taken out of the file): the server orders its
+// bones by range-of-motion poses and says so, and takes the poses a game
+// gives it (the original walk, and rigid poses far beyond it) where the rest
+// pose's translation box refused them.
+TEST(ServerAssets, AClipLessAvatarTakesTheGamesPoses) {
+    const std::string dir = temp_cache("clipless");
+    fs::create_directories(dir);
+    const std::string file = dir + "/CesiumMan_noanim.glb";
+    write_without_animations(asset("CesiumMan.glb"), file);
+    AssetOptions o;
+    o.cache_dir = dir + "/cache";
+    o.build_by_rate = true;  // the server's default
+    std::vector<PendingAsset> pending;
+    ASSERT_TRUE(check_server_assets({file}, o, pending).empty());
+    const auto a = build_server_asset(pending[0], o);
+    ASSERT_TRUE(a->character.clips.empty());
+    EXPECT_TRUE(contains(a->warnings, "no clip moves the skeleton", "range-of-motion")) << "the operator is not told";
+
+    const Character walk = import_gltf(asset("CesiumMan.glb")).at(0);
+    const auto sel = default_training_set(walk);
+    InstanceSpec live;
+    live.selection = -1;
+    FrameEncoder enc({a}, {live}, 30.0f);
+    std::vector<glm::dmat4> m(walk.joint_count());
+    std::vector<Mat34> pose(m.size());
+    int taken = 0;
+    for (double t = 0; t < sel[0].duration(); t += 0.1) {
+        sample_skinning_matrices(walk, sel[0], sel[0].start + t, m);
+        for (size_t j = 0; j < m.size(); ++j) pose[j] = Mat34::from_glm(m[j]);
+        taken += enc.push_pose(0, pose);
+    }
+    std::printf("walk: %d poses taken, %llu refused\n", taken, (unsigned long long)enc.stats().poses_out_of_range);
+    // Arms and legs thrown about: every joint turned by up to 120 degrees, and
+    // the skeleton's root joint moved by up to a fifth of the diagonal (a
+    // crouch, a jump). The nodes above the skeleton stay: where the character
+    // stands and faces travels in its root block.
+    std::vector<char> is_joint(walk.nodes.size(), 0);
+    for (int n : walk.joint_node) is_joint[size_t(n)] = 1;
+    std::vector<glm::dmat4> locals(walk.nodes.size()), globals(walk.nodes.size());
+    const double diagonal = a->diagonal;
+    for (int i = 0; i < 50; ++i) {
+        for (size_t n = 0; n < walk.nodes.size(); ++n) {
+            const Node& nd = walk.nodes[n];
+            const double angle = is_joint[n] ? 2.1 * std::sin(1.7 * double(i) + double(n)) : 0.0;
+            const glm::dquat turn = glm::angleAxis(angle, glm::normalize(glm::dvec3(std::sin(double(n)), std::cos(double(i)), 0.5)));
+            locals[n] = nd.has_matrix ? nd.matrix * glm::mat4_cast(turn)
+                                      : glm::translate(glm::dmat4(1.0), nd.translation) * glm::mat4_cast(nd.rotation * turn) *
+                                            glm::scale(glm::dmat4(1.0), nd.scale);
+        }
+        const size_t root = size_t(walk.joint_node[0]);  // CesiumMan's first joint is its root joint
+        ASSERT_LT(walk.joint_parent[0], 0);
+        const glm::dvec3 move = 0.2 * diagonal * glm::dvec3(std::sin(0.9 * i), std::cos(1.3 * i), std::sin(2.1 * i)) / std::sqrt(3.0);
+        compose_node_globals(walk, locals, globals);
+        const int up = walk.nodes[root].parent;
+        const glm::dmat4 parent = up < 0 ? glm::dmat4(1.0) : globals[size_t(up)];
+        locals[root] = glm::inverse(parent) * glm::translate(glm::dmat4(1.0), move) * parent * locals[root];
+        compose_node_globals(walk, locals, globals);
+        for (size_t j = 0; j < walk.joint_count(); ++j)
+            pose[j] = Mat34::from_glm(globals[size_t(walk.joint_node[j])] * walk.inverse_bind[j]);
+        taken += enc.push_pose(0, pose);
+    }
+    EXPECT_EQ(enc.stats().poses_out_of_range, 0u);
+    EXPECT_GT(taken, 60);
+    fs::remove_all(dir);
 }

@@ -4,6 +4,7 @@
 // measured with the error metric against the reference.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <random>
 
 #include "bone_codec.h"
@@ -320,4 +321,31 @@ TEST(NetRecord, AnArmatureScaleCodesAsTheSameSkinInMetres) {
     EXPECT_NEAR(cm.bits_per_bone, m.bits_per_bone, 0.02 * m.bits_per_bone);
     EXPECT_NEAR(cm.rms_pct, m.rms_pct, 0.1 * m.rms_pct);
     EXPECT_LE(cm.max_pct, 1.1 * m.max_pct);
+}
+
+// Protocol 10: the translation box covers every rigid pose of the skeleton
+// (live poses beyond the clips), and the relative records step at the clips'
+// own box (Asset.t_step), so that clips stream as finely as before the box
+// grew. A step that would take more than 2^22 steps across the box, or is not
+// finite and positive (0: the box's own), is refused.
+TEST(NetRecord, TheTranslationStepIsTheClipsWhateverTheBox) {
+    const auto a = load_server_asset(std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb");
+    const glm::vec3 ext = a->format.t_max - a->format.t_min;
+    const float box_step = std::max({ext.x, ext.y, ext.z}) / 65535.0f;
+    EXPECT_GT(a->format.t_step, 0.0f);
+    EXPECT_LT(a->format.t_step, 0.8f * box_step) << "the box did not grow past the clips'";
+    EXPECT_FLOAT_EQ(a->relative.t_step, a->format.t_step);
+    RecordFormat f = a->format;
+    f.t_step = 0;
+    EXPECT_FLOAT_EQ(relative_format(a->skin, a->character, f).t_step, box_step);
+
+    const glm::vec3 lo(-1.0f), hi(1.0f);
+    EXPECT_TRUE(translation_step_fits(lo, hi, 0.0f));
+    EXPECT_TRUE(translation_step_fits(lo, hi, 2.0f / 65535.0f));
+    EXPECT_TRUE(translation_step_fits(lo, hi, 2.0f / float(1 << 22)));
+    EXPECT_FALSE(translation_step_fits(lo, hi, 2.0f / float(1 << 23)));
+    EXPECT_FALSE(translation_step_fits(lo, hi, -1e-3f));
+    EXPECT_FALSE(translation_step_fits(lo, hi, std::nanf("")));
+    EXPECT_FALSE(translation_step_fits(lo, hi, INFINITY));
+    EXPECT_FALSE(translation_step_fits(lo, glm::vec3(INFINITY), 1e-3f));
 }

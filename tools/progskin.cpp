@@ -21,6 +21,7 @@
 #include "errors.h"
 #include "error_metric.h"
 #include "collapse.h"
+#include "range_of_motion.h"
 #include "cost_tables.h"
 #include "gltf_export.h"
 #include "gltf_import.h"
@@ -338,10 +339,16 @@ int cmd_build(int argc, char** argv) {
     // The output embeds the images the input keeps beside it: every one is checked before the build.
     external_files(a.positional[0]);
     const Character c = import_or_hint(a.positional[0], character_arg(a));
-    const FrameSet frames = sample_frames(c, training_set(c, a.get("--clip")), fps);
+    bool range_of_motion = false;
+    const FrameSet frames = training_frames(c, training_set(c, a.get("--clip")), fps, &range_of_motion);
     if (!quiet)
         std::fprintf(stderr, "%s: %zu joints, %zu vertices, %zu frames at %g fps\n", a.positional[0].c_str(),
                      c.joint_count(), c.vertex_count(), frames.frame_count(), fps);
+    if (range_of_motion && !quiet)
+        std::fprintf(stderr,
+                     "%s: no clip moves the skeleton: trained on %g s of range-of-motion poses instead (every joint "
+                     "turning up to %g degrees; docs/algorithms.md \"Characters without animation\")\n",
+                     a.positional[0].c_str(), kRangeOfMotionSeconds, kRangeOfMotionDegrees);
     if (!c.morphs.empty() && !quiet)
         std::fprintf(stderr,
                      "%s: %zu morph targets: kept in the output and evaluated before skinning; the error table is "
@@ -387,6 +394,7 @@ int cmd_build(int argc, char** argv) {
         for (int i : sel.clips) names.push_back(c.clips[size_t(i)].name);
         extra["training"].push_back(names);
     }
+    if (range_of_motion) extra["training"] = "range of motion";
     extra["frames"] = frames.frame_count();
     extra["source"] = std::filesystem::path(a.positional[0]).filename().string();
     if (!quiet) std::fprintf(stderr, "%s: writing %s\n", a.positional[0].c_str(), a.get("-o").c_str());
@@ -541,11 +549,20 @@ int cmd_inspect(int argc, char** argv) {
     out["progressive"] = asset.progressive;
     out["strategies"] = json::object();
     std::vector<std::pair<std::string, std::vector<LodError>>> tables;
-    if (asset.progressive) {
-        tables.push_back({strategy_name(asset.skin.strategy), asset.skin.error});
-    } else {
+    if (asset.progressive && a.has("--clip")) {
+        // The stored skin measured on the clips asked for (what it was built
+        // on is in its table; another clip or a grafted animation is not).
         const FrameSet frames = sample_frames(c, training_set(c, a.get("--clip")), fps);
         out["frames"] = frames.frame_count();
+        out["table_measured_on"] = a.get("--clip");
+        tables.push_back({strategy_name(asset.skin.strategy), evaluate_error_table(c, asset.skin, frames)});
+    } else if (asset.progressive) {
+        tables.push_back({strategy_name(asset.skin.strategy), asset.skin.error});
+    } else {
+        bool range_of_motion = false;
+        const FrameSet frames = training_frames(c, training_set(c, a.get("--clip")), fps, &range_of_motion);
+        out["frames"] = frames.frame_count();
+        out["range_of_motion"] = range_of_motion;
         const bool quiet = as_json || a.has("--quiet");
         for (Strategy st : {Strategy::Reorder, Strategy::Flatten, Strategy::Hierarchy, Strategy::LeafPrune})
             tables.push_back({strategy_name(st), build_with_progress(c, frames, st, true, quiet).error});
@@ -624,7 +641,7 @@ int cmd_pose(int argc, char** argv) {
     const FrameSet one = sample_pose(c, sel, t);  // bones and morph weights at exactly t
     if (!asset.progressive && k < B) {
         StrategyChoice ignored;
-        asset.skin = build_best_with_progress(c, sample_frames(c, default_training_set(c), 30.0), true, true, false, ignored);
+        asset.skin = build_best_with_progress(c, training_frames(c, default_training_set(c), 30.0), true, true, false, ignored);
         asset.progressive = true;
     }
     std::vector<glm::vec3> pos(c.vertex_count());
