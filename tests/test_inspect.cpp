@@ -128,3 +128,47 @@ TEST(Inspect, FileWithoutASkinListsClipsAndMorphTargetsAndPointsToFromVertices) 
     EXPECT_NE(build.out.find("no skin"), std::string::npos) << build.out;
     EXPECT_NE(build.out.find("progskin build --from-vertices " + sphere), std::string::npos) << build.out;
 }
+
+// A file without animation is built on range-of-motion poses, and says so
+// (stderr and the extension's "training"); inspect --clip measures a
+// progressive file's stored skin on the clips asked for, not its stored table.
+TEST(BuildCli, AFileWithoutAnimationTrainsOnARangeOfMotion) {
+    if (!std::ifstream(progskin()).good()) GTEST_SKIP() << progskin() << " not built";
+    const std::string out = ::testing::TempDir() + "progskin_build_still.glb";
+    // armature_m.gltf without its animation: the same file, "animations" dropped.
+    std::ifstream in(data("armature_m.gltf"));
+    nlohmann::json doc = nlohmann::json::parse(in);
+    ASSERT_TRUE(doc.contains("animations"));
+    doc.erase("animations");
+    const std::string still = ::testing::TempDir() + "progskin_armature_still.gltf";
+    std::ofstream(still) << doc.dump();
+    const CmdResult r = run(progskin() + " build " + still + " -o " + out);
+    ASSERT_EQ(r.code, 0) << r.out;
+    EXPECT_NE(r.out.find("no clip moves the skeleton"), std::string::npos) << r.out;
+    const CmdResult j = run(progskin() + " inspect " + out + " --json");
+    ASSERT_EQ(j.code, 0) << j.out;
+    const nlohmann::json built = nlohmann::json::parse(j.out.substr(j.out.find('{')));
+    EXPECT_EQ(built.value("table_training", nlohmann::json()), "range of motion") << j.out.substr(0, 600);
+    // Its stored table is over the range of motion: it has error below the full skin.
+    const auto& strategies = built.at("strategies");
+    ASSERT_EQ(strategies.size(), 1u);
+    const auto& table = strategies.begin().value();
+    EXPECT_GT(table.at(0).at("rms").get<double>(), 0.0);
+
+    // The built file of the animated original, measured on its clip.
+    const std::string animated = ::testing::TempDir() + "progskin_armature_built.glb";
+    ASSERT_EQ(run(progskin() + " build " + data("armature_m.gltf") + " -o " + animated + " --quiet").code, 0);
+    const CmdResult stored = run(progskin() + " inspect " + animated + " --json");
+    const CmdResult measured = run(progskin() + " inspect " + animated + " --json --clip 0");
+    ASSERT_EQ(measured.code, 0) << measured.out;
+    const nlohmann::json a = nlohmann::json::parse(stored.out.substr(stored.out.find('{')));
+    const nlohmann::json b = nlohmann::json::parse(measured.out.substr(measured.out.find('{')));
+    EXPECT_EQ(b.value("table_measured_on", ""), "0");
+    EXPECT_GT(b.value("frames", 0), 1);
+    // The clip is the training set: the same table, measured again.
+    const auto& ta = a.at("strategies").begin().value();
+    const auto& tb = b.at("strategies").begin().value();
+    ASSERT_EQ(ta.size(), tb.size());
+    for (size_t k = 0; k < ta.size(); ++k)
+        EXPECT_NEAR(ta[k].at("rms").get<double>(), tb[k].at("rms").get<double>(), 1e-6 + 1e-3 * ta[k].at("rms").get<double>()) << k;
+}

@@ -91,7 +91,8 @@ usage:
       and % of the rest bounding-box diagonal) and mean distinct influences per
       vertex. For a plain glTF it builds and compares the strategies reorder,
       flatten, hierarchy and leaf_prune (naive baseline: deepest bones first,
-      plain copy).
+      plain copy). For a progressive file it lists the table stored in it,
+      or with --clip the stored skin measured on those clips.
       --plot draws error against bones per strategy with gnuplot (.svg/.png/.pdf).
   progskin pose FILE --time T [--clip SPEC] [--bones K|all] [--character N]
                 [--max-influences M] [--json | -o OUT.bin]
