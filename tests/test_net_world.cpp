@@ -264,8 +264,12 @@ TEST(NetWorld, ABehindNodeTakesTheNewestMessageOfEachCell) {
     // reaches nats-server asynchronously.
     run_until(1.0, [] { return false; }, nullptr, observer);
 
-    const int n = 200;  // the bind pose raised t mm by message t: the newest is the last
-    ASSERT_TRUE(flood_cell(nats, cfg.world_name, 4242, n, 0.001f, glm::dvec3(1.0, 0.0, 1.0)));
+    // The bind pose raised 0.05 t by message t: the newest is the last. The
+    // rise is well over the bus records' step (the Fox's translation box /
+    // 65,535, 0.0074), so that the newest tells itself from the one before.
+    const int n = 200;
+    const float rise = 0.05f;
+    ASSERT_TRUE(flood_cell(nats, cfg.world_name, 4242, n, rise, glm::dvec3(1.0, 0.0, 1.0)));
     const double seen = run_until(3, [&] { return published(observer) != nullptr; }, nullptr, observer);
     ASSERT_GE(seen, 0) << "the flooding node's character not shown";
     run_until(0.5, [] { return false; }, nullptr, observer);
@@ -273,10 +277,10 @@ TEST(NetWorld, ABehindNodeTakesTheNewestMessageOfEachCell) {
     EXPECT_EQ(st.world_messages_in + st.world_superseded + st.world_dropped, uint64_t(n)) << "every message accounted for";
     EXPECT_GT(st.world_superseded, uint64_t(n) / 2) << "most were behind a newer one: " << st.world_messages_in << " taken";
     EXPECT_EQ(st.world_malformed, 0u);
-    // Shown at the newest pose (200 mm up), not an older one.
+    // Shown at the newest pose (200 rises up), not an older one.
     const RemoteCharacter* rc = published(observer);
     ASSERT_NE(rc, nullptr);
-    EXPECT_NEAR(rc->palette[0].m[7], 0.2, 2e-3);
+    EXPECT_NEAR(rc->palette[0].m[7], double(n) * rise, 0.4 * rise);
     std::printf("%llu of %d messages taken, %llu superseded, %llu dropped\n", (unsigned long long)st.world_messages_in, n,
                 (unsigned long long)st.world_superseded, (unsigned long long)st.world_dropped);
 }
