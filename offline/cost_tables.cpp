@@ -459,7 +459,8 @@ bool read_asset_tables(const nlohmann::json& j, int bones, size_t selections, As
     t.scaled = f.value("scaled", false);
     t.ref_scale = f.value("scale", 1.0f);
     if (!(t.ref_scale >= kMinReferenceScale && t.ref_scale <= kMaxReferenceScale)) return no("bad stored reference scale");
-    t.t_step = f.value("t_step", 0.0f);
+    if (!f.contains("t_step") || !f["t_step"].is_number()) return no("no stored translation step");
+    t.t_step = f["t_step"].get<float>();
     if (!translation_step_fits(t.t_min, t.t_max, t.t_step)) return no("bad stored translation step");
     const nlohmann::json& segs = j.contains("segments") ? j["segments"] : nlohmann::json();
     if (!segs.is_array() || segs.empty()) return no("no stored segments");
