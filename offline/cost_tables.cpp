@@ -300,6 +300,11 @@ void record_range(AssetTables& t, const Character& c, const FrameSet& frames) {
         t.t_min = glm::min(t.t_min, glm::vec3(reach_lo - pad));
         t.t_max = glm::max(t.t_max, glm::vec3(reach_hi + pad));
     }
+    // At most 2^22 steps across the grown box (translation_step_fits): a
+    // skeleton far from the model's origin has a box far larger than its
+    // clips', and steps as that box needs.
+    const glm::vec3 grown = t.t_max - t.t_min;
+    t.t_step = std::max(t.t_step, std::max({grown.x, grown.y, grown.z}) / float(1 << 22) * 1.001f);
 }
 
 // RMS vertex motion per second between consecutive frames of one selection.

@@ -9,9 +9,12 @@
 #include <cstring>
 #include <random>
 
+#include <glm/gtc/matrix_transform.hpp>
+
 #include "animation.h"
 #include "collapse.h"
 #include "cost_tables.h"
+#include "error_metric.h"
 #include "gltf_import.h"
 #include "pose.h"
 #include "range_of_motion.h"
@@ -130,8 +133,17 @@ TEST(RangeOfMotion, AClipLessBuildOrdersBonesForMotionItNeverSaw) {
 TEST(RangeOfMotion, AnyRigidPoseFitsTheTranslationBox) {
     std::mt19937 rng(7);
     for (const char* name : {"CesiumMan.glb", "Fox.glb"}) {
-        for (bool clips : {false, true}) {
-            const Character c = clips ? import_asset(name) : without_clips(import_asset(name));
+        for (int variant : {0, 1, 2}) {
+            const bool clips = variant == 1;
+            Character c = clips ? import_asset(name) : without_clips(import_asset(name));
+            if (variant == 2) {
+                // Modelled far from the origin of its bind space (a thousand
+                // diagonals away): the box grows far past the clips', and the
+                // step with it (at most 2^22 steps across).
+                const glm::dvec3 o(1000.0 * rest_diagonal(c), 0.0, 0.0);
+                for (glm::vec3& p : c.positions) p += glm::vec3(o);
+                for (glm::dmat4& ib : c.inverse_bind) ib = ib * glm::translate(glm::dmat4(1.0), -o);
+            }
             const auto sel = default_training_set(c);
             const ProgressiveSkin s = build_best_progressive_skin(c, training_frames(c, sel, 30.0));
             const AssetTables t = compute_asset_tables(c, s, sel);
@@ -142,7 +154,9 @@ TEST(RangeOfMotion, AnyRigidPoseFitsTheTranslationBox) {
                     const glm::vec3 x{m.m[3], m.m[7], m.m[11]};
                     outside += glm::any(glm::lessThan(x, t.t_min - pad)) || glm::any(glm::greaterThan(x, t.t_max + pad));
                 }
-            EXPECT_EQ(outside, 0) << name << (clips ? " with" : " without") << " clips";
+            EXPECT_EQ(outside, 0) << name << " variant " << variant;
+            EXPECT_TRUE(translation_step_fits(t.t_min, t.t_max, t.t_step));
+            EXPECT_GT(t.t_step, 0.0f);
             // The live model values refreshes: the tables saw motion.
             ASSERT_GE(t.segments.size(), 2u);
             EXPECT_GT(t.segments[1].gap.back()[4], 0.0) << name;
