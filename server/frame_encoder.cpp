@@ -103,6 +103,7 @@ int FrameEncoder::add_instance(const InstanceSpec& s) {
     slot.live = s.selection < 0;
     slot.has_pose = false;
     slot.records.assign(size_t(a.bone_count()) * size_t(a.format.size()), 0);
+    slot.exact.clear();
     slot.relative = false;
     slot.pose_seq = 0;
     slot.live_epoch = 0;
@@ -187,8 +188,11 @@ bool FrameEncoder::push_pose(int instance, std::span<const Mat34> skinning) {
             ++stats_.poses_out_of_range;
             return false;
         }
-    for (int b = 0; b < a.bone_count(); ++b)
-        encode_bone(decompose(skinning[size_t(a.skin.order[b])]), a.format, slot.records.data() + size_t(b) * rs);
+    slot.exact.resize(size_t(a.bone_count()));
+    for (int b = 0; b < a.bone_count(); ++b) {
+        slot.exact[size_t(b)] = decompose(skinning[size_t(a.skin.order[b])]);
+        encode_bone(slot.exact[size_t(b)], a.format, slot.records.data() + size_t(b) * rs);
+    }
     slot.live = slot.has_pose = true;
     slot.relative = false;
     slot.changed = true;
@@ -226,6 +230,7 @@ bool FrameEncoder::push_records(int instance, uint32_t pose_seq, uint8_t epoch, 
     const size_t rs = size_t(assets_[slot->spec.asset]->format.size());
     if (first < 0 || records.size() % rs != 0 || size_t(first) * rs + records.size() > slot->records.size()) return false;
     std::copy(records.begin(), records.end(), slot->records.begin() + long(size_t(first) * rs));
+    slot->exact.clear();
     take_pose(*slot, pose_seq, epoch, root, morphs, false);
     return true;
 }
@@ -385,7 +390,9 @@ void FrameEncoder::encode_slot(size_t i, uint32_t tick, Work& w) {
         std::copy(slot.records.begin(), slot.records.end(), out);
         if (changed || !slot.rel_ready) {
             const size_t rs = size_t(e.record_size);
-            if (!slot.relative)
+            if (!slot.relative && slot.exact.size() == size_t(e.bone_count))
+                std::copy(slot.exact.begin(), slot.exact.end(), w.model.begin());
+            else if (!slot.relative)
                 for (int b = 0; b < e.bone_count; ++b) w.model[size_t(b)] = decode_bone(out + size_t(b) * rs, a.format);
             slot.rel_ready = encode_relative(i, a, w);
             if (!slot.rel_ready) return;  // counted; not sent this tick

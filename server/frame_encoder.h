@@ -266,6 +266,11 @@ private:
         std::vector<uint8_t> records;  // B records (progressive order)
         bool relative = false;         // the live pose is rel (push_relative), records follow from it
         std::vector<RecordInts> rel;   // B parent-relative records (push_relative)
+        // push_pose's bones as given (B, progressive order): the relative
+        // records code them, not the box-quantised records (whose 16-bit
+        // steps over a box of every rigid pose are coarser); empty: decode
+        // the records (push_records, the world bus).
+        std::vector<BonePose> exact;
         std::vector<int16_t> morphs;   // published morph weights (quantised), empty: none
         uint32_t pose_seq = 0;
         uint8_t live_epoch = 0, teleports = 0;

@@ -414,3 +414,30 @@ TEST(FrameEncoder, APoolEncodesTheSameFrameAsOneThread) {
     EXPECT_EQ(one.stats().poses_out_of_range, many.stats().poses_out_of_range);
     EXPECT_EQ(one.stats().records_refused, many.stats().records_refused);
 }
+
+// A pose given whole (push_pose, a game server driving a character) is coded
+// from the bones as given, exactly as a clip instance at the same pose: not
+// from the box's 16-bit records, whose steps over a box of every rigid pose
+// are coarser than the relative records' (Asset.t_step).
+TEST(FrameEncoder, APushedPoseCodesAsTheClipAtThatPose) {
+    const auto& assets = fox_and_cesium();
+    for (int asset : {0, 1}) {
+        const ServerAsset& a = *assets[size_t(asset)];
+        InstanceSpec clip, live;
+        clip.asset = live.asset = asset;
+        live.selection = -1;
+        FrameEncoder enc(assets, {clip, live}, 30.0f);
+        int differ = 0;
+        for (uint32_t t = 1; t <= 30; ++t) {
+            ASSERT_TRUE(enc.push_pose(1, sampled_palette(a, a.selections[0], enc.clip_time(0, t))));
+            const EncodedFrame& f = enc.encode(t);
+            const RecordInts* x = f.ints_at(0, t);
+            const RecordInts* y = f.ints_at(1, t);
+            ASSERT_TRUE(x && y);
+            for (int b = 0; b < a.bone_count(); ++b)
+                differ += std::memcmp(x[b].rot, y[b].rot, sizeof x[b].rot) != 0 || x[b].has_trans != y[b].has_trans ||
+                          (x[b].has_trans && std::memcmp(x[b].trans, y[b].trans, sizeof x[b].trans) != 0);
+        }
+        EXPECT_EQ(differ, 0) << a.name << ": bones coded otherwise than the clip's";
+    }
+}
