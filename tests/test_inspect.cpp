@@ -155,6 +155,17 @@ TEST(BuildCli, AFileWithoutAnimationTrainsOnARangeOfMotion) {
     const auto& table = strategies.begin().value();
     EXPECT_GT(table.at(0).at("rms").get<double>(), 0.0);
 
+    // --clip range-of-motion: the same training whatever the clips (the
+    // animated original builds the skin its still copy gets).
+    const std::string forced = ::testing::TempDir() + "progskin_armature_rom.glb";
+    const CmdResult rf = run(progskin() + " build " + data("armature_m.gltf") + " --clip range-of-motion -o " + forced);
+    ASSERT_EQ(rf.code, 0) << rf.out;
+    EXPECT_NE(rf.out.find("--clip range-of-motion: trained on"), std::string::npos) << rf.out;
+    const CmdResult jf = run(progskin() + " inspect " + forced + " --json");
+    const nlohmann::json fb = nlohmann::json::parse(jf.out.substr(jf.out.find('{')));
+    EXPECT_EQ(fb.value("table_training", nlohmann::json()), "range of motion");
+    EXPECT_EQ(fb.at("strategies").begin().value().dump(), strategies.begin().value().dump()) << "not the still file's skin";
+
     // The built file of the animated original, measured on its clip.
     const std::string animated = ::testing::TempDir() + "progskin_armature_built.glb";
     ASSERT_EQ(run(progskin() + " build " + data("armature_m.gltf") + " -o " + animated + " --quiet").code, 0);

@@ -113,7 +113,11 @@ usage:
 clip SPEC: a clip name, an index, a comma-separated list, or "all" (played
 together). Default for build/inspect: "auto" (all clips together when they
 animate disjoint nodes, as CesiumMan's 19 one-joint clips; else each clip on
-its own, frames concatenated). Default for pose: "auto" as well.
+its own, frames concatenated). Default for pose: "auto" as well. Files whose
+clips do not move the skeleton train on range-of-motion poses (every joint
+turning smoothly, up to 30 degrees); build/inspect --clip range-of-motion
+trains on them whatever the clips (an avatar whose clips say little of how a
+game will drive it).
 
 exit codes: 0 ok, 1 bad input or failure, 2 bad command line
 )";
@@ -121,6 +125,17 @@ exit codes: 0 ok, 1 bad input or failure, 2 bad command line
 std::vector<ClipSelection> training_set(const Character& c, const std::string& spec) {
     if (spec.empty() || spec == "auto") return default_training_set(c);
     return {select_clips(c, spec)};
+}
+
+// The frames a build or inspect trains on for --clip SPEC: "range-of-motion"
+// (range_of_motion.h, whatever the clips), else the clips of SPEC, or the
+// range of motion where they do not move the skeleton. *rom: which.
+FrameSet spec_frames(const Character& c, const std::string& spec, double fps, bool* rom) {
+    if (spec == "range-of-motion") {
+        *rom = true;
+        return range_of_motion_frames(c, fps);
+    }
+    return training_frames(c, training_set(c, spec), fps, rom);
 }
 
 json table_json(const std::vector<LodError>& t) {
@@ -341,15 +356,17 @@ int cmd_build(int argc, char** argv) {
     external_files(a.positional[0]);
     const Character c = import_or_hint(a.positional[0], character_arg(a));
     bool range_of_motion = false;
-    const FrameSet frames = training_frames(c, training_set(c, a.get("--clip")), fps, &range_of_motion);
+    const FrameSet frames = spec_frames(c, a.get("--clip"), fps, &range_of_motion);
     if (!quiet)
         std::fprintf(stderr, "%s: %zu joints, %zu vertices, %zu frames at %g fps\n", a.positional[0].c_str(),
                      c.joint_count(), c.vertex_count(), frames.frame_count(), fps);
     if (range_of_motion && !quiet)
         std::fprintf(stderr,
-                     "%s: no clip moves the skeleton: trained on %g s of range-of-motion poses instead (every joint "
-                     "turning up to %g degrees; docs/algorithms.md \"Characters without animation\")\n",
-                     a.positional[0].c_str(), kRangeOfMotionSeconds, kRangeOfMotionDegrees);
+                     "%s: %s: trained on %g s of range-of-motion poses (every joint turning up to %g degrees; "
+                     "docs/algorithms.md \"Characters without animation\")\n",
+                     a.positional[0].c_str(),
+                     a.get("--clip") == "range-of-motion" ? "--clip range-of-motion" : "no clip moves the skeleton",
+                     kRangeOfMotionSeconds, kRangeOfMotionDegrees);
     if (!c.morphs.empty() && !quiet)
         std::fprintf(stderr,
                      "%s: %zu morph targets: kept in the output and evaluated before skinning; the error table is "
@@ -390,7 +407,7 @@ int cmd_build(int argc, char** argv) {
     extra["fps"] = fps;
     extra["clips"] = a.get("--clip", "auto");
     extra["training"] = json::array();
-    for (const ClipSelection& sel : training_set(c, a.get("--clip"))) {
+    for (const ClipSelection& sel : range_of_motion ? std::vector<ClipSelection>{} : training_set(c, a.get("--clip"))) {
         json names = json::array();
         for (int i : sel.clips) names.push_back(c.clips[size_t(i)].name);
         extra["training"].push_back(names);
@@ -553,15 +570,18 @@ int cmd_inspect(int argc, char** argv) {
     if (asset.progressive && a.has("--clip")) {
         // The stored skin measured on the clips asked for (what it was built
         // on is in its table; another clip or a grafted animation is not).
-        const FrameSet frames = sample_frames(c, training_set(c, a.get("--clip")), fps);
+        bool range_of_motion = false;
+        const std::string spec = a.get("--clip");
+        const FrameSet frames =
+            spec == "range-of-motion" ? spec_frames(c, spec, fps, &range_of_motion) : sample_frames(c, training_set(c, spec), fps);
         out["frames"] = frames.frame_count();
-        out["table_measured_on"] = a.get("--clip");
+        out["table_measured_on"] = spec;
         tables.push_back({strategy_name(asset.skin.strategy), evaluate_error_table(c, asset.skin, frames)});
     } else if (asset.progressive) {
         tables.push_back({strategy_name(asset.skin.strategy), asset.skin.error});
     } else {
         bool range_of_motion = false;
-        const FrameSet frames = training_frames(c, training_set(c, a.get("--clip")), fps, &range_of_motion);
+        const FrameSet frames = spec_frames(c, a.get("--clip"), fps, &range_of_motion);
         out["frames"] = frames.frame_count();
         out["range_of_motion"] = range_of_motion;
         const bool quiet = as_json || a.has("--quiet");
