@@ -628,8 +628,14 @@ int cmd_inspect(int argc, char** argv) {
     }
     std::printf("  %s\n", asset.progressive ? "progressive skin (PROGSKIN_progressive_skin)" : "plain glTF skin");
     if (ext.contains("fps") && ext.contains("training"))
-        std::printf("  table measured on %s at %g fps (%s frames)\n", ext["training"].dump().c_str(),
+        std::printf("  stored table measured on %s at %g fps (%s frames)\n", ext["training"].dump().c_str(),
                     ext["fps"].get<double>(), ext.contains("frames") ? ext["frames"].dump().c_str() : "?");
+    if (out.contains("table_measured_on"))
+        std::printf("  the table below: the stored skin measured on --clip %s (%s frames)\n",
+                    out["table_measured_on"].get<std::string>().c_str(), out["frames"].dump().c_str());
+    if (out.value("range_of_motion", false))
+        std::printf("  the tables below: built and measured on %g s of range-of-motion poses (%s)\n", kRangeOfMotionSeconds,
+                    a.get("--clip") == "range-of-motion" ? "--clip range-of-motion" : "no clip moves the skeleton");
     for (const auto& [name, t] : tables) print_table("strategy " + name, t, diag);
     return 0;
 }
