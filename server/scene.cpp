@@ -245,17 +245,19 @@ namespace {
 
 // Cache file of a plain file's build: content hash of the file, character,
 // table version, build ("b2": the lower-error strategy, build_best_progressive_skin).
-std::string cached_build_path(const PendingAsset& p, const std::string& cache, const std::vector<uint8_t>& bytes, bool by_rate) {
+std::string cached_build_path(const PendingAsset& p, const std::string& cache, const std::vector<uint8_t>& bytes,
+                              const AssetOptions& o) {
     return (fs::path(cache) / (hex64(content_hash(bytes)) + "-c" + std::to_string(p.character) + "-t" +
-                               std::to_string(kServerTablesVersion) + (by_rate ? "-b2r.glb" : "-b2.glb")))
+                               std::to_string(kServerTablesVersion) + "-b2" + (o.build_by_rate ? "r" : "") +
+                               (o.range_of_motion ? "m" : "") + ".glb"))
         .string();
 }
 
 // Reads a cached build (a progressive copy of the file with the server tables)
 // into a: the skin with its order mapped back to the file's joints, the
 // tables. False when absent or not matching (then nothing in `a` changed).
-bool load_cached_build(const PendingAsset& p, const std::string& cache, bool by_rate, ServerAsset& a) {
-    const std::string path = cached_build_path(p, cache, read_file(p.path), by_rate);
+bool load_cached_build(const PendingAsset& p, const std::string& cache, const AssetOptions& o, ServerAsset& a) {
+    const std::string path = cached_build_path(p, cache, read_file(p.path), o);
     if (!fs::exists(path)) return false;
     try {
         Character cached = import_character(path, p.character);
@@ -294,12 +296,12 @@ bool load_cached_build(const PendingAsset& p, const std::string& cache, bool by_
 }
 
 // Writes the build of a plain file to the cache; a failure only costs the next start.
-void save_cached_build(const PendingAsset& p, const std::string& cache, bool by_rate, ServerAsset& a) {
+void save_cached_build(const PendingAsset& p, const std::string& cache, const AssetOptions& o, ServerAsset& a) {
     try {
         fs::create_directories(cache);
         nlohmann::json extra;
         extra["server"] = server_tables_json(a);
-        save_progressive(a.character, a.skin, cached_build_path(p, cache, read_file(p.path), by_rate),
+        save_progressive(a.character, a.skin, cached_build_path(p, cache, read_file(p.path), o),
                          "cached build of " + fs::path(p.path).filename().string(), extra);
     } catch (const std::exception& e) {
         a.warnings.push_back(p.path + ": cannot cache the build in " + cache + ": " + e.what());
@@ -387,10 +389,11 @@ std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const Ass
                 if (out) fs::rename(side + ".tmp", side, ec);
             }
         }
-    } else if (!load_cached_build(p, cache, options.build_by_rate, *a)) {
-        bool range_of_motion = false;
-        const FrameSet frames = training_frames(a->character, a->selections, 30.0, &range_of_motion);
-        if (range_of_motion)
+    } else if (!load_cached_build(p, cache, options, *a)) {
+        bool range_of_motion = options.range_of_motion;
+        const FrameSet frames = options.range_of_motion ? range_of_motion_frames(a->character, 30.0)
+                                                        : training_frames(a->character, a->selections, 30.0, &range_of_motion);
+        if (range_of_motion && !options.range_of_motion)
             a->warnings.push_back(p.path + ": no clip moves the skeleton: its bones are ordered by " +
                                std::to_string(int(kRangeOfMotionSeconds)) +
                                " s of range-of-motion poses (docs/algorithms.md \"Characters without animation\")");
@@ -399,7 +402,7 @@ std::shared_ptr<ServerAsset> build_server_asset(const PendingAsset& p, const Ass
         if (options.build_by_rate) bo.bone_bits = [&](const ProgressiveSkin& s) { return record_bits_per_bone(c, s, frames); };
         a->skin = build_best_progressive_skin(c, frames, bo);
         finish_server_asset(*a);
-        save_cached_build(p, cache, options.build_by_rate, *a);
+        save_cached_build(p, cache, options, *a);
     }
     prepare_morphs(*a, p.path);
     return a;

@@ -56,6 +56,11 @@ struct AssetOptions {
     // and hierarchy, the most error removed per bit of the stream's records)
     // instead of --strategy auto (the lower mean error of reorder and flatten).
     bool build_by_rate = false;
+    // Plain files: train the build on range-of-motion poses whatever the
+    // clips (progskin build --clip range-of-motion), for avatars a game
+    // animates whose clips say little of it. Files whose clips do not move
+    // the skeleton train on them anyway (offline/range_of_motion.h).
+    bool range_of_motion = false;
 };
 // $XDG_CACHE_HOME/progskin, else $HOME/.cache/progskin, else ./progskin-cache.
 std::string server_cache_dir();
@@ -85,8 +90,8 @@ std::vector<std::string> check_server_assets(const std::vector<std::string>& arg
 // Builds what a checked character needs to be served. A progressive file's
 // skin and stored server tables are used as they are (tables missing or of
 // another version are recomputed, with a warning). A plain file is built once:
-// its progressive skin and tables are cached as <cache>/<content hash>-c<N>-t<version>-b2[r].glb
-// (r: options.build_by_rate)
+// its progressive skin and tables are cached as <cache>/<content hash>-c<N>-t<version>-b2[r][m].glb
+// (r: options.build_by_rate, m: options.range_of_motion)
 // and read from there on later starts. Characters other than the file's first
 // are served as a copy of the file with their skins first (cached too), since
 // a client plays character 0 of the file it downloads. A file without a skin

@@ -51,6 +51,10 @@ static const char* kUsage =
     "                    as progskin build --strategy rate: reorder, flatten or hierarchy,\n"
     "                    the most error removed per bit of the stream's records; auto as\n"
     "                    progskin build: the lower mean error of reorder and flatten\n"
+    "  --build-training clips|range-of-motion  what a plain file's build trains on: its\n"
+    "                    clips (default; range-of-motion poses where they do not move the\n"
+    "                    skeleton), or range-of-motion poses whatever the clips, for\n"
+    "                    avatars a game animates (as progskin build --clip range-of-motion)\n"
     "  --cache DIR       derived files (default $XDG_CACHE_HOME/progskin or ~/.cache/progskin)\n"
     "  --crowd N         lay out N instances over the assets and their clips (default:\n"
     "                    one instance per asset and clip group)\n"
@@ -185,6 +189,15 @@ static int parse_options(int argc, char** argv, Options& o) {
                     return 2;
                 }
                 o.asset_options.build_by_rate = v == "rate";
+            }
+            else if (a == "--build-training") {
+                const std::string v = need(i);
+                if (v != "clips" && v != "range-of-motion") {
+                    std::fprintf(stderr, "progskin-server: --build-training takes clips or range-of-motion, not %s\n%s",
+                                 v.c_str(), kUsage);
+                    return 2;
+                }
+                o.asset_options.range_of_motion = v == "range-of-motion";
             }
             else if (a == "--play") {
                 const std::string v = need(i);
@@ -350,8 +363,8 @@ static bool load_assets(Options& o, const char* argv0, std::vector<std::shared_p
                      problems.size() == 1 ? "" : "s");
         return false;
     }
-    std::fprintf(stderr, "progskin-server: plain files built --build-strategy %s; clips %s\n",
-                 o.asset_options.build_by_rate ? "rate" : "auto",
+    std::fprintf(stderr, "progskin-server: plain files built --build-strategy %s --build-training %s; clips %s\n",
+                 o.asset_options.build_by_rate ? "rate" : "auto", o.asset_options.range_of_motion ? "range-of-motion" : "clips",
                  o.cfg.key_samples ? "of linear keys sampled at their keys (--key-samples)" : "sampled at the ticks (--no-key-samples)");
     for (const auto& p : pending) {
         std::fprintf(stderr, "progskin-server: loading %s%s%s\n", p.path.c_str(),

@@ -19,6 +19,8 @@
 #include "animation.h"
 #include "frame_encoder.h"
 #include "gltf_import.h"
+#include "progressive_skin.h"
+#include "range_of_motion.h"
 #include "scene.h"
 #include "vertex_animation.h"
 
@@ -373,4 +375,30 @@ TEST(ServerAssets, AClipLessAvatarTakesTheGamesPoses) {
     EXPECT_EQ(enc.stats().poses_out_of_range, 0u);
     EXPECT_GT(taken, 60);
     fs::remove_all(dir);
+}
+
+// --build-training range-of-motion: a plain file's build trains on
+// range-of-motion poses whatever its clips (its error table is theirs), and
+// is cached apart from the build on the clips.
+TEST(ServerAssets, BuildTrainingRangeOfMotionIsCachedApart) {
+    AssetOptions o;
+    o.cache_dir = temp_cache("rom_training");
+    std::vector<PendingAsset> pending;
+    ASSERT_TRUE(check_server_assets({asset("CesiumMan.glb")}, o, pending).empty());
+    const auto clips = build_server_asset(pending[0], o);
+    o.range_of_motion = true;
+    const auto rom = build_server_asset(pending[0], o);
+    EXPECT_FALSE(contains(rom->warnings, "no clip moves the skeleton", "")) << "the clips move it: no warning";
+    const FrameSet f = range_of_motion_frames(rom->character, 30.0);
+    const std::vector<LodError> on_rom = evaluate_error_table(rom->character, rom->skin, f);
+    ASSERT_EQ(on_rom.size(), rom->skin.error.size());
+    for (size_t k = 0; k < on_rom.size(); ++k)
+        EXPECT_NEAR(rom->skin.error[k].rms, on_rom[k].rms, 1e-6 + 1e-3 * on_rom[k].rms) << "k " << k + 1;
+    EXPECT_NE(rom->skin.error[0].rms, clips->skin.error[0].rms);
+    size_t builds = 0;
+    for (const auto& e : fs::directory_iterator(o.cache_dir)) builds += e.path().extension() == ".glb";
+    EXPECT_EQ(builds, 2u) << "one cached build each";
+    const auto again = build_server_asset(pending[0], o);
+    EXPECT_EQ(again->skin.order, rom->skin.order);
+    fs::remove_all(o.cache_dir);
 }

@@ -73,6 +73,7 @@ TEST(NetCli, HelpAndExitCodes) {
     const std::pair<const char*, const char*> bad_values[] = {
         {"progskin-server --crowd 3x", "--crowd"},
         {"progskin-server --build-strategy fastest", "--build-strategy"},
+        {"progskin-server --build-training everything", "--build-training"},
         {"progskin-server --port 70000", "--port"},
         {"progskin-client --duration 1s", "--duration"},
         {"progskin-server --no-tls --seal-datagrams", "--no-tls"},
