@@ -18,7 +18,7 @@ namespace progskin {
 
 // Whoever changes what the tables hold or how compute_asset_tables computes
 // them must bump this, so that stale stored tables are recomputed, not read.
-inline constexpr int kServerTablesVersion = 3;
+inline constexpr int kServerTablesVersion = 4;
 
 // One step of a lower convex hull of an error table: going from `from`
 // bones to `to` bones removes `gain` of error.

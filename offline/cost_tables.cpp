@@ -74,21 +74,45 @@ void layout_segments(AssetTables& t, const Character& c, const ProgressiveSkin& 
 }
 
 // Sums, per model and gap, of the squared vertex error when only one
-// segment's bones are interpolated over an interval (gap tables).
+// segment's bones are interpolated over an interval (gap tables), as the
+// client interpolates: each bone relative to its progressive parent, about
+// its pivot, composed down the prefix (docs/algorithms.md "Interpolation
+// between ticks"), so that a segment's error carries on to the bones below
+// it, which are exact relative to it.
 struct GapSampler {
     const Character& c;
+    const ProgressiveSkin& s;
     const FrameSet& frames;
-    size_t M, S, J;
-    std::vector<int> seg_of_joint;
-    std::vector<Mat34> diff;                   // interpolated - exact, per joint
-    std::vector<BonePose> p0, pa, pb, p3;      // the frames around an interval, per joint
-    std::vector<double> sum, samples, all;     // per model (x segment)
+    size_t M, S, J, B;
+    std::vector<int> seg_of_bone;               // per progressive bone
+    std::vector<glm::dvec3> pivot;              // per bone: its joint's bind position (model space)
+    std::vector<BonePose> p0, pa, pb, p3;       // the frames around an interval, per bone, relative about the pivot
+    std::vector<glm::dmat4> rel_exact, rel_interp, model, exact;  // per bone
+    std::vector<Mat34> diff;                    // S x J (segment q, joint): displayed - exact, model space
+    std::vector<char> touched;                  // S x J: segment q's interpolation moves joint j
+    std::vector<Mat34> diff_all;                // J: every segment interpolated together
+    std::vector<double> sum, samples, all;      // per model (x segment)
 
-    GapSampler(const Character& ch, const ProgressiveSkin& s, const FrameSet& f, const AssetTables& t, size_t models)
-        : c(ch), frames(f), M(models), S(t.segments.size()), J(ch.joint_count()), seg_of_joint(J, 0), diff(J), p0(J),
-          pa(J), pb(J), p3(J), sum(S * M), samples(M), all(M) {
+    GapSampler(const Character& ch, const ProgressiveSkin& sk, const FrameSet& f, const AssetTables& t, size_t models)
+        : c(ch), s(sk), frames(f), M(models), S(t.segments.size()), J(ch.joint_count()), B(size_t(sk.bone_count())),
+          seg_of_bone(B, 0), pivot(B), p0(B), pa(B), pb(B), p3(B), rel_exact(B), rel_interp(B), model(B), exact(B),
+          diff(S * J), touched(S * J, 0), diff_all(J), sum(S * M), samples(M), all(M) {
         for (size_t g = 0; g < S; ++g)
-            for (int b = t.segments[g].from; b < t.segments[g].to; ++b) seg_of_joint[size_t(s.order[size_t(b)])] = int(g);
+            for (int b = t.segments[g].from; b < t.segments[g].to; ++b) seg_of_bone[size_t(b)] = int(g);
+        for (size_t b = 0; b < B; ++b) pivot[b] = glm::dvec3(glm::inverse(c.inverse_bind[size_t(s.order[b])])[3]);
+    }
+
+    glm::dmat4 model_of(size_t f, size_t b) const { return glm::dmat4(frames.frame(f)[size_t(s.order[b])].to_glm()); }
+    glm::dmat4 parent_of(size_t f, size_t b) const {
+        const int p = s.parents[b];
+        return p < 0 ? glm::dmat4(1.0) : model_of(f, size_t(p));
+    }
+    // Bone b's pose relative to its parent in frame f, about its pivot (the
+    // translation is the pivot's image), as the client keeps it.
+    BonePose relative(size_t f, size_t b) const {
+        BonePose r = decompose(Mat34::from_glm(glm::inverse(parent_of(f, b)) * model_of(f, b)));
+        r.t += r.s * (r.r * glm::vec3(pivot[b]));
+        return r;
     }
 
     // Adds the interval [f, f + g] of selection sel at a quarter, half and
@@ -99,12 +123,12 @@ struct GapSampler {
         const size_t G = size_t(g);
         const bool cubic = f >= G && f + 2 * G < frames.frame_count() && frames.selection_of_frame[f - G] == sel &&
                            frames.selection_of_frame[f + 2 * G] == sel;
-        for (size_t j = 0; j < J; ++j) {
-            pa[j] = decompose(frames.frame(f)[j]);
-            pb[j] = decompose(frames.frame(f + G)[j]);
+        for (size_t b = 0; b < B; ++b) {
+            pa[b] = relative(f, b);
+            pb[b] = relative(f + G, b);
             if (cubic) {
-                p0[j] = decompose(frames.frame(f - G)[j]);
-                p3[j] = decompose(frames.frame(f + 2 * G)[j]);
+                p0[b] = relative(f - G, b);
+                p3[b] = relative(f + 2 * G, b);
             }
         }
         int prev_h = 0;
@@ -112,13 +136,41 @@ struct GapSampler {
             const int h = std::clamp(int(std::lround(g * q / 4.0)), 1, g - 1);
             if (h == prev_h) continue;
             prev_h = h;
-            for (size_t j = 0; j < J; ++j) {
-                const Mat34 mm = compose(interpolate_between(cubic ? &p0[j] : nullptr, pa[j], pb[j],
-                                                             cubic ? &p3[j] : nullptr, -double(g), 0.0, double(g),
-                                                             2.0 * g, double(h)));
-                for (int x = 0; x < 12; ++x) diff[j].m[x] = mm.m[x] - frames.frame(f + size_t(h))[j].m[x];
+            const size_t fh = f + size_t(h);
+            for (size_t b = 0; b < B; ++b) {
+                exact[b] = model_of(fh, b);
+                rel_exact[b] = glm::inverse(parent_of(fh, b)) * exact[b];
+                BonePose ip = interpolate_between(cubic ? &p0[b] : nullptr, pa[b], pb[b], cubic ? &p3[b] : nullptr, -double(g),
+                                                  0.0, double(g), 2.0 * g, double(h));
+                ip.t -= ip.s * (ip.r * glm::vec3(pivot[b]));
+                rel_interp[b] = glm::dmat4(compose(ip).to_glm());
             }
+            std::fill(touched.begin(), touched.end(), 0);
+            for (size_t seg = 0; seg < S; ++seg) compose_with(int(seg), diff.data() + seg * J, touched.data() + seg * J);
+            compose_with(-1, diff_all.data(), nullptr);
             add_vertices(size_t(sel));
+        }
+    }
+
+    // Model poses with the bones of segment seg (every bone: -1) interpolated
+    // and the others exact relative to their parents; out[joint] = displayed -
+    // exact, touch[joint] set where it differs.
+    void compose_with(int seg, Mat34* out, char* touch) {
+        for (size_t b = 0; b < B; ++b) {
+            const int p = s.parents[b];
+            const bool moved = seg < 0 || seg_of_bone[b] == seg || (p >= 0 && touch && touch[size_t(s.order[size_t(p)])]);
+            const bool interp = seg < 0 || seg_of_bone[b] == seg;
+            if (!moved) {
+                model[b] = exact[b];
+                out[size_t(s.order[b])] = Mat34{};
+                continue;
+            }
+            model[b] = (p < 0 ? glm::dmat4(1.0) : model[size_t(p)]) * (interp ? rel_interp[b] : rel_exact[b]);
+            const glm::dmat4 d = model[b] - exact[b];
+            Mat34& o = out[size_t(s.order[b])];
+            for (int row = 0; row < 3; ++row)
+                for (int col = 0; col < 4; ++col) o.m[row * 4 + col] = float(d[col][row]);
+            if (touch) touch[size_t(s.order[b])] = 1;
         }
     }
 
@@ -126,31 +178,30 @@ struct GapSampler {
     void add_vertices(size_t sel) {
         double* out = sum.data() + sel * S;
         const int I = c.influences;
+        auto apply = [](const Mat34& d, const glm::vec3& p) {
+            return glm::vec3{d.m[0] * p.x + d.m[1] * p.y + d.m[2] * p.z + d.m[3], d.m[4] * p.x + d.m[5] * p.y + d.m[6] * p.z + d.m[7],
+                             d.m[8] * p.x + d.m[9] * p.y + d.m[10] * p.z + d.m[11]};
+        };
         for (size_t v = 0; v < c.vertex_count(); ++v) {
             const glm::vec3 p = c.positions[v];
-            glm::vec3 err[8];
-            int segs[8], n = 0;
-            for (int k = 0; k < I && k < 8; ++k) {
-                const float w = c.weights[v * size_t(I) + size_t(k)];
-                if (w == 0.0f) continue;
-                const int j = c.joints[v * size_t(I) + size_t(k)];
-                const float* d = diff[size_t(j)].m;
-                glm::vec3 e{d[0] * p.x + d[1] * p.y + d[2] * p.z + d[3], d[4] * p.x + d[5] * p.y + d[6] * p.z + d[7],
-                            d[8] * p.x + d[9] * p.y + d[10] * p.z + d[11]};
-                int at = 0;
-                while (at < n && segs[at] != seg_of_joint[size_t(j)]) ++at;
-                if (at == n) {
-                    segs[n] = seg_of_joint[size_t(j)];
-                    err[n++] = glm::vec3(0.0f);
-                }
-                err[at] += w * e;
-            }
+            const float* w = c.weights.data() + v * size_t(I);
+            const uint16_t* jv = c.joints.data() + v * size_t(I);
             glm::vec3 total(0.0f);
-            for (int k = 0; k < n; ++k) {
-                out[size_t(segs[k])] += double(glm::dot(err[k], err[k]));
-                total += err[k];
-            }
+            for (int k = 0; k < I; ++k)
+                if (w[k] != 0.0f) total += w[k] * apply(diff_all[jv[k]], p);
             all[sel] += double(glm::dot(total, total));
+            for (size_t seg = 0; seg < S; ++seg) {
+                const char* touch = touched.data() + seg * J;
+                const Mat34* d = diff.data() + seg * J;
+                glm::vec3 e(0.0f);
+                bool any = false;
+                for (int k = 0; k < I; ++k)
+                    if (w[k] != 0.0f && touch[jv[k]]) {
+                        e += w[k] * apply(d[jv[k]], p);
+                        any = true;
+                    }
+                if (any) out[seg] += double(glm::dot(e, e));
+            }
         }
         samples[sel] += double(c.vertex_count());
     }
