@@ -37,7 +37,11 @@ struct CostSegment {
     // gap[m][g]: mean squared vertex error (model units^2) over an
     // interpolation interval of g frames at 30 Hz when only this segment's
     // bones are interpolated between frames g apart as the client does
-    // (pose.h interpolate_between) and every other bone is exact;
+    // (pose.h interpolate_between, each bone relative to its progressive
+    // parent about its pivot, composed down the prefix: the bones below the
+    // segment, exact relative to it, carry its error) and every other bone
+    // is exact relative to its parent (tables version 4; before, each bone
+    // was interpolated in model space and its children stayed exact);
     // gap[m][0] = gap[m][1] = 0. Beyond the table it grows as g^2 (a linear drift).
     std::vector<std::array<double, kGapTable>> gap;
     // gap[model] at a fractional gap g (linear between entries). O(1).
