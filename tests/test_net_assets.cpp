@@ -13,6 +13,7 @@
 #include <cstring>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <fstream>
 #include <string>
 
@@ -40,6 +41,25 @@ std::string temp_cache(const std::string& name) {
     return d.string();
 }
 
+
+// CesiumMan built in a fresh cache as `o` says, then again with `change`
+// applied to o (o keeps it); nulls when the file was refused.
+std::pair<std::shared_ptr<ServerAsset>, std::shared_ptr<ServerAsset>> built_twice(
+    const std::string& name, AssetOptions& o, const std::function<void(AssetOptions&)>& change,
+    std::vector<PendingAsset>& pending) {
+    o.cache_dir = temp_cache(name);
+    if (!check_server_assets({asset("CesiumMan.glb")}, o, pending).empty()) return {};
+    auto first = build_server_asset(pending[0], o);
+    change(o);
+    return {first, build_server_asset(pending[0], o)};
+}
+
+// The builds (.glb files) in a cache directory.
+size_t cached_builds(const std::string& dir) {
+    size_t n = 0;
+    for (const auto& e : fs::directory_iterator(dir)) n += e.path().extension() == ".glb";
+    return n;
+}
 
 bool contains(const std::vector<std::string>& lines, const std::string& a, const std::string& b) {
     for (const std::string& l : lines)
@@ -123,18 +143,13 @@ TEST(ServerAssets, EveryCharacterOfAFileAndOneByIndex) {
 // cached apart from the default build (another file name), read back as built.
 TEST(ServerAssets, BuildByRateIsCachedApartFromTheDefaultBuild) {
     AssetOptions o;
-    o.cache_dir = temp_cache("by_rate");
     std::vector<PendingAsset> pending;
-    ASSERT_TRUE(check_server_assets({asset("CesiumMan.glb")}, o, pending).empty());
-    const auto plain = build_server_asset(pending[0], o);
-    o.build_by_rate = true;
-    const auto rate = build_server_asset(pending[0], o);
+    const auto [plain, rate] = built_twice("by_rate", o, [](AssetOptions& x) { x.build_by_rate = true; }, pending);
+    ASSERT_TRUE(plain && rate);
     const Strategy s = rate->skin.strategy;
     EXPECT_TRUE(s == Strategy::Reorder || s == Strategy::Flatten || s == Strategy::Hierarchy) << strategy_name(s);
     EXPECT_TRUE(plain->skin.strategy == Strategy::Reorder || plain->skin.strategy == Strategy::Flatten);
-    size_t builds = 0;
-    for (const auto& e : fs::directory_iterator(o.cache_dir)) builds += e.path().extension() == ".glb";
-    EXPECT_EQ(builds, 2u) << "one cached build each";
+    EXPECT_EQ(cached_builds(o.cache_dir), 2u) << "one cached build each";
     const auto again = build_server_asset(pending[0], o);
     EXPECT_EQ(again->skin.strategy, s);
     EXPECT_EQ(again->skin.order, rate->skin.order);
@@ -382,12 +397,9 @@ TEST(ServerAssets, AClipLessAvatarTakesTheGamesPoses) {
 // is cached apart from the build on the clips.
 TEST(ServerAssets, BuildTrainingRangeOfMotionIsCachedApart) {
     AssetOptions o;
-    o.cache_dir = temp_cache("rom_training");
     std::vector<PendingAsset> pending;
-    ASSERT_TRUE(check_server_assets({asset("CesiumMan.glb")}, o, pending).empty());
-    const auto clips = build_server_asset(pending[0], o);
-    o.range_of_motion = true;
-    const auto rom = build_server_asset(pending[0], o);
+    const auto [clips, rom] = built_twice("rom_training", o, [](AssetOptions& x) { x.range_of_motion = true; }, pending);
+    ASSERT_TRUE(clips && rom);
     EXPECT_FALSE(contains(rom->warnings, "no clip moves the skeleton", "")) << "the clips move it: no warning";
     const FrameSet f = range_of_motion_frames(rom->character, 30.0);
     const std::vector<LodError> on_rom = evaluate_error_table(rom->character, rom->skin, f);
@@ -395,9 +407,7 @@ TEST(ServerAssets, BuildTrainingRangeOfMotionIsCachedApart) {
     for (size_t k = 0; k < on_rom.size(); ++k)
         EXPECT_NEAR(rom->skin.error[k].rms, on_rom[k].rms, 1e-6 + 1e-3 * on_rom[k].rms) << "k " << k + 1;
     EXPECT_NE(rom->skin.error[0].rms, clips->skin.error[0].rms);
-    size_t builds = 0;
-    for (const auto& e : fs::directory_iterator(o.cache_dir)) builds += e.path().extension() == ".glb";
-    EXPECT_EQ(builds, 2u) << "one cached build each";
+    EXPECT_EQ(cached_builds(o.cache_dir), 2u) << "one cached build each";
     const auto again = build_server_asset(pending[0], o);
     EXPECT_EQ(again->skin.order, rom->skin.order);
     fs::remove_all(o.cache_dir);
