@@ -94,6 +94,17 @@ void check_external_uris(const std::string& path) {
     }
 }
 
+std::string read_asset_format(const wire::Asset& a, RecordFormat& out) {
+    if (a.t_min()) out.t_min = {a.t_min()->x(), a.t_min()->y(), a.t_min()->z()};
+    if (a.t_max()) out.t_max = {a.t_max()->x(), a.t_max()->y(), a.t_max()->z()};
+    out.scaled = a.scaled();
+    out.scale = a.scale();
+    if (!(out.scale >= kMinReferenceScale && out.scale <= kMaxReferenceScale)) return "a bad reference scale";
+    out.t_step = a.t_step();
+    if (!translation_step_fits(out.t_min, out.t_max, out.t_step)) return "a bad translation step";
+    return {};
+}
+
 std::shared_ptr<ClientAsset> load_client_asset(const wire::Asset* a, const std::string& path) {
     check_external_uris(path);
     auto ca = std::make_shared<ClientAsset>();
@@ -127,15 +138,8 @@ std::shared_ptr<ClientAsset> load_client_asset(const wire::Asset* a, const std::
     s.diagonal = a->diagonal();
     ca->diagonal = rest_diagonal(ca->character);
     if (!(ca->diagonal > 0)) ca->diagonal = a->diagonal() > 0 ? a->diagonal() : 1.0;
-    if (a->t_min()) ca->format.t_min = {a->t_min()->x(), a->t_min()->y(), a->t_min()->z()};
-    if (a->t_max()) ca->format.t_max = {a->t_max()->x(), a->t_max()->y(), a->t_max()->z()};
-    ca->format.scaled = a->scaled();
-    ca->format.scale = a->scale();
-    if (!(ca->format.scale >= kMinReferenceScale && ca->format.scale <= kMaxReferenceScale))
-        throw Error("server sent a bad reference scale for " + ca->name);
-    ca->format.t_step = a->t_step();
-    if (!translation_step_fits(ca->format.t_min, ca->format.t_max, ca->format.t_step))
-        throw Error("server sent a bad translation step for " + ca->name);
+    if (const std::string why = read_asset_format(*a, ca->format); !why.empty())
+        throw Error("server sent " + why + " for " + ca->name);
     return ca;
 }
 

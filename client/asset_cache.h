@@ -44,6 +44,13 @@ std::vector<uint8_t> read_file(const std::string& path);
 // files in that folder.
 void check_external_uris(const std::string& path);
 
+// The record format an Asset table describes (translation box, scaled,
+// reference scale, translation step) into out. Returns "" or what is wrong
+// (a reference scale outside [2^-16, 2^16] or not finite, a translation step
+// that does not suit the box: translation_step_fits). Reads nothing else; the
+// client refuses the asset on a non-empty answer. O(1).
+std::string read_asset_format(const wire::Asset& a, RecordFormat& out);
+
 // Imports the cached file (after check_external_uris) and checks the server's
 // skin description against it.
 std::shared_ptr<ClientAsset> load_client_asset(const wire::Asset* a, const std::string& path);

@@ -1,6 +1,7 @@
 // fuzz_net_targets.cpp — the frame-stream entry point of fuzz_targets.h.
 #include <array>
 
+#include "asset_cache.h"
 #include "bone_codec.h"
 #include "bone_record.h"
 #include "control_messages.h"
@@ -144,6 +145,18 @@ int control_message(const uint8_t* data, size_t size) {
             return 1;
         }
         case wire::ControlBody::Despawn: sink = c->body_as_Despawn()->instance(); return 1;
+        case wire::ControlBody::Welcome: {
+            // Every asset's record format as the client reads it before any
+            // download (client/asset_cache.h read_asset_format).
+            const auto* m = c->body_as_Welcome();
+            if (!m->assets()) return 1;
+            for (const wire::Asset* a : *m->assets()) {
+                RecordFormat f;
+                if (!read_asset_format(*a, f).empty()) return 0;
+                sink = uint64_t(f.size()) ^ uint64_t(f.t_step * 1e6f);
+            }
+            return 1;
+        }
         default: return 1;  // verified; the other tables' fields are read by the sessions' tests
     }
 }

@@ -18,6 +18,7 @@
 #include "bone_record.h"
 #include "root_block.h"
 #include "client_stream.h"
+#include "control_messages.h"
 #include "scene.h"
 #include "server_core.h"
 #include "wire.h"
@@ -241,6 +242,10 @@ int main(int argc, char** argv) {
         control("spawned", wire::ControlBody::Spawned, wire::CreateSpawned(fbb, 7, true, 12, reason).Union());
         control("despawn", wire::ControlBody::Despawn, wire::CreateDespawn(fbb, 12).Union());
     }
+    // The Welcome of the two assets (protocol 10: each Asset's t_step).
+    build_welcome(fbb, assets, 1, 2, 7777, 30.0f, 256.0, nullptr, nullptr);
+    write(cdir, "welcome", {fbb.GetBufferPointer(), fbb.GetBufferPointer() + fbb.GetSize()});
+    fbb.Clear();
     std::printf("make_frame_corpus: wrote %s, %s and records\n", dir.string().c_str(), cdir.string().c_str());
     return 0;
 }

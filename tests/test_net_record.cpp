@@ -8,6 +8,7 @@
 #include <random>
 
 #include "bone_codec.h"
+#include "asset_cache.h"
 #include "bone_record.h"
 #include "error_metric.h"
 #include "progressive_skin.h"
@@ -348,4 +349,25 @@ TEST(NetRecord, TheTranslationStepIsTheClipsWhateverTheBox) {
     EXPECT_FALSE(translation_step_fits(lo, hi, std::nanf("")));
     EXPECT_FALSE(translation_step_fits(lo, hi, INFINITY));
     EXPECT_FALSE(translation_step_fits(lo, glm::vec3(INFINITY), 1e-3f));
+}
+
+// The client reads an Asset's record format before any download
+// (read_asset_format, the fuzz target's Welcome case too): a translation step
+// too fine for its box, or a bad reference scale, is refused with a reason.
+TEST(NetRecord, AWelcomeAssetWithABadStepOrScaleIsRefused) {
+    auto asset = [](float scale, float step) {
+        flatbuffers::FlatBufferBuilder fbb;
+        const wire::Vec3 lo(-1.0f, -1.0f, -1.0f), hi(1.0f, 1.0f, 1.0f);
+        fbb.Finish(wire::CreateAsset(fbb, 1, 0, 0, 1, false, 0, 0, 0, 0, 1.0f, &lo, &hi, 0.0f, scale, step));
+        return std::vector<uint8_t>(fbb.GetBufferPointer(), fbb.GetBufferPointer() + fbb.GetSize());
+    };
+    RecordFormat f;
+    auto read = [&](const std::vector<uint8_t>& b) { return read_asset_format(*flatbuffers::GetRoot<wire::Asset>(b.data()), f); };
+    EXPECT_EQ(read(asset(1.0f, 0.0f)), "");
+    EXPECT_EQ(read(asset(0.01f, 2.0f / 65535.0f)), "");
+    EXPECT_FLOAT_EQ(f.t_step, 2.0f / 65535.0f);
+    EXPECT_FLOAT_EQ(f.scale, 0.01f);
+    EXPECT_EQ(read(asset(1.0f, 2.0f / float(1 << 23))), "a bad translation step");
+    EXPECT_EQ(read(asset(1.0f, -1.0f)), "a bad translation step");
+    EXPECT_EQ(read(asset(0.0f, 0.0f)), "a bad reference scale");
 }
