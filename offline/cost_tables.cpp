@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <span>
 
 #include "error_metric.h"
 #include "errors.h"
@@ -274,12 +275,13 @@ void value_tables(AssetTables& t, size_t M) {
 // M_j = G_j IBM_j moves the bind-space origin to t_j = q_j - s_j R_j b_j, and
 // q_j lies within the chain length L_j (joint to joint, to its root joint r)
 // of q_r. So t_j is within L_j + s_j |b_j| of q_r. O(frames * joints).
-void reach_box(const Character& c, const FrameSet& frames, glm::dvec3& lo, glm::dvec3& hi) {
+// scale: each joint's largest skinning scale over the frames.
+void reach_box(const Character& c, const FrameSet& frames, std::span<const double> scale, glm::dvec3& lo, glm::dvec3& hi) {
     const size_t J = c.joint_count();
-    if (J == 0 || frames.frame_count() == 0) return;
+    if (J == 0 || frames.frame_count() == 0 || scale.size() != J) return;
     std::vector<glm::dvec3> bind(J);
     for (size_t j = 0; j < J; ++j) bind[j] = glm::dvec3(glm::inverse(c.inverse_bind[j])[3]);
-    std::vector<double> link(J, 0.0), scale(J, 0.0);  // max over frames: |q_j - q_parent|, skinning scale
+    std::vector<double> link(J, 0.0);  // max over frames: |q_j - q_parent|
     std::vector<glm::dvec3> q(J), root_lo(J, glm::dvec3(1e300)), root_hi(J, glm::dvec3(-1e300));
     for (size_t f = 0; f < frames.frame_count(); ++f) {
         const Mat34* m = frames.frame(f);
@@ -288,7 +290,6 @@ void reach_box(const Character& c, const FrameSet& frames, glm::dvec3& lo, glm::
             const glm::dvec3 b = bind[j];
             q[j] = {x[0] * b.x + x[1] * b.y + x[2] * b.z + x[3], x[4] * b.x + x[5] * b.y + x[6] * b.z + x[7],
                     x[8] * b.x + x[9] * b.y + x[10] * b.z + x[11]};
-            scale[j] = std::max(scale[j], double(decompose(m[j]).s));
         }
         for (size_t j = 0; j < J; ++j) {
             const int p = c.joint_parent[j];
@@ -322,6 +323,7 @@ void record_range(AssetTables& t, const Character& c, const FrameSet& frames) {
     t.max_scale = 1;
     std::vector<float> scales;
     scales.reserve(frames.frame_count() * size_t(std::max(0, frames.joint_count)));
+    std::vector<double> joint_scale(size_t(std::max(0, frames.joint_count)), 0.0);  // per joint, for reach_box
     for (size_t f = 0; f < frames.frame_count(); ++f) {
         const Mat34* m = frames.frame(f);
         for (int j = 0; j < frames.joint_count; ++j) {
@@ -330,6 +332,7 @@ void record_range(AssetTables& t, const Character& c, const FrameSet& frames) {
             hi = glm::max(hi, x);
             BonePose p = decompose(m[j]);
             t.max_scale = std::max(t.max_scale, double(p.s));
+            joint_scale[size_t(j)] = std::max(joint_scale[size_t(j)], double(p.s));
             scales.push_back(p.s);
         }
     }
@@ -343,7 +346,7 @@ void record_range(AssetTables& t, const Character& c, const FrameSet& frames) {
     const glm::vec3 box = t.t_max - t.t_min;
     t.t_step = std::max({box.x, box.y, box.z, 1e-9f}) / 65535.0f;  // the frames' own step, before the reach
     glm::dvec3 reach_lo(1e300), reach_hi(-1e300);
-    reach_box(c, frames, reach_lo, reach_hi);
+    reach_box(c, frames, joint_scale, reach_lo, reach_hi);
     if (reach_lo.x <= reach_hi.x) {
         // The root joint itself may move (a crouch, a jump) by a quarter of
         // the diagonal beyond where the frames put it.

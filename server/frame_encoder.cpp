@@ -183,16 +183,17 @@ bool FrameEncoder::push_pose(int instance, std::span<const Mat34> skinning) {
         throw Error("push_pose: instance " + std::to_string(instance) + " takes " + std::to_string(a.character.joint_count()) +
                     " matrices");
     const size_t rs = size_t(a.format.size());
-    for (int b = 0; b < a.bone_count(); ++b)
-        if (!bone_in_range(decompose(skinning[size_t(a.skin.order[b])]), a.format)) {
+    // Decomposed once, into the scratch: a refused pose leaves the slot's as it was.
+    pushed_.resize(size_t(a.bone_count()));
+    for (int b = 0; b < a.bone_count(); ++b) {
+        pushed_[size_t(b)] = decompose(skinning[size_t(a.skin.order[b])]);
+        if (!bone_in_range(pushed_[size_t(b)], a.format)) {
             ++stats_.poses_out_of_range;
             return false;
         }
-    slot.exact.resize(size_t(a.bone_count()));
-    for (int b = 0; b < a.bone_count(); ++b) {
-        slot.exact[size_t(b)] = decompose(skinning[size_t(a.skin.order[b])]);
-        encode_bone(slot.exact[size_t(b)], a.format, slot.records.data() + size_t(b) * rs);
     }
+    slot.exact.swap(pushed_);
+    for (int b = 0; b < a.bone_count(); ++b) encode_bone(slot.exact[size_t(b)], a.format, slot.records.data() + size_t(b) * rs);
     slot.live = slot.has_pose = true;
     slot.relative = false;
     slot.changed = true;

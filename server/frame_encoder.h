@@ -332,7 +332,8 @@ private:
     EncodedFrame frame_;
     size_t morph_stride_ = 0;       // weights per slot (the largest streamed morph count)
     size_t max_joints_ = 0, max_morphs_ = 0;  // the largest asset's (Work's sizes)
-    mutable std::mutex mutex_;      // slots_, free_, stats_
+    mutable std::mutex mutex_;      // slots_, free_, stats_, pushed_
+    std::vector<BonePose> pushed_;  // push_pose's bones before its range check (swapped into the slot)
     uint32_t world_tag_ = 0;        // random, 24 bits, nonzero: the high bits of this encoder's world ids
     std::vector<Slot> slots_;
     std::deque<int> free_;
