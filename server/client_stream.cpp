@@ -485,16 +485,19 @@ void ClientStream::repair(uint32_t seq, DatagramSink& out) {
     if (!k.valid || k.seq != seq || !book_.unacked(seq) || k.repairs >= kMaxRepairs ||
         int32_t(newest_tick_sent_ - k.tick) > kRepairTicks)
         return;
-    const size_t wire = k.bytes.size() + UDP_IP_OVERHEAD;
-    if (rate_.budget() < wire) return;  // no room now: the scheduler sends its bones again (Scheduler::lost)
+    const size_t wire = k.bytes.size() + UDP_IP_OVERHEAD, room = rate_.budget();
+    if (room < wire) return;  // no room now: the scheduler sends its bones again (Scheduler::lost)
+    // kRepairCopies copies where the budget holds them (else one): a repair
+    // lost as well is found only an RTT later, after its tick was shown.
+    const size_t copies = room >= kRepairCopies * wire ? size_t(kRepairCopies) : 1;
     ++k.repairs;
     k.sent_us = now_us32();
-    out.send(k.bytes, peer_);
-    rate_.spend(wire);
+    for (size_t c = 0; c < copies; ++c) out.send(k.bytes, peer_);
+    rate_.spend(copies * wire);
     core_.count([&](ServerStats& st) {
-        ++st.datagrams_repaired;
-        ++st.datagrams_sent;
-        st.wire_bytes_sent += wire;
+        st.datagrams_repaired += copies;
+        st.datagrams_sent += copies;
+        st.wire_bytes_sent += copies * wire;
     });
 }
 

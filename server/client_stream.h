@@ -231,9 +231,15 @@ public:
 
     // Repairs (ServerConfig::repair_lost): a frame datagram of a tick older
     // than kRepairTicks is not sent again; one datagram goes again at most
-    // kMaxRepairs times (each a lost repair: repair_again).
+    // kMaxRepairs times (each a lost repair: repair_again), each time as
+    // kRepairCopies copies back to back when the budget holds them (one
+    // otherwise): at 10 % random loss a repair lost too (1 % of datagrams)
+    // came back an RTT later, after its tick was displayed, and such ticks
+    // were most of the displayed error under loss at the full rate
+    // (docs/performance.md "Repairs in two copies").
     static constexpr int kRepairTicks = 6;
     static constexpr int kMaxRepairs = 5;
+    static constexpr int kRepairCopies = 2;
 
 private:
     // Published poses kept per character: twice the publisher's window

@@ -164,7 +164,8 @@ struct ServerStats {
     // (dropped before the tag, so not authenticated); not counted rejected.
     uint64_t stale_datagrams = 0;
     // Frame datagrams sent again, as they were, when an Ack showed them lost
-    // while the client could still display them (ServerConfig::repair_lost).
+    // while the client could still display them (ServerConfig::repair_lost),
+    // each copy counted (ClientStream::kRepairCopies).
     uint64_t datagrams_repaired = 0;
     // The world bus (nats_url): messages and bytes each way, messages dropped
     // (a full queue, no instance id left), malformed, of another catalogue,
