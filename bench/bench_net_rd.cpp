@@ -163,12 +163,14 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
     config.key_samples = g_options.key_samples;
     ServerCore core(config, assets, specs);
     auto client = ClientStream::detached(core, 1, cap_kbps);
-    // The all-bones baseline needs room for one whole character per datagram;
-    // every method gets that bucket depth (the same pacing for all).
+    // The all-bones baseline needs room for one whole character per datagram:
+    // the baselines get that bucket depth. The progressive stream is paced as
+    // progskin-server paces it (its own depth). Every bucket keeps any one
+    // second's wire bytes within 1.04 x the cap (RateController).
     double min_depth = 0;
     for (const auto& a : progressive_assets())
         min_depth = std::max(min_depth, double(WireCost::wire(WireCost::header(a->bone_count()) + size_t(a->bone_count()) * a->format.size())));
-    client->rate() = RateController(cap_kbps, cap_kbps, min_depth);
+    client->rate() = RateController(cap_kbps, cap_kbps, m == Method::Progressive ? 0.0 : min_depth);
     const size_t n = specs.size();
     // Static LOD: the largest k with every character every tick within the
     // rate, as its records really cost (standalone or predicted).
