@@ -258,6 +258,16 @@ double PoseBuffer::needed_from(uint32_t tick, int b) const {
     // rather than refreshing it, and the display never interpolates across
     // an epoch (a wrap, a teleport): the frame was needed from its own tick.
     if (!before || int32_t(tick - before->tick) > HOLD_TICKS || (at && at->epoch != before->epoch)) return tick_time(tick);
+    // The cubic between `before` and the frame before it takes this one as
+    // its outer neighbour (pose_about_pivot's c1); without it that span is
+    // linear (at the full rate tens of times the cubic's error: a repair
+    // that came as the display entered that span): needed from there.
+    const Frame* before2 = nullptr;
+    for (const auto& f : frames_)
+        if (f.used && int32_t(before->tick - f.tick) > 0 && f.have[size_t(b)] && f.epoch == before->epoch &&
+            (!before2 || int32_t(f.tick - before2->tick) > 0))
+            before2 = &f;
+    if (before2 && int32_t(before->tick - before2->tick) <= HOLD_TICKS) return sample_time(*before2);
     return sample_time(*before);
 }
 

@@ -94,10 +94,12 @@ public:
     // frame as it came: ClientSession --snap-to-ticks).
     double sample_of(uint32_t t) const;
     // For a frame of `tick` that came after a newer one (late, or a repair):
-    // the display tick from which the display needed it, the sample time of
-    // the newest kept frame before it that carries bone b (the display
-    // interpolates from there towards it); tick when none, when that frame
-    // is more than HOLD_TICKS older, or of another epoch. O(kHistory).
+    // the display tick from which the display needed it: the sample time of
+    // the second newest kept frame before it that carries bone b (the cubic
+    // between those two takes it as its outer neighbour), of the newest when
+    // there is no such second one within HOLD_TICKS of it and of its epoch;
+    // tick when the newest is more than HOLD_TICKS older, of another epoch,
+    // or none. O(kHistory).
     double needed_from(uint32_t tick, int b) const;
     // The largest gap (ticks) between a bone's previous frame and the frame
     // of the last accepted chunk, over the chunk's bones, counting gaps of at

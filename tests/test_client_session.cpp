@@ -430,10 +430,11 @@ TEST(ClientSessionFrames, ApplyFrameKeepsEpochsAndRoots) {
 }
 
 // A frame that comes after a newer one (late, or a server's repair) was
-// needed by the display from the frame before it on (FrameApplied::
-// reach_from, which the display delay covers): frames 10, 11 and 13, then
-// 12 late, reaches back to 11; a frame in order to the newest before it.
-TEST(ClientSessionFrames, ALateFrameReachesBackToTheFrameBeforeIt) {
+// needed by the display from the frame two before it on (FrameApplied::
+// reach_from, which the display delay covers: the cubic between 10 and 11
+// takes 12 as its outer neighbour): frames 10, 11 and 13, then 12 late,
+// reaches back to 10; a frame in order to the newest before it.
+TEST(ClientSessionFrames, ALateFrameReachesBackTwoFrames) {
     const RecordFormat fmt;
     auto frame_at = [&](uint32_t tick) {
         Bytes payload;
@@ -459,7 +460,7 @@ TEST(ClientSessionFrames, ALateFrameReachesBackToTheFrameBeforeIt) {
     EXPECT_TRUE(std::isinf(reach(10)));  // the first frame: nothing to reach back to
     EXPECT_DOUBLE_EQ(reach(11), 10.0);
     EXPECT_DOUBLE_EQ(reach(13), 11.0);
-    EXPECT_DOUBLE_EQ(reach(12), 11.0) << "the late frame was needed from tick 11 on, not from its own tick";
-    EXPECT_DOUBLE_EQ(buffer.needed_from(12, 0), 11.0);
+    EXPECT_DOUBLE_EQ(reach(12), 10.0) << "the late frame was needed from tick 10 on, not from its own tick";
+    EXPECT_DOUBLE_EQ(buffer.needed_from(12, 0), 10.0);
     EXPECT_DOUBLE_EQ(buffer.needed_from(10, 0), 10.0);  // none before it: its own tick
 }

@@ -210,8 +210,10 @@ TEST(PoseBuffer, BonesRecordedCountsTheBonesOfTheTicksAroundTheDisplay) {
 }
 
 // needed_from (the display delay's reach for a frame that comes after a
-// newer one): the sample time of the newest kept frame before it carrying
-// the bone, within HOLD_TICKS and the same epoch, else the frame's own tick.
+// newer one): the sample time of the second newest kept frame before it
+// carrying the bone (the cubic's span it is the outer neighbour of), of the
+// newest when there is no second within HOLD_TICKS and the same epoch, else
+// the frame's own tick.
 TEST(PoseBuffer, NeededFromReachesTheFrameBeforeWithinTheHoldAndTheEpoch) {
     PoseBuffer pb = buffer(2);
     const glm::vec3 t0(0.5f, 1.0f, 0.25f);
@@ -219,8 +221,8 @@ TEST(PoseBuffer, NeededFromReachesTheFrameBeforeWithinTheHoldAndTheEpoch) {
     ASSERT_TRUE(pb.add_chunk(101, 0, 1, 2, records(1, t0, 0.1f).run(), 2));  // bone 0 only
     ASSERT_TRUE(pb.add_chunk(104, 0, 2, 2, records(2, t0, 0.2f).run()));
     ASSERT_TRUE(pb.add_chunk(103, 0, 2, 2, records(2, t0, 0.2f).run()));  // late
-    EXPECT_DOUBLE_EQ(pb.needed_from(103, 0), 101.0);
-    EXPECT_DOUBLE_EQ(pb.needed_from(103, 1), 100.0);  // bone 1's frame before
+    EXPECT_DOUBLE_EQ(pb.needed_from(103, 0), 100.0);  // the span 100-101 takes 103 as its outer neighbour
+    EXPECT_DOUBLE_EQ(pb.needed_from(103, 1), 100.0);  // bone 1: only one frame before
     ASSERT_TRUE(pb.add_chunk(130, 0, 2, 2, records(2, t0, 0.3f).run()));
     ASSERT_TRUE(pb.add_chunk(125, 0, 2, 2, records(2, t0, 0.3f).run()));  // 21 ticks after 104: shown again
     EXPECT_DOUBLE_EQ(pb.needed_from(125, 0), 125.0);
@@ -228,7 +230,11 @@ TEST(PoseBuffer, NeededFromReachesTheFrameBeforeWithinTheHoldAndTheEpoch) {
     ASSERT_TRUE(pb.add_chunk(132, 0, 2, 2, records(2, t0, 0.3f).run(), 2, 1));  // late, epoch 1; 130 is epoch 0
     EXPECT_DOUBLE_EQ(pb.needed_from(132, 0), 132.0);
     ASSERT_TRUE(pb.add_chunk(131, 0, 2, 2, records(2, t0, 0.3f).run()));  // late, epoch 0
-    EXPECT_DOUBLE_EQ(pb.needed_from(131, 0), 130.0);
+    EXPECT_DOUBLE_EQ(pb.needed_from(131, 0), 125.0);  // the span 125-130 of epoch 0
+    ASSERT_TRUE(pb.add_chunk(160, 0, 2, 2, records(2, t0, 0.3f).run()));
+    ASSERT_TRUE(pb.add_chunk(158, 0, 2, 2, records(2, t0, 0.3f).run()));  // 27 ticks after 131
+    ASSERT_TRUE(pb.add_chunk(159, 0, 2, 2, records(2, t0, 0.3f).run()));  // late
+    EXPECT_DOUBLE_EQ(pb.needed_from(159, 0), 158.0) << "131-158 is past the hold: no span before 158";
 }
 
 // A piecewise linear motion (a linearly keyed clip) sampled at its keys
