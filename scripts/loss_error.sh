@@ -8,7 +8,10 @@
 # only), a bad one (the same plus --loss, --reorder, --duplicate), and the
 # clean link again capped at the rate the bad one delivered (the rate
 # controller backs off on loss), each a progskin-client --verify --report
-# json. Prints a table row per cap and link, the ratios RMS(bad) / RMS(clean)
+# json. Prints a table row per cap and link ("relay": both directions, the
+# bad link's drops server -> client only; "loss seen": the sequence numbers
+# the client never received, after the server's repairs, so near 0 where the
+# stream has room for repairs), the ratios RMS(bad) / RMS(clean)
 # at the same cap and at the same rate, and with --json FILE the rows as JSON.
 # docs/performance.md "Four humanoids", "Error under loss".
 #
@@ -41,7 +44,7 @@ SERVER_ARGS=()
 need() { [[ $# -ge 2 ]] || { echo "loss_error.sh: $1 needs a value (--help)" >&2; exit 2; }; }
 while (($#)); do
   case "$1" in
-    -h|--help) sed -n '2,27p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
+    -h|--help) sed -n '2,30p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
     --caps) need "$@"; CAPS=$2; shift 2;;
     --seconds) need "$@"; RUN_SECONDS=$2; shift 2;;
     --loss) need "$@"; LOSS=$2; shift 2;;
@@ -128,7 +131,7 @@ python3 - "$TMP" "$JSON" $CAPS <<'EOF'
 import json, re, sys
 tmp, out, caps = sys.argv[1], sys.argv[2], sys.argv[3:]
 rows = []
-print("| cap kbit/s | link | rate kbit/s | relay: forwarded / dropped / reordered / duplicated | loss seen | RMS % | max % "
+print("| cap kbit/s | link | rate kbit/s | relay: forwarded / dropped / reordered / duplicated | loss seen (after repairs) | RMS % | max % "
       "| predicted records | missing baselines | RMS bad / clean | RMS bad / clean at its rate |")
 print("|---|---|---|---|---|---|---|---|---|---|---|")
 for cap in caps:
