@@ -199,6 +199,7 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
     int gap = 1;
     size_t wire_total = 0;
     std::vector<double> inst_bytes(n, 0.0);
+    std::vector<int> header_tick(n, -1);
     DatagramCollector sink;
     for (int t = 1; t <= ticks; ++t) {
         const EncodedFrame& f = core.encoder().encode(uint32_t(t));
@@ -211,9 +212,14 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
         if (t > warm) wire_total += r.wire_bytes;
         for (const Pick& p : client->picks()) {
             const auto& pa = *assets[size_t(specs[size_t(p.instance)].asset)];
-            if (t > warm)
-                inst_bytes[size_t(p.instance)] +=
-                    double(WireCost::header(pa.bone_count()) + (client->plan().bits(f, p.instance, p.first, std::max(p.first, p.k)) + 7) / 8);
+            // One chunk header per instance and tick, however many ranges
+            // of it the tick carries (the packer's chunk and bone mask).
+            if (t > warm) {
+                const bool first = header_tick[size_t(p.instance)] != t;
+                header_tick[size_t(p.instance)] = t;
+                inst_bytes[size_t(p.instance)] += double((first ? WireCost::header(pa.bone_count()) : 0) +
+                                                         (client->plan().bits(f, p.instance, p.first, std::max(p.first, p.k)) + 7) / 8);
+            }
             int& last_update = instance_tick[size_t(p.instance)];
             if (t > warm && last_update > 0) gap = std::max(gap, t - last_update);
             last_update = t;
