@@ -281,7 +281,12 @@ Scheduler::Offer Scheduler::segment_items(size_t i, const EncodedFrame& frame, c
         } else if (shown) {
             const int32_t age = std::max(1, int32_t(frame.tick - tick_of[seg.to - 1]));
             const double g = double(age) * to30;
-            if (g == double(age) && age < ServerAsset::kGapTable) v = seg.refresh[size_t(m)][size_t(age)];
+            if (interval_ >= 2.0) {
+                // Sends every D ticks: refreshing now against at the next
+                // send, a period of a against a + D (scheduler.h).
+                const double dg = std::floor(interval_) * to30;
+                v = g * (g + dg) * (seg.gap_at(m, g + dg) - seg.gap_at(m, g)) / dg;
+            } else if (g == double(age) && age < ServerAsset::kGapTable) v = seg.refresh[size_t(m)][size_t(age)];
             else v = g * (g + 1.0) * (seg.gap_at(m, g + 1.0) - seg.gap_at(m, g));
             // Last tick of the hold: without a refresh the segment is dropped,
             // so refreshing it is worth at least showing it.
@@ -664,6 +669,13 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
                          Scratch& scratch) {
     sc_ = &scratch;
     out.clear();
+    // The interval between this client's sends (send_interval()): a
+    // shown segment's refresh competes with waiting until the next send.
+    if (last_select_tick_ != 0) {
+        const double d = std::clamp(double(int32_t(frame.tick - last_select_tick_)), 1.0, double(HOLD_TICKS));
+        interval_ = (1.0 - kIntervalWeight) * interval_ + kIntervalWeight * d;
+    }
+    last_select_tick_ = frame.tick;
     // The instances this tick weighs (valid, importance > 0), ascending:
     // every per-instance pass below walks them only, so a client's tick
     // costs O(its candidates), not O(the world's instances), beyond this

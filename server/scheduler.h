@@ -9,10 +9,13 @@
 // each segment of the skin (ServerAsset::Segment: bone 0, then the steps of
 // the hull of e(k)^2) in importance^2 x vertices x squared error per tick:
 //   - a shown segment (refreshed a ticks ago) is worth refreshing now by
-//     V = a (a + 1) (G(a + 1) - G(a)), G its mean interpolation error over a
-//     gap: the saving of a refresh period of a instead of a + 1 ticks, per
-//     byte the price a period-a schedule pays (Lagrangian condition); on the
-//     last tick of the hold at least its show value (else it is dropped);
+//     V = a (a + D) (G(a + D) - G(a)) / D, G its mean interpolation error
+//     over a gap, D the whole ticks between the client's sends (the mean
+//     interval, send_interval, rounded down; 1 below 2: on a link where a
+//     datagram waits for the bucket to fill, about 3): the saving of a
+//     refresh period of a instead of a + D ticks (the next send), per byte
+//     the price a period-a schedule pays (Lagrangian condition); on the last
+//     tick of the hold at least its show value (else it is dropped);
 //   - a segment not shown (never sent, or past the hold) is worth its show
 //     value max over p < HOLD_TICKS of p (C - G(p)), C its collapse error:
 //     shown and refreshed every p ticks it saves C - G(p) per tick for one
@@ -189,6 +192,11 @@ public:
     // (bench_net_rd "Per character"), at some cost to the scene's total error.
     // 0: no floor (pure greedy); at most 1.
     void set_floor(double fraction) { floor_fraction_ = std::clamp(fraction, 0.0, 1.0); }
+    // The mean interval in ticks between this client's select() calls (its
+    // sends): a moving average (weight kIntervalWeight) of each interval,
+    // each within 1..HOLD_TICKS; 1 until the second call.
+    double send_interval() const { return interval_; }
+    static constexpr double kIntervalWeight = 0.25;
     // The client's record plan of the tick (baseline_book.h): what each bone
     // costs as it will go (predicted or standalone). nullptr: every record
     // standalone (EncodedFrame::record_bits). Set before select().
@@ -393,6 +401,8 @@ private:
     void set_floors(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                     std::span<const float> importance, size_t budget);
     double floor_fraction_ = 0;
+    uint32_t last_select_tick_ = 0;  // the tick of the last select() (0: none yet)
+    double interval_ = 1.0;          // send_interval()
     std::vector<size_t> floor_bytes_;  // per instance: payload its own items go first for this tick
     std::vector<size_t> spent_;        // per instance: payload taken this tick
     std::vector<std::pair<uint32_t, size_t>> stale_;  // take_stale_roots: (age, instance)

@@ -613,3 +613,18 @@ TEST(Scheduler, ClientsSharingOneScratchPickAsEachAlone) {
     EXPECT_GT(limited_ticks, 60) << "the budgets must hold the stream back (the greedy, not the fast path)";
     EXPECT_GT(picked, 120);
 }
+
+// send_interval: the moving average of the ticks between a client's sends
+// (the step a shown segment's refresh value compares with, scheduler.h):
+// 1 while every tick sends, towards 3 when every third does, each interval
+// counted within 1..HOLD_TICKS.
+TEST(Scheduler, TheSendIntervalFollowsTheTicksBetweenSends) {
+    Session every(4);
+    for (uint32_t t = 1; t <= 12; ++t) every.tick(t, 600);
+    EXPECT_DOUBLE_EQ(every.sched.send_interval(), 1.0);
+    Session third(4);
+    for (uint32_t t = 3; t <= 90; t += 3) third.tick(t, 600);
+    EXPECT_NEAR(third.sched.send_interval(), 3.0, 0.01);
+    third.tick(90 + 200, 600);  // a long pause counts as the hold at most
+    EXPECT_NEAR(third.sched.send_interval(), 0.75 * 3.0 + 0.25 * double(HOLD_TICKS), 0.01);
+}
