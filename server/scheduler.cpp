@@ -241,7 +241,8 @@ void Scheduler::pick_everything(const EncodedFrame& frame, bool except_over_shar
 // offer_items offers: the best shown item by value per (records + chunk
 // header) (offer_unpaid's choice before anything is taken), the first
 // unshown segment and the smallest item.
-Scheduler::Offer Scheduler::segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30) {
+Scheduler::Offer Scheduler::segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30,
+                                           double step) {
     const std::span<SegItem> items = items_of(i);
     const auto& e = frame.instances[i];
     const uint32_t* tick_of = state_[i].bone_tick.data();
@@ -281,10 +282,10 @@ Scheduler::Offer Scheduler::segment_items(size_t i, const EncodedFrame& frame, c
         } else if (shown) {
             const int32_t age = std::max(1, int32_t(frame.tick - tick_of[seg.to - 1]));
             const double g = double(age) * to30;
-            if (interval_ >= 2.0) {
+            if (step > 1.0) {
                 // Sends every D ticks: refreshing now against at the next
                 // send, a period of a against a + D (scheduler.h).
-                const double dg = std::floor(interval_) * to30;
+                const double dg = step * to30;
                 v = g * (g + dg) * (seg.gap_at(m, g + dg) - seg.gap_at(m, g)) / dg;
             } else if (g == double(age) && age < ServerAsset::kGapTable) v = seg.refresh[size_t(m)][size_t(age)];
             else v = g * (g + 1.0) * (seg.gap_at(m, g + 1.0) - seg.gap_at(m, g));
@@ -382,6 +383,7 @@ void Scheduler::place(size_t i, size_t n) {
 void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                             std::span<const float> importance, float tick_rate, bool only_over_share) {
     const double to30 = 30.0 / std::max(1.0f, tick_rate);
+    const double step = std::floor(interval_);  // D, the whole ticks to the next send (scheduler.h)
     sc_->heap.clear();
     sc_->items_used = sc_->chain_used = sc_->order_used = 0;
     least_unpaid_ = least_paid_ = SIZE_MAX;
@@ -400,7 +402,7 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
         // (the RMS of docs/metrics.md §2 pools all vertices of all characters).
         const double w = double(importance[i]) * double(importance[i]) * double(a.character.vertex_count());
         const uint32_t stale = st.bone_tick[0] != 0 ? frame.tick - st.bone_tick[0] : UINT32_MAX;
-        const Offer o = segment_items(i, frame, a, w, to30);
+        const Offer o = segment_items(i, frame, a, w, to30, step);
         // The fewest bytes any of its steps can take (take_greedily's stop).
         const size_t least = std::min(o.least, morph_[i].value > 0 ? morph_[i].bytes : SIZE_MAX);
         least_[i] = least;

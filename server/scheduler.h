@@ -306,7 +306,8 @@ private:
         size_t least = SIZE_MAX;  // the smallest item's bytes
         ChainPoint hull{};    // the hull's vertex after the first unshown segment's start (extend_chain)
     };
-    Offer segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30);
+    // step: D of a shown segment's refresh value (floor of send_interval()).
+    Offer segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30, double step);
     void offer_chain(size_t i, uint32_t age, const Offer& o);
     void place(size_t i, size_t n);  // room in the scratch for instance i's n items (offer_items)
     bool extend_chain(size_t i);  // appends the hull's next vertex to chain_of(i); false at the end
