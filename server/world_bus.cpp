@@ -276,17 +276,8 @@ void WorldBus::Impl::publish_own(const EncodedFrame& frame) {
         const EncodedInstance& e = frame.instances[i];
         if (!e.valid || (i < is_foreign.size() && is_foreign[i]) || !core.encoder().spec_if_active(int(i), spec)) continue;
         WorldCharacter c;
-        c.id = uint16_t(i);
+        if (!world_character(frame, int(i), RootPose{glm::dvec3(spec.position), spec.rotation}, c)) continue;
         c.world_id = spec.world_id;
-        c.asset = uint16_t(e.asset);
-        c.epoch = e.epoch;
-        if (e.flags & CHUNK_ROOT) c.root = e.root;
-        else if (!encode_root(RootPose{glm::dvec3(spec.position), spec.rotation}, c.root.data())) continue;
-        c.records = {frame.records(int(i)), size_t(e.bone_count) * size_t(e.record_size)};
-        bool weights = e.morph_count > 0;
-        for (int32_t w : frame.morphs(int(i))) weights = weights && w != kNoWeight;
-        if (weights)
-            for (int32_t w : frame.morphs(int(i))) c.morphs.push_back(int16_t(w));
         c.published = spec.owner != 0;
         if (c.published) {  // a player's: what it announced, for its observers' references
             c.clips = spec.announced_clips;
@@ -505,7 +496,8 @@ void WorldBus::Impl::take_cell(std::span<const uint8_t> bytes, double now) {
         }
         Foreign& f = it->second;
         f.last_seen = now;
-        core.encoder().push_records(f.local, ++f.seq, c.epoch, 0, c.records, c.root, c.morphs);
+        // Composed and coded again, they give the same integers (world_message.h).
+        core.encoder().push_relative(f.local, ++f.seq, c.epoch, 0, c.ints, c.root, c.morphs);
     }
 }
 

@@ -4,8 +4,9 @@
 // encoded them, one message per spatial cell (world_message.h) on
 // `progskin.<world>.cell.<cx>.<cz>`; it receives the other nodes' cells and
 // keeps their characters in its own scene as foreign live instances
-// (ServerCore::add_instance, FrameEncoder::push_records), so that its
-// clients see them exactly as local ones. A foreign character is removed
+// (ServerCore::add_instance, FrameEncoder::push_relative: the sender's
+// record integers, coded again to the same ones), so that its clients see
+// them exactly as local ones. A foreign character is removed
 // when none of its messages came for 1.5 s (its node died or it left).
 // Every second a hello on `progskin.<world>.hello` names the node and its
 // catalogue; messages of another catalogue are refused and counted.

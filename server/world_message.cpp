@@ -42,7 +42,7 @@ struct Reader {
 };
 
 constexpr uint8_t kMagic[4] = {'P', 'S', 'K', 'W'};
-constexpr uint8_t kVersion = 2;  // 2: world_id
+constexpr uint8_t kVersion = 3;  // 2: world_id; 3: parent-relative records
 
 // One character after the header; "" or what is wrong.
 std::string read_character(Reader& r, const ServerAssets& assets, WorldCharacter& c) {
@@ -53,17 +53,25 @@ std::string read_character(Reader& r, const ServerAssets& assets, WorldCharacter
     const uint8_t flags = r.get<uint8_t>();
     if (flags > 1) return "character flags " + std::to_string(flags);
     c.published = flags == 1;
-    const int bones = r.get<uint8_t>(), rs = r.get<uint8_t>();
+    const int bones = r.get<uint8_t>();
+    const size_t record_bytes = r.get<uint16_t>();
     if (!r.ok) return "truncated character";
     if (c.world_id == 0) return "character without a world id";
     if (c.asset >= assets.size()) return "asset " + std::to_string(c.asset) + " not in the catalogue";
     const ServerAsset& a = *assets[c.asset];
-    if (bones != a.bone_count() || rs != a.format.size())
-        return "character " + std::to_string(c.id) + ": " + std::to_string(bones) + " bones of " + std::to_string(rs) +
-               " bytes, the asset has " + std::to_string(a.bone_count()) + " of " + std::to_string(a.format.size());
+    if (bones != a.bone_count())
+        return "character " + std::to_string(c.id) + ": " + std::to_string(bones) + " bones, the asset has " +
+               std::to_string(a.bone_count());
+    if (record_bytes > (size_t(bones) * size_t(kMaxRecordBits) + 7) / 8)
+        return "character " + std::to_string(c.id) + ": " + std::to_string(record_bytes) + " bytes of records for " +
+               std::to_string(bones) + " bones";
     const auto root = r.take(ROOT_BYTES);
     if (r.ok) std::memcpy(c.root.data(), root.data(), ROOT_BYTES);
-    c.records = r.take(size_t(bones) * size_t(rs));
+    c.records = r.take(record_bytes);
+    c.ints.resize(size_t(bones));
+    if (r.ok && !read_pose_records(c.records, a.relative.scaled, {}, c.ints))
+        return "character " + std::to_string(c.id) + ": records out of bounds or not " + std::to_string(bones) + " records";
+    c.record_bits = c.records.size() * 8;
     const size_t morphs = r.get<uint8_t>();
     const size_t expect = std::min<size_t>(a.character.morphs.size(), MAX_MORPHS);
     if (r.ok && morphs != 0 && morphs != expect) return "character " + std::to_string(c.id) + ": " + std::to_string(morphs) + " morph weights";
@@ -85,6 +93,23 @@ std::string read_character(Reader& r, const ServerAssets& assets, WorldCharacter
 }
 
 }  // namespace
+
+bool world_character(const EncodedFrame& frame, int i, const RootPose& placed, WorldCharacter& c) {
+    const EncodedInstance& e = frame.instances[size_t(i)];
+    c.id = uint16_t(i);
+    c.asset = uint16_t(e.asset);
+    c.epoch = e.epoch;
+    if (e.flags & CHUNK_ROOT) c.root = e.root;
+    else if (!encode_root(placed, c.root.data())) return false;
+    c.record_bits = frame.record_bits(i, 0, e.bone_count);
+    c.records = {frame.relative(i), (c.record_bits + 7) / 8};
+    c.morphs.clear();
+    bool weights = e.morph_count > 0;
+    for (int32_t w : frame.morphs(i)) weights = weights && w != kNoWeight;
+    if (weights)
+        for (int32_t w : frame.morphs(i)) c.morphs.push_back(int16_t(w));
+    return true;
+}
 
 uint64_t catalogue_hash(const ServerAssets& assets) {
     uint64_t h = 1469598103934665603ull;  // FNV-1a over the ids' bytes
@@ -110,10 +135,13 @@ void write_world_message(const WorldHeader& h, std::span<const WorldCharacter> c
         put<uint16_t>(out, c.asset);
         put<uint8_t>(out, c.epoch);
         put<uint8_t>(out, c.published ? 1 : 0);
+        const size_t n = std::min((c.record_bits + 7) / 8, c.records.size());
         put<uint8_t>(out, uint8_t(a.bone_count()));
-        put<uint8_t>(out, uint8_t(a.format.size()));
+        put<uint16_t>(out, uint16_t(n));
         out.insert(out.end(), c.root.begin(), c.root.end());
-        out.insert(out.end(), c.records.begin(), c.records.end());
+        out.insert(out.end(), c.records.begin(), c.records.begin() + long(n));
+        if (n > 0 && c.record_bits % 8 != 0 && n * 8 > c.record_bits)  // zero bits past the last record
+            out.back() &= uint8_t((1u << (c.record_bits % 8)) - 1);
         put<uint8_t>(out, uint8_t(c.morphs.size()));
         for (int16_t w : c.morphs) put<int16_t>(out, w);
         put<uint8_t>(out, uint8_t(c.clips.size()));

@@ -1,21 +1,31 @@
 // world_message.h — the bytes a node of a world publishes on the bus for one
 // spatial cell and tick (docs/protocol.md "World bus"): its own characters in
-// that cell, each as the encoder already encoded it (bone records and root
-// block, opaque here), with what observers need to announce it. One message
-// per non-empty cell per tick. Pure functions over flat byte spans, no bus.
+// that cell, each as the encoder already encoded it (its parent-relative
+// records and root block), with what observers need to announce it. One
+// message per non-empty cell per tick. Pure functions over flat byte spans,
+// no bus.
+//
+// The records are the sending encoder's own integers (bone_record.h, every
+// bone standalone, closed loop against its decoded parent): a node that
+// composes them and codes them again gets the same integers (version 3), so a
+// character from another node streams exactly as it would from this one.
+// (Version 2 carried the 16-bit absolute records of bone_codec.h, whose
+// translation step over the box of every rigid pose is 1.75-1.9 x coarser.)
 //
 // Layout (little-endian):
-//   header  "PSKW" | version u8 (2) | 0 u8 | node u16 | catalogue u64 | tick u32 | count u16
+//   header  "PSKW" | version u8 (3) | 0 u8 | node u16 | catalogue u64 | tick u32 | count u16
 //   count x character:
 //     id u16 (the node's instance id) | world_id u64 (nonzero) | asset u16 | epoch u8 | flags u8 (1: a player's)
-//     | bones u8 | record_size u8
-//     | root [ROOT_BYTES] | records [bones * record_size]
+//     | bones u8 | record_bytes u16
+//     | root [ROOT_BYTES] | records [record_bytes]: bones standalone parent-relative
+//       records (bone_record.h write_record), bit-packed, zero bits to the byte's end
 //     | morphs u8 | morph weights i16 x morphs
 //     | clips u8 | clip indices i32 x clips | publisher_start_us u64
 //     | walk_center f64 x3 | walk_radius f64 | walk_speed f64
-// Decoding checks every count against the catalogue (bones and record size
-// of the asset, morphs, MAX_INSTANCE_CLIPS) and the message's length: a
-// message that does not parse to its last byte is refused whole.
+// Decoding checks every count against the catalogue (bones of the asset,
+// morphs, MAX_INSTANCE_CLIPS), record_bytes against bones x kMaxRecordBits,
+// every record within its bounds (read_pose_records) and the message's
+// length: a message that does not parse to its last byte is refused whole.
 #pragma once
 #include <array>
 #include <cstdint>
@@ -23,7 +33,9 @@
 #include <string>
 #include <vector>
 
+#include "bone_record.h"
 #include "control_messages.h"
+#include "frame_encoder.h"
 #include "scene.h"
 #include "wire.h"
 
@@ -39,7 +51,11 @@ struct WorldCharacter {
     uint8_t epoch = 0;
     bool published = false;  // a player's character (else the node's own, a clip or a game's)
     std::array<uint8_t, ROOT_BYTES> root{};
-    std::span<const uint8_t> records;   // bones * record_size (into the message when decoded)
+    // The records' bit stream: written, its first record_bits bits (the rest
+    // of the last byte goes as zeros); read, the bytes in the message.
+    std::span<const uint8_t> records;
+    size_t record_bits = 0;
+    std::vector<RecordInts> ints;       // read: the bones' records, decoded and checked
     std::vector<int16_t> morphs;        // empty: none
     std::vector<int> clips;             // announced to observers
     uint64_t publisher_start_us = 0;
@@ -64,6 +80,13 @@ std::string read_world_message(std::span<const uint8_t> bytes, const ServerAsset
 // what a node calls for every message.
 std::string read_world_message(std::span<const uint8_t> bytes, const ServerAssets& assets, uint64_t catalogue,
                                WorldHeader& h, std::vector<WorldCharacter>& chars);
+
+// Slot i of an encoded frame as the bus carries it: id, asset, epoch, the
+// root block (the frame's when its chunks carry one, else `placed`), the
+// parent-relative records of the tick (pointing into the frame) and the
+// morph weights (none when any was refused). False when `placed` is outside
+// the root block's range. The caller sets world_id and the player's fields.
+bool world_character(const EncodedFrame& frame, int i, const RootPose& placed, WorldCharacter& c);
 
 // The catalogue's identity: the asset ids in order (every node of a world
 // serves the same catalogue).

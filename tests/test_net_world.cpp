@@ -13,6 +13,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <set>
 #include <thread>
@@ -104,22 +105,31 @@ bool flood_cell(const NatsServer& nats, const std::string& world, uint16_t node,
     if (natsConnection_ConnectTo(&nc, nats.url().c_str()) != NATS_OK) return false;
     const ServerAssets& assets = default_assets();  // the nodes' catalogue
     const ServerAsset& asset = *assets[0];
-    std::vector<uint8_t> records(size_t(asset.bone_count()) * size_t(asset.format.size()));
+    // The bind pose raised: every bone's skinning matrix a translation (the
+    // records the encoder codes for it, as the other node's would be).
+    InstanceSpec live;
+    live.asset = 0;
+    live.selection = -1;
+    FrameEncoder enc(assets, {live}, 30.0f);
     WorldCharacter c;
-    c.id = 9;
-    c.world_id = (uint64_t(node) << 40) | 9u;
-    c.asset = 0;
-    c.published = true;
-    bool ok = encode_root(RootPose{at}, c.root.data());
+    bool ok = true;
     std::vector<uint8_t> bytes;
     const std::string subject = "progskin." + world + ".cell.0.0";
     for (int t = 1; t <= n && ok; ++t) {
-        BonePose p;
-        p.t = glm::vec3(0.0f, rise * float(t), 0.0f);
-        for (int b = 0; b < asset.bone_count(); ++b) encode_bone(p, asset.format, records.data() + size_t(b) * size_t(asset.format.size()));
-        c.records = records;
+        Mat34 m = Mat34::identity();
+        m.m[7] = rise * float(t);
+        ok = enc.push_pose(0, std::vector<Mat34>(asset.character.joint_count(), m)) &&
+             world_character(enc.encode(uint32_t(t)), 0, RootPose{at}, c);
+        c.id = 9;
+        c.world_id = (uint64_t(node) << 40) | 9u;
+        c.published = true;
+        if (ok) {
+            std::array<uint8_t, ROOT_BYTES> root{};
+            ok = encode_root(RootPose{at}, root.data());
+            c.root = root;
+        }
         write_world_message(WorldHeader{node, catalogue_hash(assets), uint32_t(t)}, std::span(&c, 1), assets, bytes);
-        ok = natsConnection_Publish(nc, subject.c_str(), bytes.data(), int(bytes.size())) == NATS_OK;
+        ok = ok && natsConnection_Publish(nc, subject.c_str(), bytes.data(), int(bytes.size())) == NATS_OK;
     }
     ok = ok && natsConnection_Flush(nc) == NATS_OK;
     natsConnection_Destroy(nc);
@@ -149,7 +159,8 @@ TEST(NetWorld, PlayersOnTwoNodesSeeEachOther) {
     ASSERT_NE(rc, nullptr);
     EXPECT_EQ(rc->bones, rc->asset->skin.bone_count());
     // Quantised twice: the published record (half a translation step) and
-    // the frame stream's relative record (its dead zone, 1.5 steps).
+    // the frame stream's relative record (its dead zone, 1.5 steps); the bus
+    // adds nothing (its records are the stream's).
     const glm::vec3 extent = rc->asset->format.t_max - rc->asset->format.t_min;
     const double t_step = double(std::max({extent.x, extent.y, extent.z})) / 65535.0;
     EXPECT_LT(off_identity(*rc), 2e-3 + 2.0 * t_step);
@@ -170,6 +181,14 @@ TEST(NetWorld, PlayersOnTwoNodesSeeEachOther) {
     const RemoteCharacter* on_b = published(b_observer);
     ASSERT_NE(on_b, nullptr);
     EXPECT_EQ(on_b->world_id, published(observer)->world_id) << "one character, one world id on both nodes";
+    // Seen across the bus as on its own node: the same records, so the same
+    // palette (the pose is still; bit for bit up to the float sums).
+    const RemoteCharacter* on_a = published(observer);
+    ASSERT_EQ(on_a->palette.size(), on_b->palette.size());
+    double apart = 0;
+    for (size_t j = 0; j < on_a->palette.size(); ++j)
+        for (int k = 0; k < 12; ++k) apart = std::max(apart, double(std::abs(on_a->palette[j].m[k] - on_b->palette[j].m[k])));
+    EXPECT_LT(apart, 1e-6) << "node A shows the character " << apart << " away from its own node";
     const ServerStats st = a.server->stats();
     EXPECT_GT(st.world_messages_in, 0u);
     EXPECT_EQ(st.world_malformed, 0u);
@@ -264,9 +283,9 @@ TEST(NetWorld, ABehindNodeTakesTheNewestMessageOfEachCell) {
     // reaches nats-server asynchronously.
     run_until(1.0, [] { return false; }, nullptr, observer);
 
-    // The bind pose raised 0.05 t by message t: the newest is the last. The
-    // rise is well over the bus records' step (the Fox's translation box /
-    // 65,535, 0.0074), so that the newest tells itself from the one before.
+    // The bind pose raised 0.05 t by message t: the newest is the last (0.05
+    // is far over the records' translation step, so that the newest tells
+    // itself from the one before).
     const int n = 200;
     const float rise = 0.05f;
     ASSERT_TRUE(flood_cell(nats, cfg.world_name, 4242, n, rise, glm::dvec3(1.0, 0.0, 1.0)));
@@ -452,14 +471,18 @@ TEST(NetWorld, AnotherCatalogueIsRefused) {
 // an extra byte, a wrong bone count or clip, another catalogue: refused whole.
 TEST(WorldMessage, RoundTripAndEveryMalformedMessageRefused) {
     const ServerAssets& assets = default_assets();
+    InstanceSpec running;
+    running.asset = 0;
+    running.selection = 0;
+    FrameEncoder enc(assets, {running}, 30.0f);
+    const EncodedFrame& frame = enc.encode(7);
     WorldCharacter c;
+    ASSERT_TRUE(world_character(frame, 0, RootPose{}, c));
     c.id = 7;
     c.world_id = 0x123456000010007ull;
-    c.asset = 0;
     c.epoch = 3;
     c.published = true;
-    const std::vector<uint8_t> records(size_t(assets[0]->bone_count()) * size_t(assets[0]->format.size()), 0x5a);
-    c.records = records;
+    const std::vector<uint8_t> records(c.records.begin(), c.records.end());
     c.clips = {0};
     c.publisher_start_us = 123456789;
     c.walk_radius = 2.5;
@@ -477,6 +500,13 @@ TEST(WorldMessage, RoundTripAndEveryMalformedMessageRefused) {
     EXPECT_EQ(got[0].epoch, 3);
     EXPECT_TRUE(got[0].published);
     EXPECT_TRUE(std::equal(records.begin(), records.end(), got[0].records.begin(), got[0].records.end()));
+    ASSERT_EQ(got[0].ints.size(), size_t(assets[0]->bone_count()));
+    const RecordInts* sent = frame.ints.data();  // slot 0's integers
+    for (int b = 0; b < assets[0]->bone_count(); ++b) {
+        EXPECT_TRUE(std::equal(sent[b].rot, sent[b].rot + 3, got[0].ints[size_t(b)].rot)) << "bone " << b;
+        EXPECT_TRUE(std::equal(sent[b].trans, sent[b].trans + 3, got[0].ints[size_t(b)].trans)) << "bone " << b;
+        EXPECT_EQ(sent[b].has_trans, got[0].ints[size_t(b)].has_trans) << "bone " << b;
+    }
     EXPECT_EQ(got[0].clips, std::vector<int>{0});
     EXPECT_EQ(got[0].publisher_start_us, 123456789u);
     EXPECT_EQ(got[0].walk_radius, 2.5);
@@ -491,9 +521,76 @@ TEST(WorldMessage, RoundTripAndEveryMalformedMessageRefused) {
     bad = bytes;
     std::fill_n(bad.begin() + 4 + 2 + 2 + 8 + 4 + 2 + 2, 8, uint8_t(0));  // the world id
     EXPECT_NE(read_world_message(bad, assets, h, got).find("world id"), std::string::npos);
+    // The records: a byte more than they fill (a zero byte left over), or
+    // more bytes than any records of that many bones take.
+    constexpr size_t kRecordBytesAt = 4 + 2 + 2 + 8 + 4 + 2 + 2 + 8 + 2 + 1 + 1 + 1;
+    const size_t record_bytes = size_t(bytes[kRecordBytesAt]) | size_t(bytes[kRecordBytesAt + 1]) << 8;
+    ASSERT_EQ(record_bytes, records.size());
+    bad = bytes;
+    bad[kRecordBytesAt] = uint8_t(record_bytes + 1);
+    bad[kRecordBytesAt + 1] = uint8_t((record_bytes + 1) >> 8);
+    bad.insert(bad.begin() + long(kRecordBytesAt + 2 + ROOT_BYTES + record_bytes), uint8_t(0));
+    EXPECT_NE(read_world_message(bad, assets, h, got).find("records out of bounds"), std::string::npos);
+    bad = bytes;
+    bad[kRecordBytesAt] = bad[kRecordBytesAt + 1] = 0xff;
+    EXPECT_NE(read_world_message(bad, assets, h, got).find("bytes of records"), std::string::npos);
     write_world_message({42, catalogue_hash(assets) ^ 1, 1000}, std::span(&c, 1), assets, bytes);
     EXPECT_EQ(read_world_message(bytes, assets, h, got), "another catalogue");
     c.clips = {999};
     write_world_message(h0, std::span(&c, 1), assets, bytes);
     EXPECT_NE(read_world_message(bytes, assets, h, got).find("clip 999"), std::string::npos);
+}
+
+// A character from another node streams as it would from this one: its
+// records go on the bus as the sending encoder coded them, and the node
+// that takes them (push_relative, as WorldBus does) codes the same integers
+// at every bone and tick. Every character of the default scene, clips that
+// move every bone (the Fox running, CesiumMan walking), 90 ticks.
+TEST(WorldMessage, AForeignCharacterCodesToTheSenderIntegers) {
+    const ServerAssets& assets = default_assets();
+    const std::vector<InstanceSpec> scene = default_instances(assets);
+    std::vector<InstanceSpec> live = scene;
+    for (InstanceSpec& s : live) s.selection = -1;
+    FrameEncoder sender(assets, scene, 30.0f), taker(assets, live, 30.0f);
+    std::vector<uint8_t> bytes;
+    std::vector<WorldCharacter> got;
+    size_t compared = 0, differing = 0, message_bytes = 0, absolute_bytes = 0;
+    for (uint32_t t = 1; t <= 90; ++t) {
+        const EncodedFrame& f = sender.encode(t);
+        std::vector<WorldCharacter> chars(scene.size());
+        for (size_t i = 0; i < scene.size(); ++i) {
+            ASSERT_TRUE(world_character(f, int(i), RootPose{glm::dvec3(scene[i].position)}, chars[i]));
+            chars[i].world_id = 1 + i;
+        }
+        write_world_message({1, catalogue_hash(assets), t}, chars, assets, bytes);
+        message_bytes += bytes.size();
+        absolute_bytes += bytes.size();  // the same message with version 2's absolute records
+        for (const WorldCharacter& c : chars)
+            absolute_bytes += size_t(f.instances[c.id].bone_count * f.instances[c.id].record_size) - c.records.size() - 1;
+        WorldHeader h;
+        ASSERT_EQ(read_world_message(bytes, assets, h, got), "");
+        for (const WorldCharacter& c : got)
+            ASSERT_TRUE(taker.push_relative(c.id, t, c.epoch, 0, c.ints, c.root, c.morphs)) << "tick " << t;
+        const EncodedFrame& g = taker.encode(t);
+        for (size_t i = 0; i < scene.size(); ++i) {
+            const int B = f.instances[i].bone_count;
+            ASSERT_EQ(g.instances[i].bone_count, B);
+            const RecordInts* a = f.ints.data() + i * f.ring_bones;  // slot i's integers
+            const RecordInts* b = g.ints.data() + i * g.ring_bones;
+            for (int k = 0; k < B; ++k, ++compared) {
+                const bool same = std::equal(a[k].rot, a[k].rot + 3, b[k].rot) && std::equal(a[k].trans, a[k].trans + 3, b[k].trans) &&
+                                  a[k].scale == b[k].scale && a[k].has_trans == b[k].has_trans && a[k].has_scale == b[k].has_scale;
+                differing += !same;
+            }
+            EXPECT_EQ(f.record_bits(int(i), 0, B), g.record_bits(int(i), 0, B)) << "tick " << t << " instance " << i;
+            if (f.instances[i].flags & CHUNK_ROOT) {
+                EXPECT_EQ(f.instances[i].root, g.instances[i].root) << "tick " << t;
+            } else {  // a node's clip instance stands at its spec's place; the bus carries it in the root block
+                EXPECT_LT(glm::length(decode_root(g.instances[i].root.data()).position - glm::dvec3(scene[i].position)), 1e-3);
+            }
+        }
+    }
+    EXPECT_EQ(differing, 0u) << "of " << compared << " bone records";
+    std::printf("%zu bone records over 90 ticks, %zu differ; %.0f bytes a message (%.0f with absolute records)\n", compared, differing,
+                double(message_bytes) / 90, double(absolute_bytes) / 90);
 }
