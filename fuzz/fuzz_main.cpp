@@ -1,6 +1,7 @@
 // libFuzzer driver: the glTF importer, or with PROGSKIN_FUZZ_FRAME_STREAM the
 // frame stream, with PROGSKIN_FUZZ_CONTROL the control messages, or with
-// PROGSKIN_FUZZ_RECORDS the parent-relative bone records
+// PROGSKIN_FUZZ_RECORDS the parent-relative bone records, with
+// PROGSKIN_FUZZ_WORLD the world bus's messages
 // (scripts/fuzz.sh builds them with clang
 // -fsanitize=fuzzer,address,undefined).
 #include "fuzz_targets.h"
@@ -12,6 +13,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     progskin::fuzz::bone_records(data, size);
 #elif defined(PROGSKIN_FUZZ_CONTROL)
     progskin::fuzz::control_message(data, size);
+#elif defined(PROGSKIN_FUZZ_WORLD)
+    progskin::fuzz::world_message(data, size);
 #else
     progskin::fuzz::gltf_import(data, size);
 #endif

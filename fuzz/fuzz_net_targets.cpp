@@ -12,6 +12,7 @@
 #include "server.h"
 #include "session.h"
 #include "wire.h"
+#include "world_message.h"
 
 namespace progskin::fuzz {
 
@@ -193,6 +194,27 @@ int bone_records(const uint8_t* data, size_t size) {
     uint64_t rest = 0;
     const int left = int(in.size() - in.at());
     return left < 8 && in.get(left, rest) && rest == 0 ? 1 : 0;
+}
+
+int world_message(const uint8_t* data, size_t size) {
+    using namespace progskin::net;
+    static const ServerAssets catalogue = {load_server_asset(std::string(PROGSKIN_ASSETS) + "/Fox.glb"),
+                                           load_server_asset(std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb")};
+    static FrameEncoder encoder = [] {
+        InstanceSpec live;
+        live.selection = -1;
+        std::vector<InstanceSpec> specs(2, live);
+        specs[1].asset = 1;
+        return FrameEncoder(catalogue, specs, 30.0f);
+    }();
+    static uint32_t seq = 0, tick = 0;
+    static std::vector<WorldCharacter> chars;
+    WorldHeader h;
+    if (!read_world_message({data, size}, catalogue, h, chars).empty()) return 0;
+    for (const WorldCharacter& c : chars)
+        encoder.push_relative(int(c.asset), ++seq, c.epoch, 0, c.ints, c.root, c.morphs);
+    encoder.encode(++tick);
+    return 1;
 }
 
 }  // namespace progskin::fuzz

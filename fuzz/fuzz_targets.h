@@ -1,6 +1,7 @@
 // fuzz_targets.h — entry points for fuzzing the parts that read bytes from
 // outside: glTF files (the importer and the pose sampler) and the frame
-// stream (the datagram verifier, the frame layout reader, the pose buffer). Each must return
+// stream (the datagram verifier, the frame layout reader, the pose buffer),
+// the control messages, the bone records and the world bus's messages. Each must return
 // normally for every input: bad input is a progskin::Error or a rejected
 // buffer, never a crash, a hang or an unbounded allocation.
 //
@@ -45,5 +46,13 @@ int control_message(const uint8_t* data, size_t size);
 // records leave fewer than 8 bits, all zero (padding), 0 when the stream was
 // refused.
 int bone_records(const uint8_t* data, size_t size);
+
+// (fuzz_net_targets.cpp.) Treats the bytes as one message of another node
+// of a world (server/world_message.h) the way a node reads it:
+// read_world_message against a catalogue of the bundled Fox and CesiumMan,
+// then each character's records pushed (push_relative, as WorldBus does)
+// into a live instance of its asset, and one encode. Returns 1 when the
+// message was accepted, 0 when it was refused whole.
+int world_message(const uint8_t* data, size_t size);
 
 }  // namespace progskin::fuzz

@@ -22,6 +22,7 @@
 #include "scene.h"
 #include "server_core.h"
 #include "wire.h"
+#include "world_message.h"
 
 using namespace progskin;
 using namespace progskin::net;
@@ -210,6 +211,32 @@ int main(int argc, char** argv) {
             }
         }
     }
+    // Messages of another node of a world: fuzz/corpus/world (beside DIR), the
+    // default scene's characters at three ticks, one of them a player's.
+    {
+        const std::filesystem::path wdir = dir.parent_path() / "world";
+        std::filesystem::create_directories(wdir);
+        const std::vector<InstanceSpec> scene = default_instances(assets);
+        FrameEncoder enc(assets, scene, 30.0f);
+        std::vector<uint8_t> bytes;
+        for (uint32_t t = 1; t <= 40; ++t) {
+            const EncodedFrame& f = enc.encode(t);
+            if (t != 1 && t != 15 && t != 40) continue;
+            std::vector<WorldCharacter> chars(scene.size());
+            for (size_t i = 0; i < scene.size(); ++i) {
+                world_character(f, int(i), RootPose{glm::dvec3(scene[i].position)}, chars[i]);
+                chars[i].world_id = (uint64_t(0xabcdef) << 40) | (i + 1);
+            }
+            chars[1].published = true;
+            chars[1].clips = {0};
+            chars[1].publisher_start_us = 123456789;
+            chars[1].walk_center = {1.0, 0.0, 2.0};
+            chars[1].walk_radius = 3.0;
+            chars[1].walk_speed = 1.4;
+            write_world_message({7, catalogue_hash(assets), t}, chars, assets, bytes);
+            write(wdir, "scene-t" + std::to_string(t), bytes);
+        }
+    }
     // Control messages of players' characters: fuzz/corpus/control (beside DIR).
     const std::filesystem::path cdir = dir.parent_path() / "control";
     std::filesystem::create_directories(cdir);
@@ -246,6 +273,6 @@ int main(int argc, char** argv) {
     build_welcome(fbb, assets, 1, 2, 7777, 30.0f, 256.0, nullptr, nullptr);
     write(cdir, "welcome", {fbb.GetBufferPointer(), fbb.GetBufferPointer() + fbb.GetSize()});
     fbb.Clear();
-    std::printf("make_frame_corpus: wrote %s, %s and records\n", dir.string().c_str(), cdir.string().c_str());
+    std::printf("make_frame_corpus: wrote %s, %s, records and world\n", dir.string().c_str(), cdir.string().c_str());
     return 0;
 }

@@ -2,14 +2,15 @@
 # fuzz.sh — runs a libFuzzer target for a while, starting from (and adding to)
 # its corpus: gltf (the glTF importer, fuzz/corpus/gltf), frame (the UDP
 # frame stream as the client reads it, fuzz/corpus/frame), control (the
-# players' control messages, fuzz/corpus/control) or records (the
-# parent-relative bone records, fuzz/corpus/records). Needs clang
+# players' control messages, fuzz/corpus/control), records (the
+# parent-relative bone records, fuzz/corpus/records) or world (another
+# node's messages on the world bus, fuzz/corpus/world). Needs clang
 # (Debian clang-14 and libclang-rt-14-dev).
 #
-#   scripts/fuzz.sh [SECONDS] [gltf|frame|control|records]      (default 60 gltf)
+#   scripts/fuzz.sh [SECONDS] [gltf|frame|control|records|world]      (default 60 gltf)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-case "${1:-}" in -h|--help) sed -n '2,9p' "$0" | sed 's/^# \{0,1\}//'; exit 0;; esac
+case "${1:-}" in -h|--help) sed -n '2,10p' "$0" | sed 's/^# \{0,1\}//'; exit 0;; esac
 secs=${1:-60}
 target=${2:-gltf}
 case "$target" in
@@ -17,7 +18,8 @@ case "$target" in
   frame) exe=fuzz_frame_stream; net=ON; len=1200;;
   control) exe=fuzz_control; net=ON; len=65536;;
   records) exe=fuzz_records; net=ON; len=4096;;
-  *) echo "fuzz.sh: unknown target $target (gltf, frame, control or records)" >&2; exit 2;;
+  world) exe=fuzz_world; net=ON; len=65536;;
+  *) echo "fuzz.sh: unknown target $target (gltf, frame, control, records or world)" >&2; exit 2;;
 esac
 bash scripts/setup.sh
 command -v clang++ >/dev/null || { echo "fuzz.sh: needs clang++ (apt-get install clang libclang-rt-14-dev)" >&2; exit 1; }

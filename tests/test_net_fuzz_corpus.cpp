@@ -83,3 +83,15 @@ TEST(NetFuzzCorpus, BoneRecordsAcceptEverySeedAndSurviveMutations) {
     EXPECT_GT(refused, 50000 / 4);
     std::printf("bone records: %d of 50000 mutated streams refused\n", refused);
 }
+
+// Another node's messages on the world bus (fuzz/corpus/world, written by
+// make_frame_corpus) through the world-message entry point, and mutations of
+// them: each accepted or refused whole, none crashes.
+TEST(NetFuzzCorpus, WorldMessagesAcceptEverySeedAndSurviveMutations) {
+    const auto seeds = read_corpus("world");
+    ASSERT_GE(seeds.size(), 3u);
+    for (const auto& in : seeds) EXPECT_EQ(progskin::fuzz::world_message(in.data(), in.size()), 1);
+    const int refused = refused_mutations(seeds, 29, progskin::fuzz::world_message);
+    EXPECT_GT(refused, 50000 / 4);
+    std::printf("world messages: %d of 50000 mutations refused\n", refused);
+}
