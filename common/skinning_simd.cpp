@@ -20,6 +20,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <type_traits>
 
 #include "skinning.h"
 
@@ -225,11 +226,16 @@ HWY_INLINE void Store4(const VF* R, float* out, size_t cnt, bool room16, bool re
     } else {
         const hn::Full128<float> d4;
         hn::Vec<decltype(d4)> x, y, z;
+        // DF and R under a type that depends on G, so that the branch not
+        // taken is not checked (clang checks a discarded branch's
+        // non-dependent code, where the vector widths do not match).
+        using DG = std::conditional_t<G == 2, DF, DF>;
+        const hn::Vec<DG>* RG = R;
         if constexpr (G == 2) {
-            const hn::Half<DF> dh;
-            x = hn::LowerHalf(dh, R[0]), y = hn::UpperHalf(dh, R[0]), z = hn::UpperHalf(dh, R[1]);
+            const hn::Half<DG> dh;
+            x = hn::LowerHalf(dh, RG[0]), y = hn::UpperHalf(dh, RG[0]), z = hn::UpperHalf(dh, RG[1]);
         } else {
-            x = R[0], y = R[1], z = R[2];
+            x = RG[0], y = RG[1], z = RG[2];
         }
         if (renormalize) {
             const auto r = RsqrtNewton(d4, hn::MulAdd(x, x, hn::MulAdd(y, y, hn::Mul(z, z))));
