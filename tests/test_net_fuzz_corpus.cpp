@@ -85,12 +85,16 @@ TEST(NetFuzzCorpus, BoneRecordsAcceptEverySeedAndSurviveMutations) {
 }
 
 // Another node's messages on the world bus (fuzz/corpus/world, written by
-// make_frame_corpus) through the world-message entry point, and mutations of
+// make_frame_corpus, and the inputs of a libFuzzer run, fuzz-*) through the world-message entry point, and mutations of
 // them: each accepted or refused whole, none crashes.
 TEST(NetFuzzCorpus, WorldMessagesAcceptEverySeedAndSurviveMutations) {
-    const auto seeds = read_corpus("world");
+    const auto seeds = read_corpus("world", false);  // the messages written, not the found inputs
     ASSERT_GE(seeds.size(), 3u);
     for (const auto& in : seeds) EXPECT_EQ(progskin::fuzz::world_message(in.data(), in.size()), 1);
+    const auto all = read_corpus("world");  // the found inputs (fuzz-*): each accepted or refused
+    int accepted = 0;
+    for (const auto& in : all) accepted += progskin::fuzz::world_message(in.data(), in.size());
+    EXPECT_LT(accepted, int(all.size()));
     const int refused = refused_mutations(seeds, 29, progskin::fuzz::world_message);
     EXPECT_GT(refused, 50000 / 4);
     std::printf("world messages: %d of 50000 mutations refused\n", refused);
