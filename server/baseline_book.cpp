@@ -41,6 +41,7 @@ void BaselineBook::on_ack(uint32_t ack, uint32_t bits, std::vector<LostRun>* los
     auto take = [&](uint32_t seq) {
         Sent& s = sent_[seq % kSentRing];
         if (!s.valid || s.seq != seq) return;
+        if (!s.lost) first_loss_ *= 1.0 - kFirstLossWeight;  // its first outcome (a lost one counted when reported)
         mark(s);
         s.valid = false;  // once
     };
@@ -57,6 +58,7 @@ void BaselineBook::on_ack(uint32_t ack, uint32_t bits, std::vector<LostRun>* los
         const bool by_time = loss_delay_us > 0 && s.timed && int32_t(now_us - s.send_us) >= int32_t(loss_delay_us);
         if (!by_count && !by_time) continue;
         s.lost = true;
+        first_loss_ = (1.0 - kFirstLossWeight) * first_loss_ + kFirstLossWeight;
         for (const Run& r : s.runs) lost->push_back({s.seq, s.tick, r.generation, int(r.instance), int(r.first), int(r.count), r.count == 0});
     }
 }
@@ -125,6 +127,7 @@ bool BaselineBook::newest_of(int instance, uint32_t generation, int b, uint32_t&
 
 void BaselineBook::clear() {
     for (Sent& s : sent_) s.valid = false;
+    first_loss_ = 0;
     acks_.clear();
 }
 

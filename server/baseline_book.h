@@ -66,6 +66,14 @@ public:
     };
     // Datagram `seq` (its runs given to carried) left at `send_us`.
     void sent_at(uint32_t seq, uint32_t send_us);
+    // The share of frame datagrams lost on their first send, before any
+    // repair: a moving average (weight kFirstLossWeight) over each
+    // datagram's first outcome, its first acknowledgement (0) or its first
+    // report as lost (1); a repaired datagram acknowledged later counts
+    // once. 0 until the first outcome. (The rate's loss, RateController::
+    // loss, is what stays lost after the repairs.)
+    double first_loss() const { return first_loss_; }
+    static constexpr double kFirstLossWeight = 1.0 / 64;
     // Whether datagram seq (its runs given to carried, among the last
     // kSentRing) is still unacknowledged.
     bool unacked(uint32_t seq) const {
@@ -160,6 +168,7 @@ private:
     };
     void mark(const Sent& s);
     Sent& slot(uint32_t seq, uint32_t tick);  // datagram seq's entry, started afresh for a new seq
+    double first_loss_ = 0;                    // first_loss()
     std::vector<Sent> sent_ = std::vector<Sent>(kSentRing);
     std::vector<Acks> acks_;  // by instance id
 };

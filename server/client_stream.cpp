@@ -5,6 +5,7 @@
 #include <net/if.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 
 #include <sodium.h>
@@ -479,6 +480,16 @@ DatagramVerdict ClientStream::on_ack(const wire::Ack& a, const PeerAddress& from
     return DatagramVerdict::accepted;
 }
 
+int ClientStream::repair_copies(double loss) {
+    int n = kRepairCopies;
+    double miss = std::pow(std::clamp(loss, 0.0, 1.0), double(n));
+    while (n < kMaxRepairCopies && miss > kRepairMiss * (1 + 1e-9)) {  // (0.1^3 is 1e-3 and a rounding more)
+        ++n;
+        miss *= loss;
+    }
+    return n;
+}
+
 void ClientStream::repair(uint32_t seq, DatagramSink& out) {
     if (!core_.config().repair_lost || last_limited_) return;  // on_ack: bound
     Kept& k = kept_[seq % kKeptSent];
@@ -487,9 +498,11 @@ void ClientStream::repair(uint32_t seq, DatagramSink& out) {
         return;
     const size_t wire = k.bytes.size() + UDP_IP_OVERHEAD, room = rate_.budget();
     if (room < wire) return;  // no room now: the scheduler sends its bones again (Scheduler::lost)
-    // kRepairCopies copies where the budget holds them (else one): a repair
-    // lost as well is found only an RTT later, after its tick was shown.
-    const size_t copies = room >= kRepairCopies * wire ? size_t(kRepairCopies) : 1;
+    // repair_copies copies where the budget holds them (else as many as it
+    // does): a repair lost as well is found only an RTT later, after its
+    // tick was shown.
+    size_t copies = size_t(repair_copies(book_.first_loss()));
+    while (copies > 1 && room < copies * wire) --copies;
     ++k.repairs;
     k.sent_us = now_us32();
     for (size_t c = 0; c < copies; ++c) out.send(k.bytes, peer_);

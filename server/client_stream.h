@@ -232,14 +232,22 @@ public:
     // Repairs (ServerConfig::repair_lost): a frame datagram of a tick older
     // than kRepairTicks is not sent again; one datagram goes again at most
     // kMaxRepairs times (each a lost repair: repair_again), each time as
-    // kRepairCopies copies back to back when the budget holds them (one
-    // otherwise): at 10 % random loss a repair lost too (1 % of datagrams)
-    // came back an RTT later, after its tick was displayed, and such ticks
-    // were most of the displayed error under loss at the full rate
-    // (docs/performance.md "Repairs in two copies").
+    // repair_copies(first loss) copies back to back, fewer (at least one)
+    // when the budget does not hold them. A repair lost too comes back an
+    // RTT later or more, after its tick was displayed, and such ticks were
+    // most of the displayed error under loss at the full rate
+    // (docs/performance.md "Repairs in two copies", "Repair copies for the
+    // link's loss"): the copies are as many as make all of them lost less
+    // likely than kRepairMiss at the link's loss before repairs
+    // (BaselineBook::first_loss), from kRepairCopies up to kMaxRepairCopies.
     static constexpr int kRepairTicks = 6;
     static constexpr int kMaxRepairs = 5;
-    static constexpr int kRepairCopies = 2;
+    static constexpr int kRepairCopies = 2, kMaxRepairCopies = 4;
+    static constexpr double kRepairMiss = 1e-3;
+    // The smallest n in kRepairCopies..kMaxRepairCopies with loss^n <= kRepairMiss
+    // (kMaxRepairCopies when none). O(1).
+    static int repair_copies(double loss);
+    double first_loss() const { return book_.first_loss(); }  // BaselineBook::first_loss
 
 private:
     // Published poses kept per character: twice the publisher's window

@@ -5,10 +5,10 @@
 #include <gtest/gtest.h>
 
 #include <map>
-#include <thread>
 #include <random>
-
 #include <set>
+#include <thread>
+#include <utility>
 
 #include "client_stream.h"
 #include "control_messages.h"
@@ -246,7 +246,7 @@ TEST(ClientStream, TickSendsFramesWithinTheBudget) {
 // Repairs (ServerConfig::repair_lost) under Acks that lie: a client that
 // acknowledges only its even datagrams, every odd one "lost",
 // gets each of its recent frame datagrams at most kMaxRepairs times more (each
-// time in at most kRepairCopies copies), byte for byte,
+// time in at most kMaxRepairCopies copies: half its datagrams are lost), byte for byte,
 // only at its bound address, and its stream stays within its cap; with
 // repairs off, none.
 TEST(ClientStream, LyingAcksGetEachDatagramAFewTimesMoreWithinTheCap) {
@@ -275,7 +275,7 @@ TEST(ClientStream, LyingAcksGetEachDatagramAFewTimesMoreWithinTheCap) {
         }
         size_t repeated = 0;
         for (const auto& [bytes, n] : copies) {
-            EXPECT_LE(n, 1 + ClientStream::kMaxRepairs * ClientStream::kRepairCopies) << "a datagram went more than kMaxRepairs times again";
+            EXPECT_LE(n, 1 + ClientStream::kMaxRepairs * ClientStream::kMaxRepairCopies) << "a datagram went more than kMaxRepairs times again";
             repeated += size_t(n - 1);
         }
         const uint64_t repaired = f.core->stats().datagrams_repaired;
@@ -285,7 +285,7 @@ TEST(ClientStream, LyingAcksGetEachDatagramAFewTimesMoreWithinTheCap) {
         EXPECT_LE(double(wire), 1.04 * 3 * 256 * 125 + 4000);
         if (repair) {
             EXPECT_GT(repaired, 0u);
-            EXPECT_LE(repaired, size_t(ClientStream::kMaxRepairs * ClientStream::kRepairCopies) * (f.sink.sent.size() / 2 + 1));
+            EXPECT_LE(repaired, size_t(ClientStream::kMaxRepairs * ClientStream::kMaxRepairCopies) * (f.sink.sent.size() / 2 + 1));
         } else {
             EXPECT_EQ(repaired, 0u);
         }
@@ -348,6 +348,76 @@ TEST(ClientStream, ALostRepairGoesAgainUntilAcknowledged) {
     EXPECT_EQ(copies(lost_bytes), 1 + ClientStream::kMaxRepairs * ClientStream::kRepairCopies);
     EXPECT_EQ(copies(late_bytes), 1 + ClientStream::kRepairCopies);
     EXPECT_EQ(f.core->stats().datagrams_repaired - repaired0, uint64_t((ClientStream::kMaxRepairs + 1) * ClientStream::kRepairCopies));
+}
+
+// How many copies a repair goes in: enough that all of them are lost less
+// often than kRepairMiss at the link's loss before repairs, from
+// kRepairCopies (a clean link) up to kMaxRepairCopies.
+TEST(ClientStream, RepairCopiesFollowTheLinksLoss) {
+    EXPECT_EQ(ClientStream::repair_copies(0.0), ClientStream::kRepairCopies);
+    EXPECT_EQ(ClientStream::repair_copies(0.03), 2);   // 9e-4
+    EXPECT_EQ(ClientStream::repair_copies(0.05), 3);   // 2.5e-3, then 1.25e-4
+    EXPECT_EQ(ClientStream::repair_copies(0.1), 3);    // 1e-3
+    EXPECT_EQ(ClientStream::repair_copies(0.2), 4);    // 8e-3, then 1.6e-3: the most
+    EXPECT_EQ(ClientStream::repair_copies(1.0), ClientStream::kMaxRepairCopies);
+    EXPECT_EQ(ClientStream::repair_copies(-1.0), ClientStream::kRepairCopies);  // out of range: clamped
+}
+
+// A link that loses every tenth datagram on its first send: the book's first
+// loss reads about 0.1, and each lost datagram goes again once, in 3 or 4
+// copies (the budget is unlimited; 2 on a clean link), byte for byte.
+TEST(ClientStream, RepairsOfALossyLinkGoInMoreCopies) {
+    Fixture f(0);
+    f.bind(kHome, 101.0);
+    ASSERT_EQ(f.s->state(), SessionState::Streaming);
+    double now = 102.0;
+    std::set<uint32_t> received;
+    std::map<uint32_t, std::vector<uint8_t>> first_bytes;
+    size_t lost_on_first = 0, scanned = f.sink.sent.size();
+    for (int t = 0; t < 400; ++t) {
+        now += 1.0 / 30;
+        f.core->tick(now, f.sink);
+        // What went since the last look: this tick's datagrams and the
+        // repairs the last Ack made.
+        for (size_t k = std::exchange(scanned, f.sink.sent.size()); k < f.sink.sent.size(); ++k) {
+            const wire::Datagram* d = verify_datagram(f.sink.sent[k].bytes);
+            if (!d || !d->body_as_Frame()) continue;
+            const uint32_t seq = d->seq();
+            if (!first_bytes.count(seq)) {  // its first send: every tenth lost
+                first_bytes[seq] = f.sink.sent[k].bytes;
+                if (seq % 10 == 7) {
+                    ++lost_on_first;
+                    continue;
+                }
+            }
+            received.insert(seq);  // a repair always arrives
+        }
+        if (received.empty()) continue;
+        const uint32_t a = *received.rbegin();
+        uint32_t bits = 0;
+        for (uint32_t i = 0; i < 32; ++i)
+            if (received.count(a - 1 - i)) bits |= 1u << i;
+        std::this_thread::sleep_for(std::chrono::milliseconds(2));  // past the loss delay (1 ms)
+        f.core->on_datagram(ack(*f.s, a, bits, 1000), kHome, now, f.sink);
+    }
+    ASSERT_GT(lost_on_first, 20u);
+    // The datagrams lost on their first send, and how often each went.
+    std::map<size_t, int> sends_of_lost;
+    for (const auto& [seq, bytes] : first_bytes) {
+        // (past the average's warm-up; the last ones may not be repaired yet)
+        if (seq % 10 != 7 || seq < 150 || seq + 40 > first_bytes.rbegin()->first) continue;
+        const auto n = std::count_if(f.sink.sent.begin(), f.sink.sent.end(), [&](const auto& d) { return d.bytes == bytes; });
+        ++sends_of_lost[size_t(n)];
+    }
+    std::printf("first loss %.3f; lost datagrams by sends:", f.s->first_loss());
+    for (const auto& [n, k] : sends_of_lost) std::printf(" %zu x %d", n, k);
+    std::printf("\n");
+    EXPECT_NEAR(f.s->first_loss(), 0.1, 0.02);
+    // Its first send and one repair in 3 copies, or 4 right after a loss
+    // (the average is then a little over 0.1: 0.107^3 > kRepairMiss).
+    ASSERT_FALSE(sends_of_lost.empty());
+    EXPECT_GE(sends_of_lost.begin()->first, size_t(1 + 3));
+    EXPECT_LE(sends_of_lost.rbegin()->first, size_t(1 + ClientStream::kMaxRepairCopies));
 }
 
 TEST(ClientStream, NotBoundWithinClientTimeoutIsClosedWithItsReason) {
