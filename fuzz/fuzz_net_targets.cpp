@@ -212,7 +212,7 @@ int world_message(const uint8_t* data, size_t size) {
     WorldHeader h;
     if (!read_world_message({data, size}, catalogue, h, chars).empty()) return 0;
     for (const WorldCharacter& c : chars)
-        encoder.push_relative(int(c.asset), ++seq, c.epoch, 0, c.ints, c.root, c.morphs);
+        encoder.push_relative(int(c.asset), ++seq, c.epoch, 0, c.ints, c.root, c.morphs, c.sample);
     encoder.encode(++tick);
     return 1;
 }

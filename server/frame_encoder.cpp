@@ -237,7 +237,7 @@ bool FrameEncoder::push_records(int instance, uint32_t pose_seq, uint8_t epoch, 
 }
 
 bool FrameEncoder::push_relative(int instance, uint32_t pose_seq, uint8_t epoch, int first, std::span<const RecordInts> records,
-                                 std::span<const uint8_t, ROOT_BYTES> root, std::span<const int16_t> morphs) {
+                                 std::span<const uint8_t, ROOT_BYTES> root, std::span<const int16_t> morphs, uint8_t sample) {
     std::lock_guard lock(mutex_);
     Slot* slot = pose_slot(instance, pose_seq, morphs);
     if (!slot) return false;
@@ -245,6 +245,7 @@ bool FrameEncoder::push_relative(int instance, uint32_t pose_seq, uint8_t epoch,
     if (first < 0 || size_t(first) + records.size() > B) return false;
     if (slot->rel.size() != B || !slot->relative) slot->rel.assign(B, RecordInts{});  // a bone not sent yet: the bind pose
     std::copy(records.begin(), records.end(), slot->rel.begin() + first);
+    slot->sample = sample;
     take_pose(*slot, pose_seq, epoch, root, morphs, true);
     return true;
 }
@@ -403,6 +404,7 @@ void FrameEncoder::encode_slot(size_t i, uint32_t tick, Work& w) {
             std::copy(slot.morphs.begin(), slot.morphs.end(), frame_.morph.begin() + long(e.morph_offset));
         }
         e.epoch = uint8_t(slot.teleports + slot.live_epoch);
+        e.sample = slot.relative ? slot.sample : 0;
         e.valid = true;
         keep_baseline(i, tick, slot.generation);
         return;

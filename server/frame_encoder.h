@@ -247,8 +247,11 @@ public:
     // caller): at the next encode they are composed down the progressive
     // parents into model space (a bone outside the asset's box refuses the
     // pose that tick, counted poses_out_of_range) and coded like any pose.
+    // sample: the pose's sample byte (EncodedInstance::sample: 0, the
+    // tick's; a key's otherwise), which the world bus carries from the node
+    // that sampled a clip at its keys; a player's poses are the tick's.
     bool push_relative(int instance, uint32_t pose_seq, uint8_t epoch, int first, std::span<const RecordInts> records,
-                       std::span<const uint8_t, ROOT_BYTES> root, std::span<const int16_t> morphs = {});
+                       std::span<const uint8_t, ROOT_BYTES> root, std::span<const int16_t> morphs = {}, uint8_t sample = 0);
     // Places an instance in the world; teleport: a discontinuity (new epoch).
     // Returns false when the root is outside the root block's range.
     bool set_root(int instance, const RootPose& root, bool teleport);
@@ -274,6 +277,7 @@ private:
         std::vector<int16_t> morphs;   // published morph weights (quantised), empty: none
         uint32_t pose_seq = 0;
         uint8_t live_epoch = 0, teleports = 0;
+        uint8_t sample = 0;         // push_relative's sample byte
         bool has_root = false;
         std::array<uint8_t, ROOT_BYTES> root{};
         bool changed = true;        // pushed to since the last encode

@@ -497,7 +497,7 @@ void WorldBus::Impl::take_cell(std::span<const uint8_t> bytes, double now) {
         Foreign& f = it->second;
         f.last_seen = now;
         // Composed and coded again, they give the same integers (world_message.h).
-        core.encoder().push_relative(f.local, ++f.seq, c.epoch, 0, c.ints, c.root, c.morphs);
+        core.encoder().push_relative(f.local, ++f.seq, c.epoch, 0, c.ints, c.root, c.morphs, c.sample);
     }
 }
 

@@ -53,6 +53,7 @@ std::string read_character(Reader& r, const ServerAssets& assets, WorldCharacter
     const uint8_t flags = r.get<uint8_t>();
     if (flags > 1) return "character flags " + std::to_string(flags);
     c.published = flags == 1;
+    c.sample = r.get<uint8_t>();
     const int bones = r.get<uint8_t>();
     const size_t record_bytes = r.get<uint16_t>();
     if (!r.ok) return "truncated character";
@@ -99,6 +100,7 @@ bool world_character(const EncodedFrame& frame, int i, const RootPose& placed, W
     c.id = uint16_t(i);
     c.asset = uint16_t(e.asset);
     c.epoch = e.epoch;
+    c.sample = e.sample;
     if (e.flags & CHUNK_ROOT) c.root = e.root;
     else if (!encode_root(placed, c.root.data())) return false;
     c.record_bits = frame.record_bits(i, 0, e.bone_count);
@@ -135,6 +137,7 @@ void write_world_message(const WorldHeader& h, std::span<const WorldCharacter> c
         put<uint16_t>(out, c.asset);
         put<uint8_t>(out, c.epoch);
         put<uint8_t>(out, c.published ? 1 : 0);
+        put<uint8_t>(out, c.sample);
         const size_t n = std::min((c.record_bits + 7) / 8, c.records.size());
         put<uint8_t>(out, uint8_t(a.bone_count()));
         put<uint16_t>(out, uint16_t(n));

@@ -16,7 +16,7 @@
 //   header  "PSKW" | version u8 (3) | 0 u8 | node u16 | catalogue u64 | tick u32 | count u16
 //   count x character:
 //     id u16 (the node's instance id) | world_id u64 (nonzero) | asset u16 | epoch u8 | flags u8 (1: a player's)
-//     | bones u8 | record_bytes u16
+//     | sample u8 (EncodedInstance::sample: 0 the tick's pose, else a key's) | bones u8 | record_bytes u16
 //     | root [ROOT_BYTES] | records [record_bytes]: bones standalone parent-relative
 //       records (bone_record.h write_record), bit-packed, zero bits to the byte's end
 //     | morphs u8 | morph weights i16 x morphs
@@ -49,6 +49,7 @@ struct WorldCharacter {
     uint64_t world_id = 0;  // InstanceSpec::world_id (nonzero)
     uint16_t asset = 0;
     uint8_t epoch = 0;
+    uint8_t sample = 0;      // the pose's sample byte (a clip sampled at its keys)
     bool published = false;  // a player's character (else the node's own, a clip or a game's)
     std::array<uint8_t, ROOT_BYTES> root{};
     // The records' bit stream: written, its first record_bits bits (the rest
