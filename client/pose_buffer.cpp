@@ -246,13 +246,20 @@ double PoseBuffer::sample_of(uint32_t t) const {
 
 double PoseBuffer::needed_from(uint32_t tick, int b) const {
     const Frame* at = nullptr;
-    const Frame* before = nullptr;
+    const Frame* before = nullptr;   // the newest kept frame before `tick` that carries bone b
+    const Frame* before2 = nullptr;  // the one before that
     for (const auto& f : frames_) {
         if (!f.used) continue;
-        if (f.tick == tick) at = &f;
-        else if (int32_t(tick - f.tick) > 0 && b >= 0 && size_t(b) < f.have.size() && f.have[size_t(b)] &&
-                 (!before || int32_t(f.tick - before->tick) > 0))
-            before = &f;
+        if (f.tick == tick) {
+            at = &f;
+        } else if (int32_t(tick - f.tick) > 0 && b >= 0 && size_t(b) < f.have.size() && f.have[size_t(b)]) {
+            if (!before || int32_t(f.tick - before->tick) > 0) {
+                before2 = before;
+                before = &f;
+            } else if (!before2 || int32_t(f.tick - before2->tick) > 0) {
+                before2 = &f;
+            }
+        }
     }
     // As last_gap: a frame more than HOLD_TICKS before shows the bone again
     // rather than refreshing it, and the display never interpolates across
@@ -261,13 +268,10 @@ double PoseBuffer::needed_from(uint32_t tick, int b) const {
     // The cubic between `before` and the frame before it takes this one as
     // its outer neighbour (pose_about_pivot's c1); without it that span is
     // linear (at the full rate tens of times the cubic's error: a repair
-    // that came as the display entered that span): needed from there.
-    const Frame* before2 = nullptr;
-    for (const auto& f : frames_)
-        if (f.used && int32_t(before->tick - f.tick) > 0 && f.have[size_t(b)] && f.epoch == before->epoch &&
-            (!before2 || int32_t(f.tick - before2->tick) > 0))
-            before2 = &f;
-    if (before2 && int32_t(before->tick - before2->tick) <= HOLD_TICKS) return sample_time(*before2);
+    // that came as the display entered that span): needed from there (an
+    // epoch only moves on, so one of another epoch has none of its own before it).
+    if (before2 && before2->epoch == before->epoch && int32_t(before->tick - before2->tick) <= HOLD_TICKS)
+        return sample_time(*before2);
     return sample_time(*before);
 }
 

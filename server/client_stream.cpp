@@ -481,11 +481,12 @@ DatagramVerdict ClientStream::on_ack(const wire::Ack& a, const PeerAddress& from
 }
 
 int ClientStream::repair_copies(double loss) {
+    const double p = std::clamp(loss, 0.0, 1.0);
     int n = kRepairCopies;
-    double miss = std::pow(std::clamp(loss, 0.0, 1.0), double(n));
+    double miss = std::pow(p, double(n));
     while (n < kMaxRepairCopies && miss > kRepairMiss * (1 + 1e-9)) {  // (0.1^3 is 1e-3 and a rounding more)
         ++n;
-        miss *= loss;
+        miss *= p;
     }
     return n;
 }

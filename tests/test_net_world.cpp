@@ -560,7 +560,7 @@ TEST(WorldMessage, AForeignCharacterCodesToTheSenderIntegers) {
     sender.set_key_samples(true);  // as progskin-server: linearly keyed clips sampled at their keys
     std::vector<uint8_t> bytes;
     std::vector<WorldCharacter> got;
-    size_t compared = 0, differing = 0, message_bytes = 0, absolute_bytes = 0, keyed = 0;
+    size_t compared = 0, differing = 0, message_bytes = 0, absolute_bytes = 0, record_bytes = 0, keyed = 0;
     for (uint32_t t = 1; t <= 90; ++t) {
         const EncodedFrame& f = sender.encode(t);
         std::vector<WorldCharacter> chars(scene.size());
@@ -571,8 +571,10 @@ TEST(WorldMessage, AForeignCharacterCodesToTheSenderIntegers) {
         write_world_message({1, catalogue_hash(assets), t}, chars, assets, bytes);
         message_bytes += bytes.size();
         absolute_bytes += bytes.size();  // the same message with version 2's absolute records
-        for (const WorldCharacter& c : chars)
+        for (const WorldCharacter& c : chars) {
             absolute_bytes += size_t(f.instances[c.id].bone_count * f.instances[c.id].record_size) - c.records.size() - 2;
+            record_bytes += c.records.size();
+        }
         WorldHeader h;
         ASSERT_EQ(read_world_message(bytes, assets, h, got), "");
         for (const WorldCharacter& c : got)
@@ -600,6 +602,6 @@ TEST(WorldMessage, AForeignCharacterCodesToTheSenderIntegers) {
     }
     EXPECT_EQ(differing, 0u) << "of " << compared << " bone records";
     EXPECT_GT(keyed, 0u) << "some poses were sampled at a key before their tick";
-    std::printf("%zu bone records over 90 ticks, %zu differ; %.0f bytes a message (%.0f with absolute records)\n", compared, differing,
-                double(message_bytes) / 90, double(absolute_bytes) / 90);
+    std::printf("%zu bone records over 90 ticks, %zu differ; %.0f bytes a message (%.0f with absolute records), %.1f of them records\n",
+                compared, differing, double(message_bytes) / 90, double(absolute_bytes) / 90, double(record_bytes) / 90);
 }
