@@ -15,6 +15,7 @@
 #include "scene.h"
 #include "server.h"
 #include "session.h"
+#include "temp_dir.h"
 
 namespace progskin::net::testing {
 
@@ -81,7 +82,7 @@ public:
     }
     static std::string cache_dir() {
         static std::string d = [] {
-            auto p = std::filesystem::temp_directory_path() / ("progskin-test-cache-" + std::to_string(::getpid()));
+            const auto p = progskin::testing::process_temp_dir("progskin-test-cache-");
             std::filesystem::create_directories(p);
             return p.string();
         }();

@@ -6,6 +6,7 @@
 #include <nlohmann/json.hpp>
 
 #include "run_command.h"
+#include "temp_dir.h"
 
 #include <array>
 #include <chrono>
@@ -36,9 +37,7 @@ std::string data(const std::string& name) { return std::string(PROGSKIN_TEST_DAT
 
 // A fresh cache directory per test.
 std::string temp_cache(const std::string& name) {
-    const fs::path d = fs::temp_directory_path() / ("progskin_test_assets_" + name + "_" + std::to_string(::getpid()));
-    fs::remove_all(d);
-    return d.string();
+    return progskin::testing::process_temp_dir("progskin_test_assets_" + name + "_").string();
 }
 
 

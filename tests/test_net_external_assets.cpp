@@ -15,6 +15,7 @@
 #include "asset_cache.h"
 #include "net_test_support.h"
 #include "run_command.h"
+#include "temp_dir.h"
 #include "self_contained.h"
 
 using namespace progskin;
@@ -91,7 +92,7 @@ std::string make_external_gltf(const fs::path& dir, const Fixture& f = {}) {
 }
 
 fs::path temp_dir(const std::string& name) {
-    return fs::temp_directory_path() / ("progskin_test_external_" + name + "_" + std::to_string(::getpid()));
+    return progskin::testing::process_temp_dir("progskin_test_external_" + name + "_");
 }
 
 // Checks a GLB holds everything: one binary chunk, no external URI, the two
