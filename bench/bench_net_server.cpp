@@ -243,7 +243,7 @@ static void BM_PublishingPlayers(benchmark::State& st) {
     NoSockets sink;
     std::array<uint8_t, ROOT_BYTES> root{};
     uint32_t tick = 0;
-    double busy = 0, sent = 0, wall = 0, weighed = 0;
+    double busy = 0, sent = 0, wall = 0, weighed = 0, encoding = 0;
     auto one_tick = [&](bool timed) {
         const double t0 = process_seconds(), w0 = now_seconds();
         ++tick;
@@ -258,6 +258,7 @@ static void BM_PublishingPlayers(benchmark::State& st) {
             if (ok) enc.push_records(p, tick, 0, 0, rec, root);
         }
         const EncodedFrame& f = enc.encode(tick);
+        const double t_encoded = process_seconds();
         g_hash_on = tick <= 20;
         if (acked)
             for (size_t p = 0; p < client.size(); ++p) seq_before[p] = client[p]->next_seq();
@@ -269,6 +270,7 @@ static void BM_PublishingPlayers(benchmark::State& st) {
         if (!timed) return;
         sent += bytes;
         busy += process_seconds() - t0;
+        encoding += t_encoded - t0;
         wall += now_seconds() - w0;
         for (const ClientStream* c : streams) weighed += double(c->weighed());
     };
@@ -284,6 +286,8 @@ static void BM_PublishingPlayers(benchmark::State& st) {
     digest_end(st);
     st.counters["players_per_core"] = double(players) / load;
     st.counters["cpu_us_per_player_tick"] = 1e6 * busy / ticks / players;
+    // of which the poses' arrival and FrameEncoder::encode (the tick thread's, once per tick)
+    st.counters["encode_us_per_player_tick"] = 1e6 * encoding / ticks / players;
     st.counters["wall_ms_per_tick"] = 1e3 * wall / ticks;
     st.counters["kbps_per_player"] = sent * 8 / 1000 / (ticks / 30.0) / players;
     st.counters["weighed_per_player"] = weighed / ticks / players;  // instances whose importance a player's tick computed
