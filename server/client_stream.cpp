@@ -790,7 +790,9 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
     });
     if (near_valid_) std::sort(weighed_list_.begin(), weighed_list_.end());  // (near_ is in the rings' order)
     const bool predict = core_.config().predict_records;
-    plan_.begin(frame);
+    RecordPlan& plan = scratch.plan;
+    plan.begin(frame);
+    plan_ = &plan;
     if (predict) {
         // A few instances ahead, their acknowledgements are fetched from
         // memory while the current one is planned (each client's book is cold).
@@ -799,10 +801,10 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
         for (size_t k = 0; k < std::min(kAhead, planned.size()); ++k) book_.prefetch(int(planned[k]));
         for (size_t k = 0; k < planned.size(); ++k) {
             if (k + kAhead < planned.size()) book_.prefetch(int(planned[k + kAhead]));
-            plan_.plan(frame, int(planned[k]), book_);
+            plan.plan(frame, int(planned[k]), book_);
         }
     }
-    scheduler_.set_plan(predict ? &plan_ : nullptr);
+    scheduler_.set_plan(predict ? &plan : nullptr);
     if (selector_) {
         selector_(frame, budget, picks_);
     } else {
@@ -822,7 +824,7 @@ TickResult ClientStream::send_frame(const EncodedFrame& frame, size_t budget, Da
     std::vector<std::vector<uint8_t>>& dgrams = scratch.datagrams;
     dgrams.clear();
     const uint32_t first_seq = seq_;
-    size_t wire = scratch.packer.pack(frame, picks_, seq_, dgrams, predict ? &plan_ : nullptr, &book_, pose_acks_);
+    size_t wire = scratch.packer.pack(frame, picks_, seq_, dgrams, predict ? &plan : nullptr, &book_, pose_acks_);
     if (!dgrams.empty() && !pose_acks_.empty()) {
         for (Owned& o : owned_) o.acked_sent = o.acked;
         if (picks_.empty()) pose_acks_tick_ = frame.tick;

@@ -94,6 +94,10 @@ enum class DatagramVerdict { accepted, rejected, malformed };
 struct TickScratch {
     DatagramPacker packer;
     Scheduler::Scratch schedule;  // the scheduler's per-tick working memory (Scheduler::Scratch)
+    // The ticking client's record plan (each character's baseline and
+    // bits), made before its scheduler runs and read until its datagrams
+    // are packed: one per thread, in cache from one client to the next.
+    RecordPlan plan;
     std::vector<std::vector<uint8_t>> datagrams;
     std::vector<uint8_t> sealed;
 };
@@ -211,9 +215,10 @@ public:
     // its Ack would say): their bones become baselines (baseline_book.h).
     void acknowledge(uint32_t ack, uint32_t bits) { book_.on_ack(ack, bits); }
     uint32_t next_seq() const { return seq_; }  // the sequence number of the next datagram
-    // This tick's record plan (each character's baseline and bits), set
-    // before the scheduler or a selector runs.
-    const RecordPlan& plan() const { return plan_; }
+    // This tick's record plan (each character's baseline and bits), made
+    // before the scheduler or a selector runs. It lives in the thread's
+    // TickScratch: valid until another client ticks on that thread.
+    const RecordPlan& plan() const { return *plan_; }
     void set_view(ViewSpec v) { view_ = std::move(v); }
     // Where this client looks from (ServerConfig::view_radius): its camera,
     // else the world positions of its own characters in `frame`. Appends to
@@ -378,7 +383,8 @@ private:
     // again the kept datagrams whose repair it shows lost (acknowledgement
     // and first send times: book_). O(kKeptSent).
     void repair_again(uint32_t ack, uint32_t loss_delay_us, DatagramSink& out);
-    RecordPlan plan_;     // this tick's record choices (set before the scheduler runs)
+    const RecordPlan* plan_ = &no_plan_;  // plan(): the last tick's, in its scratch
+    RecordPlan no_plan_;                  // before the first tick
     Selector selector_;
     ViewSpec view_;
     std::vector<glm::dvec3> centres_;  // update_importance's (view_radius)

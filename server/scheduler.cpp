@@ -89,7 +89,7 @@ size_t morph_block_bytes(const std::array<uint64_t, 4>& mask) {
 }
 
 void Scheduler::morph_item(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w) {
-    MorphItem& it = morph_[i];
+    MorphItem& it = sc_->morph[i];
     it = MorphItem{};
     const auto& e = frame.instances[i];
     if (e.morph_count == 0) return;
@@ -124,19 +124,23 @@ static_assert(HOLD_TICKS < ServerAsset::kGapTable, "the gap and refresh tables c
 void Scheduler::reset(size_t n) {
     state_.assign(n, State{});
     generation_.assign(n, 0);
-    slot_.assign(n, {});
-    paid_.assign(n, 0);
-    chain_next_.assign(n, 0);
-    chain_tried_.assign(n, 0);
-    header_.assign(n, 0);
-    order_at_.assign(n, 0);
-    order_state_.assign(n, 0);
-    morph_.assign(n, {});
-    current_.assign(n, 0);
-    least_.assign(n, SIZE_MAX);
-    spent_.assign(n, 0);
-    floor_bytes_.assign(n, 0);
-    share_left_.assign(n, 0);
+}
+
+void Scheduler::Scratch::fit(size_t n) {
+    if (slot.size() >= n) return;
+    slot.resize(n);
+    paid.resize(n, 0);
+    chain_next.resize(n, 0);
+    chain_tried.resize(n, 0);
+    order_at.resize(n, 0);
+    order_state.resize(n, 0);
+    header.resize(n, 0);
+    morph.resize(n);
+    current.resize(n, 0);
+    least.resize(n, SIZE_MAX);
+    spent.resize(n, 0);
+    floor_bytes.resize(n, 0);
+    share_left.resize(n, 0);
 }
 
 // Slots added since the last tick: grow, keeping every other instance's
@@ -146,25 +150,13 @@ void Scheduler::track_slots(const EncodedFrame& frame) {
     if (state_.size() != n) {
         state_.resize(n);
         generation_.resize(n, 0);
-        slot_.resize(n);
-        paid_.resize(n, 0);
-        chain_next_.resize(n, 0);
-        chain_tried_.resize(n, 0);
-        header_.resize(n, 0);
-        order_at_.resize(n, 0);
-        order_state_.resize(n, 0);
-        morph_.resize(n);
-        current_.resize(n, 0);
-        least_.resize(n, SIZE_MAX);
-        spent_.resize(n, 0);
-        floor_bytes_.resize(n, 0);
-        share_left_.resize(n, 0);
     }
     for (const uint32_t i : active_)
         if (generation_[i] != frame.instances[i].generation) {
             generation_[i] = frame.instances[i].generation;
             state_[i] = State{};
         }
+    sc_->fit(n);
 }
 
 // The morph item of every important instance (morph_item); returns the
@@ -182,7 +174,7 @@ size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::
             const uint32_t j = active_[k + 2 * kAhead];
             __builtin_prefetch(&state_[j]);
             __builtin_prefetch(reinterpret_cast<const char*>(&state_[j]) + 64);
-            __builtin_prefetch(&slot_[j]);
+            __builtin_prefetch(&sc_->slot[j]);
         }
         if (k + kAhead < active_.size()) {
             const State& ahead = state_[active_[k + kAhead]];
@@ -190,17 +182,17 @@ size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::
         }
         const uint32_t i = active_[k];
         const auto& e = frame.instances[i];
-        current_[i] = 0;
+        sc_->current[i] = 0;
         const ServerAsset& a = *assets[size_t(e.asset)];
         if (state_[i].bone_tick.size() != size_t(a.bone_count())) {
             state_[i].bone_tick.assign(size_t(a.bone_count()), 0);
             state_[i].prev_tick.assign(size_t(a.bone_count()), 0);
         }
         morph_item(i, frame, a, double(importance[i]) * double(importance[i]) * double(a.character.vertex_count()));
-        current_[i] = up_to_date(i, frame);
-        if (current_[i]) continue;  // nothing to send (the fast path and the greedy skip it)
-        header_[i] = header_of(frame, int(i));  // (offer_items reads it)
-        const size_t bytes = header_[i] + (record_bits(frame, int(i), 0, e.bone_count) + 7) / 8 + morph_[i].bytes;
+        sc_->current[i] = up_to_date(i, frame);
+        if (sc_->current[i]) continue;  // nothing to send (the fast path and the greedy skip it)
+        sc_->header[i] = header_of(frame, int(i));  // (offer_items reads it)
+        const size_t bytes = sc_->header[i] + (record_bits(frame, int(i), 0, e.bone_count) + 7) / 8 + sc_->morph[i].bytes;
         full += bytes;
         if (const uint32_t g = group_of(i); g > 0) {
             if (group_full_.size() <= g) group_full_.resize(size_t(g) + 1, 0);
@@ -212,7 +204,7 @@ size_t Scheduler::morph_items(const EncodedFrame& frame, const std::vector<std::
 
 bool Scheduler::up_to_date(size_t i, const EncodedFrame& frame) const {
     const auto& e = frame.instances[i];
-    if (e.changed_tick == frame.tick || morph_[i].value > 0) return false;
+    if (e.changed_tick == frame.tick || sc_->morph[i].value > 0) return false;
     const State& st = state_[i];
     for (int b = 0; b < e.bone_count; ++b) {
         const uint32_t t = st.bone_tick[size_t(b)];
@@ -226,10 +218,10 @@ void Scheduler::pick_everything(const EncodedFrame& frame, bool except_over_shar
                                 std::vector<Pick>& out) {
     for (const uint32_t i : active_) {
         const auto& e = frame.instances[i];
-        if (!current_[i] && !(except_over_share && over_share(i))) {
+        if (!sc_->current[i] && !(except_over_share && over_share(i))) {
             out.push_back({int(i), e.bone_count, e.bone_count});
-            out.back().morphs = morph_[i].mask;
-            morph_[i].chosen = true;
+            out.back().morphs = sc_->morph[i].mask;
+            sc_->morph[i].chosen = true;
         }
     }
 }
@@ -248,7 +240,7 @@ Scheduler::Offer Scheduler::segment_items(size_t i, const EncodedFrame& frame, c
     const uint32_t* tick_of = state_[i].bone_tick.data();
     const uint32_t* bits = plan_ ? plan_->bit_prefix(frame, int(i)) : frame.bit_prefix(int(i));  // record_bits
     const bool changed_now = e.changed_tick == frame.tick;
-    const double header = double(header_[i]);
+    const double header = double(sc_->header[i]);
     const size_t n = items.size();  // a.segments.size(): offer_items placed them
     Offer o;
     o.unshown = n;
@@ -325,12 +317,12 @@ Scheduler::Offer Scheduler::segment_items(size_t i, const EncodedFrame& frame, c
 void Scheduler::offer_chain(size_t i, uint32_t age, const Offer& o) {
     const Chain chain = chain_of(i);
     chain.clear();
-    if (o.unshown >= slot_[i].n) return;
+    if (o.unshown >= sc_->slot[i].n) return;
     chain.push_back({int(o.unshown), 0, 0.0});
     chain.push_back(o.hull);  // extend_chain's first step, found by segment_items
     if (chain[1].value > 0) {
-        push({chain[1].value / double(chain[1].bytes + header_[i]), int(i), 1, age, true, false});
-        chain_next_[i] = 1;
+        push({chain[1].value / double(chain[1].bytes + sc_->header[i]), int(i), 1, age, true, false});
+        sc_->chain_next[i] = 1;
     }
 }
 
@@ -365,7 +357,7 @@ bool Scheduler::extend_chain(size_t i) {
 // and its order (n); the scratch grows only past its largest tick.
 void Scheduler::place(size_t i, size_t n) {
     Scratch& sc = *sc_;
-    Slot& s = slot_[i];
+    Slot& s = sc_->slot[i];
     s.items = uint32_t(sc.items_used);
     s.chain = uint32_t(sc.chain_used);
     s.order = uint32_t(sc.order_used);
@@ -388,15 +380,15 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
     sc_->items_used = sc_->chain_used = sc_->order_used = 0;
     least_unpaid_ = least_paid_ = SIZE_MAX;
     for (const uint32_t i : active_) {
-        slot_[i].n = 0;
+        sc_->slot[i].n = 0;
         const auto& e = frame.instances[i];
-        if (current_[i] || (only_over_share && !over_share(i))) continue;
+        if (sc_->current[i] || (only_over_share && !over_share(i))) continue;
         const ServerAsset& a = *assets[size_t(e.asset)];
         place(i, a.segments.size());
-        paid_[i] = 0;
-        chain_next_[i] = 0;
-        chain_tried_[i] = 0;
-        // header_[i]: set by morph_items (every instance not up to date)
+        sc_->paid[i] = 0;
+        sc_->chain_next[i] = 0;
+        sc_->chain_tried[i] = 0;
+        // sc_->header[i]: set by morph_items (every instance not up to date)
         const State& st = state_[i];
         // Squared error in screen units, summed over the instance's vertices
         // (the RMS of docs/metrics.md §2 pools all vertices of all characters).
@@ -404,13 +396,13 @@ void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::sh
         const uint32_t stale = st.bone_tick[0] != 0 ? frame.tick - st.bone_tick[0] : UINT32_MAX;
         const Offer o = segment_items(i, frame, a, w, to30, step);
         // The fewest bytes any of its steps can take (take_greedily's stop).
-        const size_t least = std::min(o.least, morph_[i].value > 0 ? morph_[i].bytes : SIZE_MAX);
-        least_[i] = least;
-        if (least != SIZE_MAX) least_unpaid_ = std::min(least_unpaid_, least + header_[i]);
+        const size_t least = std::min(o.least, sc_->morph[i].value > 0 ? sc_->morph[i].bytes : SIZE_MAX);
+        sc_->least[i] = least;
+        if (least != SIZE_MAX) least_unpaid_ = std::min(least_unpaid_, least + sc_->header[i]);
         if (o.best >= 0) push({o.ratio, int(i), o.best, stale, false, false});  // offer_unpaid's choice
         // The morph item: on its own only once bone 0 was sent (its chunk needs show >= 1).
-        if (morph_[i].value > 0 && st.bone_tick[0] != 0)
-            push({morph_[i].value / double(morph_[i].bytes + header_[i]), int(i), 0, stale, false, false, true});
+        if (sc_->morph[i].value > 0 && st.bone_tick[0] != 0)
+            push({sc_->morph[i].value / double(sc_->morph[i].bytes + sc_->header[i]), int(i), 0, stale, false, false, true});
         offer_chain(i, stale, o);
     }
 }
@@ -435,12 +427,12 @@ void Scheduler::take_greedily(size_t budget, size_t payload) {
         }
         const Step s = pop();
         const size_t inst = size_t(s.instance);
-        if (s.floor && spent_[inst] >= floor_bytes_[inst]) {  // its floor is spent: it waits its turn by ratio
+        if (s.floor && sc_->spent[inst] >= sc_->floor_bytes[inst]) {  // its floor is spent: it waits its turn by ratio
             push(s);
             continue;
         }
-        if (!s.paid && paid_[inst]) continue;  // offered again at its records-only ratio
-        const size_t header = paid_[inst] ? 0 : header_[inst];
+        if (!s.paid && sc_->paid[inst]) continue;  // offered again at its records-only ratio
+        const size_t header = sc_->paid[inst] ? 0 : sc_->header[inst];
         if (s.morph) take_morph(s, header, budget, payload);
         else if (s.chain) take_chain_step(s, header, budget, payload);
         else take_segment(s, header, budget, payload);
@@ -462,7 +454,7 @@ void Scheduler::Step::order_key() {
 
 void Scheduler::push(Step s) {
     const size_t i = size_t(s.instance);
-    s.floor = spent_[i] < floor_bytes_[i];
+    s.floor = sc_->spent[i] < sc_->floor_bytes[i];
     s.order_key();
     sc_->heap.push_back(s);
     size_t k = sc_->heap.size() - 1;
@@ -502,7 +494,7 @@ void Scheduler::sift_down(size_t k, const Step& s) {
 // again (bottom up, O(steps)).
 void Scheduler::keep_paid_steps() {
     std::vector<Step>& heap = sc_->heap;
-    heap.erase(std::remove_if(heap.begin(), heap.end(), [&](const Step& s) { return !s.paid || !paid_[size_t(s.instance)]; }),
+    heap.erase(std::remove_if(heap.begin(), heap.end(), [&](const Step& s) { return !s.paid || !sc_->paid[size_t(s.instance)]; }),
                heap.end());
     if (heap.size() > 1)
         for (size_t k = (heap.size() - 2) / 4 + 1; k-- > 0;) sift_down(k, Step(heap[k]));  // from the last parent up
@@ -510,7 +502,7 @@ void Scheduler::keep_paid_steps() {
 
 void Scheduler::charge(size_t inst, size_t bytes, size_t& payload) {
     payload += bytes;
-    spent_[inst] += bytes;
+    sc_->spent[inst] += bytes;
 }
 
 // Parts in proportion to importance x diagonal (the character's size on
@@ -518,16 +510,16 @@ void Scheduler::charge(size_t inst, size_t bytes, size_t& payload) {
 // instances with something to send; O(instances).
 void Scheduler::set_floors(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                            std::span<const float> importance, size_t budget) {
-    for (const uint32_t i : active_) spent_[i] = floor_bytes_[i] = 0;
+    for (const uint32_t i : active_) sc_->spent[i] = sc_->floor_bytes[i] = 0;
     if (floor_fraction_ <= 0) return;
     double total = 0;
     for (const uint32_t i : active_)
-        if (!current_[i]) total += double(importance[i]) * assets[size_t(frame.instances[i].asset)]->diagonal;
+        if (!sc_->current[i]) total += double(importance[i]) * assets[size_t(frame.instances[i].asset)]->diagonal;
     const size_t overhead = WireCost::datagrams(budget) * (WireCost::kFrameOverhead + UDP_IP_OVERHEAD);
     if (total <= 0 || budget <= overhead) return;
     const double part = floor_fraction_ * double(budget - overhead) / total;
     for (const uint32_t i : active_)
-        if (!current_[i]) floor_bytes_[i] = size_t(part * double(importance[i]) * assets[size_t(frame.instances[i].asset)]->diagonal);
+        if (!sc_->current[i]) sc_->floor_bytes[i] = size_t(part * double(importance[i]) * assets[size_t(frame.instances[i].asset)]->diagonal);
 }
 
 // Whether instance `inst`'s group may take `bytes` more this tick (taking
@@ -537,7 +529,7 @@ bool Scheduler::share_allows(size_t inst, size_t bytes) {
     if (g == 0) return true;
     if (group_spent_.size() <= g) group_spent_.resize(size_t(g) + 1, 0);
     if (group_spent_[g] + bytes > credit_of(g)) {
-        share_left_[inst] = 1;
+        sc_->share_left[inst] = 1;
         return false;
     }
     group_spent_[g] += bytes;
@@ -546,11 +538,11 @@ bool Scheduler::share_allows(size_t inst, size_t bytes) {
 
 void Scheduler::take_morph(const Step& s, size_t header, size_t budget, size_t& payload) {
     const size_t inst = size_t(s.instance);
-    MorphItem& mi = morph_[inst];
+    MorphItem& mi = sc_->morph[inst];
     if (mi.chosen || WireCost::wire(payload + mi.bytes + header) > budget || !share_allows(inst, mi.bytes + header)) return;
     charge(inst, mi.bytes + header, payload);
     mi.chosen = true;
-    if (!paid_[inst]) pay(s.instance, s.age);
+    if (!sc_->paid[inst]) pay(s.instance, s.age);
 }
 
 void Scheduler::take_chain_step(const Step& s, size_t header, size_t budget, size_t& payload) {
@@ -559,25 +551,25 @@ void Scheduler::take_chain_step(const Step& s, size_t header, size_t budget, siz
     const ChainPoint& p0 = chain[size_t(s.step - 1)];
     const ChainPoint& p1 = chain[size_t(s.step)];
     const size_t bytes = p1.bytes - p0.bytes + header;
-    chain_next_[inst] = 0;
+    sc_->chain_next[inst] = 0;
     if (WireCost::wire(payload + bytes) > budget || !share_allows(inst, bytes)) {
         // A hull step may span many segments, more than the budget or the
         // owner's share can ever carry (the character stayed at 1 bone): its
         // segments are offered one at a time instead.
         if (p1.end - p0.end > 1) {
-            chain_tried_[inst] = 1;
+            sc_->chain_tried[inst] = 1;
             offer_single(s.instance, s.age);
         }
         return;
     }
     charge(inst, bytes, payload);
     for (int q = p0.end; q < p1.end; ++q) items_of(inst)[size_t(q)].chosen = true;
-    if (!paid_[inst]) pay(s.instance, s.age);
+    if (!sc_->paid[inst]) pay(s.instance, s.age);
     if (size_t(s.step) + 1 < chain.size() || extend_chain(inst)) {
         const double r = step_ratio(chain, s.step + 1);
         if (r > 0) {
             push({r, s.instance, s.step + 1, s.age, true, true});
-            chain_next_[inst] = s.step + 1;
+            sc_->chain_next[inst] = s.step + 1;
         }
     }
 }
@@ -589,7 +581,7 @@ void Scheduler::take_segment(const Step& s, size_t header, size_t budget, size_t
         if (it.chosen || WireCost::wire(payload + it.bytes + header) > budget || !share_allows(inst, it.bytes + header)) return;
         charge(inst, it.bytes + header, payload);
         it.chosen = true;
-        if (!paid_[inst]) pay(s.instance, s.age);
+        if (!sc_->paid[inst]) pay(s.instance, s.age);
         offer_single(s.instance, s.age);
         return;
     }
@@ -609,7 +601,7 @@ void Scheduler::take_segment(const Step& s, size_t header, size_t budget, size_t
     }
     charge(inst, bytes, payload);
     it.chosen = true;
-    if (!paid_[inst]) pay(s.instance, s.age);
+    if (!sc_->paid[inst]) pay(s.instance, s.age);
     else offer_paid(s.instance, s.age);
 }
 
@@ -617,8 +609,8 @@ void Scheduler::take_segment(const Step& s, size_t header, size_t budget, size_t
 // estimate keeps probing up to the full rate, where everything goes).
 bool Scheduler::left_something() const {
     for (const uint32_t i : active_) {
-        if (share_left_[i]) continue;  // its owner's share, not the rate, held it back
-        if (morph_[i].value > 0 && !morph_[i].chosen) return true;
+        if (sc_->share_left[i]) continue;  // its owner's share, not the rate, held it back
+        if (sc_->morph[i].value > 0 && !sc_->morph[i].chosen) return true;
         for (const SegItem& it : items_of(i))
             if (!it.chosen && !it.idle) return true;
     }
@@ -630,7 +622,7 @@ bool Scheduler::left_something() const {
 void Scheduler::chosen_picks(std::vector<Pick>& out) const {
     for (const uint32_t i : active_) {
         const std::span<const SegItem> items = items_of(i);
-        if (items.empty() || !paid_[i]) continue;  // nothing taken (every take pays the instance's header)
+        if (items.empty() || !sc_->paid[i]) continue;  // nothing taken (every take pays the instance's header)
         int show = 0;
         for (const SegItem& it : items) {
             if (!(it.chosen || it.shown)) break;
@@ -642,9 +634,9 @@ void Scheduler::chosen_picks(std::vector<Pick>& out) const {
             if (out.size() > before && out.back().k == it.from) out.back().k = it.to;
             else out.push_back({int(i), it.to, 0, it.from});
         }
-        if (morph_[i].chosen && show > 0) {  // the morph block goes with the instance's first chunk
+        if (sc_->morph[i].chosen && show > 0) {  // the morph block goes with the instance's first chunk
             if (out.size() == before) out.push_back({int(i), 0, 0, 0});
-            out[before].morphs = morph_[i].mask;
+            out[before].morphs = sc_->morph[i].mask;
         }
         for (size_t x = before; x < out.size(); ++x) out[x].show = std::max(show, out.back().k);
     }
@@ -703,7 +695,7 @@ size_t Scheduler::select(const EncodedFrame& frame, const std::vector<std::share
     const size_t full = morph_items(frame, assets, importance);
     limited_ = false;
     if (full == 0) return 0;
-    for (const uint32_t i : active_) share_left_[i] = 0;
+    for (const uint32_t i : active_) sc_->share_left[i] = 0;
     std::fill(group_spent_.begin(), group_spent_.end(), 0);
     // The share this tick: the configured one, and no more than an equal part
     // of the budget among the owners with something to send (the server's
@@ -766,13 +758,13 @@ double Scheduler::step_ratio(const Chain& chain, int c) {
 
 void Scheduler::offer_unpaid(int instance, uint32_t age) {
     const std::span<SegItem> items = items_of(size_t(instance));
-    const double header = double(header_[size_t(instance)]);
+    const double header = double(sc_->header[size_t(instance)]);
     int best = -1;
     double best_ratio = 0;
     for (size_t q = 0; q < items.size(); ++q) {
         SegItem& it = items[q];
         if (!it.shown || it.chosen || it.tried || !(it.value > 0)) continue;
-        if (!fits(it.bytes + header_[size_t(instance)])) {
+        if (!fits(it.bytes + sc_->header[size_t(instance)])) {
             it.tried = true;  // what the greedy would find when it popped it
             continue;
         }
@@ -792,9 +784,9 @@ void Scheduler::offer_single(int instance, uint32_t age) {
     size_t u = 0;
     while (u < items.size() && (items[u].shown || items[u].chosen)) ++u;
     if (u == items.size() || !(items[u].value > 0)) return;
-    if (!fits(items[u].bytes + (paid_[i] ? 0 : header_[i]))) return;  // nor will the ones after it go
-    const double header = paid_[i] ? 0.0 : double(header_[i]);
-    Step st{items[u].value / (double(items[u].bytes) + header), instance, int(u), age, false, paid_[i] != 0};
+    if (!fits(items[u].bytes + (sc_->paid[i] ? 0 : sc_->header[i]))) return;  // nor will the ones after it go
+    const double header = sc_->paid[i] ? 0.0 : double(sc_->header[i]);
+    Step st{items[u].value / (double(items[u].bytes) + header), instance, int(u), age, false, sc_->paid[i] != 0};
     st.single = true;
     push(st);
 }
@@ -804,7 +796,7 @@ size_t Scheduler::take_stale_roots(const EncodedFrame& frame, size_t budget, siz
     budget_ = budget;
     stale_.clear();
     for (const size_t i : active_) {
-        if (slot_[i].n == 0 || items_of(i)[0].chosen) continue;  // not offered this tick (or up to date)
+        if (sc_->slot[i].n == 0 || items_of(i)[0].chosen) continue;  // not offered this tick (or up to date)
         const uint32_t t = state_[i].bone_tick.empty() ? 0 : state_[i].bone_tick[0];
         const uint32_t age = t == 0 ? UINT32_MAX : frame.tick - t;
         if (age >= uint32_t(ROOT_REFRESH_TICKS)) stale_.push_back({age, i});
@@ -812,7 +804,7 @@ size_t Scheduler::take_stale_roots(const EncodedFrame& frame, size_t budget, siz
     std::sort(stale_.begin(), stale_.end(), [](const auto& a, const auto& b) { return a.first > b.first || (a.first == b.first && a.second < b.second); });
     for (const auto& [age, i] : stale_) {
         SegItem& it = items_of(i)[0];
-        const size_t bytes = it.bytes + (paid_[i] ? 0 : header_[i]);
+        const size_t bytes = it.bytes + (sc_->paid[i] ? 0 : sc_->header[i]);
         if (WireCost::wire(payload + bytes) > budget) continue;  // a smaller one may still fit
         // Within the owner's share, except its first root of the tick: every
         // owner gets one even when shares are thinner than a root chunk, and
@@ -825,7 +817,7 @@ size_t Scheduler::take_stale_roots(const EncodedFrame& frame, size_t budget, siz
         }
         charge(i, bytes, payload);
         it.chosen = true;
-        if (!paid_[i]) pay(int(i), age);
+        if (!sc_->paid[i]) pay(int(i), age);
     }
     taken_ = nullptr;
     return payload;
@@ -833,16 +825,16 @@ size_t Scheduler::take_stale_roots(const EncodedFrame& frame, size_t budget, siz
 
 void Scheduler::pay(int instance, uint32_t age) {
     const size_t i = size_t(instance);
-    paid_[i] = 1;
-    least_paid_ = std::min(least_paid_, least_[i]);
-    order_state_[i] = 0;
+    sc_->paid[i] = 1;
+    least_paid_ = std::min(least_paid_, sc_->least[i]);
+    sc_->order_state[i] = 0;
     offer_paid(instance, age);
-    if (morph_[i].value > 0 && !morph_[i].chosen) {
-        push({morph_[i].value / double(morph_[i].bytes), instance, 0, age, false, true, true});
+    if (sc_->morph[i].value > 0 && !sc_->morph[i].chosen) {
+        push({sc_->morph[i].value / double(sc_->morph[i].bytes), instance, 0, age, false, true, true});
     }
-    if (const int c = chain_next_[i]; c > 0) {
+    if (const int c = sc_->chain_next[i]; c > 0) {
         push({step_ratio(chain_of(i), c), instance, c, age, true, true});
-    } else if (chain_tried_[i]) {
+    } else if (sc_->chain_tried[i]) {
         offer_single(instance, age);  // its hull step did not fit: the segments one at a time, header paid
     }
 }
@@ -861,24 +853,24 @@ void Scheduler::offer_paid(int instance, uint32_t age) {
     };
     auto eligible = [&](const SegItem& it) { return it.shown && !it.chosen && it.value > 0; };
     int best = -1;
-    if (order_state_[i] == 0) {
-        order_state_[i] = 1;
+    if (sc_->order_state[i] == 0) {
+        sc_->order_state[i] = 1;
         for (size_t q = 0; q < items.size(); ++q)
             if (eligible(items[q]) && fits(items[q].bytes) && (best < 0 || before(int(q), best))) best = int(q);
     } else {
-        int* const order = sc_->order.data() + slot_[i].order;
-        size_t& at = order_at_[i];
-        if (order_state_[i] == 1) {
-            order_state_[i] = 2;
+        int* const order = sc_->order.data() + sc_->slot[i].order;
+        size_t& at = sc_->order_at[i];
+        if (sc_->order_state[i] == 1) {
+            sc_->order_state[i] = 2;
             uint16_t n = 0;
             for (size_t q = 0; q < items.size(); ++q)
                 if (eligible(items[q])) order[n++] = int(q);
-            slot_[i].order_n = n;
+            sc_->slot[i].order_n = n;
             std::sort(order, order + n, before);
             at = 0;
         }
         // Passed over for good: taken, or too big (the budget only shrinks).
-        const size_t n = slot_[i].order_n;
+        const size_t n = sc_->slot[i].order_n;
         while (at < n && (items[size_t(order[at])].chosen || !fits(items[size_t(order[at])].bytes))) ++at;
         if (at < n) best = order[at++];
     }

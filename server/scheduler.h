@@ -240,7 +240,7 @@ private:
         std::array<uint64_t, 4> mask{};
         bool chosen = false;
     };
-    // Fills morph_[i] (due weights, value, bytes) and State::morph_pending.
+    // Fills the scratch's morph[i] (due weights, value, bytes) and State::morph_pending.
     void morph_item(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w);
     struct Step {
         double ratio;
@@ -344,8 +344,7 @@ private:
         uint16_t chain_n = 0;  // hull points walked (at most n + 1)
         uint16_t order_n = 0;  // shown items ordered (at most n)
     };
-    std::vector<Slot> slot_;  // per instance
-    std::span<SegItem> items_of(size_t i) const { return {sc_->items.data() + slot_[i].items, slot_[i].n}; }
+    std::span<SegItem> items_of(size_t i) const { return {sc_->items.data() + sc_->slot[i].items, sc_->slot[i].n}; }
     // Instance i's hull points so far (upper hull over its unshown segments).
     struct Chain {
         ChainPoint* p;
@@ -356,36 +355,47 @@ private:
         void push_back(const ChainPoint& c) const { p[(*n)++] = c; }
         void clear() const { *n = 0; }
     };
-    Chain chain_of(size_t i) { return {sc_->chain.data() + slot_[i].chain, &slot_[i].chain_n}; }
+    Chain chain_of(size_t i) { return {sc_->chain.data() + sc_->slot[i].chain, &sc_->slot[i].chain_n}; }
     // Value per record byte of hull step c (from point c - 1 to c).
     static double step_ratio(const Chain& chain, int c);
     static bool no_less_steep(const ChainPoint& p0, const ChainPoint& best, const ChainPoint& pt);
-    std::vector<uint8_t> paid_;                     // per instance: chunk header paid this tick
-    std::vector<int> chain_next_;                   // per instance: chain step offered now (0: none)
-    std::vector<uint8_t> chain_tried_;              // per instance: a hull step did not fit (singles offered)
-    // per instance (from its second paid offer): shown items by value per
-    // byte, in the scratch at slot_[i].order
-    std::vector<size_t> order_at_;                  // per instance: next in its order to offer
-    std::vector<uint8_t> order_state_;              // per instance since paid: 0 no offer yet, 1 one (a scan), 2 its order sorted
-    std::vector<size_t> header_;                    // per instance: WireCost::header of its bones
-    std::vector<MorphItem> morph_;                  // per instance
-    std::vector<uint8_t> current_;                  // per instance: up_to_date this tick
     // The fewest payload bytes a step can take: per offered instance, its
     // smallest item (records or morph block); over the instances offered,
     // that plus the chunk header; over the paid ones, that alone.
-    std::vector<size_t> least_;
     size_t least_unpaid_ = SIZE_MAX, least_paid_ = SIZE_MAX;
     // This tick's instances (valid, importance > 0), ascending: the only
     // ones any per-instance pass reads or writes (per-instance arrays hold
     // stale values for the others).
     std::vector<uint32_t> active_;
 public:
+    // One select's working state, per instance id: valid for this tick's
+    // instances (active_) once select wrote it, stale for every other one.
+    // It lives here rather than in each Scheduler because the clients of a
+    // thread tick one after another: one thread's arrays stay in cache,
+    // each client's own would be cold (the other clients' ticks ran since;
+    // 1,000 clients x 13 arrays over their candidates is far beyond the
+    // last-level cache). Nothing in it outlives the select (sent() and
+    // lost() read the client's State only).
     struct Scratch {
         std::vector<SegItem> items;
         std::vector<ChainPoint> chain;
-        std::vector<int> order;
+        std::vector<int> order;  // per instance (from its second paid offer): shown items by value per byte, at slot[i].order
         std::vector<Step> heap;
         size_t items_used = 0, chain_used = 0, order_used = 0;  // this tick's
+        std::vector<Slot> slot;
+        std::vector<uint8_t> paid;         // chunk header paid this tick
+        std::vector<int> chain_next;       // chain step offered now (0: none)
+        std::vector<uint8_t> chain_tried;  // a hull step did not fit (singles offered)
+        std::vector<size_t> order_at;      // next in its order to offer
+        std::vector<uint8_t> order_state;  // since paid: 0 no offer yet, 1 one (a scan), 2 its order sorted
+        std::vector<size_t> header;        // chunk header as it will go (header_of)
+        std::vector<MorphItem> morph;
+        std::vector<uint8_t> current;      // up_to_date this tick
+        std::vector<size_t> least;         // its smallest item's bytes
+        std::vector<size_t> floor_bytes;   // payload its own items go first for (set_floor)
+        std::vector<size_t> spent;         // payload taken this tick
+        std::vector<uint8_t> share_left;   // an item was left for its group's share
+        void fit(size_t instances);        // every per-instance array at least this long
     };
 
 private:
@@ -404,8 +414,6 @@ private:
     double floor_fraction_ = 0;
     uint32_t last_select_tick_ = 0;  // the tick of the last select() (0: none yet)
     double interval_ = 1.0;          // send_interval()
-    std::vector<size_t> floor_bytes_;  // per instance: payload its own items go first for this tick
-    std::vector<size_t> spent_;        // per instance: payload taken this tick
     std::vector<std::pair<uint32_t, size_t>> stale_;  // take_stale_roots: (age, instance)
     bool limited_ = false;
     // Fair share (set_shares): per group, payload taken this tick; per
@@ -421,7 +429,6 @@ private:
     size_t share_bytes_ = 0;
     size_t share_now_ = 0;  // this tick's: share_bytes_, at most budget / owners with content
     std::vector<size_t> group_spent_;
-    std::vector<uint8_t> share_left_;
     // Per group: payload it may take this tick (its share each tick, kept
     // up to kShareDepth across ticks when the share is thinner); what it
     // takes is spent at the end of select.
