@@ -165,7 +165,9 @@ static double process_seconds() {
 // (far characters cheap), 256 kbit/s each; mode 2: as mode 1, each player
 // weighing only the nearest 100 characters (ServerConfig::max_candidates 100);
 // mode 3: as mode 2, each player acknowledging its datagrams before the next
-// tick, as real players do (records go predicted from its own baselines).
+// tick, as real players do (records go predicted from its own baselines);
+// mode 4: as mode 3 on a server that sends standalone records
+// (progskin-server --standalone-records: more bytes per bone, no plan).
 // Third argument: tick threads (ServerConfig::threads; the per-player part
 // spread over a TickPool by ServerCore::tick_streams, as in the server; the
 // poses and the encoding stay on this thread). core_load_at_30Hz: the
@@ -212,12 +214,13 @@ static void BM_PublishingPlayers(benchmark::State& st) {
     const int players = int(st.range(0));
     const int mode = int(st.range(1));
     const bool views = mode != 0;
-    const bool acked = mode == 3;
+    const bool acked = mode >= 3;
     const int threads = std::max(1, int(st.range(2)));
     const double kbps = views ? 256 : 1000;
     const std::vector<InstanceSpec> specs = players_characters(players);
     ServerConfig cfg;
     if (mode >= 2) cfg.max_candidates = 100;
+    if (mode == 4) cfg.predict_records = false;  // progskin-server --standalone-records
     ServerCore core(cfg, assets(), specs);
     TickPool pool(threads);
     core.set_pool(&pool);
@@ -294,7 +297,8 @@ static void BM_PublishingPlayers(benchmark::State& st) {
     st.SetLabel(mode == 0   ? "everyone sees everyone, 1 Mbit/s"
                 : mode == 1 ? "players over 2 km, each viewing from its character, 256 kbit/s"
                 : mode == 2 ? "players over 2 km, each weighing its nearest 100, 256 kbit/s"
-                            : "players over 2 km, each weighing its nearest 100, 256 kbit/s, acknowledging");
+                : mode == 3 ? "players over 2 km, each weighing its nearest 100, 256 kbit/s, acknowledging"
+                            : "players over 2 km, each weighing its nearest 100, 256 kbit/s, acknowledging, standalone records");
 }
 BENCHMARK(BM_PublishingPlayers)
     ->ArgNames({"players", "mode", "threads"})
@@ -308,6 +312,8 @@ BENCHMARK(BM_PublishingPlayers)
     ->Args({200, 3, 1})
     ->Args({1000, 3, 1})
     ->Args({1000, 3, 2})
+    ->Args({1000, 4, 1})
+    ->Args({1000, 4, 2})
     ->Unit(benchmark::kMillisecond);
 
 // A node whose scene holds a whole world of `characters` players'
