@@ -145,7 +145,6 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
     // Nothing acknowledged past the grace: no entry, every record standalone
     // (bits() falls back to the frame's).
     if (!e.valid || !book.view(i, e.generation, v) || int32_t(v.newest - v.first) < int32_t(BaselineBook::kGraceTicks)) return;
-    const uint32_t t0 = v.newest;
     const int B = e.bone_count;
     Entry en;
     en.at = bones_;
@@ -157,58 +156,9 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
     }
     uint8_t* flags = flags_.data() + en.at;
     std::fill(flags, flags + B, uint8_t(RecordPrefix::Standalone));
-    const size_t acked_bones = std::min(size_t(B), v.mask.size());
-    {
-        const uint32_t age = frame.tick - t0;
-        if (age >= 1 && age <= kMaxBaseAge) {
-            // Every bone acknowledged at t0 (bit 0 of its mask: t0 is the
-            // newest) goes from the chunk's baseline; linear when each of
-            // them is acknowledged at t0 - age too.
-            const int d2 = 2 * age < uint32_t(kBaselineRing) ? v.bit(t0 - age) : -1;
-            const int shift = std::max(d2, 0);
-            uint32_t all_at_d2 = 1, covered = 0;
-            static_assert(RecordPrefix::Standalone == 0 && RecordPrefix::Chunk == 1);
-            for (size_t b = 0; b < acked_bones; ++b) {  // without branches (the bits are unpredictable)
-                const uint32_t m = v.mask[b], c = m & 1;
-                flags[b] = uint8_t(c);
-                covered += c;
-                all_at_d2 &= (m >> shift) | (c ^ 1);
-            }
-            const bool linear = d2 >= 0 && (all_at_d2 & 1);
-            if (covered > 0) {
-                en.base = uint8_t(age | (linear ? kBaseLinear : 0));
-                en.records = frame.predicted(i, en.base);
-                if (!en.records || !en.records->usable) en.base = 0, en.records = nullptr;
-            }
-        }
-    }
+    chunk_baseline(frame, i, v, en);
     if (en.base == 0) std::fill(flags, flags + B, uint8_t(RecordPrefix::Standalone));
-    // Bones refreshed at other ticks: from their own newest acknowledged
-    // tick, when shorter than standalone (only in a chunk with a baseline).
-    if (en.base != 0) {
-        // First each candidate bone's own baseline (the shared table's
-        // entries fetched meanwhile), then their lengths.
-        own_try_.clear();
-        for (size_t b = 0; b < acked_bones; ++b) {
-            if (flags[b] != RecordPrefix::Standalone) continue;
-            uint32_t tb = 0;
-            if (!v.newest_of(int(b), tb)) continue;
-            const uint32_t age = frame.tick - tb;
-            if (age < 1 || age > kMaxBaseAge) continue;
-            // Linear when the tick as far before tb is acknowledged and in the ring too.
-            const bool linear = 2 * age < uint32_t(kBaselineRing) && v.acked(int(b), tb - age) && frame.ints_at(i, tb - age);
-            const uint8_t own = uint8_t(age | (linear ? kBaseLinear : 0));
-            frame.own_prefetch(i, int(b), own);
-            own_try_.emplace_back(uint8_t(b), own);
-        }
-        for (const auto& [b, own] : own_try_) {
-            const size_t n = frame.own_bits(i, int(b), own);  // shared between clients (EncodedFrame::own_bits)
-            if (n == SIZE_MAX || n + kOwnPrefixBits >= frame.record_bits(i, int(b), int(b) + 1) + kStandalonePrefixBits) continue;
-            flags[b] = RecordPrefix::Own;
-            own_base_[en.at + b] = own;
-            own_len_[en.at + b] = uint32_t(n);
-        }
-    }
+    else own_baselines(frame, i, v, en);
     // Prefix sums of the planned bits: bone b at [prefix[b], prefix[b + 1]).
     const size_t pat = prefix_.size();
     prefix_.resize(pat + size_t(B) + 1);
@@ -227,19 +177,79 @@ void RecordPlan::plan(const EncodedFrame& frame, int i, const BaselineBook& book
         prefix[b + 1] = prefix[b] + uint32_t(bits);
     }
     en.prefix = pat;
-    // The root block, predicted from the root at t0 (and, linear, at t0 - age).
-    if (e.flags & CHUNK_ROOT) {
-        const uint32_t age = frame.tick - t0;
-        uint8_t base = 0;
-        if (age >= 1 && age <= kMaxBaseAge && frame.root_at(i, t0)) {
-            base = uint8_t(age);
-            if (2 * age < uint32_t(kBaselineRing) && v.acked_any(t0 - age) && frame.root_at(i, t0 - age)) base |= kBaseLinear;
-        }
-        en.root_base = base;  // written when it goes (root()); its length shared between clients
-        en.root_len = uint32_t(base ? frame.root_block_bytes(i, base) : kRootAbsoluteBytes);
-    }
+    if (e.flags & CHUNK_ROOT) root_baseline(frame, i, v, en);
     entry_of_[size_t(i)] = int32_t(entries_.size());
     entries_.push_back(en);
+}
+
+// The chunk's baseline: the newest acknowledged tick t0. Every bone
+// acknowledged at t0 (bit 0 of its mask: t0 is the newest) goes from it
+// (flags: Chunk); linear when each of them is acknowledged at t0 - age too.
+// en.base stays 0 when t0 is too old, no bone was acknowledged there, or
+// the frame cannot predict from it.
+void RecordPlan::chunk_baseline(const EncodedFrame& frame, int i, const BaselineBook::View& v, Entry& en) {
+    const uint32_t t0 = v.newest, age = frame.tick - t0;
+    if (age < 1 || age > kMaxBaseAge) return;
+    uint8_t* flags = flags_.data() + en.at;
+    const size_t acked_bones = std::min(size_t(frame.instances[size_t(i)].bone_count), v.mask.size());
+    const int d2 = 2 * age < uint32_t(kBaselineRing) ? v.bit(t0 - age) : -1;
+    const int shift = std::max(d2, 0);
+    uint32_t all_at_d2 = 1, covered = 0;
+    static_assert(RecordPrefix::Standalone == 0 && RecordPrefix::Chunk == 1);
+    for (size_t b = 0; b < acked_bones; ++b) {  // without branches (the bits are unpredictable)
+        const uint32_t m = v.mask[b], c = m & 1;
+        flags[b] = uint8_t(c);
+        covered += c;
+        all_at_d2 &= (m >> shift) | (c ^ 1);
+    }
+    const bool linear = d2 >= 0 && (all_at_d2 & 1);
+    if (covered == 0) return;
+    en.base = uint8_t(age | (linear ? kBaseLinear : 0));
+    en.records = frame.predicted(i, en.base);
+    if (!en.records || !en.records->usable) en.base = 0, en.records = nullptr;
+}
+
+// Bones refreshed at other ticks: from their own newest acknowledged tick,
+// when shorter than standalone (only in a chunk with a baseline). First
+// each candidate bone's own baseline (the shared table's entries fetched
+// meanwhile), then their lengths.
+void RecordPlan::own_baselines(const EncodedFrame& frame, int i, const BaselineBook::View& v, const Entry& en) {
+    uint8_t* flags = flags_.data() + en.at;
+    const size_t acked_bones = std::min(size_t(frame.instances[size_t(i)].bone_count), v.mask.size());
+    own_try_.clear();
+    for (size_t b = 0; b < acked_bones; ++b) {
+        if (flags[b] != RecordPrefix::Standalone) continue;
+        uint32_t tb = 0;
+        if (!v.newest_of(int(b), tb)) continue;
+        const uint32_t age = frame.tick - tb;
+        if (age < 1 || age > kMaxBaseAge) continue;
+        // Linear when the tick as far before tb is acknowledged and in the ring too.
+        const bool linear = 2 * age < uint32_t(kBaselineRing) && v.acked(int(b), tb - age) && frame.ints_at(i, tb - age);
+        const uint8_t own = uint8_t(age | (linear ? kBaseLinear : 0));
+        frame.own_prefetch(i, int(b), own);
+        own_try_.emplace_back(uint8_t(b), own);
+    }
+    for (const auto& [b, own] : own_try_) {
+        const size_t n = frame.own_bits(i, int(b), own);  // shared between clients (EncodedFrame::own_bits)
+        if (n == SIZE_MAX || n + kOwnPrefixBits >= frame.record_bits(i, int(b), int(b) + 1) + kStandalonePrefixBits) continue;
+        flags[b] = RecordPrefix::Own;
+        own_base_[en.at + b] = own;
+        own_len_[en.at + b] = uint32_t(n);
+    }
+}
+
+// The root block, predicted from the root at t0 (and, linear, at t0 -
+// age): its baseline, and its length (shared between clients); written
+// when it goes (root()).
+void RecordPlan::root_baseline(const EncodedFrame& frame, int i, const BaselineBook::View& v, Entry& en) const {
+    const uint32_t t0 = v.newest, age = frame.tick - t0;
+    uint8_t base = 0;
+    if (age >= 1 && age <= kMaxBaseAge && frame.root_at(i, t0)) {
+        base = uint8_t(age);
+        if (2 * age < uint32_t(kBaselineRing) && v.acked_any(t0 - age) && frame.root_at(i, t0 - age)) base |= kBaseLinear;
+    }
+    en.root_base = base;
+    en.root_len = uint32_t(base ? frame.root_block_bytes(i, base) : kRootAbsoluteBytes);
 }
 
 uint8_t RecordPlan::base(int i) const {

@@ -216,6 +216,11 @@ private:
         uint8_t root_base = 0;  // the root block's baseline (root_block.h)
         uint32_t root_len = 0;  // its bytes (0: no root)
     };
+    // plan()'s steps: the chunk's baseline and the bones predicted from it;
+    // the other acknowledged bones' own baselines; the root block's.
+    void chunk_baseline(const EncodedFrame& frame, int i, const BaselineBook::View& v, Entry& en);
+    void own_baselines(const EncodedFrame& frame, int i, const BaselineBook::View& v, const Entry& en);
+    void root_baseline(const EncodedFrame& frame, int i, const BaselineBook::View& v, Entry& en) const;
     std::vector<int32_t> entry_of_;  // per instance: index into entries_, -1 none
     std::vector<Entry> entries_;
     std::vector<uint32_t> prefix_;

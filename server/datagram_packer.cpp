@@ -38,10 +38,34 @@ void DatagramPacker::flush(uint32_t tick, uint32_t& seq, std::vector<std::vector
     ack_bytes_ = 0;
 }
 
+// One instance's adjacent picks being packed: its bones in increasing order
+// across the picks' ranges [first, k) (sorted, disjoint, as the scheduler
+// emits them), and how its records go.
+struct DatagramPacker::Group {
+    const EncodedFrame& frame;
+    std::span<const Pick> picks;
+    const RecordPlan* plan;
+    int instance;
+    const EncodedInstance& e;
+    uint8_t base;                   // Chunk.base (0: standalone records)
+    const PredictedRecords* pred;   // the records predicted from it
+    size_t p = 0;                   // the pick next_bone is in
+    int bone = -1;                  // the next bone to go (-1: none left)
+    int show = 0;
+    int next_bone() {
+        for (; p < picks.size(); ++p) {
+            const int lo = std::clamp(picks[p].first, 0, e.bone_count), hi = std::min(picks[p].k, e.bone_count);
+            const int b = std::max(bone + 1, lo);
+            if (b < hi) return b;
+        }
+        return -1;
+    }
+    size_t bits_of(int b) const { return plan ? plan->bits(frame, instance, b, b + 1) : frame.record_bits(instance, b, b + 1); }
+};
+
 size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> picks, uint32_t& seq,
                             std::vector<std::vector<uint8_t>>& out, const RecordPlan* plan, BaselineBook* book,
                             std::span<const wire::PoseAck> acks) {
-    const size_t room = MAX_DATAGRAM - WireCost::kFrameOverhead;
     size_t wire = 0;
     chunks_.clear();
     payload_.clear();
@@ -56,116 +80,126 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
         const int instance = picks[g].instance;
         size_t g_end = g + 1;
         while (g_end < picks.size() && picks[g_end].instance == instance) ++g_end;
-        const EncodedInstance& e = frame.instances[size_t(instance)];
-        const uint8_t* src = frame.relative(instance);
         const uint8_t base = plan ? plan->base(instance) : 0;
-        const PredictedRecords* pred = base ? plan->records(instance) : nullptr;
-        auto bits_of = [&](int b) { return plan ? plan->bits(frame, instance, b, b + 1) : frame.record_bits(instance, b, b + 1); };
-        int show = 0;
-        for (size_t p = g; p < g_end; ++p) show = std::max(show, std::clamp(std::max(picks[p].show, picks[p].k), 0, e.bone_count));
-        // Bones of the group in increasing order: ranges [first, k), as the
-        // scheduler emits them (sorted, disjoint); a chunk takes as many as fit.
-        size_t p = g;
-        int bone = -1;
-        auto next_bone = [&]() {
-            for (; p < g_end; ++p) {
-                const int lo = std::clamp(picks[p].first, 0, e.bone_count), hi = std::min(picks[p].k, e.bone_count);
-                const int b = std::max(bone + 1, lo);
-                if (b < hi) return b;
-            }
-            return -1;
-        };
-        bone = next_bone();
-        // The root block: this client's (predicted, RecordPlan::root), else absolute.
-        const bool root = (e.flags & CHUNK_ROOT) != 0;
-        std::span<const uint8_t> planned = plan && root ? plan->root(frame, instance, root_) : std::span<const uint8_t>{};
-        if (root && planned.empty()) {
-            root_.clear();
-            frame.write_root_block(instance, 0, root_);  // absolute
-            planned = root_;
-        }
-        const size_t root_bytes = planned.size();
-        // Morph weights of the group: in its first chunk (a chunk of their own,
-        // first = show - 1 and an empty mask, when no bone goes).
-        std::array<uint64_t, 4> morphs{};
-        for (size_t q = g; q < g_end; ++q)
-            for (size_t w = 0; w < morphs.size(); ++w) morphs[w] |= picks[q].morphs[w];
-        const std::span<const int32_t> weights = frame.morphs(instance);
-        for (size_t m = 0; m < 256; ++m)  // only weights the encoder has (and did not refuse) can go
-            if ((morphs[m / 64] >> (m % 64) & 1) && (m >= weights.size() || weights[m] == kNoWeight))
-                morphs[m / 64] &= ~(uint64_t(1) << (m % 64));
-        size_t morph_bytes = morph_block_bytes(morphs);
-        if (morph_bytes > 0 && bone < 0 && show < 1) morph_bytes = 0;  // no chunk can carry them (never picked so)
-        while (bone >= 0 || morph_bytes > 0) {
-            const int first = bone >= 0 ? bone : show - 1;
-            const size_t mb = mask_bytes(first, show);
-            const size_t used = payload_.size() + (chunks_.size() + 1) * WireCost::kChunk + (sampled_ ? 1 + kSampledField : 0) +
-                                root_bytes + morph_bytes + mb + ack_bytes_;
-            if (used + (bone >= 0 ? (bits_of(bone) + 7) / 8 : 0) > room) {
-                flush(frame.tick, seq, out, wire);
-                continue;
-            }
-            uint8_t flags = e.flags;
-            if (sampled_) payload_.push_back(e.sample);
-            payload_.insert(payload_.end(), planned.begin(), planned.end());
-            if (morph_bytes > 0) {
-                flags |= CHUNK_MORPH;
-                if (book) book->carried_morphs(seq, frame.tick, instance, e.generation);
-                payload_.push_back(uint8_t((morph_bytes - 1) / MORPH_ENTRY_BYTES));
-                for (size_t m = 0; m < weights.size(); ++m)
-                    if (morphs[m / 64] >> (m % 64) & 1) {
-                        const uint16_t v = uint16_t(int16_t(weights[m]));
-                        payload_.push_back(uint8_t(m));
-                        payload_.push_back(uint8_t(v & 0xFF));
-                        payload_.push_back(uint8_t(v >> 8));
-                    }
-                morph_bytes = 0;
-            }
-            const size_t mask_at = payload_.size();
-            payload_.resize(mask_at + mb, 0);
-            // Records as one bit stream, padded to a byte: as many as fit.
-            const size_t room_bits = (room - used) * 8;
-            size_t rec_bits = 0;
-            BitWriter w(payload_);
-            int run_first = -1, run_end = -1;  // the run of consecutive bones being written (for the book)
-            auto end_run = [&] {
-                if (book && run_first >= 0) book->carried(seq, frame.tick, instance, e.generation, run_first, run_end - run_first);
-                run_first = -1;
-            };
-            // Absolute records of consecutive bones lie one after another in
-            // the frame's bits: they are copied as one run.
-            size_t copy_from = 0, copy_count = 0;
-            auto copy_run = [&] {
-                copy_bits(src, copy_from, copy_count, w);
-                copy_count = 0;
-            };
-            for (size_t nbits; bone >= 0 && rec_bits + (nbits = bits_of(bone)) <= room_bits;) {
-                payload_[mask_at + size_t(bone - first) / 8] |= uint8_t(1u << ((bone - first) % 8));
-                if (base) {
-                    const RecordPrefix how = plan->prefix(instance, bone);
-                    write_prefix(how, w);
-                    if (how.kind == RecordPrefix::Chunk) copy_bits(pred->bits.data(), pred->offsets[size_t(bone)], pred->record_bits(bone), w);
-                    else if (how.kind == RecordPrefix::Own) plan->write_own(frame, instance, bone, w);
-                    else copy_bits(src, frame.bit_offset(instance, bone), frame.record_bits(instance, bone, bone + 1), w);
-                } else {
-                    const size_t at = frame.bit_offset(instance, bone);
-                    if (copy_count > 0 && copy_from + copy_count != at) copy_run();
-                    if (copy_count == 0) copy_from = at;
-                    copy_count += frame.record_bits(instance, bone, bone + 1);
-                }
-                rec_bits += nbits;
-                if (bone != run_end) end_run(), run_first = bone;
-                run_end = bone + 1;
-                bone = next_bone();
-            }
-            if (copy_count > 0) copy_run();
-            end_run();
-            chunks_.emplace_back(uint16_t(instance), uint8_t(first), uint8_t(show), e.epoch, uint8_t(flags | base_to_flags(base)));
-        }
+        Group group{frame, picks.subspan(g, g_end - g), plan, instance, frame.instances[size_t(instance)], base,
+                    base ? plan->records(instance) : nullptr};
+        pack_group(group, seq, out, wire, book);
         g = g_end;
     }
     flush(frame.tick, seq, out, wire);
     return wire;
+}
+
+// The group's morph weights that can go (only those the encoder has and did
+// not refuse), as a mask.
+static std::array<uint64_t, 4> group_morphs(std::span<const Pick> picks, std::span<const int32_t> weights) {
+    std::array<uint64_t, 4> morphs{};
+    for (const Pick& q : picks)
+        for (size_t w = 0; w < morphs.size(); ++w) morphs[w] |= q.morphs[w];
+    for (size_t m = 0; m < 256; ++m)
+        if ((morphs[m / 64] >> (m % 64) & 1) && (m >= weights.size() || weights[m] == kNoWeight))
+            morphs[m / 64] &= ~(uint64_t(1) << (m % 64));
+    return morphs;
+}
+
+void DatagramPacker::pack_group(Group& grp, uint32_t& seq, std::vector<std::vector<uint8_t>>& out, size_t& wire,
+                                BaselineBook* book) {
+    const EncodedFrame& frame = grp.frame;
+    const EncodedInstance& e = grp.e;
+    const size_t room = MAX_DATAGRAM - WireCost::kFrameOverhead;
+    for (const Pick& q : grp.picks) grp.show = std::max(grp.show, std::clamp(std::max(q.show, q.k), 0, e.bone_count));
+    const int show = grp.show;
+    grp.bone = grp.next_bone();
+    // The root block: this client's (predicted, RecordPlan::root), else absolute.
+    const bool root = (e.flags & CHUNK_ROOT) != 0;
+    std::span<const uint8_t> planned = grp.plan && root ? grp.plan->root(frame, grp.instance, root_) : std::span<const uint8_t>{};
+    if (root && planned.empty()) {
+        root_.clear();
+        frame.write_root_block(grp.instance, 0, root_);  // absolute
+        planned = root_;
+    }
+    const size_t root_bytes = planned.size();
+    // Morph weights of the group: in its first chunk (a chunk of their own,
+    // first = show - 1 and an empty mask, when no bone goes).
+    const std::span<const int32_t> weights = frame.morphs(grp.instance);
+    const std::array<uint64_t, 4> morphs = group_morphs(grp.picks, weights);
+    size_t morph_bytes = morph_block_bytes(morphs);
+    if (morph_bytes > 0 && grp.bone < 0 && show < 1) morph_bytes = 0;  // no chunk can carry them (never picked so)
+    while (grp.bone >= 0 || morph_bytes > 0) {
+        const int first = grp.bone >= 0 ? grp.bone : show - 1;
+        const size_t mb = mask_bytes(first, show);
+        const size_t used = payload_.size() + (chunks_.size() + 1) * WireCost::kChunk + (sampled_ ? 1 + kSampledField : 0) +
+                            root_bytes + morph_bytes + mb + ack_bytes_;
+        if (used + (grp.bone >= 0 ? (grp.bits_of(grp.bone) + 7) / 8 : 0) > room) {
+            flush(frame.tick, seq, out, wire);
+            continue;
+        }
+        uint8_t flags = e.flags;
+        if (sampled_) payload_.push_back(e.sample);
+        payload_.insert(payload_.end(), planned.begin(), planned.end());
+        if (morph_bytes > 0) {
+            flags |= CHUNK_MORPH;
+            if (book) book->carried_morphs(seq, frame.tick, grp.instance, e.generation);
+            payload_.push_back(uint8_t((morph_bytes - 1) / MORPH_ENTRY_BYTES));
+            for (size_t m = 0; m < weights.size(); ++m)
+                if (morphs[m / 64] >> (m % 64) & 1) {
+                    const uint16_t v = uint16_t(int16_t(weights[m]));
+                    payload_.push_back(uint8_t(m));
+                    payload_.push_back(uint8_t(v & 0xFF));
+                    payload_.push_back(uint8_t(v >> 8));
+                }
+            morph_bytes = 0;
+        }
+        const size_t mask_at = payload_.size();
+        payload_.resize(mask_at + mb, 0);
+        write_records(grp, first, mask_at, (room - used) * 8, seq, book);
+        chunks_.emplace_back(uint16_t(grp.instance), uint8_t(first), uint8_t(show), e.epoch, uint8_t(flags | base_to_flags(grp.base)));
+    }
+}
+
+// Records as one bit stream, padded to a byte: as many of the group's bones
+// from grp.bone on as fit room_bits, their bits set in the chunk's mask at
+// mask_at (bone - first), each run of consecutive bones told to the book.
+void DatagramPacker::write_records(Group& grp, int first, size_t mask_at, size_t room_bits, uint32_t seq, BaselineBook* book) {
+    const EncodedFrame& frame = grp.frame;
+    const int instance = grp.instance;
+    const uint8_t* src = frame.relative(instance);
+    size_t rec_bits = 0;
+    BitWriter w(payload_);
+    int run_first = -1, run_end = -1;  // the run of consecutive bones being written (for the book)
+    auto end_run = [&] {
+        if (book && run_first >= 0) book->carried(seq, frame.tick, instance, grp.e.generation, run_first, run_end - run_first);
+        run_first = -1;
+    };
+    // Absolute records of consecutive bones lie one after another in
+    // the frame's bits: they are copied as one run.
+    size_t copy_from = 0, copy_count = 0;
+    auto copy_run = [&] {
+        copy_bits(src, copy_from, copy_count, w);
+        copy_count = 0;
+    };
+    for (size_t nbits; grp.bone >= 0 && rec_bits + (nbits = grp.bits_of(grp.bone)) <= room_bits;) {
+        const int bone = grp.bone;
+        payload_[mask_at + size_t(bone - first) / 8] |= uint8_t(1u << ((bone - first) % 8));
+        if (grp.base) {
+            const RecordPrefix how = grp.plan->prefix(instance, bone);
+            write_prefix(how, w);
+            if (how.kind == RecordPrefix::Chunk) copy_bits(grp.pred->bits.data(), grp.pred->offsets[size_t(bone)], grp.pred->record_bits(bone), w);
+            else if (how.kind == RecordPrefix::Own) grp.plan->write_own(frame, instance, bone, w);
+            else copy_bits(src, frame.bit_offset(instance, bone), frame.record_bits(instance, bone, bone + 1), w);
+        } else {
+            const size_t at = frame.bit_offset(instance, bone);
+            if (copy_count > 0 && copy_from + copy_count != at) copy_run();
+            if (copy_count == 0) copy_from = at;
+            copy_count += frame.record_bits(instance, bone, bone + 1);
+        }
+        rec_bits += nbits;
+        if (bone != run_end) end_run(), run_first = bone;
+        run_end = bone + 1;
+        grp.bone = grp.next_bone();
+    }
+    if (copy_count > 0) copy_run();
+    end_run();
 }
 
 }  // namespace progskin::net

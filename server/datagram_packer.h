@@ -38,6 +38,9 @@ public:
     static constexpr size_t kSampledField = 8;
 
 private:
+    struct Group;
+    void pack_group(Group& group, uint32_t& seq, std::vector<std::vector<uint8_t>>& out, size_t& wire, BaselineBook* book);
+    void write_records(Group& group, int first, size_t mask_at, size_t room_bits, uint32_t seq, BaselineBook* book);
     void flush(uint32_t tick, uint32_t& seq, std::vector<std::vector<uint8_t>>& out, size_t& wire);
     flatbuffers::FlatBufferBuilder fbb_{1400};
     std::vector<wire::Chunk> chunks_;

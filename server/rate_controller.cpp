@@ -134,16 +134,7 @@ void RateController::update(double now) {
     // one window's 8 datagrams at 30 a second, random loss of 10 % reads
     // "over 20 %" in one window of five, a back-off for nothing; over 32,
     // in one judgement of 24.
-    loss_acked_ += win_acked_;
-    loss_lost_ += win_lost_;
-    const uint64_t loss_judged = loss_acked_ + loss_lost_;
-    if (loss_since_ < 0) loss_since_ = last_update_;
-    const bool judge_loss = loss_judged >= loss_samples_ || (loss_judged >= 4 && now - loss_since_ >= 2.0);
-    if (judge_loss) {
-        loss_ = double(loss_lost_) / double(loss_judged);
-        loss_acked_ = loss_lost_ = 0;
-        loss_since_ = now;
-    }
+    const bool judge_loss = judge_loss_now(now);
     // The RTT includes the datagram's own time on the link, which on a slow
     // link is long and varies with its size (750 bytes at 48 kbit/s: 125
     // ms): a queue is read only beyond the largest datagram the bucket lets
@@ -170,20 +161,7 @@ void RateController::update(double now) {
     const double delivered_kbps = window > 0 ? double(win_acked_bytes_) * 8.0 / 1000.0 / window : 0.0;
     last_update_ = now;
     // This window's span: back from it, until kSpanDatagrams acknowledged.
-    window_at_ = (window_at_ + 1) % kSpanWindows;
-    windows_[window_at_] = Window{win_acked_bytes_, win_acked_, window};
-    {
-        Window span;
-        for (size_t k = 0; k < kSpanWindows; ++k) {
-            const Window& w = windows_[(window_at_ + kSpanWindows - k) % kSpanWindows];
-            span.bytes += w.bytes;
-            span.datagrams += w.datagrams;
-            span.seconds += w.seconds;
-            if (k >= 1 && span.datagrams >= kSpanDatagrams) break;
-        }
-        std::rotate(rates_.begin(), rates_.begin() + 1, rates_.end());
-        rates_.back() = span.datagrams >= kSpanDatagrams && span.seconds > 0 ? double(span.bytes) * 8.0 / 1000.0 / span.seconds : 0.0;
-    }
+    push_span(window);
     const double carried = carried_kbps();
     if (hold_ > 0) {
         --hold_;  // let the last back-off take effect before judging again
@@ -204,24 +182,7 @@ void RateController::update(double now) {
         // A path that became slower is learnt from the last two spans on.
         std::fill(rates_.begin(), rates_.end() - 2, 0.0);
     } else if (limited_) {
-        // Slow start: double while the client keeps up with what was sent
-        // (at least half of the target acknowledged in the window; acks lag
-        // by one RTT, so not all of it).
-        if (slow_start_ && judged >= 4 && delivered_kbps < 0.5 * target_kbps()) slow_start_ = false;
-        if (slow_start_ && judged >= 4)
-            estimate_kbps_ = std::min(cap_kbps_, estimate_kbps_ * 2.0);
-        else {
-            // While the RTT shows a queue building, slowly (the RTT shows the
-            // back-off's threshold before a queue of 200 ms overflows) and by
-            // the same step whatever the rate: clients sharing a bottleneck
-            // then converge to equal parts (each back-off takes the same
-            // fraction of each), where a step in proportion to the rate kept
-            // whatever parts they had.
-            const bool queueing = queue_ms > 0.5 * queue_threshold_ms;
-            double e = queueing ? estimate_kbps_ + kQueueingStepKbps : estimate_kbps_ * 1.10 + 4.0;
-            if (carried > 0) e = std::min(e, std::max(estimate_kbps_, kProbeGain * carried));  // not far above what gets through
-            estimate_kbps_ = std::min(cap_kbps_, e);
-        }
+        grow(judged, delivered_kbps, queue_ms > 0.5 * queue_threshold_ms, carried);
     }
     // Let the minimum RTT forget after ~10 s so a changed path is learnt:
     // to the smallest of the last 10 s (to the smoothed RTT, as before, a
@@ -236,6 +197,60 @@ void RateController::update(double now) {
     win_acked_ = win_lost_ = win_acked_bytes_ = 0;
     limited_ = false;
     recent_[recent_at_++ % recent_.size()] = estimate_kbps_;
+}
+
+// Loss over at least kLossSamples datagrams (or 2 s) since it was last
+// judged: whether it is judged now (loss_ then updated).
+bool RateController::judge_loss_now(double now) {
+    loss_acked_ += win_acked_;
+    loss_lost_ += win_lost_;
+    const uint64_t loss_judged = loss_acked_ + loss_lost_;
+    if (loss_since_ < 0) loss_since_ = last_update_;
+    const bool judge = loss_judged >= loss_samples_ || (loss_judged >= 4 && now - loss_since_ >= 2.0);
+    if (judge) {
+        loss_ = double(loss_lost_) / double(loss_judged);
+        loss_acked_ = loss_lost_ = 0;
+        loss_since_ = now;
+    }
+    return judge;
+}
+
+// This window's span: back from it, until kSpanDatagrams acknowledged; its
+// rate joins rates_ (0 when too few datagrams were acknowledged).
+void RateController::push_span(double window) {
+    window_at_ = (window_at_ + 1) % kSpanWindows;
+    windows_[window_at_] = Window{win_acked_bytes_, win_acked_, window};
+    Window span;
+    for (size_t k = 0; k < kSpanWindows; ++k) {
+        const Window& w = windows_[(window_at_ + kSpanWindows - k) % kSpanWindows];
+        span.bytes += w.bytes;
+        span.datagrams += w.datagrams;
+        span.seconds += w.seconds;
+        if (k >= 1 && span.datagrams >= kSpanDatagrams) break;
+    }
+    std::rotate(rates_.begin(), rates_.begin() + 1, rates_.end());
+    rates_.back() = span.datagrams >= kSpanDatagrams && span.seconds > 0 ? double(span.bytes) * 8.0 / 1000.0 / span.seconds : 0.0;
+}
+
+// A limited window without congestion: the estimate grows.
+void RateController::grow(uint64_t judged, double delivered_kbps, bool queueing, double carried) {
+    // Slow start: double while the client keeps up with what was sent
+    // (at least half of the target acknowledged in the window; acks lag
+    // by one RTT, so not all of it).
+    if (slow_start_ && judged >= 4 && delivered_kbps < 0.5 * target_kbps()) slow_start_ = false;
+    if (slow_start_ && judged >= 4) {
+        estimate_kbps_ = std::min(cap_kbps_, estimate_kbps_ * 2.0);
+        return;
+    }
+    // While the RTT shows a queue building (queueing), slowly (the RTT shows
+    // the back-off's threshold before a queue of 200 ms overflows) and by
+    // the same step whatever the rate: clients sharing a bottleneck then
+    // converge to equal parts (each back-off takes the same fraction of
+    // each), where a step in proportion to the rate kept whatever parts
+    // they had.
+    double e = queueing ? estimate_kbps_ + kQueueingStepKbps : estimate_kbps_ * 1.10 + 4.0;
+    if (carried > 0) e = std::min(e, std::max(estimate_kbps_, kProbeGain * carried));  // not far above what gets through
+    estimate_kbps_ = std::min(cap_kbps_, e);
 }
 
 double RateController::carried_kbps() const {

@@ -115,6 +115,11 @@ private:
         bool valid = false, acked = false, counted = false;
     };
     void mark(uint32_t seq);
+    // update()'s steps: the loss judged (when enough datagrams were), the
+    // window's span rate recorded, the estimate grown.
+    bool judge_loss_now(double now);
+    void push_span(double window);
+    void grow(uint64_t judged, double delivered_kbps, bool queueing, double carried);
     double depth_bytes(double kbps) const;
     double fill_fraction(double kbps) const;
     double cap_kbps_, min_depth_, estimate_kbps_;
