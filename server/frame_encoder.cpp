@@ -312,12 +312,14 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
         frame_.hist_sample.resize(slots_.size() * kBaselineRing, 0);
         const size_t had = frame_.predicted_.size();
         frame_.predicted_.resize(slots_.size() * kPredictedPerSlot);
+        frame_.published_.resize(frame_.predicted_.size());
         for (size_t k = had; k < frame_.predicted_.size(); ++k) {
             frame_.predicted_[k].bits.reserve(rel_stride_ + 8);
             frame_.predicted_[k].offsets.resize(max_bones_ + 1);
         }
     }
     for (auto& p : frame_.predicted_) p.base = 0;  // coded again on first use this tick
+    for (size_t k = 0; k < frame_.published_.n; ++k) frame_.published_.v[k].store(0, std::memory_order_relaxed);
     frame_.epoch = (frame_.epoch + 1) & 0xFFFFF;
     if (frame_.epoch == 0) {  // the 20-bit epoch wrapped: no entry of the cache may match again
         for (size_t k = 0; k < EncodedFrame::OwnCache::kEntries; ++k) frame_.own_cache->entries[k].store(0, std::memory_order_relaxed);
@@ -515,20 +517,49 @@ const RecordInts* EncodedFrame::ints_at(int i, uint32_t t) const {
     return hist.data() + k * ring_bones;
 }
 
+EncodedFrame::PublishedBases& EncodedFrame::PublishedBases::operator=(const PublishedBases& o) {
+    if (this == &o) return *this;
+    v = o.n ? std::make_unique<std::atomic<uint8_t>[]>(o.n) : nullptr;
+    n = o.n;
+    for (size_t k = 0; k < n; ++k) v[k].store(o.v[k].load(std::memory_order_acquire), std::memory_order_relaxed);
+    return *this;
+}
+
+void EncodedFrame::PublishedBases::resize(size_t m) {
+    if (m == n) return;
+    std::unique_ptr<std::atomic<uint8_t>[]> w = m ? std::make_unique<std::atomic<uint8_t>[]>(m) : nullptr;
+    for (size_t k = 0; k < m; ++k) w[k].store(k < n ? v[k].load(std::memory_order_relaxed) : uint8_t(0), std::memory_order_relaxed);
+    v = std::move(w);
+    n = m;
+}
+
 const PredictedRecords* EncodedFrame::predicted(int i, uint8_t base) const {
     const EncodedInstance& e = instances[size_t(i)];
+    const size_t k0 = size_t(i) * kPredictedPerSlot;
+    // Coded already this tick: found without the lock (acquire: its records
+    // were written before its base was published).
+    if (base != 0 && k0 + kPredictedPerSlot <= published_.n)
+        for (size_t k = k0; k < k0 + kPredictedPerSlot; ++k)
+            if (published_.v[k].load(std::memory_order_acquire) == base) return &predicted_[k];
     std::lock_guard lock((*predicted_locks)[size_t(i) % predicted_locks->size()]);
     PredictedRecords* free = nullptr;
-    for (size_t k = size_t(i) * kPredictedPerSlot; k < size_t(i + 1) * kPredictedPerSlot; ++k) {
+    size_t at = 0;
+    for (size_t k = k0; k < k0 + kPredictedPerSlot; ++k) {
         if (predicted_[k].base == base) return &predicted_[k];
-        if (!free && predicted_[k].base == 0) free = &predicted_[k];
+        if (!free && predicted_[k].base == 0) free = &predicted_[k], at = k;
     }
     if (!free) return nullptr;
     PredictedRecords& p = *free;
     p.base = base;
     Baseline from;
     p.usable = baseline(i, base, from) && e.valid;
-    if (!p.usable) return &p;
+    auto publish = [&] {
+        if (at < published_.n) published_.v[at].store(base, std::memory_order_release);
+    };
+    if (!p.usable) {
+        publish();
+        return &p;
+    }
     p.bits.clear();
     BitWriter w(p.bits);
     const RecordInts* now = ints.data() + size_t(i) * ring_bones;
@@ -538,6 +569,7 @@ const PredictedRecords* EncodedFrame::predicted(int i, uint8_t base) const {
         write_predicted(now[b], from.predict(b), scaled, w);
     }
     p.offsets[size_t(e.bone_count)] = uint32_t(w.bits());
+    publish();
     return &p;
 }
 

@@ -175,6 +175,21 @@ struct EncodedFrame {
     uint32_t epoch = 0;
     std::shared_ptr<OwnCache> own_cache = std::make_shared<OwnCache>();
     mutable std::vector<PredictedRecords> predicted_;  // kPredictedPerSlot per slot
+    // predicted_[k]'s base once its records are coded (stored with release
+    // after them), 0 before: predicted() finds a coded baseline without
+    // the lock (every client's plan asks for each of its characters). A
+    // copy of the frame copies the values.
+    struct PublishedBases {
+        std::unique_ptr<std::atomic<uint8_t>[]> v;
+        size_t n = 0;
+        PublishedBases() = default;
+        PublishedBases(const PublishedBases& o) { *this = o; }
+        PublishedBases& operator=(const PublishedBases& o);
+        PublishedBases(PublishedBases&&) noexcept = default;
+        PublishedBases& operator=(PublishedBases&&) noexcept = default;
+        void resize(size_t m);  // keeps the first min(n, m) values, the others 0
+    };
+    mutable PublishedBases published_;
     std::shared_ptr<std::array<std::mutex, 64>> predicted_locks = std::make_shared<std::array<std::mutex, 64>>();
 };
 
