@@ -82,6 +82,12 @@ inline uint16_t to_u16(const std::string& key, const std::string& v, const char*
 
 inline uint16_t to_port(const std::string& key, const std::string& v) { return to_u16(key, v, "a port"); }
 
+// A value that must be `a` or `b` (an option's two choices): v itself.
+inline std::string one_of(const std::string& key, const std::string& v, const char* a, const char* b) {
+    if (v != a && v != b) throw UsageError(key + " takes " + a + " or " + b + ", not " + v);
+    return v;
+}
+
 // HOST:PORT, split at the last colon; both parts required.
 struct HostPort {
     std::string host;

@@ -51,7 +51,6 @@ struct DatagramPacker::Group {
     const PredictedRecords* pred;   // the records predicted from it
     size_t p = 0;                   // the pick next_bone is in
     int bone = -1;                  // the next bone to go (-1: none left)
-    int show = 0;
     int next_bone() {
         for (; p < picks.size(); ++p) {
             const int lo = std::clamp(picks[p].first, 0, e.bone_count), hi = std::min(picks[p].k, e.bone_count);
@@ -107,8 +106,8 @@ void DatagramPacker::pack_group(Group& grp, uint32_t& seq, std::vector<std::vect
     const EncodedFrame& frame = grp.frame;
     const EncodedInstance& e = grp.e;
     const size_t room = MAX_DATAGRAM - WireCost::kFrameOverhead;
-    for (const Pick& q : grp.picks) grp.show = std::max(grp.show, std::clamp(std::max(q.show, q.k), 0, e.bone_count));
-    const int show = grp.show;
+    int show = 0;
+    for (const Pick& q : grp.picks) show = std::max(show, std::clamp(std::max(q.show, q.k), 0, e.bone_count));
     grp.bone = grp.next_bone();
     // The root block: this client's (predicted, RecordPlan::root), else absolute.
     const bool root = (e.flags & CHUNK_ROOT) != 0;

@@ -318,8 +318,8 @@ const EncodedFrame& FrameEncoder::encode(uint32_t tick) {
             frame_.predicted_[k].offsets.resize(max_bones_ + 1);
         }
     }
-    for (auto& p : frame_.predicted_) p.base = 0;  // coded again on first use this tick
-    for (size_t k = 0; k < frame_.published_.n; ++k) frame_.published_.v[k].store(0, std::memory_order_relaxed);
+    for (size_t k = 0; k < frame_.published_.n; ++k)  // coded again on first use this tick
+        frame_.published_.v[k].store(0, std::memory_order_relaxed);
     frame_.epoch = (frame_.epoch + 1) & 0xFFFFF;
     if (frame_.epoch == 0) {  // the 20-bit epoch wrapped: no entry of the cache may match again
         for (size_t k = 0; k < EncodedFrame::OwnCache::kEntries; ++k) frame_.own_cache->entries[k].store(0, std::memory_order_relaxed);
@@ -535,29 +535,27 @@ void EncodedFrame::PublishedBases::resize(size_t m) {
 
 const PredictedRecords* EncodedFrame::predicted(int i, uint8_t base) const {
     const EncodedInstance& e = instances[size_t(i)];
+    if (base == 0) return nullptr;  // (0 marks a free slot)
     const size_t k0 = size_t(i) * kPredictedPerSlot;
+    std::atomic<uint8_t>* const held = published_.v.get() + k0;  // the slot's kPredictedPerSlot bases
     // Coded already this tick: found without the lock (acquire: its records
     // were written before its base was published).
-    if (base != 0 && k0 + kPredictedPerSlot <= published_.n)
-        for (size_t k = k0; k < k0 + kPredictedPerSlot; ++k)
-            if (published_.v[k].load(std::memory_order_acquire) == base) return &predicted_[k];
+    for (size_t k = 0; k < kPredictedPerSlot; ++k)
+        if (held[k].load(std::memory_order_acquire) == base) return &predicted_[k0 + k];
+    // Else under the lock, which every store of the slot's bases holds.
     std::lock_guard lock((*predicted_locks)[size_t(i) % predicted_locks->size()]);
-    PredictedRecords* free = nullptr;
-    size_t at = 0;
-    for (size_t k = k0; k < k0 + kPredictedPerSlot; ++k) {
-        if (predicted_[k].base == base) return &predicted_[k];
-        if (!free && predicted_[k].base == 0) free = &predicted_[k], at = k;
+    size_t free = kPredictedPerSlot;
+    for (size_t k = 0; k < kPredictedPerSlot; ++k) {
+        const uint8_t b = held[k].load(std::memory_order_relaxed);
+        if (b == base) return &predicted_[k0 + k];  // coded meanwhile
+        if (free == kPredictedPerSlot && b == 0) free = k;
     }
-    if (!free) return nullptr;
-    PredictedRecords& p = *free;
-    p.base = base;
+    if (free == kPredictedPerSlot) return nullptr;
+    PredictedRecords& p = predicted_[k0 + free];
     Baseline from;
     p.usable = baseline(i, base, from) && e.valid;
-    auto publish = [&] {
-        if (at < published_.n) published_.v[at].store(base, std::memory_order_release);
-    };
     if (!p.usable) {
-        publish();
+        held[free].store(base, std::memory_order_release);
         return &p;
     }
     p.bits.clear();
@@ -569,7 +567,7 @@ const PredictedRecords* EncodedFrame::predicted(int i, uint8_t base) const {
         write_predicted(now[b], from.predict(b), scaled, w);
     }
     p.offsets[size_t(e.bone_count)] = uint32_t(w.bits());
-    publish();
+    held[free].store(base, std::memory_order_release);
     return &p;
 }
 

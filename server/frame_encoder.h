@@ -81,7 +81,6 @@ inline constexpr int kPredictedPerSlot = 4;  // baselines coded per slot and tic
 // One slot's records of a tick predicted from one baseline (Chunk.base):
 // write_predicted's bits per bone (without the chunk's "predicted" bit).
 struct PredictedRecords {
-    uint8_t base = 0;     // 0: free this tick
     bool usable = false;  // the baseline ticks were in the ring (else nothing is predicted from it)
     std::vector<uint8_t> bits;
     std::vector<uint32_t> offsets;  // bone_count + 1
@@ -175,10 +174,10 @@ struct EncodedFrame {
     uint32_t epoch = 0;
     std::shared_ptr<OwnCache> own_cache = std::make_shared<OwnCache>();
     mutable std::vector<PredictedRecords> predicted_;  // kPredictedPerSlot per slot
-    // predicted_[k]'s base once its records are coded (stored with release
-    // after them), 0 before: predicted() finds a coded baseline without
-    // the lock (every client's plan asks for each of its characters). A
-    // copy of the frame copies the values.
+    // The base predicted_[k] holds this tick (0: free), stored with release
+    // once its records are coded (under the slot's lock): predicted() finds
+    // a coded baseline without the lock (every client's plan asks for each
+    // of its characters). A copy of the frame copies the values.
     struct PublishedBases {
         std::unique_ptr<std::atomic<uint8_t>[]> v;
         size_t n = 0;

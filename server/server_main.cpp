@@ -152,16 +152,6 @@ struct Options {
     }
 };
 
-// The value of a choice option (--build-strategy, --build-training, --play),
-// or "" after saying on stderr that it is none of the option's two.
-static std::string choice(const std::string& option, const std::string& v) {
-    const char* a = option == "--build-strategy" ? "auto" : option == "--build-training" ? "clips" : "loop";
-    const char* b = option == "--build-strategy" ? "rate" : option == "--build-training" ? "range-of-motion" : "once";
-    if (v == a || v == b) return v;
-    std::fprintf(stderr, "progskin-server: %s takes %s or %s, not %s\n%s", option.c_str(), a, b, v.c_str(), kUsage);
-    return "";
-}
-
 // Reads argv into `o`. Returns -1 to go on, else the exit code (0: --help, 2: bad arguments).
 static int parse_options(int argc, char** argv, Options& o) {
     o.cfg.port = 7777;
@@ -193,13 +183,10 @@ static int parse_options(int argc, char** argv, Options& o) {
             else if (a == "--cache") o.asset_options.cache_dir = need(i);
             else if (a == "--crowd") o.crowd = cli::to_int(a, need(i));
             else if (a == "--no-scene") o.no_scene = true;
-            else if (a == "--build-strategy" || a == "--build-training" || a == "--play") {
-                const std::string v = choice(a, need(i));
-                if (v.empty()) return 2;
-                if (a == "--build-strategy") o.asset_options.build_by_rate = v == "rate";
-                else if (a == "--build-training") o.asset_options.range_of_motion = v == "range-of-motion";
-                else o.once = v == "once";
-            }
+            else if (a == "--build-strategy") o.asset_options.build_by_rate = cli::one_of(a, need(i), "auto", "rate") == "rate";
+            else if (a == "--build-training")
+                o.asset_options.range_of_motion = cli::one_of(a, need(i), "clips", "range-of-motion") == "range-of-motion";
+            else if (a == "--play") o.once = cli::one_of(a, need(i), "loop", "once") == "once";
             else if (a == "--tick-rate") cfg.tick_rate = float(cli::to_number(a, need(i)));
             else if (a == "--threads") o.threads = cli::to_int(a, need(i));
             else if (a == "--nats") cfg.nats_url = need(i);

@@ -86,11 +86,7 @@ int main(int argc, char** argv) {
             else if (a == "--walk") o.walk = cli::to_number(a, need());
             else if (a == "--spacing") o.spacing = cli::to_number(a, need());
             else if (a == "--see") o.see = cli::to_int(a, need());
-            else if (a == "--placement") {
-                const std::string v = need();
-                if (v != "round-robin" && v != "bands") throw cli::UsageError("--placement takes round-robin or bands, not " + v);
-                o.bands = v == "bands";
-            }
+            else if (a == "--placement") o.bands = cli::one_of(a, need(), "round-robin", "bands") == "bands";
             else if (a == "--starve-s") o.starve_s = cli::to_number(a, need());
             else if (a == "--connect-rate") o.connect_rate = cli::to_number(a, need());
             else if (a == "--addresses") o.addresses = cli::to_int(a, need());
@@ -104,10 +100,8 @@ int main(int argc, char** argv) {
             else if (a == "--connect-timeout") o.connect_timeout = cli::to_number(a, need());
             else if (a == "--retries") o.retries = cli::to_int(a, need());
             else if (a == "--progress") o.progress_s = cli::to_number(a, need());
-            else if (a == "--report") {
-                report = need();
-                if (report != "json" && report != "text") throw cli::UsageError("--report takes json or text, not " + report);
-            } else throw cli::UsageError("unknown argument " + a);
+            else if (a == "--report") report = cli::one_of(a, need(), "json", "text");
+            else throw cli::UsageError("unknown argument " + a);
         }
         o.servers = parse_server_list(servers);
         if (o.players < 1 || o.players > LoadOptions::kMaxPlayers)
