@@ -246,7 +246,7 @@ static void BM_PublishingPlayers(benchmark::State& st) {
     NoSockets sink;
     std::array<uint8_t, ROOT_BYTES> root{};
     uint32_t tick = 0;
-    double busy = 0, sent = 0, wall = 0, weighed = 0, encoding = 0;
+    double busy = 0, sent = 0, wall = 0, weighed = 0, encoding = 0, bones = 0;
     auto one_tick = [&](bool timed) {
         const double t0 = process_seconds(), w0 = now_seconds();
         ++tick;
@@ -275,7 +275,10 @@ static void BM_PublishingPlayers(benchmark::State& st) {
         busy += process_seconds() - t0;
         encoding += t_encoded - t0;
         wall += now_seconds() - w0;
-        for (const ClientStream* c : streams) weighed += double(c->weighed());
+        for (const ClientStream* c : streams) {
+            weighed += double(c->weighed());
+            for (const Pick& pk : c->picks()) bones += double(std::max(0, pk.k - pk.first));
+        }
     };
     // The steady state: the first ticks send every character whole, and an
     // acknowledging player's records go predicted only once its first
@@ -293,7 +296,9 @@ static void BM_PublishingPlayers(benchmark::State& st) {
     st.counters["encode_us_per_player_tick"] = 1e6 * encoding / ticks / players;
     st.counters["wall_ms_per_tick"] = 1e3 * wall / ticks;
     st.counters["kbps_per_player"] = sent * 8 / 1000 / (ticks / 30.0) / players;
-    st.counters["weighed_per_player"] = weighed / ticks / players;  // instances whose importance a player's tick computed
+    st.counters["weighed_per_player"] = weighed / ticks / players;
+    // bone records a player receives per tick (at its rate: fewer bits per bone, more bones)
+    st.counters["bones_per_player_tick"] = bones / ticks / players;  // instances whose importance a player's tick computed
     st.SetLabel(mode == 0   ? "everyone sees everyone, 1 Mbit/s"
                 : mode == 1 ? "players over 2 km, each viewing from its character, 256 kbit/s"
                 : mode == 2 ? "players over 2 km, each weighing its nearest 100, 256 kbit/s"
