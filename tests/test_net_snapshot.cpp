@@ -5,6 +5,7 @@
 #ifndef PROGSKIN_HAVE_RENDER
 TEST(NetSnapshot, NotBuilt) { GTEST_SKIP() << "render/ not built"; }
 #else
+#include <algorithm>
 #include <filesystem>
 
 #include "net_test_support.h"
@@ -15,10 +16,14 @@ using namespace progskin::net;
 using namespace progskin::net::testing;
 
 TEST(NetSnapshot, ClientRendersWhatItDisplays) {
+    // The client renders in its display loop: under load (ctest -j on 2
+    // cores) a software render can take a second, so the run leaves room
+    // for two of them, and snapshots after the second are only checked.
     RunningServer s;
-    ClientOptions o = s.client(2.5);
+    ClientOptions o = s.client(4.0);
     o.max_kbps = 48;
     o.snapshot_every = 0.5;
+    constexpr int kRendered = 2;
     int calls = 0, written = 0;
     size_t chars = 0;
     std::string err;
@@ -40,6 +45,7 @@ TEST(NetSnapshot, ClientRendersWhatItDisplays) {
             cs.push_back(c);
         }
         chars = std::max(chars, cs.size());
+        if (calls > kRendered) return;
         const auto png = dir / ("snap_" + std::to_string(calls) + ".png");
         if (render::render_snapshot(cs, png.string(), {}, &err) && std::filesystem::file_size(png) > 1000) ++written;
     };
@@ -47,7 +53,7 @@ TEST(NetSnapshot, ClientRendersWhatItDisplays) {
     std::filesystem::remove_all(dir);
     if (written == 0 && err.find("context") != std::string::npos) GTEST_SKIP() << err;
     EXPECT_GE(calls, 2);
-    EXPECT_EQ(written, calls) << err;
+    EXPECT_EQ(written, std::min(calls, kRendered)) << err;
     EXPECT_EQ(chars, default_instances(default_assets()).size());
 }
 #endif
