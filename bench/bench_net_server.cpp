@@ -296,9 +296,9 @@ static void BM_PublishingPlayers(benchmark::State& st) {
     st.counters["encode_us_per_player_tick"] = 1e6 * encoding / ticks / players;
     st.counters["wall_ms_per_tick"] = 1e3 * wall / ticks;
     st.counters["kbps_per_player"] = sent * 8 / 1000 / (ticks / 30.0) / players;
-    st.counters["weighed_per_player"] = weighed / ticks / players;
+    st.counters["weighed_per_player"] = weighed / ticks / players;  // instances whose importance a player's tick computed
     // bone records a player receives per tick (at its rate: fewer bits per bone, more bones)
-    st.counters["bones_per_player_tick"] = bones / ticks / players;  // instances whose importance a player's tick computed
+    st.counters["bones_per_player_tick"] = bones / ticks / players;
     st.SetLabel(mode == 0   ? "everyone sees everyone, 1 Mbit/s"
                 : mode == 1 ? "players over 2 km, each viewing from its character, 256 kbit/s"
                 : mode == 2 ? "players over 2 km, each weighing its nearest 100, 256 kbit/s"
