@@ -254,8 +254,8 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
         for (const auto& d : log[size_t(t)]) {
             const wire::Datagram* g = verify_datagram(d);
             const wire::Frame* fr = g->body_as_Frame();
-            const size_t records = apply_frame(*fr, views).record_bits / 8;  // what the padding adds counts as header
-            if (t > warm) header_bytes += fr->chunks()->size() * WireCost::kChunk + fr->payload()->size() - records;
+            const size_t records = apply_frame(*fr, views).record_bits / 8;  // the heads, blocks and padding: header
+            if (t > warm) header_bytes += fr->payload()->size() - records;
         }
         const double d = double(t - delay);
         if (t - delay <= warm) continue;

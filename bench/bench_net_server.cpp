@@ -73,7 +73,6 @@ struct NoSockets final : DatagramSink {
         if (!f) return;
         const uint32_t tick = f->tick();
         digest_add(&tick, sizeof tick);
-        if (f->chunks()) digest_add(f->chunks()->Data(), f->chunks()->size() * sizeof(wire::Chunk));
         if (f->payload()) digest_add(f->payload()->Data(), f->payload()->size());
     }
 };

@@ -110,9 +110,10 @@ FrameApplied apply_frame(const wire::Frame& f, std::span<const PoseTarget> insta
     };
     // Every chunk is checked before any is applied (proto/frame_reader.h).
     r.read = read_frame(f, record_size, run, on_chunk);
-    if (r.read && f.chunks())
-        for (const wire::Chunk* c : *f.chunks())
-            if (record_size(c->instance()) == 0) ++r.unknown_chunks;
+    if (r.read)
+        for_each_chunk_head(f, [&](const ChunkHead& h) {
+            if (record_size(h.instance) == 0) ++r.unknown_chunks;
+        });
     return r;
 }
 
@@ -673,12 +674,13 @@ FrameApplied ClientSession::sink_frame(const wire::Frame& f, double arrival) {
         return a ? a->format.size() : 0;
     };
     // Pass 0: show within every chunk's asset (read_frame checks the rest).
-    if (f.chunks())
-        for (const wire::Chunk* c : *f.chunks()) {
-            const ClientAsset* a = asset_of(c->instance());
-            if (a && c->show() > a->skin.bone_count()) return r;
-            if (!a) ++r.unknown_chunks;
-        }
+    bool fits = true;
+    for_each_chunk_head(f, [&](const ChunkHead& h) {
+        const ClientAsset* a = asset_of(h.instance);
+        if (a && h.show > a->skin.bone_count()) fits = false;
+        if (!a) ++r.unknown_chunks;
+    });
+    if (!fits) return r;
     FrameSink& sink = *hooks_.frame_sink;
     auto on_chunk = [&](const wire::Chunk& c, uint8_t, std::span<const uint8_t> root, const uint8_t*) {
         sink.on_chunk(c.instance(), f.tick(), c.show(), root, arrival);

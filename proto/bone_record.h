@@ -120,6 +120,10 @@ public:
     // Appends bits [from, from + count) of src (bytes past (from + count + 7) / 8 are not read).
     void append_bits(const uint8_t* src, size_t from, size_t count);
     size_t bits() const { return out_.size() * 8 - size_t(free_); }
+    void clear() {  // empties the output and starts again at its first bit
+        out_.clear();
+        free_ = 0;
+    }
 private:
     std::vector<uint8_t>& out_;
     int free_ = 0;  // unused high bits of out_.back()

@@ -1,18 +1,19 @@
-// frame_reader.h — the chunk layout of a Frame (datagram.fbs, protocol
-// version 8), written by server/datagram_packer.cpp and read here by every
-// receiver (client, tests, benchmarks, fuzz target).
+// frame_reader.h — the payload layout of a Frame (datagram.fbs, protocol
+// version 11: proto/chunk_head.h), written by server/datagram_packer.cpp and
+// read here by every receiver (client, tests, benchmarks, fuzz target).
 //
-// Frame.payload holds, per chunk in chunk order, the sample byte (version 8,
-// only when frame.sampled(): wire.h sample_ticks), the root block (root_block.h:
-// absolute or predicted, self-delimiting; when chunk.flags & CHUNK_ROOT), the morph block (when chunk.flags &
-// CHUNK_MORPH: uint8 n >= 1, then n entries of MORPH_ENTRY_BYTES: uint8 morph
-// index, strictly increasing, and int16 little-endian weight, wire.h
-// decode_morph_weight), a bone mask of mask_bytes(first, show)
-// bytes (bit j of byte j / 8, least significant bit first: bone first + j is
-// carried), then the records of the carried bones in increasing bone order
-// as one bit stream (bone_record.h: parent-relative, each record opening with
-// a "predicted" bit when the chunk has a baseline, flags bits 3-6; scale
-// fields when flags & CHUNK_SCALED), padded with zero bits to a whole byte.
+// Frame.payload is one bit stream of chunk heads (instance, first, show,
+// epoch, flags, bone mask: chunk_head.h), each followed by the records of
+// its carried bones in increasing bone order (bone_record.h:
+// parent-relative, each record opening with a "predicted" bit when the chunk
+// has a baseline, flags bits 3-6; scale fields when flags & CHUNK_SCALED),
+// padded with zero bits to a whole byte; then per chunk, in the same order,
+// its byte blocks: the sample byte (version 8, only when frame.sampled():
+// wire.h sample_ticks), the root block (root_block.h: absolute or predicted,
+// self-delimiting; when flags & CHUNK_ROOT), the morph block (when flags &
+// CHUNK_MORPH: uint8 n >= 1, then n entries of MORPH_ENTRY_BYTES: uint8
+// morph index, strictly increasing, and int16 little-endian weight, wire.h
+// decode_morph_weight).
 //
 // read_frame(frame, record_size, run[, on_chunk]) checks every length and
 // index of a verified Frame before anything is applied:
@@ -22,25 +23,26 @@
 //       instance may be announced on the control channel after its first
 //       frames);
 //   on_chunk(chunk, sample, root, morph): once per chunk of a known
-//       instance, before its runs (sample: its sample byte, 0 when the frame
-//       has none; root: the chunk's root block, root_block.h, empty when
-//       none; morph: the morph block from its count byte on, or nullptr);
+//       instance, before its runs (chunk: its head as a wire::Chunk; sample:
+//       its sample byte, 0 when the frame has none; root: the chunk's root
+//       block, root_block.h, empty when none; morph: the morph block from its
+//       count byte on, or nullptr);
 //   run(instance, first, count, show, RecordRun): called for every run of
 //       consecutive bones carried, in payload order (the run's first record
 //       at RecordRun.bit of its bytes).
-// Returns false, having called nothing, when a chunk's scale flag differs
-// from its known instance's, has show == 0 or first >= show, a linear
-// baseline without an age (Chunk.flags bits 3-7), a root block breaks its
-// syntax (root_block.h root_size), a root, morph block or mask runs past
-// the payload, a morph block has n == 0 or indices not
-// strictly increasing, the mask has bits set at or past show, the chunk
-// carries neither a bone nor a morph weight, a record breaks its syntax or
-// runs past the payload (bone_record.h skip_record), the padding is not
-// zero, or when bytes are left over after the last chunk. Whether show fits
-// the asset's bone count is the receiver's check (PoseBuffer::add_chunk), so
-// are a predicted record's or root's baseline and sums, and whether a morph index is
-// below the asset's morph target count (PoseBuffer::add_morphs). O(payload
-// bits), no allocation.
+// Returns false, having called nothing, when a head breaks its syntax
+// (chunk_head.h read_head: instances strictly increasing, first < show, the
+// mask within show), a chunk's scale flag differs from its known
+// instance's, a linear baseline has no age (flags bits 3-7), a record
+// breaks its syntax or runs past the payload (bone_record.h skip_record), the
+// padding is not zero, a root block breaks its syntax (root_block.h
+// root_size), a root or morph block runs past the payload, a morph block has
+// n == 0 or indices not strictly increasing, the chunk carries neither a
+// bone nor a morph weight, or when bytes are left over after the last
+// block. Whether show fits the asset's bone count is the receiver's check
+// (PoseBuffer::add_chunk), so are a predicted record's or root's baseline and
+// sums, and whether a morph index is below the asset's morph target count
+// (PoseBuffer::add_morphs). O(payload bits), no allocation.
 #pragma once
 #include <bit>
 #include <cstddef>
@@ -49,6 +51,7 @@
 #include <span>
 
 #include "bone_record.h"
+#include "chunk_head.h"
 #include "datagram_generated.h"
 #include "root_block.h"
 #include "wire.h"
@@ -66,96 +69,127 @@ struct RecordRun {
     size_t bits = 0;   // the run's records take bits [bit, bit + bits)
 };
 
-// Bytes of the bone mask of a chunk covering bones first..show-1.
-constexpr size_t mask_bytes(int first, int show) { return show > first ? size_t(show - first + 7) / 8 : 0; }
+// Walks the heads and records of a payload's bit stream: calls
+// head(i, h, rec_bit, rec_bits) for each chunk i (rec_bit: where its records
+// start). Returns the bytes of the bit stream (its padding included, checked
+// to be zero), or 0 when it breaks its syntax. An empty payload has no
+// chunks (returns 0 as well; callers check the size first).
+template <class Head>
+size_t walk_chunk_heads(const uint8_t* data, size_t size, Head&& head) {
+    BitReader in(data, size);
+    uint64_t n = 0, k = 0;
+    if (!in.get_eg(0, n) || n >= kMaxChunks || !in.get(4, k)) return 0;
+    int prev = -1;
+    ChunkHead h;
+    for (size_t i = 0; i <= n; ++i) {
+        if (!read_head(in, prev, int(k), h)) return 0;
+        prev = h.instance;
+        const bool scaled = (h.flags & CHUNK_SCALED) != 0;
+        const uint8_t base = base_from_flags(h.flags);
+        if ((base & kBaseLinear) && !(base & kBaseAgeMask)) return 0;
+        const bool with_base = (base & kBaseAgeMask) != 0;
+        const size_t from = in.at();
+        for (int c = h.carried(); c > 0; --c)
+            if (!skip_record(in, scaled, with_base)) return 0;
+        if (!head(i, h, from, in.at() - from)) return 0;
+    }
+    const size_t pad = (8 - in.at() % 8) % 8;
+    uint64_t zero = 0;
+    if (pad && (!in.get(int(pad), zero) || zero != 0)) return 0;
+    return in.at() / 8;
+}
+
+// Calls f(const ChunkHead&) for every chunk of the frame (the stream's
+// syntax checked as read_frame does, the blocks not); false when it breaks.
+template <class F>
+bool for_each_chunk_head(const wire::Frame& frame, F&& f) {
+    const auto* payload = frame.payload();
+    if (!payload || payload->size() == 0) return true;
+    return walk_chunk_heads(payload->data(), payload->size(), [&](size_t, const ChunkHead& h, size_t, size_t) {
+               f(h);
+               return true;
+           }) != 0;
+}
 
 template <class RecordSize, class Run, class OnChunk>
 bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, OnChunk&& on_chunk) {
-    const auto* chunks = frame.chunks();
     const auto* payload = frame.payload();
     const uint8_t* data = payload ? payload->data() : nullptr;
     const size_t size = payload ? payload->size() : 0;
+    if (size == 0) return true;
     const bool sampled = frame.sampled();
-    // Pass 0 checks everything; pass 1 calls run.
-    for (int pass = 0; pass < 2; ++pass) {
-        size_t at = 0;
-        if (chunks) {
-            for (const wire::Chunk* c : *chunks) {
-                const int known = record_size(c->instance());
-                const bool scaled = (c->flags() & CHUNK_SCALED) != 0;
-                const int rs = scaled ? RecordFormat::kScaledSize : RecordFormat::kPlainSize;
-                const int first = c->first(), show = c->show();
-                const uint8_t base = base_from_flags(c->flags());
-                if ((known > 0 && known != rs) || first >= show || ((base & kBaseLinear) && !(base & kBaseAgeMask)))
-                    return false;
-                uint8_t sample = 0;  // version 8: when frame.sampled(), each chunk opens with its sample byte
-                if (sampled) {
-                    if (at >= size) return false;
-                    sample = data[at++];
-                }
-                std::span<const uint8_t> root;
-                if (c->flags() & CHUNK_ROOT) {
-                    const size_t n = at < size ? root_size(data + at, size - at) : 0;
-                    if (n == 0) return false;
-                    root = {data + at, n};
-                    at += n;
-                }
-                const uint8_t* morph = nullptr;
-                if (c->flags() & CHUNK_MORPH) {
-                    if (size - at < 1) return false;
-                    const size_t n = data[at];
-                    if (n == 0 || (size - at - 1) / MORPH_ENTRY_BYTES < n) return false;
-                    for (size_t m = 1; m < n; ++m)
-                        if (data[at + 1 + m * MORPH_ENTRY_BYTES] <= data[at + 1 + (m - 1) * MORPH_ENTRY_BYTES]) return false;
-                    morph = data + at;
-                    at += 1 + n * MORPH_ENTRY_BYTES;
-                }
-                const size_t mb = mask_bytes(first, show);
-                if (size - at < mb) return false;
-                const uint8_t* mask = data + at;
-                at += mb;
-                const int bits = show - first;
-                if (bits % 8 != 0 && (mask[mb - 1] >> (bits % 8)) != 0) return false;
-                size_t carried = 0;
-                for (size_t i = 0; i < mb; ++i) carried += size_t(std::popcount(mask[i]));
-                if (carried == 0 && !morph) return false;
-                // The records: walked (pass 0) to find where the chunk ends.
-                const uint8_t* rec = data + at;
-                const size_t avail = size - at;
-                BitReader walk(rec, avail);
-                const bool with_base = (base & kBaseAgeMask) != 0;
-                if (pass == 0) {
-                    for (size_t k = 0; k < carried; ++k)
-                        if (!skip_record(walk, scaled, with_base)) return false;
-                    const size_t pad = (8 - walk.at() % 8) % 8;
-                    uint64_t zero = 0;
-                    if (pad && (!walk.get(int(pad), zero) || zero != 0)) return false;
-                } else {
-                    for (size_t k = 0; k < carried; ++k) skip_record(walk, scaled, with_base);
-                }
-                const size_t rec_bytes = (walk.at() + 7) / 8;
-                if (pass == 1 && known > 0) {
-                    on_chunk(*c, sample, root, morph);
-                    BitReader runs(rec, rec_bytes);
-                    int j = 0;
-                    while (j < bits) {
-                        if (!(mask[j / 8] >> (j % 8) & 1)) {
-                            ++j;
-                            continue;
-                        }
-                        int e = j + 1;
-                        while (e < bits && (mask[e / 8] >> (e % 8) & 1)) ++e;
-                        const size_t from = runs.at();
-                        for (int k = j; k < e; ++k) skip_record(runs, scaled, with_base);
-                        run(c->instance(), first + j, e - j, show, RecordRun{rec, rec_bytes, from, scaled, base, runs.at() - from});
-                        j = e;
-                    }
-                }
-                at += rec_bytes;
-            }
+    // Pass 0: the heads and records (and each chunk's flags kept for its blocks).
+    std::array<uint8_t, kMaxChunks> flags;
+    size_t chunks = 0;
+    const size_t stream = walk_chunk_heads(data, size, [&](size_t i, const ChunkHead& h, size_t, size_t) {
+        const int known = record_size(h.instance);
+        const int rs = (h.flags & CHUNK_SCALED) ? RecordFormat::kScaledSize : RecordFormat::kPlainSize;
+        if ((known > 0 && known != rs) || (h.carried() == 0 && !(h.flags & CHUNK_MORPH))) return false;
+        flags[i] = h.flags;
+        chunks = i + 1;
+        return true;
+    });
+    if (stream == 0) return false;
+    // The blocks: where each chunk's are, checked.
+    struct Blocks {
+        uint8_t sample = 0;
+        std::span<const uint8_t> root;
+        const uint8_t* morph = nullptr;
+    };
+    auto block = [&](size_t& at, uint8_t f, Blocks& b) {
+        if (sampled) {
+            if (at >= size) return false;
+            b.sample = data[at++];
         }
-        if (at != size) return false;
+        if (f & CHUNK_ROOT) {
+            const size_t n = at < size ? root_size(data + at, size - at) : 0;
+            if (n == 0) return false;
+            b.root = {data + at, n};
+            at += n;
+        }
+        if (f & CHUNK_MORPH) {
+            if (size - at < 1) return false;
+            const size_t n = data[at];
+            if (n == 0 || (size - at - 1) / MORPH_ENTRY_BYTES < n) return false;
+            for (size_t m = 1; m < n; ++m)
+                if (data[at + 1 + m * MORPH_ENTRY_BYTES] <= data[at + 1 + (m - 1) * MORPH_ENTRY_BYTES]) return false;
+            b.morph = data + at;
+            at += 1 + n * MORPH_ENTRY_BYTES;
+        }
+        return true;
+    };
+    size_t at = stream;
+    for (size_t i = 0; i < chunks; ++i) {
+        Blocks b;
+        if (!block(at, flags[i], b)) return false;
     }
+    if (at != size) return false;
+    // Pass 1: the calls.
+    at = stream;
+    walk_chunk_heads(data, size, [&](size_t, const ChunkHead& h, size_t rec_bit, size_t) {
+        Blocks b;
+        block(at, h.flags, b);
+        if (record_size(h.instance) <= 0) return true;
+        on_chunk(h.chunk(), b.sample, b.root, b.morph);
+        const bool scaled = (h.flags & CHUNK_SCALED) != 0;
+        const uint8_t base = base_from_flags(h.flags);
+        const bool with_base = (base & kBaseAgeMask) != 0;
+        BitReader runs(data, stream, rec_bit);
+        const int bits = int(h.show) - int(h.first);
+        for (int j = 0; j < bits;) {
+            if (!h.carries(j)) {
+                ++j;
+                continue;
+            }
+            int e = j + 1;
+            while (e < bits && h.carries(e)) ++e;
+            const size_t from = runs.at();
+            for (int c = j; c < e; ++c) skip_record(runs, scaled, with_base);
+            run(h.instance, int(h.first) + j, e - j, int(h.show), RecordRun{data, stream, from, scaled, base, runs.at() - from});
+            j = e;
+        }
+        return true;
+    });
     return true;
 }
 

@@ -735,7 +735,7 @@ TickResult ClientStream::tick(const EncodedFrame& frame, double now, double dt, 
 }
 
 // A chunk of one bone of a placed character: what the least useful pick costs.
-static constexpr size_t kSmallestChunk = WireCost::kChunk + 1 + kRootAbsoluteBytes + RecordFormat::kPlainSize;
+static constexpr size_t kSmallestChunk = WireCost::header(1) + 1 + kRootAbsoluteBytes + RecordFormat::kPlainSize;
 
 size_t ClientStream::candidate_limit(size_t budget) const {
     return std::min<size_t>(size_t(std::max(1, core_.config().max_candidates)),

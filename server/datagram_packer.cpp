@@ -16,24 +16,33 @@ namespace progskin::net {
 
 void DatagramPacker::flush(uint32_t tick, uint32_t& seq, std::vector<std::vector<uint8_t>>& out, size_t& wire) {
     if (chunks_.empty() && acks_.empty()) return;
+    sorted_.assign(chunks_.begin(), chunks_.end());
+    std::sort(sorted_.begin(), sorted_.end(), [](const ChunkOut& x, const ChunkOut& y) { return x.head.instance < y.head.instance; });
+    payload_.clear();
+    const size_t expect = chunks_.empty() ? 0 : payload_bytes(codes_.bits(), 0);
+    if (!write_frame_payload(sorted_, recs_.data(), blocks_.data(), payload_) || payload_.size() != expect)
+        throw Error("datagram_packer: a payload of " + std::to_string(payload_.size()) + " bytes, " + std::to_string(expect) +
+                    " expected");
     fbb_.Clear();
-    auto ch = fbb_.CreateVectorOfStructs(chunks_.data(), chunks_.size());
     auto pl = fbb_.CreateVector(payload_.data(), payload_.size());
     flatbuffers::Offset<flatbuffers::Vector<const wire::PoseAck*>> pa;
     if (!acks_.empty()) pa = fbb_.CreateVectorOfStructs(acks_.data(), acks_.size());
-    auto fr = wire::CreateFrame(fbb_, tick, ch, pl, pa, sampled_);
+    auto fr = wire::CreateFrame(fbb_, tick, pl, pa, sampled_);
     auto dg = wire::CreateDatagram(fbb_, seq++, now_us32(), wire::DatagramBody::Frame, fr.Union());
     fbb_.Finish(dg, wire::DatagramIdentifier());
     const size_t size = fbb_.GetSize();
     // WireCost::kFrameOverhead must cover the tables; this is what the tests check.
-    const size_t body = payload_.size() + chunks_.size() * WireCost::kChunk + ack_bytes_ + (sampled_ ? kSampledField : 0);
+    const size_t body = payload_.size() + ack_bytes_ + (sampled_ ? kSampledField : 0);
     if (size > MAX_DATAGRAM || size > body + WireCost::kFrameOverhead)
         throw Error("datagram_packer: frame overhead " + std::to_string(size - body) +
                     " bytes exceeds WireCost::kFrameOverhead");
     out.emplace_back(fbb_.GetBufferPointer(), fbb_.GetBufferPointer() + size);
     wire += size + UDP_IP_OVERHEAD;
     chunks_.clear();
-    payload_.clear();
+    codes_.clear();
+    head_bits_ = 0;
+    recw_.clear();
+    blocks_.clear();
     acks_ = {};  // in the first datagram only
     ack_bytes_ = 0;
 }
@@ -67,7 +76,10 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
                             std::span<const wire::PoseAck> acks) {
     size_t wire = 0;
     chunks_.clear();
-    payload_.clear();
+    codes_.clear();
+    head_bits_ = 0;
+    recw_.clear();
+    blocks_.clear();
     // Frame.sampled: every chunk opens with its sample byte when one of the
     // tick's instances was sampled at a key (a byte per chunk then).
     sampled_ = false;
@@ -126,45 +138,63 @@ void DatagramPacker::pack_group(Group& grp, uint32_t& seq, std::vector<std::vect
     if (morph_bytes > 0 && grp.bone < 0 && show < 1) morph_bytes = 0;  // no chunk can carry them (never picked so)
     while (grp.bone >= 0 || morph_bytes > 0) {
         const int first = grp.bone >= 0 ? grp.bone : show - 1;
-        const size_t mb = mask_bytes(first, show);
-        const size_t used = payload_.size() + (chunks_.size() + 1) * WireCost::kChunk + (sampled_ ? 1 + kSampledField : 0) +
-                            root_bytes + morph_bytes + mb + ack_bytes_;
-        if (used + (grp.bone >= 0 ? (grp.bits_of(grp.bone) + 7) / 8 : 0) > room) {
+        const uint16_t instance = uint16_t(grp.instance);
+        // One chunk per instance and datagram: a group that continues goes on in the next.
+        if (codes_.contains(instance)) {
             flush(frame.tick, seq, out, wire);
             continue;
         }
-        uint8_t flags = e.flags;
-        if (sampled_) payload_.push_back(e.sample);
-        payload_.insert(payload_.end(), planned.begin(), planned.end());
+        // The head at its largest (the mask as a bitmap) and the blocks.
+        const size_t head = InstanceCodes::fixed_bits(first) + size_t(show - first);
+        const size_t codes = codes_.bits_with(instance);
+        const size_t blocks = (sampled_ ? 1 : 0) + root_bytes + morph_bytes;
+        const size_t fixed = ack_bytes_ + (sampled_ ? kSampledField : 0) + blocks;
+        const size_t used = payload_bytes(codes, head) + fixed;
+        if (used > room || (grp.bone >= 0 && payload_bytes(codes, head + grp.bits_of(grp.bone)) + fixed > room)) {
+            flush(frame.tick, seq, out, wire);
+            continue;
+        }
+        ChunkOut c;
+        c.head = ChunkHead{instance, uint8_t(first), uint8_t(show), e.epoch, uint8_t(e.flags | base_to_flags(grp.base)), {}};
+        c.block_from = blocks_.size();
+        if (sampled_) blocks_.push_back(e.sample);
+        blocks_.insert(blocks_.end(), planned.begin(), planned.end());
         if (morph_bytes > 0) {
-            flags |= CHUNK_MORPH;
+            c.head.flags |= CHUNK_MORPH;
             if (book) book->carried_morphs(seq, frame.tick, grp.instance, e.generation);
-            payload_.push_back(uint8_t((morph_bytes - 1) / MORPH_ENTRY_BYTES));
+            blocks_.push_back(uint8_t((morph_bytes - 1) / MORPH_ENTRY_BYTES));
             for (size_t m = 0; m < weights.size(); ++m)
                 if (morphs[m / 64] >> (m % 64) & 1) {
                     const uint16_t v = uint16_t(int16_t(weights[m]));
-                    payload_.push_back(uint8_t(m));
-                    payload_.push_back(uint8_t(v & 0xFF));
-                    payload_.push_back(uint8_t(v >> 8));
+                    blocks_.push_back(uint8_t(m));
+                    blocks_.push_back(uint8_t(v & 0xFF));
+                    blocks_.push_back(uint8_t(v >> 8));
                 }
             morph_bytes = 0;
         }
-        const size_t mask_at = payload_.size();
-        payload_.resize(mask_at + mb, 0);
-        write_records(grp, first, mask_at, (room - used) * 8, seq, book);
-        chunks_.emplace_back(uint16_t(grp.instance), uint8_t(first), uint8_t(show), e.epoch, uint8_t(flags | base_to_flags(grp.base)));
+        c.block_bytes = blocks_.size() - c.block_from;
+        // The records: what the room leaves after the head at its largest.
+        const size_t room_bits = (room - ack_bytes_ - (sampled_ ? kSampledField : 0) - blocks_.size()) * 8 -
+                                 (codes + head_bits_ + recw_.bits() + head);
+        c.rec_from = recw_.bits();
+        write_records(grp, c.head, room_bits, seq, book);
+        c.rec_bits = recw_.bits() - c.rec_from;
+        codes_.add(instance);
+        head_bits_ += InstanceCodes::fixed_bits(first) + mask_bits(c.head);
+        chunks_.push_back(c);
     }
 }
 
-// Records as one bit stream, padded to a byte: as many of the group's bones
-// from grp.bone on as fit room_bits, their bits set in the chunk's mask at
-// mask_at (bone - first), each run of consecutive bones told to the book.
-void DatagramPacker::write_records(Group& grp, int first, size_t mask_at, size_t room_bits, uint32_t seq, BaselineBook* book) {
+// Records onto the datagram's record stream: as many of the group's bones
+// from grp.bone on as fit room_bits, each set in the head's mask (bone -
+// first), each run of consecutive bones told to the book.
+void DatagramPacker::write_records(Group& grp, ChunkHead& head, size_t room_bits, uint32_t seq, BaselineBook* book) {
     const EncodedFrame& frame = grp.frame;
     const int instance = grp.instance;
     const uint8_t* src = frame.relative(instance);
     size_t rec_bits = 0;
-    BitWriter w(payload_);
+    BitWriter& w = recw_;
+    const int first = head.first;
     int run_first = -1, run_end = -1;  // the run of consecutive bones being written (for the book)
     auto end_run = [&] {
         if (book && run_first >= 0) book->carried(seq, frame.tick, instance, grp.e.generation, run_first, run_end - run_first);
@@ -179,7 +209,7 @@ void DatagramPacker::write_records(Group& grp, int first, size_t mask_at, size_t
     };
     for (size_t nbits; grp.bone >= 0 && rec_bits + (nbits = grp.bits_of(grp.bone)) <= room_bits;) {
         const int bone = grp.bone;
-        payload_[mask_at + size_t(bone - first) / 8] |= uint8_t(1u << ((bone - first) % 8));
+        head.carry(bone - first);
         if (grp.base) {
             const RecordPrefix how = grp.plan->prefix(instance, bone);
             write_prefix(how, w);

@@ -1,10 +1,12 @@
 // datagram_packer.h — turns one client's picks of a tick into frame-stream
 // datagrams (datagram.fbs Frame) of at most MAX_DATAGRAM bytes, copying the
 // pre-encoded parent-relative records' bits (no re-encoding). Adjacent picks of one instance
-// share one chunk (its bone mask, then its records: proto/frame_reader.h); a
-// chunk that does not fit continues in the next datagram (Chunk.first) and
-// repeats its root block (RecordPlan::root: predicted for this client, else
-// absolute); chunks go out in pick order.
+// share one chunk (its head, then its records: proto/chunk_head.h); a
+// chunk that does not fit continues in the next datagram (its head's first)
+// and repeats its root block (RecordPlan::root: predicted for this client,
+// else absolute). Datagrams fill in pick order; within one, the chunks go
+// out by increasing instance (the heads code the instances' differences).
+// The size of a datagram is known exactly as it fills (InstanceCodes).
 #pragma once
 #include <cstdint>
 #include <span>
@@ -13,6 +15,7 @@
 #include <flatbuffers/flatbuffers.h>
 
 #include "baseline_book.h"
+#include "chunk_head.h"
 #include "frame_encoder.h"
 #include "scheduler.h"
 #include "wire.h"
@@ -40,11 +43,21 @@ public:
 private:
     struct Group;
     void pack_group(Group& group, uint32_t& seq, std::vector<std::vector<uint8_t>>& out, size_t& wire, BaselineBook* book);
-    void write_records(Group& group, int first, size_t mask_at, size_t room_bits, uint32_t seq, BaselineBook* book);
+    void write_records(Group& group, ChunkHead& head, size_t room_bits, uint32_t seq, BaselineBook* book);
     void flush(uint32_t tick, uint32_t& seq, std::vector<std::vector<uint8_t>>& out, size_t& wire);
+    // The payload bytes of the datagram being filled, with `extra_bits` more in its bit stream.
+    size_t payload_bytes(size_t codes_bits, size_t extra_bits) const {
+        return (codes_bits + head_bits_ + recw_.bits() + extra_bits + 7) / 8 + blocks_.size();
+    }
     flatbuffers::FlatBufferBuilder fbb_{1400};
-    std::vector<wire::Chunk> chunks_;
-    std::vector<uint8_t> payload_;  // bone masks and records (proto/frame_reader.h)
+    std::vector<ChunkOut> chunks_;  // the datagram's chunks, in pick order
+    std::vector<ChunkOut> sorted_;  // the same by instance (flush)
+    InstanceCodes codes_;           // their instances
+    size_t head_bits_ = 0;          // their heads' bits but the instance codes
+    std::vector<uint8_t> recs_;     // their records, one bit stream
+    BitWriter recw_{recs_};
+    std::vector<uint8_t> blocks_;   // their sample bytes, root and morph blocks
+    std::vector<uint8_t> payload_;  // the payload (proto/chunk_head.h), at flush
     std::vector<uint8_t> root_;     // an absolute root block (a character the plan has not planned)
     std::span<const wire::PoseAck> acks_;  // still to go (the first datagram)
     size_t ack_bytes_ = 0;

@@ -27,7 +27,7 @@
 // segments one at a time (offer_single). Before the heap, the floor
 // (ROOT_REFRESH_TICKS): bone 0 of every stale instance. A heap takes items of all instances by value per
 // byte: their records, plus the instance's chunk header (WireCost::header:
-// struct and bone mask, one per instance and tick whatever bones it carries)
+// head and bone mask, one per instance and tick whatever bones it carries)
 // for the first item of an instance in the tick; once an instance's header is
 // paid its remaining items are offered again at their records-only ratio.
 // Datagram overheads are charged by WireCost; equal ratios go to the instance
@@ -73,12 +73,20 @@ namespace progskin::net {
 // carrying `payload` bytes of chunk headers and records in one tick.
 struct WireCost {
     static constexpr size_t kFrameOverhead = 88;  // Datagram + Frame FlatBuffer tables (datagram_packer.cpp checks)
-    static constexpr size_t kChunk = 6;           // one Chunk struct
-    // a chunk continued in another datagram (it repeats the root block)
-    static constexpr size_t kSplitChunk = 1 + kChunk + kRootAbsoluteBytes + (MAX_BONES + 7) / 8;
-    // Chunk struct + bone mask for an instance of `bones` bones (at most; a
-    // chunk starting at bone first > 0 has a shorter mask).
-    static constexpr size_t header(int bones) { return kChunk + (size_t(bones) + 7) / 8; }
+    // A chunk head as the scheduler counts it (proto/chunk_head.h): the
+    // instance code at a typical 3 bits (consecutive instances take 1, one
+    // far from the previous up to 17; the packer counts the exact bits),
+    // first (1 bit when 0), show, epoch and flags (24), the mask's mode bit.
+    static constexpr size_t kHeadBits = 3 + 1 + 24 + 1;
+    // a chunk continued in another datagram (its sample byte, a head at its
+    // largest, and it repeats the root block)
+    static constexpr size_t kSplitChunk = 1 + (17 + 9 + 24 + 1 + MAX_BONES + 7) / 8 + kRootAbsoluteBytes;
+    // A head with its bone mask as a bitmap for an instance of `bones` bones
+    // (at most: runs may code it shorter, a chunk starting at bone first > 0
+    // has a shorter one), rounded up to a byte: the records follow it in one
+    // bit stream, so a chunk's records are counted as whole bytes instead of
+    // the per-chunk padding of earlier versions.
+    static constexpr size_t header(int bones) { return (kHeadBits + size_t(bones) + 7) / 8; }
     // The same plus the root block when the instance's chunks carry one
     // (absolute; a client's plan may predict it: Scheduler::header_of) and
     // the sample byte when its pose was sampled at a key.

@@ -128,7 +128,7 @@ TEST(BaselineBook, PlanPredictsAcknowledgedBonesAndThePackerWritesThem) {
         for (const auto& d : out) {
             const wire::Frame* fr = verify_datagram(d)->body_as_Frame();
             ASSERT_NE(fr, nullptr);
-            for (const wire::Chunk* c : *fr->chunks()) EXPECT_EQ(base_from_flags(c->flags()), plan.base(0));
+            EXPECT_TRUE(for_each_chunk_head(*fr, [&](const ChunkHead& h) { EXPECT_EQ(base_from_flags(h.flags), plan.base(0)); }));
             EXPECT_TRUE(read_frame(*fr, [&](uint16_t) { return assets[0]->format.size(); },
                                    [](uint16_t, int, int, int, const RecordRun&) {}));
         }
@@ -178,13 +178,16 @@ TEST(BaselineBook, PartialRefreshesPredictFromTheirOwnBaselinesAndDecodeExactly)
         for (const auto& d : out) {
             const wire::Frame* fr = verify_datagram(d)->body_as_Frame();
             ASSERT_NE(fr, nullptr);
-            uint8_t sample = 0;
+            uint8_t sample = 0, epoch = 0;
             ASSERT_TRUE(read_frame(
                 *fr, [&](uint16_t) { return a.format.size(); },
                 [&](uint16_t, int first, int count, int show, const RecordRun& rec) {
-                    ASSERT_TRUE(client.add_chunk(t, first, count, show, rec, show, fr->chunks()->Get(0)->epoch(), {}, sample));
+                    ASSERT_TRUE(client.add_chunk(t, first, count, show, rec, show, epoch, {}, sample));
                 },
-                [&](const wire::Chunk&, uint8_t s, std::span<const uint8_t>, const uint8_t*) { sample = s; }));
+                [&](const wire::Chunk& c, uint8_t s, std::span<const uint8_t>, const uint8_t*) {
+                    sample = s;
+                    epoch = c.epoch();
+                }));
             if (keyed) {
                 EXPECT_EQ(sample, f.instances[0].sample);
                 EXPECT_GE(sample, 1);
@@ -247,17 +250,19 @@ TEST(BaselineBook, RootBlocksArePredictedFromAcknowledgedTicksOnly) {
             const wire::Frame* fr = verify_datagram(d)->body_as_Frame();
             ASSERT_NE(fr, nullptr);
             std::span<const uint8_t> root;
+            uint8_t epoch = 0;
             // The block sent is as long as planned (EncodedFrame::root_block_bytes, shared between clients).
             const auto sent_as_planned = [&] { EXPECT_EQ(root.size(), plan.root_bytes(f, 0)) << "tick " << t; };
             ASSERT_TRUE(read_frame(
                 *fr, [&](uint16_t) { return a.format.size(); },
                 [&](uint16_t, int first, int count, int show, const RecordRun& rec) {
-                    ASSERT_TRUE(client.add_chunk(t, first, count, show, rec, show, fr->chunks()->Get(0)->epoch(), root))
+                    ASSERT_TRUE(client.add_chunk(t, first, count, show, rec, show, epoch, root))
                         << "tick " << t;
                 },
-                [&](const wire::Chunk&, uint8_t, std::span<const uint8_t> block, const uint8_t*) {
+                [&](const wire::Chunk& c, uint8_t, std::span<const uint8_t> block, const uint8_t*) {
                     ASSERT_FALSE(block.empty());
                     root = block;
+                    epoch = c.epoch();
                 }));
             sent_as_planned();
         }

@@ -393,20 +393,23 @@ TEST(ClientSessionFrames, ApplyFrameKeepsEpochsAndRoots) {
         root.position = {x, 0.0, 0.0};
         Bytes absolute(ROOT_BYTES), payload;
         EXPECT_TRUE(encode_root(root, absolute.data()));
-        write_root(absolute.data(), 0, nullptr, nullptr, payload);  // an absolute root block (root_block.h)
-        payload.push_back(1);  // mask: bone 0
-        {
-            BitWriter w(payload);  // the identity, parent-relative (bone_record.h): 12 bits, 2 bytes
-            write_record(RecordInts{}, false, w);
-        }
-        payload.push_back(1);     // instance 1 (no target): mask, record
-        {
-            BitWriter w(payload);
-            write_record(RecordInts{}, false, w);
-        }
-        const std::vector<wire::Chunk> chunks{wire::Chunk(0, 0, 1, epoch, CHUNK_ROOT), wire::Chunk(1, 0, 1, 0, 0)};
+        Bytes blocks, records;
+        write_root(absolute.data(), 0, nullptr, nullptr, blocks);  // an absolute root block (root_block.h)
+        BitWriter w(records);  // the identity, parent-relative (bone_record.h): 12 bits each
+        write_record(RecordInts{}, false, w);
+        write_record(RecordInts{}, false, w);
+        // Instance 0: root block, bone 0; instance 1 (no target): bone 0.
+        std::vector<ChunkOut> chunks(2);
+        chunks[0].head = ChunkHead{0, 0, 1, epoch, CHUNK_ROOT, {1}};
+        chunks[0].rec_bits = 12;
+        chunks[0].block_bytes = blocks.size();
+        chunks[1].head = ChunkHead{1, 0, 1, 0, 0, {1}};
+        chunks[1].rec_from = 12;
+        chunks[1].rec_bits = 12;
+        chunks[1].block_from = blocks.size();
+        EXPECT_TRUE(write_frame_payload(chunks, records.data(), blocks.data(), payload));
         flatbuffers::FlatBufferBuilder b;
-        auto f = wire::CreateFrame(b, tick, b.CreateVectorOfStructs(chunks), b.CreateVector(payload));
+        auto f = wire::CreateFrame(b, tick, b.CreateVector(payload));
         return datagram(b, tick, 0, wire::DatagramBody::Frame, f);
     };
     auto root_at_11 = [&](uint8_t second_epoch) {
@@ -438,14 +441,15 @@ TEST(ClientSessionFrames, ALateFrameReachesBackTwoFrames) {
     const RecordFormat fmt;
     auto frame_at = [&](uint32_t tick) {
         Bytes payload;
-        payload.push_back(1);  // mask: bone 0
-        {
-            BitWriter w(payload);
-            write_record(RecordInts{}, false, w);
-        }
-        const std::vector<wire::Chunk> chunks{wire::Chunk(0, 0, 1, 0, 0)};
+        Bytes records;
+        BitWriter w(records);
+        write_record(RecordInts{}, false, w);
+        ChunkOut chunk;  // instance 0, bone 0 of show 1
+        chunk.head = ChunkHead{0, 0, 1, 0, 0, {1}};
+        chunk.rec_bits = 12;
+        EXPECT_TRUE(write_frame_payload(std::span(&chunk, 1), records.data(), nullptr, payload));
         flatbuffers::FlatBufferBuilder b;
-        auto f = wire::CreateFrame(b, tick, b.CreateVectorOfStructs(chunks), b.CreateVector(payload));
+        auto f = wire::CreateFrame(b, tick, b.CreateVector(payload));
         return datagram(b, tick, 0, wire::DatagramBody::Frame, f);
     };
     PoseBuffer buffer(chain_format(1, fmt));

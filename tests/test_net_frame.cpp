@@ -1,6 +1,8 @@
-// The Frame layout of protocol version 5 (proto/frame_reader.h): what the
-// packer writes reads back bone for bone, bit for bit, and every malformed
-// chunk is refused before anything is applied.
+// The Frame layout of protocol version 11 (proto/chunk_head.h,
+// proto/frame_reader.h): what the packer writes reads back bone for bone,
+// bit for bit, and every malformed chunk is refused before anything is
+// applied. The frames of these tests are written field by field from
+// docs/protocol.md "Frame" (put_payload), not by the code under test.
 #include <gtest/gtest.h>
 
 #include <array>
@@ -9,6 +11,7 @@
 #include <map>
 #include <random>
 
+#include "chunk_head.h"
 #include "datagram_packer.h"
 #include "frame_encoder.h"
 #include "frame_reader.h"
@@ -20,31 +23,81 @@
 using namespace progskin;
 using namespace progskin::net;
 
+// Hand{.instance = ..., ...}: the fields not named keep their defaults.
+#pragma GCC diagnostic ignored "-Wmissing-field-initializers"
+
 namespace {
 
-// A Datagram with one Frame of the given chunks and payload bytes.
-std::vector<uint8_t> frame_datagram(const std::vector<wire::Chunk>& chunks, const std::vector<uint8_t>& payload) {
+// A Datagram with one Frame of the given payload bytes.
+std::vector<uint8_t> frame_datagram(const std::vector<uint8_t>& payload) {
     flatbuffers::FlatBufferBuilder fbb;
-    auto ch = fbb.CreateVectorOfStructs(chunks.data(), chunks.size());
     auto pl = fbb.CreateVector(payload.data(), payload.size());
-    auto fr = wire::CreateFrame(fbb, 7, ch, pl);
+    auto fr = wire::CreateFrame(fbb, 7, pl);
     fbb.Finish(wire::CreateDatagram(fbb, 1, 0, wire::DatagramBody::Frame, fr.Union()), wire::DatagramIdentifier());
     return {fbb.GetBufferPointer(), fbb.GetBufferPointer() + fbb.GetSize()};
 }
 
-// A chunk without root block or baseline.
-wire::Chunk ch(int instance, int first, int show, uint8_t flags = 0, uint8_t epoch = 0) {
-    return wire::Chunk(uint16_t(instance), uint8_t(first), uint8_t(show), epoch, flags);
-}
+// One chunk as written by hand (any values, valid or not).
+struct Hand {
+    int instance = 0, first = 0, show = 1;
+    uint8_t flags = 0, epoch = 0;
+    std::vector<int> carried;                 // bones (absolute), increasing
+    bool runs = false;                        // the mask as runs (else a bitmap of show - first bits)
+    std::vector<std::pair<int, int>> raw_runs;  // with runs: these (gap, length - 1) codes instead of carried's
+    int records = -1;                         // identity records written (-1: one per carried bone)
+    bool scaled_records = false;
+    bool long_first = false;                  // first in its long form even when 0
+    std::vector<uint8_t> blocks;              // sample byte, root and morph blocks
+};
 
-// n records of the identity (bone_record.h: 12 bits each, 13 scaled), padded to a byte.
-std::vector<uint8_t> identity_records(int n, bool scaled = false) {
+// The payload of these chunks, field by field (docs/protocol.md "Frame"):
+// EG0(n - 1), k, per chunk its head and records, zero padding (or `pad`),
+// then the blocks. n: the count written (-1: chunks.size()).
+std::vector<uint8_t> put_payload(const std::vector<Hand>& chunks, int k = 3, int n = -1, uint64_t pad = 0) {
     std::vector<uint8_t> out;
     BitWriter w(out);
-    for (int k = 0; k < n; ++k) write_record(RecordInts{}, scaled, w);
+    w.put_eg(uint32_t((n < 0 ? int(chunks.size()) : n) - 1), 0);
+    w.put(uint64_t(k), 4);
+    int prev = -1;
+    for (const Hand& h : chunks) {
+        const uint32_t d = uint32_t(h.instance - prev - 1);
+        if (h.instance > prev && d < (1u << k)) w.put(uint64_t(d) << 1, 1 + k);
+        else w.put(1 | uint64_t(uint16_t(h.instance)) << 1, 17);
+        prev = h.instance;
+        if (h.first || h.long_first) w.put(1 | uint64_t(uint8_t(h.first)) << 1, 9);
+        else w.put(0, 1);
+        w.put(uint64_t(uint8_t(h.show)) | uint64_t(h.epoch) << 8 | uint64_t(h.flags) << 16, 24);
+        if (!h.runs) {
+            w.put(0, 1);
+            for (int j = 0; j < h.show - h.first; ++j)
+                w.put(std::find(h.carried.begin(), h.carried.end(), h.first + j) != h.carried.end() ? 1 : 0, 1);
+        } else {
+            w.put(1, 1);
+            std::vector<std::pair<int, int>> codes = h.raw_runs;
+            if (codes.empty()) {  // from carried
+                int end = 0;
+                for (size_t i = 0; i < h.carried.size();) {
+                    size_t e = i + 1;
+                    while (e < h.carried.size() && h.carried[e] == h.carried[e - 1] + 1) ++e;
+                    const int j = h.carried[i] - h.first;
+                    codes.push_back({j - end - (i ? 1 : 0), int(e - i) - 1});
+                    end = j + int(e - i);
+                    i = e;
+                }
+            }
+            w.put_eg(uint32_t(codes.size()), 0);
+            for (auto [gap, len] : codes) {
+                w.put_eg(uint32_t(gap), 0);
+                w.put_eg(uint32_t(len), 0);
+            }
+        }
+        const int records = h.records < 0 ? int(h.carried.size()) : h.records;
+        for (int r = 0; r < records; ++r) write_record(RecordInts{}, h.scaled_records, w);
+    }
+    if (w.bits() % 8) w.put(pad, int(8 - w.bits() % 8));
+    for (const Hand& h : chunks) out.insert(out.end(), h.blocks.begin(), h.blocks.end());
     return out;
 }
-void append(std::vector<uint8_t>& to, const std::vector<uint8_t>& more) { to.insert(to.end(), more.begin(), more.end()); }
 
 struct ChunkRun {
     int instance, first, count, show;
@@ -72,97 +125,148 @@ bool read_datagram(const std::vector<uint8_t>& d, std::vector<ChunkRun>& runs) {
 }  // namespace
 
 TEST(NetFrame, ReadsMaskRunsAndRecords) {
-    // Instance 1, bones 3..12 of show 13 with bones 3,4,5, 9, 11 carried;
-    // instance 0, bone 0 of show 1.
-    // Mask over bones 3..12 (10 bits, 2 bytes): bones 3,4,5 -> bits 0,1,2;
-    // bone 9 -> bit 6; bone 11 -> bit 8.
-    // Records: 12 bits each (the identity), 5 of them in 8 bytes.
-    std::vector<uint8_t> pl = {0b01000111, 0b00000001};
-    append(pl, identity_records(5));
-    pl.push_back(0b1);
-    append(pl, identity_records(1));
+    // Instance 0, bone 0 of show 1; instance 1, bones 3..12 of show 13 with
+    // bones 3, 4, 5, 9 and 11 carried; instance 2, the same as runs.
+    Hand a{.instance = 0, .show = 1, .carried = {0}};
+    Hand b{.instance = 1, .first = 3, .show = 13, .epoch = 7, .carried = {3, 4, 5, 9, 11}};
+    Hand c = b;
+    c.instance = 2;
+    c.runs = true;
     std::vector<ChunkRun> runs;
-    ASSERT_TRUE(read_datagram(frame_datagram({ch(1, 3, 13), ch(0, 0, 1)}, pl), runs));
-    ASSERT_EQ(runs.size(), 4u);
-    EXPECT_EQ(runs[0].first, 3);
-    EXPECT_EQ(runs[0].count, 3);
-    EXPECT_EQ(runs[0].offset, 16u);
-    EXPECT_EQ(runs[1].first, 9);
-    EXPECT_EQ(runs[1].count, 1);
-    EXPECT_EQ(runs[1].offset, 16u + 36);
-    EXPECT_EQ(runs[2].first, 11);
-    EXPECT_EQ(runs[2].offset, 16u + 48);
-    EXPECT_EQ(runs[2].show, 13);
-    EXPECT_EQ(runs[3].instance, 0);
-    EXPECT_EQ(runs[3].first, 0);
-    EXPECT_EQ(runs[3].offset, (2u + 8 + 1) * 8);
+    ASSERT_TRUE(read_datagram(frame_datagram(put_payload({a, b, c})), runs));
+    ASSERT_EQ(runs.size(), 7u);
+    // EG0(2) = 3 bits, k = 3 in 4 bits; instance 0: 1 + 3 bits, first 1 bit, show/epoch/flags 24, mode 1, bitmap 1 bit.
+    const size_t a_records = 3 + 4 + 4 + 1 + 24 + 1 + 1;
+    EXPECT_EQ(runs[0].instance, 0);
+    EXPECT_EQ(runs[0].first, 0);
+    EXPECT_EQ(runs[0].offset, a_records);
+    // instance 1: 4 + 9 (first 3) + 24 + 1 + 10 bitmap bits after instance 0's record.
+    const size_t b_records = a_records + 12 + 4 + 9 + 24 + 1 + 10;
+    EXPECT_EQ(runs[1].instance, 1);
+    EXPECT_EQ(runs[1].first, 3);
+    EXPECT_EQ(runs[1].count, 3);
+    EXPECT_EQ(runs[1].offset, b_records);
+    EXPECT_EQ(runs[2].first, 9);
+    EXPECT_EQ(runs[2].count, 1);
+    EXPECT_EQ(runs[2].offset, b_records + 36);
+    EXPECT_EQ(runs[3].first, 11);
+    EXPECT_EQ(runs[3].offset, b_records + 48);
+    EXPECT_EQ(runs[3].show, 13);
+    // instance 2: runs EG0(3) = 5 bits, (gap 0, length - 1 = 2) 1 + 3, (2, 0) 3 + 1, (0, 0) 1 + 1: 15 bits.
+    const size_t c_records = b_records + 60 + 4 + 9 + 24 + 1 + 15;
+    EXPECT_EQ(runs[4].instance, 2);
+    EXPECT_EQ(runs[4].first, 3);
+    EXPECT_EQ(runs[4].count, 3);
+    EXPECT_EQ(runs[4].offset, c_records);
+    EXPECT_EQ(runs[5].first, 9);
+    EXPECT_EQ(runs[6].first, 11);
+    EXPECT_EQ(runs[6].offset, c_records + 48);
+
+    // The library's writer codes the same chunks in no more bits (it takes
+    // the shorter mask and the best k) and they read back the same.
+    std::vector<uint8_t> records;
+    BitWriter w(records);
+    for (int r = 0; r < 11; ++r) write_record(RecordInts{}, false, w);
+    std::vector<ChunkOut> outs(3);
+    outs[0].head = ChunkHead{0, 0, 1, 0, 0, {1}};
+    outs[0].rec_bits = 12;
+    for (int i : {1, 2}) {
+        outs[size_t(i)].head = ChunkHead{uint16_t(i), 3, 13, 7, 0, {0b101000111}};
+        outs[size_t(i)].rec_from = 12 + 60 * size_t(i - 1);
+        outs[size_t(i)].rec_bits = 60;
+    }
+    std::vector<uint8_t> pl;
+    ASSERT_TRUE(write_frame_payload(outs, records.data(), nullptr, pl));
+    EXPECT_LE(pl.size(), put_payload({a, b, c}).size());
+    std::vector<ChunkRun> again;
+    ASSERT_TRUE(read_datagram(frame_datagram(pl), again));
+    ASSERT_EQ(again.size(), runs.size());
+    for (size_t i = 0; i < runs.size(); ++i) {
+        EXPECT_EQ(again[i].instance, runs[i].instance);
+        EXPECT_EQ(again[i].first, runs[i].first);
+        EXPECT_EQ(again[i].count, runs[i].count);
+    }
+    // Not sorted, or an instance twice: the writer refuses.
+    std::swap(outs[0], outs[1]);
+    EXPECT_FALSE(write_frame_payload(outs, records.data(), nullptr, pl));
 }
 
 TEST(NetFrame, RefusesEveryMalformedChunkBeforeApplyingAny) {
-    std::vector<uint8_t> good = {0b00000101};  // bones 0 and 2 of show 3
-    append(good, identity_records(2));            // 24 bits
+    const Hand good{.instance = 0, .show = 3, .carried = {0, 2}};  // bones 0 and 2 of show 3
     std::vector<ChunkRun> runs;
-    ASSERT_TRUE(read_datagram(frame_datagram({ch(0, 0, 3)}, good), runs));
+    ASSERT_TRUE(read_datagram(frame_datagram(put_payload({good})), runs));
     EXPECT_EQ(runs.size(), 2u);
-
+    auto with = [&](auto change) {
+        Hand h = good;
+        change(h);
+        return put_payload({h});
+    };
+    std::vector<uint8_t> short_records = put_payload({good});
+    short_records.pop_back();
+    std::vector<uint8_t> trailing = put_payload({good});
+    trailing.push_back(0);
+    Hand unknown = good;
+    unknown.instance = 9;  // after instance 0, unknown (skipped when well formed)
+    std::vector<uint8_t> long_code = put_payload({Hand{.instance = 0, .show = 1, .carried = {0}, .records = 0}});
+    for (int i = 0; i < 8; ++i) long_code.push_back(0);  // the record: a code whose zero prefix is too long
     struct Case {
         const char* what;
-        std::vector<wire::Chunk> chunks;
         std::vector<uint8_t> payload;
     };
-    std::vector<uint8_t> bits_past_show = good;
-    bits_past_show[0] |= 0b1000;  // bone 3 with show 3
-    std::vector<uint8_t> empty_mask = good;
-    empty_mask[0] = 0;
-    std::vector<uint8_t> short_records(good.begin(), good.end() - 1);
-    std::vector<uint8_t> trailing = good;
-    trailing.push_back(0);
-    std::vector<uint8_t> two = good;  // a good chunk, then a bad one: nothing applied
-    two.insert(two.end(), good.begin(), good.end());
-    std::vector<uint8_t> padding = {0b00000001};  // bone 0: 12 bits, then 4 padding bits not zero
-    append(padding, identity_records(1));
-    padding.back() |= 0x80;
-    std::vector<uint8_t> long_code = {0b00000001, 0, 0, 0, 0, 0, 0, 0};  // a code whose zero prefix is too long
     const std::vector<Case> cases = {
-        {"record size differs from the instance's", {ch(0, 0, 3, CHUNK_SCALED)}, good},
-        {"linear baseline without an age", {ch(0, 0, 3, CHUNK_LINEAR)}, good},
-        {"root block past the payload", {ch(0, 0, 3, CHUNK_ROOT)}, good},
-        {"show 0", {ch(0, 0, 0)}, good},
-        {"first >= show", {ch(0, 3, 3)}, good},
-        {"mask bits at or past show", {ch(0, 0, 3)}, bits_past_show},
-        {"no bone carried", {ch(0, 0, 3)}, empty_mask},
-        {"records past the payload", {ch(0, 0, 3)}, short_records},
-        {"bytes left over", {ch(0, 0, 3)}, trailing},
-        {"mask past the payload", {ch(0, 0, 200)}, {}},
-        {"second chunk bad", {ch(0, 0, 3), ch(0, 0, 3, CHUNK_SCALED)}, two},
-        {"unknown instance's chunk malformed", {ch(9, 0, 3), ch(0, 0, 3)}, trailing},
-        {"chunks without payload", {ch(0, 0, 3)}, {}},
-        {"padding bits not zero", {ch(0, 0, 1)}, padding},
-        {"a code past its longest prefix", {ch(0, 0, 1)}, long_code},
+        {"record size differs from the instance's", with([](Hand& h) { h.flags = CHUNK_SCALED; })},
+        {"linear baseline without an age", with([](Hand& h) { h.flags = CHUNK_LINEAR; })},
+        {"root block past the payload", with([](Hand& h) { h.flags = CHUNK_ROOT; })},
+        {"show 0", with([](Hand& h) { h.show = 0, h.carried = {}; })},
+        {"first >= show", with([](Hand& h) { h.first = 3, h.carried = {}; })},
+        {"first 0 in its long form", with([](Hand& h) { h.long_first = true; })},
+        {"a run at or past show", with([](Hand& h) { h.runs = true, h.raw_runs = {{0, 0}, {1, 0}}; })},
+        {"more runs than bones", with([](Hand& h) {
+             h.runs = true;
+             h.raw_runs = {{0, 0}, {0, 0}, {0, 0}, {0, 0}};
+         })},
+        {"no bone carried", with([](Hand& h) { h.carried = {}; })},
+        {"records past the payload", short_records},
+        {"bytes left over", trailing},
+        {"more chunks than written", put_payload({good}, 3, 2)},
+        {"instances not increasing", put_payload({good, good})},
+        {"second chunk bad", put_payload({good, Hand{.instance = 1, .show = 3, .flags = CHUNK_SCALED, .carried = {0}}})},
+        {"unknown instance's chunk malformed", put_payload({good, Hand{.instance = 9, .show = 3, .carried = {0}, .records = 0}})},
+        {"padding bits not zero", put_payload({good}, 3, -1, 1)},
+        {"a code past its longest prefix", long_code},
     };
     for (const Case& c : cases) {
-        EXPECT_FALSE(read_datagram(frame_datagram(c.chunks, c.payload), runs)) << c.what;
+        EXPECT_FALSE(read_datagram(frame_datagram(c.payload), runs)) << c.what;
         EXPECT_TRUE(runs.empty()) << c.what;
     }
+    // The same unknown instance well formed is skipped.
+    ASSERT_TRUE(read_datagram(frame_datagram(put_payload({good, unknown})), runs));
+    EXPECT_EQ(runs.size(), 2u);
 }
 
 // A chunk of an instance the receiver does not know yet (announced on the
 // control channel after its first frames) is walked by its flags (the
 // records are self-delimiting) and skipped; the known instance's chunk after
-// it still applies.
+// it still applies, its blocks found after the unknown one's.
 TEST(NetFrame, SkipsChunksOfUnknownInstances) {
-    std::vector<uint8_t> pl = {0b00000011};  // unknown instance 9: bones 0, 1 of scaled records (26 bits, 4 bytes)
-    append(pl, identity_records(2, true));
-    ASSERT_EQ(pl.size(), 5u);
     const std::vector<uint8_t> root(kRootAbsoluteBytes, 0);
-    pl.insert(pl.end(), root.begin(), root.end());  // instance 0: root block, bone 0 of show 1
-    pl.push_back(0b1);
-    append(pl, identity_records(1));
+    Hand known{.instance = 0, .show = 1, .flags = CHUNK_ROOT, .carried = {0}, .blocks = root};
+    Hand unknown{.instance = 9, .show = 2, .flags = CHUNK_SCALED | CHUNK_ROOT, .carried = {0, 1}, .scaled_records = true,
+                 .blocks = root};
     std::vector<ChunkRun> runs;
-    ASSERT_TRUE(read_datagram(frame_datagram({ch(9, 0, 2, CHUNK_SCALED), ch(0, 0, 1, CHUNK_ROOT)}, pl), runs));
+    const auto d = frame_datagram(put_payload({known, unknown}, 4));
+    ASSERT_TRUE(read_datagram(d, runs));
     ASSERT_EQ(runs.size(), 1u);
     EXPECT_EQ(runs[0].instance, 0);
-    EXPECT_EQ(runs[0].offset, (5u + kRootAbsoluteBytes + 1) * 8);
+    EXPECT_EQ(runs[0].offset, 3u + 4 + 5 + 1 + 24 + 1 + 1);
+    // Its root block handed over is its own (the first of the two).
+    const wire::Frame& f = *verify_datagram(d)->body_as_Frame();
+    std::span<const uint8_t> got;
+    ASSERT_TRUE(read_frame(
+        f, [](uint16_t i) { return i < 3 ? 12 : 0; }, [](uint16_t, int, int, int, const RecordRun&) {},
+        [&](const wire::Chunk&, uint8_t, std::span<const uint8_t> r, const uint8_t*) { got = r; }));
+    EXPECT_EQ(got.data(), f.payload()->data() + f.payload()->size() - 2 * kRootAbsoluteBytes);
+    EXPECT_EQ(got.size(), size_t(kRootAbsoluteBytes));
 }
 
 TEST(NetFrame, RandomFramesAreRefusedOrReadInBounds) {
@@ -170,11 +274,23 @@ TEST(NetFrame, RandomFramesAreRefusedOrReadInBounds) {
     int accepted = 0;
     std::vector<ChunkRun> runs;
     for (int i = 0; i < 20000; ++i) {
-        std::vector<wire::Chunk> chunks(rng() % 4);
-        for (auto& c : chunks) c = ch(int(rng() % 4), int(rng() % 8), int(rng() % 24), uint8_t(rng() % 4 | (rng() % 3 ? 0 : rng() & 0xF8)));
-        std::vector<uint8_t> pl(rng() % 80);
-        for (auto& b : pl) b = uint8_t(rng() % 3 ? rng() % 4 : rng());
-        accepted += read_datagram(frame_datagram(chunks, pl), runs);  // bounds checked in read_datagram()
+        std::vector<Hand> chunks(1 + rng() % 3);
+        int instance = 0;
+        for (auto& c : chunks) {
+            c.instance = instance += int(rng() % 3);
+            c.first = int(rng() % 4);
+            c.show = int(rng() % 12);
+            c.flags = uint8_t(rng() % 4 | (rng() % 3 ? 0 : rng() & 0xF8));
+            c.runs = rng() % 2;
+            for (int b = c.first; b < c.show; ++b)
+                if (rng() % 2) c.carried.push_back(b);
+            c.records = rng() % 4 ? -1 : int(rng() % 4);
+            c.blocks.resize(rng() % 3 ? 0 : rng() % 30);
+            for (auto& x : c.blocks) x = uint8_t(rng());
+        }
+        std::vector<uint8_t> pl = put_payload(chunks, int(rng() % 5));
+        for (int m = int(rng() % 3); m > 0 && !pl.empty(); --m) pl[rng() % pl.size()] ^= uint8_t(1u << (rng() % 8));
+        accepted += read_datagram(frame_datagram(pl), runs);  // bounds checked in read_datagram()
     }
     EXPECT_GT(accepted, 0);
 }
@@ -216,7 +332,7 @@ TEST(NetFrame, PackerRoundTripsPicksOverSeveralDatagrams) {
         const wire::Frame& fr = *g->body_as_Frame();
         EXPECT_EQ(fr.tick(), 5u);
         std::map<int, int> chunks_of;
-        for (const wire::Chunk* c : *fr.chunks()) ++chunks_of[c->instance()];
+        ASSERT_TRUE(for_each_chunk_head(fr, [&](const ChunkHead& h) { ++chunks_of[h.instance]; }));
         for (auto [i, n] : chunks_of) EXPECT_EQ(n, 1) << "instance " << i;
         auto size_of = [&](uint16_t i) { return i < specs.size() ? f.instances[i].record_size : 0; };
         ASSERT_TRUE(read_frame(fr, size_of, [&](uint16_t i, int first, int count, int show, const RecordRun& rec) {
@@ -256,25 +372,24 @@ bool read_morphs(const std::vector<uint8_t>& d, std::vector<ChunkRun>& runs, std
 }
 }  // namespace
 
-// The morph block (CHUNK_MORPH): after the root block, before the mask;
+// The morph block (CHUNK_MORPH): after the root block among the chunk's blocks;
 // a chunk may carry weights and no bone; every malformed block is refused.
 TEST(NetFrame, ReadsAndChecksMorphBlocks) {
     int16_t q = 0;
     ASSERT_TRUE(encode_morph_weight(0.75f, q));
     const uint8_t lo = uint8_t(uint16_t(q) & 0xFF), hi = uint8_t(uint16_t(q) >> 8);
     // Instance 0: root block, morph block {1: 0.75, 4: 0.75}, bone 0 of show 2.
-    std::vector<uint8_t> pl(kRootAbsoluteBytes, 0);
+    std::vector<uint8_t> root(kRootAbsoluteBytes, 0);
     const std::vector<uint8_t> block = {2, 1, lo, hi, 4, lo, hi};
-    pl.insert(pl.end(), block.begin(), block.end());
-    pl.push_back(0b01);
-    append(pl, identity_records(1));
+    root.insert(root.end(), block.begin(), block.end());
+    const Hand with_bone{.instance = 0, .show = 2, .flags = CHUNK_ROOT | CHUNK_MORPH, .carried = {0}, .blocks = root};
     // Instance 1: weights only (first = show - 1, an empty mask).
-    const std::vector<uint8_t> only = {1, 0, lo, hi, 0b0};
-    std::vector<uint8_t> both = pl;
-    both.insert(both.end(), only.begin(), only.end());
+    const std::vector<uint8_t> only = {1, 0, lo, hi};
+    const Hand weights_only{.instance = 1, .first = 1, .show = 2, .flags = CHUNK_MORPH, .blocks = only};
+    const std::vector<uint8_t> both = put_payload({with_bone, weights_only});
     std::vector<ChunkRun> runs;
     std::vector<const uint8_t*> blocks;
-    ASSERT_TRUE(read_morphs(frame_datagram({ch(0, 0, 2, CHUNK_ROOT | CHUNK_MORPH), ch(1, 1, 2, CHUNK_MORPH)}, both), runs, blocks));
+    ASSERT_TRUE(read_morphs(frame_datagram(both), runs, blocks));
     ASSERT_EQ(runs.size(), 1u);
     EXPECT_EQ(runs[0].instance, 0);
     ASSERT_EQ(blocks.size(), 2u);
@@ -296,33 +411,32 @@ TEST(NetFrame, ReadsAndChecksMorphBlocks) {
         EXPECT_LE(std::fabs(decode_morph_weight(q) - w), 0.5f / 16384.0f + 1e-7f) << w;
     }
 
-    std::vector<uint8_t> n0 = only;
-    n0[0] = 0;
-    n0.erase(n0.begin() + 1, n0.begin() + 4);
-    std::vector<uint8_t> not_increasing = {2, 3, lo, hi, 3, lo, hi, 0b0};
-    std::vector<uint8_t> past_payload = {3, 0, lo, hi, 1, lo, hi};
-    std::vector<uint8_t> no_flag = only;
-    std::vector<uint8_t> empty_no_morph = {0b0};
+    auto weights = [&](std::vector<uint8_t> block, uint8_t flags = CHUNK_MORPH) {
+        Hand h = weights_only;
+        h.instance = 0;
+        h.blocks = std::move(block);
+        h.flags = flags;
+        return h;
+    };
     struct Case {
         const char* what;
-        std::vector<wire::Chunk> chunks;
         std::vector<uint8_t> payload;
     };
+    const std::vector<uint8_t> not_increasing = {2, 3, lo, hi, 3, lo, hi};
     const std::vector<Case> cases = {
-        {"morph count 0", {ch(0, 1, 2, CHUNK_MORPH)}, n0},
-        {"morph indices not increasing", {ch(0, 1, 2, CHUNK_MORPH)}, not_increasing},
-        {"morph block past the payload", {ch(0, 1, 2, CHUNK_MORPH)}, past_payload},
-        {"morph block without its flag", {ch(0, 1, 2)}, no_flag},
-        {"neither bone nor weight", {ch(0, 1, 2)}, empty_no_morph},
-        {"good chunk, then a bad morph block", {ch(0, 0, 2, CHUNK_ROOT | CHUNK_MORPH), ch(1, 1, 2, CHUNK_MORPH)},
-         [&] {
-             std::vector<uint8_t> x = pl;
-             x.insert(x.end(), not_increasing.begin(), not_increasing.end());
-             return x;
+        {"morph count 0", put_payload({weights({0})})},
+        {"morph indices not increasing", put_payload({weights(not_increasing)})},
+        {"morph block past the payload", put_payload({weights({3, 0, lo, hi, 1, lo, hi})})},
+        {"morph block without its flag", put_payload({weights(only, 0)})},
+        {"neither bone nor weight", put_payload({weights({}, 0)})},
+        {"good chunk, then a bad morph block", [&] {
+             Hand bad = weights_only;
+             bad.blocks = not_increasing;
+             return put_payload({with_bone, bad});
          }()},
     };
     for (const Case& c : cases) {
-        EXPECT_FALSE(read_morphs(frame_datagram(c.chunks, c.payload), runs, blocks)) << c.what;
+        EXPECT_FALSE(read_morphs(frame_datagram(c.payload), runs, blocks)) << c.what;
         EXPECT_TRUE(runs.empty() && blocks.empty()) << c.what;
     }
 }

@@ -1,0 +1,190 @@
+// chunk_head.cpp — see chunk_head.h.
+#include "chunk_head.h"
+
+#include <algorithm>
+#include <cstdint>
+
+namespace progskin::net {
+
+void InstanceCodes::clear() {
+    sorted_.clear();
+    total_.fill(0);
+}
+
+bool InstanceCodes::contains(uint16_t instance) const { return std::binary_search(sorted_.begin(), sorted_.end(), instance); }
+
+// The change of each order's total when `instance` joins: its own code,
+// and its successor's code now from it.
+template <class F>
+static void with_added(const std::vector<uint16_t>& sorted, uint16_t instance, F&& f) {
+    const auto at = std::lower_bound(sorted.begin(), sorted.end(), instance);
+    const int prev = at == sorted.begin() ? -1 : int(*(at - 1));
+    const bool has_next = at != sorted.end();
+    const int next = has_next ? int(*at) : 0;
+    for (int k = 0; k < kInstanceOrders; ++k) {
+        size_t d = instance_code_bits(uint32_t(int(instance) - prev - 1), k);
+        if (has_next) d = d + instance_code_bits(uint32_t(next - int(instance) - 1), k) - instance_code_bits(uint32_t(next - prev - 1), k);
+        f(k, d);
+    }
+}
+
+void InstanceCodes::add(uint16_t instance) {
+    with_added(sorted_, instance, [&](int k, size_t d) { total_[size_t(k)] += d; });
+    sorted_.insert(std::lower_bound(sorted_.begin(), sorted_.end(), instance), instance);
+}
+
+size_t InstanceCodes::bits_with(uint16_t instance) const {
+    size_t best = SIZE_MAX;
+    with_added(sorted_, instance, [&](int k, size_t d) { best = std::min(best, total_[size_t(k)] + d); });
+    return eg0_bits(uint32_t(sorted_.size())) + 4 + best;
+}
+
+int InstanceCodes::best_order() const {
+    return int(std::min_element(total_.begin(), total_.end()) - total_.begin());
+}
+
+size_t InstanceCodes::bits() const {
+    if (sorted_.empty()) return 0;
+    return eg0_bits(uint32_t(sorted_.size() - 1)) + 4 + total_[size_t(best_order())];
+}
+
+namespace {
+
+// Calls f(gap, length) for each run of carried bones (gap as coded: bones
+// skipped, minus one after the first run); returns the runs.
+template <class F>
+int for_each_run(const ChunkHead& h, F&& f) {
+    const int bits = int(h.show) - int(h.first);
+    int runs = 0, end = 0;  // end: where the previous run ended
+    for (int j = 0; j < bits;) {
+        if (!h.carries(j)) {
+            ++j;
+            continue;
+        }
+        int e = j + 1;
+        while (e < bits && h.carries(e)) ++e;
+        f(uint32_t(j - end - (runs ? 1 : 0)), uint32_t(e - j - 1));
+        ++runs;
+        end = e;
+        j = e;
+    }
+    return runs;
+}
+
+size_t run_bits(const ChunkHead& h) {
+    size_t n = 0;
+    const int runs = for_each_run(h, [&](uint32_t gap, uint32_t len) { n += eg0_bits(gap) + eg0_bits(len); });
+    return n + eg0_bits(uint32_t(runs));
+}
+
+}  // namespace
+
+size_t mask_bits(const ChunkHead& h) {
+    const size_t bitmap = size_t(std::max(0, int(h.show) - int(h.first)));
+    return std::min(bitmap, run_bits(h));
+}
+
+static void write_head(BitWriter& w, const ChunkHead& h, int prev, int k) {
+    const uint32_t d = uint32_t(int(h.instance) - prev - 1);
+    if (d < (uint32_t(1) << k)) w.put(uint64_t(d) << 1, 1 + k);
+    else w.put(1 | (uint64_t(h.instance) << 1), 17);
+    if (h.first) w.put(1 | (uint64_t(h.first) << 1), 9);
+    else w.put(0, 1);
+    w.put(uint64_t(h.show) | uint64_t(h.epoch) << 8 | uint64_t(h.flags) << 16, 24);
+    const int bits = int(h.show) - int(h.first);
+    if (size_t(bits) <= run_bits(h)) {
+        w.put(0, 1);
+        for (int j = 0; j < bits; j += 56) {
+            const int n = std::min(56, bits - j);
+            uint64_t v = 0;
+            for (int i = 0; i < n; ++i) v |= uint64_t(h.carries(j + i)) << i;
+            w.put(v, n);
+        }
+    } else {
+        w.put(1, 1);
+        std::array<uint32_t, 2 * 128> codes;  // at most 128 runs of 255 bones
+        size_t c = 0;
+        const int runs = for_each_run(h, [&](uint32_t gap, uint32_t len) {
+            codes[c++] = gap;
+            codes[c++] = len;
+        });
+        w.put_eg(uint32_t(runs), 0);
+        for (size_t i = 0; i < c; ++i) w.put_eg(codes[i], 0);
+    }
+}
+
+bool write_frame_payload(std::span<const ChunkOut> chunks, const uint8_t* records, const uint8_t* blocks,
+                         std::vector<uint8_t>& out) {
+    if (chunks.empty()) return true;
+    if (chunks.size() > kMaxChunks) return false;
+    for (size_t i = 0; i < chunks.size(); ++i) {
+        const ChunkHead& h = chunks[i].head;
+        if ((i && chunks[i - 1].head.instance >= h.instance) || h.first >= h.show) return false;
+    }
+    // The best order of the instance codes.
+    std::array<size_t, kInstanceOrders> total{};
+    int prev = -1;
+    for (const ChunkOut& c : chunks) {
+        for (int k = 0; k < kInstanceOrders; ++k) total[size_t(k)] += instance_code_bits(uint32_t(int(c.head.instance) - prev - 1), k);
+        prev = c.head.instance;
+    }
+    const int k = int(std::min_element(total.begin(), total.end()) - total.begin());
+    BitWriter w(out);
+    w.put_eg(uint32_t(chunks.size() - 1), 0);
+    w.put(uint64_t(k), 4);
+    prev = -1;
+    for (const ChunkOut& c : chunks) {
+        write_head(w, c.head, prev, k);
+        prev = c.head.instance;
+        copy_bits(records, c.rec_from, c.rec_bits, w);
+    }
+    for (const ChunkOut& c : chunks) out.insert(out.end(), blocks + c.block_from, blocks + c.block_from + c.block_bytes);
+    return true;
+}
+
+bool read_head(BitReader& in, int prev, int k, ChunkHead& h) {
+    h = ChunkHead{};
+    uint64_t v = 0;
+    if (!in.get(1, v)) return false;
+    if (v == 0) {
+        uint64_t d = 0;
+        if (!in.get(k, d) || int64_t(d) + prev + 1 > 0xFFFF) return false;
+        h.instance = uint16_t(int64_t(d) + prev + 1);
+    } else {
+        if (!in.get(16, v) || int(v) <= prev) return false;
+        h.instance = uint16_t(v);
+    }
+    if (!in.get(1, v)) return false;
+    if (v) {
+        if (!in.get(8, v) || v == 0) return false;
+        h.first = uint8_t(v);
+    }
+    if (!in.get(24, v)) return false;
+    h.show = uint8_t(v), h.epoch = uint8_t(v >> 8), h.flags = uint8_t(v >> 16);
+    if (h.first >= h.show) return false;
+    const int bits = int(h.show) - int(h.first);
+    if (!in.get(1, v)) return false;
+    if (v == 0) {
+        for (int j = 0; j < bits; j += 56) {
+            const int n = std::min(56, bits - j);
+            if (!in.get(n, v)) return false;
+            for (int i = 0; i < n; ++i)
+                if ((v >> i) & 1) h.carry(j + i);
+        }
+        return true;
+    }
+    uint64_t runs = 0;
+    if (!in.get_eg(0, runs) || runs > uint64_t(bits)) return false;
+    int end = 0;
+    for (uint64_t r = 0; r < runs; ++r) {
+        uint64_t gap = 0, len = 0;
+        if (!in.get_eg(0, gap) || !in.get_eg(0, len)) return false;
+        const uint64_t from = uint64_t(end) + gap + (r ? 1 : 0);
+        if (from + len + 1 > uint64_t(bits)) return false;
+        for (uint64_t j = from; j <= from + len; ++j) h.carry(int(j));
+        end = int(from + len + 1);
+    }
+    return true;
+}
+
+}  // namespace progskin::net
