@@ -54,20 +54,12 @@ namespace {
 // skipped, minus one after the first run); returns the runs.
 template <class F>
 int for_each_run(const ChunkHead& h, F&& f) {
-    const int bits = int(h.show) - int(h.first);
     int runs = 0, end = 0;  // end: where the previous run ended
-    for (int j = 0; j < bits;) {
-        if (!h.carries(j)) {
-            ++j;
-            continue;
-        }
-        int e = j + 1;
-        while (e < bits && h.carries(e)) ++e;
+    for_each_carried_run(h, [&](int j, int e) {
         f(uint32_t(j - end - (runs ? 1 : 0)), uint32_t(e - j - 1));
         ++runs;
         end = e;
-        j = e;
-    }
+    });
     return runs;
 }
 

@@ -51,6 +51,23 @@ struct ChunkHead {
     wire::Chunk chunk() const { return wire::Chunk(instance, first, show, epoch, flags); }
 };
 
+// Calls f(j, e) for each run [j, e) of consecutive carried bones (relative
+// to first), in increasing order. O(show - first).
+template <class F>
+void for_each_carried_run(const ChunkHead& h, F&& f) {
+    const int bits = int(h.show) - int(h.first);
+    for (int j = 0; j < bits;) {
+        if (!h.carries(j)) {
+            ++j;
+            continue;
+        }
+        int e = j + 1;
+        while (e < bits && h.carries(e)) ++e;
+        f(j, e);
+        j = e;
+    }
+}
+
 inline constexpr int kInstanceOrders = 16;  // k = 0..15
 inline constexpr size_t kMaxChunks = 1024;  // a reader refuses more heads in one payload
 

@@ -175,19 +175,11 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
         const uint8_t base = base_from_flags(h.flags);
         const bool with_base = (base & kBaseAgeMask) != 0;
         BitReader runs(data, stream, rec_bit);
-        const int bits = int(h.show) - int(h.first);
-        for (int j = 0; j < bits;) {
-            if (!h.carries(j)) {
-                ++j;
-                continue;
-            }
-            int e = j + 1;
-            while (e < bits && h.carries(e)) ++e;
+        for_each_carried_run(h, [&](int j, int e) {
             const size_t from = runs.at();
             for (int c = j; c < e; ++c) skip_record(runs, scaled, with_base);
             run(h.instance, int(h.first) + j, e - j, int(h.show), RecordRun{data, stream, from, scaled, base, runs.at() - from});
-            j = e;
-        }
+        });
         return true;
     });
     return true;
