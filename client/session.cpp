@@ -109,11 +109,7 @@ FrameApplied apply_frame(const wire::Frame& f, std::span<const PoseTarget> insta
         r.reach_from = std::min(r.reach_from, since);
     };
     // Every chunk is checked before any is applied (proto/frame_reader.h).
-    r.read = read_frame(f, record_size, run, on_chunk);
-    if (r.read)
-        for_each_chunk_head(f, [&](const ChunkHead& h) {
-            if (record_size(h.instance) == 0) ++r.unknown_chunks;
-        });
+    r.read = read_frame(f, record_size, run, on_chunk, &r.unknown_chunks);
     return r;
 }
 

@@ -111,8 +111,9 @@ bool for_each_chunk_head(const wire::Frame& frame, F&& f) {
            }) != 0;
 }
 
+// unknown (optional): set, when the frame reads, to its chunks of unknown instances.
 template <class RecordSize, class Run, class OnChunk>
-bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, OnChunk&& on_chunk) {
+bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, OnChunk&& on_chunk, int* unknown = nullptr) {
     const auto* payload = frame.payload();
     const uint8_t* data = payload ? payload->data() : nullptr;
     const size_t size = payload ? payload->size() : 0;
@@ -121,10 +122,12 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
     // Pass 0: the heads and records (and each chunk's flags kept for its blocks).
     std::array<uint8_t, kMaxChunks> flags;
     size_t chunks = 0;
+    int unknowns = 0;
     const size_t stream = walk_chunk_heads(data, size, [&](size_t i, const ChunkHead& h, size_t, size_t) {
         const int known = record_size(h.instance);
         const int rs = (h.flags & CHUNK_SCALED) ? RecordFormat::kScaledSize : RecordFormat::kPlainSize;
         if ((known > 0 && known != rs) || (h.carried() == 0 && !(h.flags & CHUNK_MORPH))) return false;
+        unknowns += known <= 0;
         flags[i] = h.flags;
         chunks = i + 1;
         return true;
@@ -164,6 +167,7 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
         if (!block(at, flags[i], b)) return false;
     }
     if (at != size) return false;
+    if (unknown) *unknown = unknowns;
     // Pass 1: the calls.
     at = stream;
     walk_chunk_heads(data, size, [&](size_t, const ChunkHead& h, size_t rec_bit, size_t) {
