@@ -674,7 +674,6 @@ FrameApplied ClientSession::sink_frame(const wire::Frame& f, double arrival) {
     for_each_chunk_head(f, [&](const ChunkHead& h) {
         const ClientAsset* a = asset_of(h.instance);
         if (a && h.show > a->skin.bone_count()) fits = false;
-        if (!a) ++r.unknown_chunks;
     });
     if (!fits) return r;
     FrameSink& sink = *hooks_.frame_sink;
@@ -686,8 +685,7 @@ FrameApplied ClientSession::sink_frame(const wire::Frame& f, double arrival) {
         ++r.applied;
         sink.on_run(i, first, count, rec);
     };
-    r.read = read_frame(f, record_size, run, on_chunk);
-    if (!r.read) r.unknown_chunks = 0;
+    r.read = read_frame(f, record_size, run, on_chunk, &r.unknown_chunks);
     return r;
 }
 

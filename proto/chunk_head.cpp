@@ -105,26 +105,18 @@ static void write_head(BitWriter& w, const ChunkHead& h, int prev, int k) {
     }
 }
 
-bool write_frame_payload(std::span<const ChunkOut> chunks, const uint8_t* records, const uint8_t* blocks,
+bool write_frame_payload(std::span<const ChunkOut> chunks, int k, const uint8_t* records, const uint8_t* blocks,
                          std::vector<uint8_t>& out) {
     if (chunks.empty()) return true;
-    if (chunks.size() > kMaxChunks) return false;
+    if (chunks.size() > kMaxChunks || k < 0 || k >= kInstanceOrders) return false;
     for (size_t i = 0; i < chunks.size(); ++i) {
         const ChunkHead& h = chunks[i].head;
         if ((i && chunks[i - 1].head.instance >= h.instance) || h.first >= h.show) return false;
     }
-    // The best order of the instance codes.
-    std::array<size_t, kInstanceOrders> total{};
-    int prev = -1;
-    for (const ChunkOut& c : chunks) {
-        for (int k = 0; k < kInstanceOrders; ++k) total[size_t(k)] += instance_code_bits(uint32_t(int(c.head.instance) - prev - 1), k);
-        prev = c.head.instance;
-    }
-    const int k = int(std::min_element(total.begin(), total.end()) - total.begin());
     BitWriter w(out);
     w.put_eg(uint32_t(chunks.size() - 1), 0);
     w.put(uint64_t(k), 4);
-    prev = -1;
+    int prev = -1;
     for (const ChunkOut& c : chunks) {
         write_head(w, c.head, prev, k);
         prev = c.head.instance;

@@ -2,7 +2,7 @@
 // docs/protocol.md "Frame"): which instance, which bones, epoch and flags,
 // coded in bits in front of each chunk's records. Written by the server's
 // packer (server/datagram_packer.cpp: write_frame_payload) and read by
-// proto/frame_reader.h; the tests build frames with the same writer.
+// proto/frame_reader.h.
 //
 // A payload with chunks is one bit stream (least significant bit first) and
 // then the chunks' byte blocks:
@@ -88,14 +88,14 @@ public:
     size_t size() const { return sorted_.size(); }
     int best_order() const;       // the k of the fewest bits
     size_t bits() const;          // the instance codes at best_order(), plus EG0(n - 1) and the 4 bits of k
-    // The bits of the mask and records are the chunk's; this is the rest of a head (first, show, epoch, flags, the mask's mode bit).
-    static size_t fixed_bits(int first) { return (first ? 9u : 1u) + 8 + 8 + 8 + 1; }
 private:
     std::vector<uint16_t> sorted_;
     std::array<size_t, kInstanceOrders> total_{};  // the codes' bits at each order
 };
 
-// Bits of a head's mask as written: the shorter of its bitmap and its runs (plus the mode bit: fixed_bits).
+// Bits of a head but its instance code and mask: first, show, epoch, flags, the mask's mode bit.
+constexpr size_t head_fixed_bits(int first) { return (first ? 9u : 1u) + 8 + 8 + 8 + 1; }
+// Bits of a head's mask as written: the shorter of its bitmap and its runs (the mode bit: head_fixed_bits).
 size_t mask_bits(const ChunkHead& h);
 
 // One chunk to write: its head, its records (bits [rec_from, rec_from +
@@ -107,9 +107,11 @@ struct ChunkOut {
     size_t block_from = 0, block_bytes = 0;
 };
 // Appends the payload of these chunks (sorted by increasing instance, each
-// instance once) to `out`; nothing when there are none. Returns false (out
-// unchanged) when they are not sorted or a head is out of range.
-bool write_frame_payload(std::span<const ChunkOut> chunks, const uint8_t* records, const uint8_t* blocks,
+// instance once) to `out`, the instances coded at order k (any 0..15 is
+// valid; InstanceCodes::best_order of the same instances takes the fewest
+// bits); nothing when there are none. Returns false (out unchanged) when
+// they are not sorted, a head is out of range or k is.
+bool write_frame_payload(std::span<const ChunkOut> chunks, int k, const uint8_t* records, const uint8_t* blocks,
                          std::vector<uint8_t>& out);
 
 // Reads the next head (prev: the previous chunk's instance, -1 for the

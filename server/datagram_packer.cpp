@@ -20,7 +20,7 @@ void DatagramPacker::flush(uint32_t tick, uint32_t& seq, std::vector<std::vector
     std::sort(sorted_.begin(), sorted_.end(), [](const ChunkOut& x, const ChunkOut& y) { return x.head.instance < y.head.instance; });
     payload_.clear();
     const size_t expect = chunks_.empty() ? 0 : payload_bytes(codes_.bits(), 0);
-    if (!write_frame_payload(sorted_, recs_.data(), blocks_.data(), payload_) || payload_.size() != expect)
+    if (!write_frame_payload(sorted_, codes_.best_order(), recs_.data(), blocks_.data(), payload_) || payload_.size() != expect)
         throw Error("datagram_packer: a payload of " + std::to_string(payload_.size()) + " bytes, " + std::to_string(expect) +
                     " expected");
     fbb_.Clear();
@@ -145,7 +145,7 @@ void DatagramPacker::pack_group(Group& grp, uint32_t& seq, std::vector<std::vect
             continue;
         }
         // The head at its largest (the mask as a bitmap) and the blocks.
-        const size_t head = InstanceCodes::fixed_bits(first) + size_t(show - first);
+        const size_t head = head_fixed_bits(first) + size_t(show - first);
         const size_t codes = codes_.bits_with(instance);
         const size_t blocks = (sampled_ ? 1 : 0) + root_bytes + morph_bytes;
         const size_t fixed = ack_bytes_ + (sampled_ ? kSampledField : 0) + blocks;
@@ -180,7 +180,7 @@ void DatagramPacker::pack_group(Group& grp, uint32_t& seq, std::vector<std::vect
         write_records(grp, c.head, room_bits, seq, book);
         c.rec_bits = recw_.bits() - c.rec_from;
         codes_.add(instance);
-        head_bits_ += InstanceCodes::fixed_bits(first) + mask_bits(c.head);
+        head_bits_ += head_fixed_bits(first) + mask_bits(c.head);
         chunks_.push_back(c);
     }
 }

@@ -407,7 +407,7 @@ TEST(ClientSessionFrames, ApplyFrameKeepsEpochsAndRoots) {
         chunks[1].rec_from = 12;
         chunks[1].rec_bits = 12;
         chunks[1].block_from = blocks.size();
-        EXPECT_TRUE(write_frame_payload(chunks, records.data(), blocks.data(), payload));
+        EXPECT_TRUE(write_frame_payload(chunks, 0, records.data(), blocks.data(), payload));
         flatbuffers::FlatBufferBuilder b;
         auto f = wire::CreateFrame(b, tick, b.CreateVector(payload));
         return datagram(b, tick, 0, wire::DatagramBody::Frame, f);
@@ -447,7 +447,7 @@ TEST(ClientSessionFrames, ALateFrameReachesBackTwoFrames) {
         ChunkOut chunk;  // instance 0, bone 0 of show 1
         chunk.head = ChunkHead{0, 0, 1, 0, 0, {1}};
         chunk.rec_bits = 12;
-        EXPECT_TRUE(write_frame_payload(std::span(&chunk, 1), records.data(), nullptr, payload));
+        EXPECT_TRUE(write_frame_payload(std::span(&chunk, 1), 0, records.data(), nullptr, payload));
         flatbuffers::FlatBufferBuilder b;
         auto f = wire::CreateFrame(b, tick, b.CreateVector(payload));
         return datagram(b, tick, 0, wire::DatagramBody::Frame, f);

@@ -140,27 +140,25 @@ TEST(NetFrame, ReadsMaskRunsAndRecords) {
     EXPECT_EQ(runs[0].instance, 0);
     EXPECT_EQ(runs[0].first, 0);
     EXPECT_EQ(runs[0].offset, a_records);
+    // Bones 3, 4, 5, 9 and 11 of show 13, as three runs from `at` on.
+    auto expect_runs = [&](size_t at, int instance, size_t records) {
+        EXPECT_EQ(runs[at].instance, instance);
+        EXPECT_EQ(runs[at].first, 3);
+        EXPECT_EQ(runs[at].count, 3);
+        EXPECT_EQ(runs[at].offset, records);
+        EXPECT_EQ(runs[at + 1].first, 9);
+        EXPECT_EQ(runs[at + 1].count, 1);
+        EXPECT_EQ(runs[at + 1].offset, records + 36);
+        EXPECT_EQ(runs[at + 2].first, 11);
+        EXPECT_EQ(runs[at + 2].offset, records + 48);
+        EXPECT_EQ(runs[at + 2].show, 13);
+    };
     // instance 1: 4 + 9 (first 3) + 24 + 1 + 10 bitmap bits after instance 0's record.
     const size_t b_records = a_records + 12 + 4 + 9 + 24 + 1 + 10;
-    EXPECT_EQ(runs[1].instance, 1);
-    EXPECT_EQ(runs[1].first, 3);
-    EXPECT_EQ(runs[1].count, 3);
-    EXPECT_EQ(runs[1].offset, b_records);
-    EXPECT_EQ(runs[2].first, 9);
-    EXPECT_EQ(runs[2].count, 1);
-    EXPECT_EQ(runs[2].offset, b_records + 36);
-    EXPECT_EQ(runs[3].first, 11);
-    EXPECT_EQ(runs[3].offset, b_records + 48);
-    EXPECT_EQ(runs[3].show, 13);
+    expect_runs(1, 1, b_records);
     // instance 2: runs EG0(3) = 5 bits, (gap 0, length - 1 = 2) 1 + 3, (2, 0) 3 + 1, (0, 0) 1 + 1: 15 bits.
     const size_t c_records = b_records + 60 + 4 + 9 + 24 + 1 + 15;
-    EXPECT_EQ(runs[4].instance, 2);
-    EXPECT_EQ(runs[4].first, 3);
-    EXPECT_EQ(runs[4].count, 3);
-    EXPECT_EQ(runs[4].offset, c_records);
-    EXPECT_EQ(runs[5].first, 9);
-    EXPECT_EQ(runs[6].first, 11);
-    EXPECT_EQ(runs[6].offset, c_records + 48);
+    expect_runs(4, 2, c_records);
 
     // The library's writer codes the same chunks in no more bits (it takes
     // the shorter mask and the best k) and they read back the same.
@@ -175,8 +173,10 @@ TEST(NetFrame, ReadsMaskRunsAndRecords) {
         outs[size_t(i)].rec_from = 12 + 60 * size_t(i - 1);
         outs[size_t(i)].rec_bits = 60;
     }
+    InstanceCodes codes;
+    for (const ChunkOut& o : outs) codes.add(o.head.instance);
     std::vector<uint8_t> pl;
-    ASSERT_TRUE(write_frame_payload(outs, records.data(), nullptr, pl));
+    ASSERT_TRUE(write_frame_payload(outs, codes.best_order(), records.data(), nullptr, pl));
     EXPECT_LE(pl.size(), put_payload({a, b, c}).size());
     std::vector<ChunkRun> again;
     ASSERT_TRUE(read_datagram(frame_datagram(pl), again));
@@ -188,7 +188,7 @@ TEST(NetFrame, ReadsMaskRunsAndRecords) {
     }
     // Not sorted, or an instance twice: the writer refuses.
     std::swap(outs[0], outs[1]);
-    EXPECT_FALSE(write_frame_payload(outs, records.data(), nullptr, pl));
+    EXPECT_FALSE(write_frame_payload(outs, codes.best_order(), records.data(), nullptr, pl));
 }
 
 TEST(NetFrame, RefusesEveryMalformedChunkBeforeApplyingAny) {
