@@ -6,46 +6,67 @@
 
 namespace progskin::net {
 
-void InstanceCodes::clear() {
+void HeadCodes::clear() {
     sorted_.clear();
     total_.fill(0);
+    fields_ = 0;
 }
 
-bool InstanceCodes::contains(uint16_t instance) const { return std::binary_search(sorted_.begin(), sorted_.end(), instance); }
+static ChunkHead fields_of(uint16_t instance, uint8_t show, uint8_t epoch, uint8_t flags) {
+    ChunkHead h;
+    h.instance = instance, h.show = show, h.epoch = epoch, h.flags = flags;
+    return h;
+}
 
-// The change of each order's total when `instance` joins: its own code,
-// and its successor's code now from it.
-template <class F>
-static void with_added(const std::vector<uint16_t>& sorted, uint16_t instance, F&& f) {
-    const auto at = std::lower_bound(sorted.begin(), sorted.end(), instance);
-    const int prev = at == sorted.begin() ? -1 : int(*(at - 1));
+bool HeadCodes::contains(uint16_t instance) const {
+    const auto at = std::lower_bound(sorted_.begin(), sorted_.end(), instance,
+                                     [](const Fields& x, uint16_t y) { return x.instance < y; });
+    return at != sorted_.end() && at->instance == instance;
+}
+
+// The change of each order's total and of the fields' bits when h joins:
+// its own codes, and its successor's now after it.
+template <class Sorted, class F>
+static size_t with_added(const Sorted& sorted, const ChunkHead& h, F&& f) {
+    const auto at = std::lower_bound(sorted.begin(), sorted.end(), h.instance,
+                                     [](const auto& x, uint16_t y) { return x.instance < y; });
+    const ChunkHead none;  // before the first chunk: show, epoch and flags 0
+    const ChunkHead prev = at == sorted.begin() ? none : fields_of((at - 1)->instance, (at - 1)->show, (at - 1)->epoch, (at - 1)->flags);
+    const int prev_instance = at == sorted.begin() ? -1 : int(prev.instance);
     const bool has_next = at != sorted.end();
-    const int next = has_next ? int(*at) : 0;
+    const ChunkHead next = has_next ? fields_of(at->instance, at->show, at->epoch, at->flags) : none;
     for (int k = 0; k < kInstanceOrders; ++k) {
-        size_t d = instance_code_bits(uint32_t(int(instance) - prev - 1), k);
-        if (has_next) d = d + instance_code_bits(uint32_t(next - int(instance) - 1), k) - instance_code_bits(uint32_t(next - prev - 1), k);
+        size_t d = instance_code_bits(uint32_t(int(h.instance) - prev_instance - 1), k);
+        if (has_next)
+            d = d + instance_code_bits(uint32_t(int(next.instance) - int(h.instance) - 1), k) -
+                instance_code_bits(uint32_t(int(next.instance) - prev_instance - 1), k);
         f(k, d);
     }
+    size_t fields = head_field_bits(h, prev);
+    if (has_next) fields = fields + head_field_bits(next, h) - head_field_bits(next, prev);
+    return fields;
 }
 
-void InstanceCodes::add(uint16_t instance) {
-    with_added(sorted_, instance, [&](int k, size_t d) { total_[size_t(k)] += d; });
-    sorted_.insert(std::lower_bound(sorted_.begin(), sorted_.end(), instance), instance);
+void HeadCodes::add(const ChunkHead& h) {
+    fields_ += with_added(sorted_, h, [&](int k, size_t d) { total_[size_t(k)] += d; });
+    const auto at = std::lower_bound(sorted_.begin(), sorted_.end(), h.instance,
+                                     [](const Fields& x, uint16_t y) { return x.instance < y; });
+    sorted_.insert(at, Fields{h.instance, h.show, h.epoch, h.flags});
 }
 
-size_t InstanceCodes::bits_with(uint16_t instance) const {
+size_t HeadCodes::bits_with(const ChunkHead& h) const {
     size_t best = SIZE_MAX;
-    with_added(sorted_, instance, [&](int k, size_t d) { best = std::min(best, total_[size_t(k)] + d); });
-    return eg0_bits(uint32_t(sorted_.size())) + 4 + best;
+    const size_t fields = with_added(sorted_, h, [&](int k, size_t d) { best = std::min(best, total_[size_t(k)] + d); });
+    return eg0_bits(uint32_t(sorted_.size())) + 4 + best + fields_ + fields;
 }
 
-int InstanceCodes::best_order() const {
+int HeadCodes::best_order() const {
     return int(std::min_element(total_.begin(), total_.end()) - total_.begin());
 }
 
-size_t InstanceCodes::bits() const {
+size_t HeadCodes::bits() const {
     if (sorted_.empty()) return 0;
-    return eg0_bits(uint32_t(sorted_.size() - 1)) + 4 + total_[size_t(best_order())];
+    return eg0_bits(uint32_t(sorted_.size() - 1)) + 4 + total_[size_t(best_order())] + fields_;
 }
 
 namespace {
@@ -76,13 +97,21 @@ size_t mask_bits(const ChunkHead& h) {
     return std::min(bitmap, run_bits(h));
 }
 
-static void write_head(BitWriter& w, const ChunkHead& h, int prev, int k) {
+// One of show, epoch, flags: 0 when the same as the previous chunk's, else 1 and its 8 bits.
+static void put_field(BitWriter& w, uint8_t v, uint8_t prev) {
+    if (v == prev) w.put(0, 1);
+    else w.put(1 | uint64_t(v) << 1, 9);
+}
+
+static void write_head(BitWriter& w, const ChunkHead& h, const ChunkHead& before, int prev, int k) {
     const uint32_t d = uint32_t(int(h.instance) - prev - 1);
     if (d < (uint32_t(1) << k)) w.put(uint64_t(d) << 1, 1 + k);
     else w.put(1 | (uint64_t(h.instance) << 1), 17);
     if (h.first) w.put(1 | (uint64_t(h.first) << 1), 9);
     else w.put(0, 1);
-    w.put(uint64_t(h.show) | uint64_t(h.epoch) << 8 | uint64_t(h.flags) << 16, 24);
+    put_field(w, h.show, before.show);
+    put_field(w, h.epoch, before.epoch);
+    put_field(w, h.flags, before.flags);
     const int bits = int(h.show) - int(h.first);
     if (size_t(bits) <= run_bits(h)) {
         w.put(0, 1);
@@ -117,16 +146,35 @@ bool write_frame_payload(std::span<const ChunkOut> chunks, int k, const uint8_t*
     w.put_eg(uint32_t(chunks.size() - 1), 0);
     w.put(uint64_t(k), 4);
     int prev = -1;
+    ChunkHead before;  // show, epoch and flags 0
     for (const ChunkOut& c : chunks) {
-        write_head(w, c.head, prev, k);
+        write_head(w, c.head, before, prev, k);
         prev = c.head.instance;
+        before = c.head;
         copy_bits(records, c.rec_from, c.rec_bits, w);
     }
     for (const ChunkOut& c : chunks) out.insert(out.end(), blocks + c.block_from, blocks + c.block_from + c.block_bytes);
     return true;
 }
 
-bool read_head(BitReader& in, int prev, int k, ChunkHead& h) {
+static bool get_field(BitReader& in, uint8_t prev, uint8_t& v) {
+    uint64_t x = 0;
+    if (!in.get(1, x)) return false;
+    if (x == 0) {
+        v = prev;
+        return true;
+    }
+    if (!in.get(8, x)) return false;
+    v = uint8_t(x);
+    return true;
+}
+
+bool read_head(BitReader& in, const ChunkHead* before, int k, ChunkHead& h) {
+    // (before may be h itself: what is needed of it is read first)
+    const int prev = before ? int(before->instance) : -1;
+    const uint8_t last_show = before ? before->show : 0, last_epoch = before ? before->epoch : 0,
+                  last_flags = before ? before->flags : 0;
+    uint8_t show = 0, epoch = 0, flags = 0;
     h = ChunkHead{};
     uint64_t v = 0;
     if (!in.get(1, v)) return false;
@@ -143,8 +191,8 @@ bool read_head(BitReader& in, int prev, int k, ChunkHead& h) {
         if (!in.get(8, v) || v == 0) return false;
         h.first = uint8_t(v);
     }
-    if (!in.get(24, v)) return false;
-    h.show = uint8_t(v), h.epoch = uint8_t(v >> 8), h.flags = uint8_t(v >> 16);
+    if (!get_field(in, last_show, show) || !get_field(in, last_epoch, epoch) || !get_field(in, last_flags, flags)) return false;
+    h.show = show, h.epoch = epoch, h.flags = flags;
     if (h.first >= h.show) return false;
     const int bits = int(h.show) - int(h.first);
     if (!in.get(1, v)) return false;

@@ -1,4 +1,4 @@
-// chunk_head.h — the chunk heads of a Frame's payload (protocol version 11,
+// chunk_head.h — the chunk heads of a Frame's payload (protocol version 12,
 // docs/protocol.md "Frame"): which instance, which bones, epoch and flags,
 // coded in bits in front of each chunk's records. Written by the server's
 // packer (server/datagram_packer.cpp: write_frame_payload) and read by
@@ -12,8 +12,9 @@
 //     instance: 0 and k bits of d = instance - previous - 1 (previous: -1
 //               before the first chunk), or 1 and 16 bits of the instance
 //     first:    0 (first = 0), or 1 and 8 bits (1..254)
-//     show:     8 bits (first < show)
-//     epoch:    8 bits;  flags: 8 bits (Chunk.flags)
+//     show, epoch, flags (Chunk.flags), in that order, each: 0 (the same
+//               as the previous chunk's; before the first chunk all three
+//               are 0), or 1 and 8 bits (version 12; first < show)
 //     mask:     0 and show - first bits (bit j: bone first + j carried), or
 //               1, EG0(r) runs, and per run EG0(gap) (bones skipped: before
 //               the first run from `first`; gap - 1 after the others, so runs
@@ -76,25 +77,41 @@ constexpr size_t instance_code_bits(uint32_t d, int k) { return d < (uint32_t(1)
 // Bits of EG0(u).
 constexpr size_t eg0_bits(uint32_t u) { return size_t(2 * (std::bit_width(uint64_t(u) + 1) - 1) + 1); }
 
-// The instances of one payload, kept in increasing order as they are added,
-// with the exact bits of their codes at the best order (what a writer
-// picks). O(n) per add (n <= kMaxChunks), no allocation after warm-up.
-class InstanceCodes {
+// Bits of show, epoch and flags after a chunk with `prev`'s (version 12:
+// 1 bit each when the same, else 9).
+constexpr size_t head_field_bits(const ChunkHead& h, const ChunkHead& prev) {
+    return 3 + (h.show != prev.show ? 8u : 0u) + (h.epoch != prev.epoch ? 8u : 0u) + (h.flags != prev.flags ? 8u : 0u);
+}
+// Bits of a head but its instance code, its fields (head_field_bits) and
+// its mask: first and the mask's mode bit.
+constexpr size_t head_fixed_bits(int first) { return (first ? 9u : 1u) + 1; }
+
+// The heads of one payload, kept in increasing order of instance as they
+// are added (in any order), with the exact bits of their instance codes at
+// the best order (what a writer picks) and of their fields, each after the
+// head before it. O(n) per add (n <= kMaxChunks), no allocation after
+// warm-up.
+class HeadCodes {
 public:
     void clear();
     bool contains(uint16_t instance) const;
-    void add(uint16_t instance);  // not already contained
-    size_t bits_with(uint16_t instance) const;  // bits() once `instance` (not contained) is added
+    void add(const ChunkHead& h);                  // instance not already contained
+    size_t bits_with(const ChunkHead& h) const;    // bits() once h (instance not contained) is added
     size_t size() const { return sorted_.size(); }
     int best_order() const;       // the k of the fewest bits
-    size_t bits() const;          // the instance codes at best_order(), plus EG0(n - 1) and the 4 bits of k
+    // The instance codes at best_order() and the fields, plus EG0(n - 1) and
+    // the 4 bits of k (not first, the mode bits nor the masks).
+    size_t bits() const;
 private:
-    std::vector<uint16_t> sorted_;
-    std::array<size_t, kInstanceOrders> total_{};  // the codes' bits at each order
+    struct Fields {
+        uint16_t instance;
+        uint8_t show, epoch, flags;
+    };
+    std::vector<Fields> sorted_;
+    std::array<size_t, kInstanceOrders> total_{};  // the instance codes' bits at each order
+    size_t fields_ = 0;                            // the fields' bits
 };
 
-// Bits of a head but its instance code and mask: first, show, epoch, flags, the mask's mode bit.
-constexpr size_t head_fixed_bits(int first) { return (first ? 9u : 1u) + 8 + 8 + 8 + 1; }
 // Bits of a head's mask as written: the shorter of its bitmap and its runs (the mode bit: head_fixed_bits).
 size_t mask_bits(const ChunkHead& h);
 
@@ -108,15 +125,15 @@ struct ChunkOut {
 };
 // Appends the payload of these chunks (sorted by increasing instance, each
 // instance once) to `out`, the instances coded at order k (any 0..15 is
-// valid; InstanceCodes::best_order of the same instances takes the fewest
+// valid; HeadCodes::best_order of the same heads takes the fewest
 // bits); nothing when there are none. Returns false (out unchanged) when
 // they are not sorted, a head is out of range or k is.
 bool write_frame_payload(std::span<const ChunkOut> chunks, int k, const uint8_t* records, const uint8_t* blocks,
                          std::vector<uint8_t>& out);
 
-// Reads the next head (prev: the previous chunk's instance, -1 for the
-// first). False when the stream ends, the instance is not above prev, first
+// Reads the next head (prev: the previous chunk's head, nullptr for the
+// first). False when the stream ends, the instance is not above prev's, first
 // is 0 in its long form or not below show, or a run leaves the mask.
-bool read_head(BitReader& in, int prev, int k, ChunkHead& h);
+bool read_head(BitReader& in, const ChunkHead* prev, int k, ChunkHead& h);
 
 }  // namespace progskin::net

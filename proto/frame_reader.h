@@ -1,5 +1,5 @@
 // frame_reader.h — the payload layout of a Frame (datagram.fbs, protocol
-// version 11: proto/chunk_head.h), written by server/datagram_packer.cpp and
+// version 12: proto/chunk_head.h), written by server/datagram_packer.cpp and
 // read here by every receiver (client, tests, benchmarks, fuzz target).
 //
 // Frame.payload is one bit stream of chunk heads (instance, first, show,
@@ -79,11 +79,9 @@ size_t walk_chunk_heads(const uint8_t* data, size_t size, Head&& head) {
     BitReader in(data, size);
     uint64_t n = 0, k = 0;
     if (!in.get_eg(0, n) || n >= kMaxChunks || !in.get(4, k)) return 0;
-    int prev = -1;
     ChunkHead h;
     for (size_t i = 0; i <= n; ++i) {
-        if (!read_head(in, prev, int(k), h)) return 0;
-        prev = h.instance;
+        if (!read_head(in, i ? &h : nullptr, int(k), h)) return 0;
         const bool scaled = (h.flags & CHUNK_SCALED) != 0;
         const uint8_t base = base_from_flags(h.flags);
         if ((base & kBaseLinear) && !(base & kBaseAgeMask)) return 0;

@@ -19,7 +19,7 @@
 
 namespace progskin::net {
 
-inline constexpr uint16_t PROTOCOL_VERSION = 11;
+inline constexpr uint16_t PROTOCOL_VERSION = 12;
 inline constexpr size_t MAX_DATAGRAM = 1200;          // UDP payload limit, bytes
 inline constexpr size_t UDP_IP_OVERHEAD = 28;         // IPv4 + UDP headers (docs/metrics.md §3)
 inline constexpr size_t MAX_CONTROL_MESSAGE = 65536;  // control message body limit

@@ -144,9 +144,12 @@ void DatagramPacker::pack_group(Group& grp, uint32_t& seq, std::vector<std::vect
             flush(frame.tick, seq, out, wire);
             continue;
         }
-        // The head at its largest (the mask as a bitmap) and the blocks.
+        // The head, its mask at its largest (a bitmap), and the blocks.
+        ChunkOut c;
+        c.head = ChunkHead{instance, uint8_t(first), uint8_t(show), e.epoch, uint8_t(e.flags | base_to_flags(grp.base)), {}};
+        if (morph_bytes > 0) c.head.flags |= CHUNK_MORPH;
         const size_t head = head_fixed_bits(first) + size_t(show - first);
-        const size_t codes = codes_.bits_with(instance);
+        const size_t codes = codes_.bits_with(c.head);  // the instance codes and fields, exact
         const size_t blocks = (sampled_ ? 1 : 0) + root_bytes + morph_bytes;
         const size_t fixed = ack_bytes_ + (sampled_ ? kSampledField : 0) + blocks;
         const size_t used = payload_bytes(codes, head) + fixed;
@@ -154,13 +157,10 @@ void DatagramPacker::pack_group(Group& grp, uint32_t& seq, std::vector<std::vect
             flush(frame.tick, seq, out, wire);
             continue;
         }
-        ChunkOut c;
-        c.head = ChunkHead{instance, uint8_t(first), uint8_t(show), e.epoch, uint8_t(e.flags | base_to_flags(grp.base)), {}};
         c.block_from = blocks_.size();
         if (sampled_) blocks_.push_back(e.sample);
         blocks_.insert(blocks_.end(), planned.begin(), planned.end());
         if (morph_bytes > 0) {
-            c.head.flags |= CHUNK_MORPH;
             if (book) book->carried_morphs(seq, frame.tick, grp.instance, e.generation);
             blocks_.push_back(uint8_t((morph_bytes - 1) / MORPH_ENTRY_BYTES));
             for (size_t m = 0; m < weights.size(); ++m)
@@ -179,7 +179,7 @@ void DatagramPacker::pack_group(Group& grp, uint32_t& seq, std::vector<std::vect
         c.rec_from = recw_.bits();
         write_records(grp, c.head, room_bits, seq, book);
         c.rec_bits = recw_.bits() - c.rec_from;
-        codes_.add(instance);
+        codes_.add(c.head);
         head_bits_ += head_fixed_bits(first) + mask_bits(c.head);
         chunks_.push_back(c);
     }

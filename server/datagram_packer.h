@@ -6,7 +6,7 @@
 // and repeats its root block (RecordPlan::root: predicted for this client,
 // else absolute). Datagrams fill in pick order; within one, the chunks go
 // out by increasing instance (the heads code the instances' differences).
-// The size of a datagram is known exactly as it fills (InstanceCodes).
+// The size of a datagram is known exactly as it fills (HeadCodes).
 #pragma once
 #include <cstdint>
 #include <span>
@@ -52,7 +52,7 @@ private:
     flatbuffers::FlatBufferBuilder fbb_{1400};
     std::vector<ChunkOut> chunks_;  // the datagram's chunks, in pick order
     std::vector<ChunkOut> sorted_;  // the same by instance (flush)
-    InstanceCodes codes_;           // their instances
+    HeadCodes codes_;               // their heads (instance codes and fields)
     size_t head_bits_ = 0;          // their heads' bits but the instance codes
     std::vector<uint8_t> recs_;     // their records, one bit stream
     BitWriter recw_{recs_};

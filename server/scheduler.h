@@ -76,11 +76,18 @@ struct WireCost {
     // A chunk head as the scheduler counts it (proto/chunk_head.h): the
     // instance code at a typical 3 bits (consecutive instances take 1, one
     // far from the previous up to 17; the packer counts the exact bits),
-    // first (1 bit when 0), show, epoch and flags (24), the mask's mode bit.
+    // first (1 bit when 0), show, epoch and flags at 24, the mask's mode
+    // bit. Since version 12 show, epoch and flags take 3 bits when they
+    // match the previous chunk's (most do) and 27 at most; counting them at
+    // 24, as before, gave a lower error at every cap of bench_net_rd than
+    // counting a typical 11 or 8, which spread the records over more
+    // characters (docs/performance.md "Head fields as the previous chunk's").
     static constexpr size_t kHeadBits = 3 + 1 + 24 + 1;
     // a chunk continued in another datagram (its sample byte, a head at its
-    // largest, and it repeats the root block)
-    static constexpr size_t kSplitChunk = 1 + (17 + 9 + 24 + 1 + MAX_BONES + 7) / 8 + kRootAbsoluteBytes;
+    // largest (27 bits of fields, and up to 24 more of the next chunk's
+    // when it no longer matches its predecessor), and it repeats the root
+    // block)
+    static constexpr size_t kSplitChunk = 1 + (17 + 9 + 27 + 24 + 1 + MAX_BONES + 7) / 8 + kRootAbsoluteBytes;
     // A head with its bone mask as a bitmap for an instance of `bones` bones
     // (at most: runs may code it shorter, a chunk starting at bone first > 0
     // has a shorter one), rounded up to a byte: the records follow it in one

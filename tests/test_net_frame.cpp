@@ -1,4 +1,4 @@
-// The Frame layout of protocol version 11 (proto/chunk_head.h,
+// The Frame layout of protocol version 12 (proto/chunk_head.h,
 // proto/frame_reader.h): what the packer writes reads back bone for bone,
 // bit for bit, and every malformed chunk is refused before anything is
 // applied. The frames of these tests are written field by field from
@@ -47,6 +47,8 @@ struct Hand {
     int records = -1;                         // identity records written (-1: one per carried bone)
     bool scaled_records = false;
     bool long_first = false;                  // first in its long form even when 0
+    bool long_fields = false;                 // show, epoch and flags in their long form even when the same
+    bool same_show = false;                   // show written as "the same as the previous chunk's" whatever it is
     std::vector<uint8_t> blocks;              // sample byte, root and morph blocks
 };
 
@@ -59,6 +61,13 @@ std::vector<uint8_t> put_payload(const std::vector<Hand>& chunks, int k = 3, int
     w.put_eg(uint32_t((n < 0 ? int(chunks.size()) : n) - 1), 0);
     w.put(uint64_t(k), 4);
     int prev = -1;
+    int last_show = 0, last_epoch = 0, last_flags = 0;  // before the first chunk: 0
+    // show, epoch, flags: 0 when the same as the previous chunk's, else 1 and 8 bits.
+    auto field = [&](int v, int& last, bool long_form, bool same) {
+        if (same || (v == last && !long_form)) w.put(0, 1);
+        else w.put(1 | uint64_t(uint8_t(v)) << 1, 9);
+        if (!same) last = v;
+    };
     for (const Hand& h : chunks) {
         const uint32_t d = uint32_t(h.instance - prev - 1);
         if (h.instance > prev && d < (1u << k)) w.put(uint64_t(d) << 1, 1 + k);
@@ -66,7 +75,9 @@ std::vector<uint8_t> put_payload(const std::vector<Hand>& chunks, int k = 3, int
         prev = h.instance;
         if (h.first || h.long_first) w.put(1 | uint64_t(uint8_t(h.first)) << 1, 9);
         else w.put(0, 1);
-        w.put(uint64_t(uint8_t(h.show)) | uint64_t(h.epoch) << 8 | uint64_t(h.flags) << 16, 24);
+        field(h.show, last_show, h.long_fields, h.same_show);
+        field(h.epoch, last_epoch, h.long_fields, false);
+        field(h.flags, last_flags, h.long_fields, false);
         if (!h.runs) {
             w.put(0, 1);
             for (int j = 0; j < h.show - h.first; ++j)
@@ -135,8 +146,10 @@ TEST(NetFrame, ReadsMaskRunsAndRecords) {
     std::vector<ChunkRun> runs;
     ASSERT_TRUE(read_datagram(frame_datagram(put_payload({a, b, c})), runs));
     ASSERT_EQ(runs.size(), 7u);
-    // EG0(2) = 3 bits, k = 3 in 4 bits; instance 0: 1 + 3 bits, first 1 bit, show/epoch/flags 24, mode 1, bitmap 1 bit.
-    const size_t a_records = 3 + 4 + 4 + 1 + 24 + 1 + 1;
+    // EG0(2) = 3 bits, k = 3 in 4 bits; instance 0: 1 + 3 bits, first 1
+    // bit, show 1 + 8 (not the 0 before the first chunk), epoch and flags 1
+    // each (0 as before), mode 1, bitmap 1 bit.
+    const size_t a_records = 3 + 4 + 4 + 1 + 9 + 1 + 1 + 1 + 1;
     EXPECT_EQ(runs[0].instance, 0);
     EXPECT_EQ(runs[0].first, 0);
     EXPECT_EQ(runs[0].offset, a_records);
@@ -153,11 +166,13 @@ TEST(NetFrame, ReadsMaskRunsAndRecords) {
         EXPECT_EQ(runs[at + 2].offset, records + 48);
         EXPECT_EQ(runs[at + 2].show, 13);
     };
-    // instance 1: 4 + 9 (first 3) + 24 + 1 + 10 bitmap bits after instance 0's record.
-    const size_t b_records = a_records + 12 + 4 + 9 + 24 + 1 + 10;
+    // instance 1: 4 + 9 (first 3) + show 13 and epoch 7 in 9 bits each,
+    // flags 1 (0 as before) + 1 + 10 bitmap bits after instance 0's record.
+    const size_t b_records = a_records + 12 + 4 + 9 + 9 + 9 + 1 + 1 + 10;
     expect_runs(1, 1, b_records);
-    // instance 2: runs EG0(3) = 5 bits, (gap 0, length - 1 = 2) 1 + 3, (2, 0) 3 + 1, (0, 0) 1 + 1: 15 bits.
-    const size_t c_records = b_records + 60 + 4 + 9 + 24 + 1 + 15;
+    // instance 2: show, epoch and flags as instance 1's (1 bit each); runs
+    // EG0(3) = 5 bits, (gap 0, length - 1 = 2) 1 + 3, (2, 0) 3 + 1, (0, 0) 1 + 1: 15 bits.
+    const size_t c_records = b_records + 60 + 4 + 9 + 3 + 1 + 15;
     expect_runs(4, 2, c_records);
 
     // The library's writer codes the same chunks in no more bits (it takes
@@ -173,8 +188,8 @@ TEST(NetFrame, ReadsMaskRunsAndRecords) {
         outs[size_t(i)].rec_from = 12 + 60 * size_t(i - 1);
         outs[size_t(i)].rec_bits = 60;
     }
-    InstanceCodes codes;
-    for (const ChunkOut& o : outs) codes.add(o.head.instance);
+    HeadCodes codes;
+    for (const ChunkOut& o : outs) codes.add(o.head);
     std::vector<uint8_t> pl;
     ASSERT_TRUE(write_frame_payload(outs, codes.best_order(), records.data(), nullptr, pl));
     EXPECT_LE(pl.size(), put_payload({a, b, c}).size());
@@ -186,6 +201,13 @@ TEST(NetFrame, ReadsMaskRunsAndRecords) {
         EXPECT_EQ(again[i].first, runs[i].first);
         EXPECT_EQ(again[i].count, runs[i].count);
     }
+    // The fields in their long form read the same.
+    Hand c_long = c;
+    c_long.long_fields = true;
+    ASSERT_TRUE(read_datagram(frame_datagram(put_payload({a, b, c_long})), again));
+    ASSERT_EQ(again.size(), runs.size());
+    EXPECT_EQ(again[4].show, 13);
+    EXPECT_EQ(again[4].offset, c_records + 24);
     // Not sorted, or an instance twice: the writer refuses.
     std::swap(outs[0], outs[1]);
     EXPECT_FALSE(write_frame_payload(outs, codes.best_order(), records.data(), nullptr, pl));
@@ -220,6 +242,7 @@ TEST(NetFrame, RefusesEveryMalformedChunkBeforeApplyingAny) {
         {"show 0", with([](Hand& h) { h.show = 0, h.carried = {}; })},
         {"first >= show", with([](Hand& h) { h.first = 3, h.carried = {}; })},
         {"first 0 in its long form", with([](Hand& h) { h.long_first = true; })},
+        {"the first chunk's show as before it (0)", with([](Hand& h) { h.same_show = true; })},
         {"a run at or past show", with([](Hand& h) { h.runs = true, h.raw_runs = {{0, 0}, {1, 0}}; })},
         {"more runs than bones", with([](Hand& h) {
              h.runs = true;
@@ -258,7 +281,7 @@ TEST(NetFrame, SkipsChunksOfUnknownInstances) {
     ASSERT_TRUE(read_datagram(d, runs));
     ASSERT_EQ(runs.size(), 1u);
     EXPECT_EQ(runs[0].instance, 0);
-    EXPECT_EQ(runs[0].offset, 3u + 4 + 5 + 1 + 24 + 1 + 1);
+    EXPECT_EQ(runs[0].offset, 3u + 4 + 5 + 1 + 9 + 1 + 9 + 1 + 1);  // show and flags long, epoch 0 as before
     // Its root block handed over is its own (the first of the two).
     const wire::Frame& f = *verify_datagram(d)->body_as_Frame();
     std::span<const uint8_t> got;
@@ -281,6 +304,9 @@ TEST(NetFrame, RandomFramesAreRefusedOrReadInBounds) {
             c.first = int(rng() % 4);
             c.show = int(rng() % 12);
             c.flags = uint8_t(rng() % 4 | (rng() % 3 ? 0 : rng() & 0xF8));
+            c.epoch = uint8_t(rng() % 3 ? 0 : rng());
+            c.long_fields = rng() % 4 == 0;
+            c.same_show = rng() % 8 == 0;
             c.runs = rng() % 2;
             for (int b = c.first; b < c.show; ++b)
                 if (rng() % 2) c.carried.push_back(b);
@@ -293,6 +319,69 @@ TEST(NetFrame, RandomFramesAreRefusedOrReadInBounds) {
         accepted += read_datagram(frame_datagram(pl), runs);  // bounds checked in read_datagram()
     }
     EXPECT_GT(accepted, 0);
+}
+
+// HeadCodes (the packer's count of a datagram's size as it fills) is exact
+// whatever the order the heads join in: bits_with before an add is bits()
+// after it, and the payload written at best_order() takes exactly the bits
+// counted, no more than at any other order.
+TEST(NetFrame, HeadCodesCountTheWrittenBitsExactly) {
+    std::mt19937 rng(11);
+    for (int trial = 0; trial < 2000; ++trial) {
+        const int n = 1 + int(rng() % 40);
+        std::vector<ChunkOut> chunks;
+        std::vector<uint16_t> used;
+        std::vector<uint8_t> records;
+        BitWriter rw(records);
+        while (int(chunks.size()) < n) {
+            const uint16_t instance = uint16_t(rng() % (trial % 2 ? 60 : 4000));
+            if (std::find(used.begin(), used.end(), instance) != used.end()) continue;
+            used.push_back(instance);
+            ChunkOut c;
+            c.head.instance = instance;
+            c.head.show = uint8_t(1 + rng() % (rng() % 2 ? 3 : 70));
+            c.head.first = uint8_t(rng() % 3 ? 0 : rng() % c.head.show);
+            c.head.epoch = uint8_t(rng() % 4 ? 1 : rng());
+            c.head.flags = uint8_t(rng() % 3 ? CHUNK_ROOT : rng() % 8);  // (no baseline: identity records below)
+            for (int j = 0; j < c.head.show - c.head.first; ++j)
+                if (rng() % 3) c.head.carry(j);
+            c.rec_from = rw.bits();
+            for (int r = c.head.carried(); r > 0; --r) write_record(RecordInts{}, (c.head.flags & CHUNK_SCALED) != 0, rw);
+            c.rec_bits = rw.bits() - c.rec_from;
+            chunks.push_back(c);
+        }
+        HeadCodes codes;
+        size_t rest = 0;  // first, mode bits and masks
+        for (const ChunkOut& c : chunks) {
+            const size_t with = codes.bits_with(c.head);
+            codes.add(c.head);
+            ASSERT_EQ(codes.bits(), with);
+            rest += head_fixed_bits(c.head.first) + mask_bits(c.head) + c.rec_bits;
+        }
+        std::sort(chunks.begin(), chunks.end(), [](const ChunkOut& x, const ChunkOut& y) { return x.head.instance < y.head.instance; });
+        std::vector<uint8_t> pl;
+        ASSERT_TRUE(write_frame_payload(chunks, codes.best_order(), records.data(), nullptr, pl));
+        ASSERT_EQ(pl.size(), (codes.bits() + rest + 7) / 8) << "trial " << trial;
+        for (int k = 0; k < kInstanceOrders; k += 5) {
+            std::vector<uint8_t> other;
+            ASSERT_TRUE(write_frame_payload(chunks, k, records.data(), nullptr, other));
+            EXPECT_GE(other.size(), pl.size());
+        }
+        // And it reads back head for head.
+        size_t i = 0;
+        ASSERT_NE(walk_chunk_heads(pl.data(), pl.size(), [&](size_t, const ChunkHead& h, size_t, size_t) {
+                      const ChunkHead& w = chunks[i++].head;
+                      EXPECT_EQ(h.instance, w.instance);
+                      EXPECT_EQ(h.first, w.first);
+                      EXPECT_EQ(h.show, w.show);
+                      EXPECT_EQ(h.epoch, w.epoch);
+                      EXPECT_EQ(h.flags, w.flags);
+                      EXPECT_EQ(h.mask, w.mask);
+                      return true;
+                  }),
+                  0u);
+        EXPECT_EQ(i, chunks.size());
+    }
 }
 
 // The packer's datagrams carry exactly the picked bones, each record
