@@ -12,51 +12,51 @@ void HeadCodes::clear() {
     fields_ = 0;
 }
 
-static ChunkHead fields_of(uint16_t instance, uint8_t show, uint8_t epoch, uint8_t flags) {
-    ChunkHead h;
-    h.instance = instance, h.show = show, h.epoch = epoch, h.flags = flags;
-    return h;
-}
-
 bool HeadCodes::contains(uint16_t instance) const {
     const auto at = std::lower_bound(sorted_.begin(), sorted_.end(), instance,
                                      [](const Fields& x, uint16_t y) { return x.instance < y; });
     return at != sorted_.end() && at->instance == instance;
 }
 
-// The change of each order's total and of the fields' bits when h joins:
-// its own codes, and its successor's now after it.
-template <class Sorted, class F>
-static size_t with_added(const Sorted& sorted, const ChunkHead& h, F&& f) {
+// Bits of a head's show, epoch and flags after a head with prev's.
+static size_t field_bits(const HeadCodes::Fields& h, const HeadCodes::Fields& prev) {
+    return 3 + (h.show != prev.show ? 8u : 0u) + (h.epoch != prev.epoch ? 8u : 0u) + (h.flags != prev.flags ? 8u : 0u);
+}
+
+// The change of each order's total (f(k, bits)) and of the fields' bits
+// (returned) when h joins: its own codes, and its successor's now after it.
+template <class F>
+static size_t with_added(const std::vector<HeadCodes::Fields>& sorted, const HeadCodes::Fields& h, F&& f) {
     const auto at = std::lower_bound(sorted.begin(), sorted.end(), h.instance,
-                                     [](const auto& x, uint16_t y) { return x.instance < y; });
-    const ChunkHead none;  // before the first chunk: show, epoch and flags 0
-    const ChunkHead prev = at == sorted.begin() ? none : fields_of((at - 1)->instance, (at - 1)->show, (at - 1)->epoch, (at - 1)->flags);
+                                     [](const HeadCodes::Fields& x, uint16_t y) { return x.instance < y; });
+    const HeadCodes::Fields none{};  // before the first chunk: show, epoch and flags 0
+    const HeadCodes::Fields& prev = at == sorted.begin() ? none : *(at - 1);
     const int prev_instance = at == sorted.begin() ? -1 : int(prev.instance);
     const bool has_next = at != sorted.end();
-    const ChunkHead next = has_next ? fields_of(at->instance, at->show, at->epoch, at->flags) : none;
     for (int k = 0; k < kInstanceOrders; ++k) {
         size_t d = instance_code_bits(uint32_t(int(h.instance) - prev_instance - 1), k);
         if (has_next)
-            d = d + instance_code_bits(uint32_t(int(next.instance) - int(h.instance) - 1), k) -
-                instance_code_bits(uint32_t(int(next.instance) - prev_instance - 1), k);
+            d = d + instance_code_bits(uint32_t(int(at->instance) - int(h.instance) - 1), k) -
+                instance_code_bits(uint32_t(int(at->instance) - prev_instance - 1), k);
         f(k, d);
     }
-    size_t fields = head_field_bits(h, prev);
-    if (has_next) fields = fields + head_field_bits(next, h) - head_field_bits(next, prev);
+    size_t fields = field_bits(h, prev);
+    if (has_next) fields = fields + field_bits(*at, h) - field_bits(*at, prev);
     return fields;
 }
 
+static HeadCodes::Fields fields_of(const ChunkHead& h) { return {h.instance, h.show, h.epoch, h.flags}; }
+
 void HeadCodes::add(const ChunkHead& h) {
-    fields_ += with_added(sorted_, h, [&](int k, size_t d) { total_[size_t(k)] += d; });
+    fields_ += with_added(sorted_, fields_of(h), [&](int k, size_t d) { total_[size_t(k)] += d; });
     const auto at = std::lower_bound(sorted_.begin(), sorted_.end(), h.instance,
                                      [](const Fields& x, uint16_t y) { return x.instance < y; });
-    sorted_.insert(at, Fields{h.instance, h.show, h.epoch, h.flags});
+    sorted_.insert(at, fields_of(h));
 }
 
 size_t HeadCodes::bits_with(const ChunkHead& h) const {
     size_t best = SIZE_MAX;
-    const size_t fields = with_added(sorted_, h, [&](int k, size_t d) { best = std::min(best, total_[size_t(k)] + d); });
+    const size_t fields = with_added(sorted_, fields_of(h), [&](int k, size_t d) { best = std::min(best, total_[size_t(k)] + d); });
     return eg0_bits(uint32_t(sorted_.size())) + 4 + best + fields_ + fields;
 }
 

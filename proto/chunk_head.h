@@ -77,13 +77,8 @@ constexpr size_t instance_code_bits(uint32_t d, int k) { return d < (uint32_t(1)
 // Bits of EG0(u).
 constexpr size_t eg0_bits(uint32_t u) { return size_t(2 * (std::bit_width(uint64_t(u) + 1) - 1) + 1); }
 
-// Bits of show, epoch and flags after a chunk with `prev`'s (version 12:
-// 1 bit each when the same, else 9).
-constexpr size_t head_field_bits(const ChunkHead& h, const ChunkHead& prev) {
-    return 3 + (h.show != prev.show ? 8u : 0u) + (h.epoch != prev.epoch ? 8u : 0u) + (h.flags != prev.flags ? 8u : 0u);
-}
-// Bits of a head but its instance code, its fields (head_field_bits) and
-// its mask: first and the mask's mode bit.
+// Bits of a head but its instance code, its show, epoch and flags
+// (HeadCodes counts those) and its mask: first and the mask's mode bit.
 constexpr size_t head_fixed_bits(int first) { return (first ? 9u : 1u) + 1; }
 
 // The heads of one payload, kept in increasing order of instance as they
@@ -102,11 +97,13 @@ public:
     // The instance codes at best_order() and the fields, plus EG0(n - 1) and
     // the 4 bits of k (not first, the mode bits nor the masks).
     size_t bits() const;
-private:
+    // What a head's count depends on (its show, epoch and flags take 1 bit
+    // each when they are the head before's, else 9).
     struct Fields {
-        uint16_t instance;
-        uint8_t show, epoch, flags;
+        uint16_t instance = 0;
+        uint8_t show = 0, epoch = 0, flags = 0;
     };
+private:
     std::vector<Fields> sorted_;
     std::array<size_t, kInstanceOrders> total_{};  // the instance codes' bits at each order
     size_t fields_ = 0;                            // the fields' bits
