@@ -12,9 +12,14 @@ void HeadCodes::clear() {
     fields_ = 0;
 }
 
+// Where instance is, or would go, in the heads sorted by instance.
+static std::vector<HeadCodes::Fields>::const_iterator place_of(const std::vector<HeadCodes::Fields>& sorted, uint16_t instance) {
+    return std::lower_bound(sorted.begin(), sorted.end(), instance,
+                            [](const HeadCodes::Fields& x, uint16_t y) { return x.instance < y; });
+}
+
 bool HeadCodes::contains(uint16_t instance) const {
-    const auto at = std::lower_bound(sorted_.begin(), sorted_.end(), instance,
-                                     [](const Fields& x, uint16_t y) { return x.instance < y; });
+    const auto at = place_of(sorted_, instance);
     return at != sorted_.end() && at->instance == instance;
 }
 
@@ -24,11 +29,11 @@ static size_t field_bits(const HeadCodes::Fields& h, const HeadCodes::Fields& pr
 }
 
 // The change of each order's total (f(k, bits)) and of the fields' bits
-// (returned) when h joins: its own codes, and its successor's now after it.
+// (returned) when h joins at `at` (place_of): its own codes, and its
+// successor's now after it.
 template <class F>
-static size_t with_added(const std::vector<HeadCodes::Fields>& sorted, const HeadCodes::Fields& h, F&& f) {
-    const auto at = std::lower_bound(sorted.begin(), sorted.end(), h.instance,
-                                     [](const HeadCodes::Fields& x, uint16_t y) { return x.instance < y; });
+static size_t with_added(const std::vector<HeadCodes::Fields>& sorted, std::vector<HeadCodes::Fields>::const_iterator at,
+                         const HeadCodes::Fields& h, F&& f) {
     const HeadCodes::Fields none{};  // before the first chunk: show, epoch and flags 0
     const HeadCodes::Fields& prev = at == sorted.begin() ? none : *(at - 1);
     const int prev_instance = at == sorted.begin() ? -1 : int(prev.instance);
@@ -48,15 +53,15 @@ static size_t with_added(const std::vector<HeadCodes::Fields>& sorted, const Hea
 static HeadCodes::Fields fields_of(const ChunkHead& h) { return {h.instance, h.show, h.epoch, h.flags}; }
 
 void HeadCodes::add(const ChunkHead& h) {
-    fields_ += with_added(sorted_, fields_of(h), [&](int k, size_t d) { total_[size_t(k)] += d; });
-    const auto at = std::lower_bound(sorted_.begin(), sorted_.end(), h.instance,
-                                     [](const Fields& x, uint16_t y) { return x.instance < y; });
+    const auto at = place_of(sorted_, h.instance);
+    fields_ += with_added(sorted_, at, fields_of(h), [&](int k, size_t d) { total_[size_t(k)] += d; });
     sorted_.insert(at, fields_of(h));
 }
 
 size_t HeadCodes::bits_with(const ChunkHead& h) const {
     size_t best = SIZE_MAX;
-    const size_t fields = with_added(sorted_, fields_of(h), [&](int k, size_t d) { best = std::min(best, total_[size_t(k)] + d); });
+    const size_t fields = with_added(sorted_, place_of(sorted_, h.instance), fields_of(h),
+                                     [&](int k, size_t d) { best = std::min(best, total_[size_t(k)] + d); });
     return eg0_bits(uint32_t(sorted_.size())) + 4 + best + fields_ + fields;
 }
 

@@ -53,7 +53,7 @@ private:
     std::vector<ChunkOut> chunks_;  // the datagram's chunks, in pick order
     std::vector<ChunkOut> sorted_;  // the same by instance (flush)
     HeadCodes codes_;               // their heads (instance codes and fields)
-    size_t head_bits_ = 0;          // their heads' bits but the instance codes
+    size_t head_bits_ = 0;          // their heads' bits but what codes_ counts (first, the masks)
     std::vector<uint8_t> recs_;     // their records, one bit stream
     BitWriter recw_{recs_};
     std::vector<uint8_t> blocks_;   // their sample bytes, root and morph blocks

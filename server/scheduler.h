@@ -79,8 +79,9 @@ struct WireCost {
     // first (1 bit when 0), show, epoch and flags at 24, the mask's mode
     // bit. Since version 12 show, epoch and flags take 3 bits when they
     // match the previous chunk's (most do) and 27 at most; counting them at
-    // 24, as before, gave a lower error at every cap of bench_net_rd than
-    // counting a typical 11 or 8, which spread the records over more
+    // 24, as before, gave a lower error than counting a typical 11 or 8 at
+    // four of bench_net_rd's five caps below full rate (within 0.001 of it
+    // at the fifth): counted lower, heads spread the records over more
     // characters (docs/performance.md "Head fields as the previous chunk's").
     static constexpr size_t kHeadBits = 3 + 1 + 24 + 1;
     // a chunk continued in another datagram (its sample byte, a head at its
