@@ -527,6 +527,10 @@ TEST(NetSecurity, AcceptBacksOffWhenOutOfDescriptors) {
     rlimit low = old;
     low.rlim_cur = rlim_t(highest + 64);
     ASSERT_EQ(::setrlimit(RLIMIT_NOFILE, &low), 0);
+    // The client's socket first, then every descriptor left taken: freeing
+    // one for it afterwards raced the server's own threads (in this
+    // process), which could take it first ("socket: Too many open files").
+    const int c = ::socket(AF_INET, SOCK_STREAM, 0);
     const int null_fd = ::open("/dev/null", O_RDONLY);
     ASSERT_GE(null_fd, 0);
     std::vector<int> filler = {null_fd};
@@ -535,9 +539,6 @@ TEST(NetSecurity, AcceptBacksOffWhenOutOfDescriptors) {
         if (fd < 0) break;
         filler.push_back(fd);
     }
-    ::close(filler.back());  // one descriptor left: the client's socket
-    filler.pop_back();
-    const int c = ::socket(AF_INET, SOCK_STREAM, 0);
     sockaddr_in to{};
     to.sin_family = AF_INET;
     to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
