@@ -207,7 +207,8 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
         const TickResult r = client->tick(f, t / 30.0, 1.0 / 30.0, sink);
         // A lossless client acknowledging each datagram before the next tick
         // (a round trip under 33 ms, as on loopback): baselines one tick old.
-        if (!sink.sent.empty()) client->acknowledge(verify_datagram(sink.sent.back().bytes)->seq(), ~0u);
+        FrameDatagram last;
+        if (!sink.sent.empty() && read_frame_datagram(sink.sent.back().bytes, last)) client->acknowledge(last.seq, ~0u);
         for (auto& d : sink.sent) log[size_t(t)].push_back(std::move(d.bytes));
         if (t > warm) wire_total += r.wire_bytes;
         for (const Pick& p : client->picks()) {
@@ -252,10 +253,10 @@ Result simulate(Method m, const std::vector<InstanceSpec>& specs, double cap_kbp
     std::vector<glm::vec3> shown, ref;
     for (int t = 1; t <= ticks; ++t) {
         for (const auto& d : log[size_t(t)]) {
-            const wire::Datagram* g = verify_datagram(d);
-            const wire::Frame* fr = g->body_as_Frame();
-            const size_t records = apply_frame(*fr, views).record_bits / 8;  // the heads, blocks and padding: header
-            if (t > warm) header_bytes += fr->payload()->size() - records;
+            FrameDatagram fr;
+            if (!read_frame_datagram(d, fr)) continue;
+            const size_t records = apply_frame(fr, views).record_bits / 8;  // the heads, blocks and padding: header
+            if (t > warm) header_bytes += fr.payload.size() - records;
         }
         const double d = double(t - delay);
         if (t - delay <= warm) continue;

@@ -67,12 +67,12 @@ std::string read_instance(const wire::Instance& in, size_t catalogue_size, Remot
     return {};
 }
 
-FrameApplied apply_frame(const wire::Frame& f, std::span<const PoseTarget> instances) {
+FrameApplied apply_frame(const FrameDatagram& f, std::span<const PoseTarget> instances) {
     FrameApplied r;
     auto record_size = [&](uint16_t i) -> int {
         return i < instances.size() && instances[i].buffer ? instances[i].record_size : 0;
     };
-    const double tick = double(f.tick());
+    const double tick = double(f.tick);
     uint8_t epoch = 0, sample = 0;
     std::span<const uint8_t> root;
     auto on_chunk = [&](const wire::Chunk& c, uint8_t chunk_sample, std::span<const uint8_t> chunk_root, const uint8_t* morph) {
@@ -81,7 +81,7 @@ FrameApplied apply_frame(const wire::Frame& f, std::span<const PoseTarget> insta
         root = chunk_root;
         // Morph weights (sparse: the others keep their values), PoseBuffer::add_morphs.
         if (!morph) return;
-        if (instances[c.instance()].buffer->add_morphs(f.tick(), c.show(), c.show(), c.epoch(), morph, sample)) ++r.applied;
+        if (instances[c.instance()].buffer->add_morphs(f.tick, c.show(), c.show(), c.epoch(), morph, sample)) ++r.applied;
         else ++r.refused;
     };
     auto run = [&](uint16_t i, int first, int count, int show, const RecordRun& rec) {
@@ -90,7 +90,7 @@ FrameApplied apply_frame(const wire::Frame& f, std::span<const PoseTarget> insta
         const bool had = !b.empty();
         const uint32_t prev = b.newest_tick();
         const uint64_t missing = b.missing_baselines(), predicted = b.predicted();
-        if (!b.add_chunk(f.tick(), first, count, show, rec, show, epoch, root, sample)) {
+        if (!b.add_chunk(f.tick, first, count, show, rec, show, epoch, root, sample)) {
             if (b.missing_baselines() != missing) ++r.missing_baselines;
             else ++r.refused;
             return;
@@ -103,8 +103,8 @@ FrameApplied apply_frame(const wire::Frame& f, std::span<const PoseTarget> insta
         // A frame older than the newest (late, or a repair) was needed from
         // the frame before it on; another run or datagram of the newest
         // tick, from that tick (and its bones' gaps, below).
-        const int32_t newer = int32_t(f.tick() - prev);
-        double since = newer > 0 ? double(prev) : newer == 0 ? tick : b.needed_from(f.tick(), first);
+        const int32_t newer = int32_t(f.tick - prev);
+        double since = newer > 0 ? double(prev) : newer == 0 ? tick : b.needed_from(f.tick, first);
         if (b.last_gap() > 0) since = std::min(since, tick - b.last_gap());
         r.reach_from = std::min(r.reach_from, since);
     };
@@ -566,7 +566,7 @@ const RemoteCharacter* ClientSession::character(int instance) const {
 // ------------------------------------------------------------ datagrams --
 void ClientSession::on_datagram(std::span<const uint8_t> bytes, bool from_server, double t) {
     if (!welcomed()) return;
-    const wire::Datagram* d = nullptr;
+    std::span<const uint8_t> plain = bytes;
     if (opener_) {  // sealed session: unsealed, forged and replayed datagrams are dropped
         uint64_t seq = 0;
         const crypto::OpenResult r =
@@ -579,10 +579,22 @@ void ClientSession::on_datagram(std::span<const uint8_t> bytes, bool from_server
             ++st_.duplicates;
             return;
         }
-        if (r == crypto::OpenResult::ok) d = verify_datagram(opened_buf_);
-    } else {
-        d = verify_datagram(bytes);
+        if (r != crypto::OpenResult::ok) {
+            ++st_.malformed;
+            return;
+        }
+        plain = opened_buf_;
     }
+    if (is_frame_datagram(plain)) {  // the frame stream (version 13: not a FlatBuffer)
+        FrameDatagram f;
+        if (!from_server || !read_frame_datagram(plain, f)) {
+            ++st_.malformed;
+            return;
+        }
+        last_datagram_ = t;
+        return handle_frame(f, bytes.size(), t);
+    }
+    const wire::Datagram* d = verify_datagram(plain);
     if (!d || !from_server) {
         ++st_.malformed;
         return;
@@ -601,31 +613,29 @@ void ClientSession::on_datagram(std::span<const uint8_t> bytes, bool from_server
             }
             return;
         }
-        case wire::DatagramBody::Frame: return handle_frame(*d, bytes.size(), t);
         default: ++st_.malformed; return;
     }
 }
 
 // n: bytes on the wire (sealed: 32 more than the datagram); t: arrival.
-void ClientSession::handle_frame(const wire::Datagram& d, size_t n, double t) {
-    const wire::Frame* f = d.body_as_Frame();
-    const uint32_t seq = d.seq();
+void ClientSession::handle_frame(const FrameDatagram& f, size_t n, double t) {
+    const uint32_t seq = f.seq;
     if (window_.duplicate(seq)) {
         ++st_.duplicates;
         return;
     }
-    const FrameApplied a = hooks_.frame_sink ? sink_frame(*f, t) : apply_frame(*f, targets_);
+    const FrameApplied a = hooks_.frame_sink ? sink_frame(f, t) : apply_frame(f, targets_);
     if (!a.read) {
         ++st_.malformed;
         return;
     }
-    apply_pose_acks(*f);
+    apply_pose_acks(f);
     st_.malformed += uint64_t(a.refused);
     st_.unknown_chunks += uint64_t(a.unknown_chunks);
     st_.predicted_records += uint64_t(a.predicted);
     st_.missing_baselines += uint64_t(a.missing_baselines);
     // Cover the gaps these runs filled (the display delay, display()).
-    if (tick_offset_ > -1e299 && a.reach_from < double(f->tick()))
+    if (tick_offset_ > -1e299 && a.reach_from < double(f.tick))
         needed_delay_ = std::max(needed_delay_, t * tick_rate_ + tick_offset_ - a.reach_from);
     if (!window_.started && st_.datagrams == 0) t_first_ = t;  // the first frame ever (failovers keep it)
     if (lost_at_ > 0) {  // the first frame after a failover
@@ -643,7 +653,7 @@ void ClientSession::handle_frame(const wire::Datagram& d, size_t n, double t) {
     if (window_.started && seq != window_.ack + 1) ack_now_ = true;
     window_.add(seq);
     if (seq == window_.ack) {
-        ack_echo_ = d.send_time_us();
+        ack_echo_ = f.send_time_us;
         ack_arrival_ = t;
     }
     phase_ = SessionPhase::Streaming;
@@ -655,12 +665,12 @@ void ClientSession::handle_frame(const wire::Datagram& d, size_t n, double t) {
     const size_t bin = size_t(t - t_first_);
     if (st_.per_second_bytes.size() <= bin) st_.per_second_bytes.resize(bin + 1, 0.0);
     st_.per_second_bytes[bin] += double(n + UDP_IP_OVERHEAD);
-    tick_offset_ = std::max(tick_offset_, double(f->tick()) - t * tick_rate_);
+    tick_offset_ = std::max(tick_offset_, double(f.tick) - t * tick_rate_);
 }
 
 // A frame read for the FrameSink (session.h): the checks of apply_frame
 // (read_frame, and show within the asset's bones), no pose buffer.
-FrameApplied ClientSession::sink_frame(const wire::Frame& f, double arrival) {
+FrameApplied ClientSession::sink_frame(const FrameDatagram& f, double arrival) {
     FrameApplied r;
     auto asset_of = [&](uint16_t i) -> const ClientAsset* {
         return i < remotes_.size() && remotes_[i].announced ? remotes_[i].rc.asset : nullptr;
@@ -678,7 +688,7 @@ FrameApplied ClientSession::sink_frame(const wire::Frame& f, double arrival) {
     if (!fits) return r;
     FrameSink& sink = *hooks_.frame_sink;
     auto on_chunk = [&](const wire::Chunk& c, uint8_t, std::span<const uint8_t> root, const uint8_t*) {
-        sink.on_chunk(c.instance(), f.tick(), c.show(), root, arrival);
+        sink.on_chunk(c.instance(), f.tick, c.show(), root, arrival);
     };
     auto run = [&](uint16_t i, int first, int count, int, const RecordRun& rec) {
         r.record_bits += rec.bits;
@@ -1045,15 +1055,16 @@ bool ClientSession::publish(int handle, const RootPose& root, std::span<const Ma
     return true;
 }
 
-// Frame.pose_acks: the newest pose of each of this player's characters the
+// The frame's pose acks: the newest pose of each of this player's characters the
 // server holds whole (the newest of those seen wins: frames may arrive out of order).
-void ClientSession::apply_pose_acks(const wire::Frame& f) {
-    if (!f.pose_acks()) return;
-    for (const wire::PoseAck* k : *f.pose_acks())
+void ClientSession::apply_pose_acks(const FrameDatagram& f) {
+    for (size_t i = 0; i < f.pose_ack_count(); ++i) {
+        const wire::PoseAck k = f.pose_ack(i);
         for (Own& o : own_)
-            if (o.instance == int(k->instance()) && k->pose_seq() != 0 && int32_t(k->pose_seq() - o.pose_seq) <= 0 &&
-                (o.acked == 0 || int32_t(k->pose_seq() - o.acked) > 0))
-                o.acked = k->pose_seq();
+            if (o.instance == int(k.instance()) && k.pose_seq() != 0 && int32_t(k.pose_seq() - o.pose_seq) <= 0 &&
+                (o.acked == 0 || int32_t(k.pose_seq() - o.acked) > 0))
+                o.acked = k.pose_seq();
+    }
 }
 
 }  // namespace progskin::net

@@ -80,7 +80,7 @@ struct FrameApplied {
 // run of bones to its instance's buffer (PoseBuffer::add_chunk with the
 // chunk's epoch and root block) and every morph block (add_morphs).
 // O(payload bytes), no allocation.
-FrameApplied apply_frame(const wire::Frame& frame, std::span<const PoseTarget> instances);
+FrameApplied apply_frame(const FrameDatagram& frame, std::span<const PoseTarget> instances);
 
 // -------------------------------------------------------------- output ---
 // What the session has to send, in order, appended by its calls; the shell
@@ -300,8 +300,8 @@ private:
     void make_view(size_t id);
     void remove_remote(int id);
     void on_spawned(const wire::Spawned& m);
-    void handle_frame(const wire::Datagram& d, size_t wire_bytes, double t);
-    FrameApplied sink_frame(const wire::Frame& f, double arrival);
+    void handle_frame(const FrameDatagram& f, size_t wire_bytes, double t);
+    FrameApplied sink_frame(const FrameDatagram& f, double arrival);
     bool stream_checks(double now);
     void send_ack(double now);
     void send_stats(double now);
@@ -387,7 +387,7 @@ private:
     std::vector<BonePose> pose_model_, pose_decoded_;
     std::vector<uint8_t> pose_bits_, pose_chunk_, pose_root_;
     std::vector<uint32_t> pose_offsets_;
-    void apply_pose_acks(const wire::Frame& f);
+    void apply_pose_acks(const FrameDatagram& f);
     flatbuffers::FlatBufferBuilder fbb_{1400};
 };
 

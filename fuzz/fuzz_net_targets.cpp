@@ -24,13 +24,17 @@ int frame_stream(const uint8_t* data, size_t size) {
         static std::vector<uint8_t> plain;
         uint64_t seq = 0;
         const uint64_t id = crypto::sealed_session_id({data, size});
+        FrameDatagram fd;
         if (crypto::open_datagram(opener, id, PROTOCOL_VERSION, {data, size}, plain, seq) == crypto::OpenResult::ok &&
-            !verify_datagram(plain))
+            !verify_datagram(plain) && !read_frame_datagram(plain, fd))
             return 0;
     }
-    const wire::Datagram* d = verify_datagram({data, size});
-    if (!d) return 0;
-    if (const wire::Frame* f = d->body_as_Frame()) {
+    FrameDatagram frame;
+    if (is_frame_datagram({data, size})) {
+        if (!read_frame_datagram({data, size}, frame)) return 0;
+        const FrameDatagram* f = &frame;
+        [[maybe_unused]] static volatile uint64_t acks;
+        for (size_t i = 0; i < f->pose_ack_count(); ++i) acks = f->pose_ack(i).instance() ^ f->pose_ack(i).pose_seq();
         // The scene of fuzz/corpus/frame (make_frame_corpus.cpp): the default
         // character set, 3 Fox (24 bones) then a CesiumMan (19), 12-byte
         // records; instance 4 a 19-bone asset with scaled records;
@@ -50,7 +54,7 @@ int frame_stream(const uint8_t* data, size_t size) {
         for (const PoseBuffer& b : buffers) {
             BonePose p;
             RootPose rp;
-            const double t = double(f->tick());
+            const double t = double(f->tick);
             for (int bone = 0; bone < b.bone_count(); ++bone) b.pose(bone, t - 0.5, p);
             (void)b.bones_at(t);
             (void)b.root(t - 0.5, rp);
@@ -58,9 +62,12 @@ int frame_stream(const uint8_t* data, size_t size) {
             b.weights_at(t - 0.5, std::span<float>(w.data(), size_t(b.morph_count())));
         }
         // Accepted: a chunk applied, or refused only for want of a baseline
-        // (a predicted record or root this fresh receiver never had).
-        return applied.applied > 0 || applied.missing_baselines > 0;
+        // (a predicted record or root this fresh receiver never had), or
+        // pose acks alone.
+        return applied.applied > 0 || applied.missing_baselines > 0 || (f->payload.empty() && f->pose_ack_count() > 0);
     }
+    const wire::Datagram* d = verify_datagram({data, size});
+    if (!d) return 0;
     // Ack, Bind, BindAck, Challenge, ChallengeResponse: verified tables, every field read.
     [[maybe_unused]] static volatile uint64_t sink;
     if (const wire::Ack* a = d->body_as_Ack()) {

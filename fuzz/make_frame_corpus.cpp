@@ -125,6 +125,25 @@ int main(int argc, char** argv) {
         for (int i = 0; i < 5; ++i) mcore.remove_instance(i);
         write_frames(mcore, {150, 20000}, dir, "frame-morph-");
     }
+    {
+        // A player's pose acks (FRAME_ACKS): in front of a frame's payload,
+        // and alone (a datagram with nothing else); "pose-acks".
+        ServerCore pcore(ServerConfig{}, assets, default_instances(assets));
+        auto client = ClientStream::detached(pcore, 1, 1000);
+        DatagramCollector sink;
+        client->send_frame(pcore.encoder().encode(1), 500, sink);
+        FrameDatagram f;
+        if (sink.sent.empty() || !read_frame_datagram(sink.sent[0].bytes, f)) {
+            std::fprintf(stderr, "make_frame_corpus: no frame to carry pose acks\n");
+            return 1;
+        }
+        const std::vector<wire::PoseAck> acks = {wire::PoseAck(1, 17), wire::PoseAck(3, 40000)};
+        std::vector<uint8_t> d;
+        write_frame_datagram(f.seq, f.send_time_us, f.tick, f.sampled, acks, f.payload, d);
+        write(dir, "frame-pose-acks", d);
+        write_frame_datagram(f.seq + 1, f.send_time_us, f.tick, false, acks, {}, d);
+        write(dir, "pose-acks", d);
+    }
     flatbuffers::FlatBufferBuilder fbb;
     std::vector<uint8_t> pad(64, 0);
     auto p = fbb.CreateVector(pad);

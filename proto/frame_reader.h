@@ -1,14 +1,15 @@
-// frame_reader.h — the payload layout of a Frame (datagram.fbs, protocol
-// version 12: proto/chunk_head.h), written by server/datagram_packer.cpp and
-// read here by every receiver (client, tests, benchmarks, fuzz target).
+// frame_reader.h — the payload layout of a Frame datagram (wire.h
+// FrameDatagram, protocol version 13: proto/chunk_head.h), written by
+// server/datagram_packer.cpp and read here by every receiver (client, tests,
+// benchmarks, fuzz target).
 //
-// Frame.payload is one bit stream of chunk heads (instance, first, show,
+// The payload is one bit stream of chunk heads (instance, first, show,
 // epoch, flags, bone mask: chunk_head.h), each followed by the records of
 // its carried bones in increasing bone order (bone_record.h:
 // parent-relative, each record opening with a "predicted" bit when the chunk
 // has a baseline, flags bits 3-6; scale fields when flags & CHUNK_SCALED),
 // padded with zero bits to a whole byte; then per chunk, in the same order,
-// its byte blocks: the sample byte (version 8, only when frame.sampled():
+// its byte blocks: the sample byte (version 8, only when frame.sampled:
 // wire.h sample_ticks), the root block (root_block.h: absolute or predicted,
 // self-delimiting; when flags & CHUNK_ROOT), the morph block (when flags &
 // CHUNK_MORPH: uint8 n >= 1, then n entries of MORPH_ENTRY_BYTES: uint8
@@ -16,7 +17,7 @@
 // decode_morph_weight).
 //
 // read_frame(frame, record_size, run[, on_chunk]) checks every length and
-// index of a verified Frame before anything is applied:
+// index of a Frame datagram (read_frame_datagram) before anything is applied:
 //   record_size(instance) -> int: the absolute record bytes of that
 //       instance's asset (12, or 14 when it is scaled), 0 when the instance
 //       is unknown (its chunks are walked by their flags and skipped: an
@@ -100,10 +101,9 @@ size_t walk_chunk_heads(const uint8_t* data, size_t size, Head&& head) {
 // Calls f(const ChunkHead&) for every chunk of the frame (the stream's
 // syntax checked as read_frame does, the blocks not); false when it breaks.
 template <class F>
-bool for_each_chunk_head(const wire::Frame& frame, F&& f) {
-    const auto* payload = frame.payload();
-    if (!payload || payload->size() == 0) return true;
-    return walk_chunk_heads(payload->data(), payload->size(), [&](size_t, const ChunkHead& h, size_t, size_t) {
+bool for_each_chunk_head(const FrameDatagram& frame, F&& f) {
+    if (frame.payload.empty()) return true;
+    return walk_chunk_heads(frame.payload.data(), frame.payload.size(), [&](size_t, const ChunkHead& h, size_t, size_t) {
                f(h);
                return true;
            }) != 0;
@@ -111,12 +111,11 @@ bool for_each_chunk_head(const wire::Frame& frame, F&& f) {
 
 // unknown (optional): set, when the frame reads, to its chunks of unknown instances.
 template <class RecordSize, class Run, class OnChunk>
-bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, OnChunk&& on_chunk, int* unknown = nullptr) {
-    const auto* payload = frame.payload();
-    const uint8_t* data = payload ? payload->data() : nullptr;
-    const size_t size = payload ? payload->size() : 0;
+bool read_frame(const FrameDatagram& frame, RecordSize&& record_size, Run&& run, OnChunk&& on_chunk, int* unknown = nullptr) {
+    const uint8_t* data = frame.payload.data();
+    const size_t size = frame.payload.size();
     if (size == 0) return true;
-    const bool sampled = frame.sampled();
+    const bool sampled = frame.sampled;
     // Pass 0: the heads and records (and each chunk's flags kept for its blocks).
     std::array<uint8_t, kMaxChunks> flags;
     size_t chunks = 0;
@@ -188,7 +187,7 @@ bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run, O
 }
 
 template <class RecordSize, class Run>
-bool read_frame(const wire::Frame& frame, RecordSize&& record_size, Run&& run) {
+bool read_frame(const FrameDatagram& frame, RecordSize&& record_size, Run&& run) {
     return read_frame(frame, record_size, run, [](const wire::Chunk&, uint8_t, std::span<const uint8_t>, const uint8_t*) {});
 }
 

@@ -3,6 +3,7 @@
 
 #include <chrono>
 #include <cstdio>
+#include <cstring>
 
 #include "hash.h"
 
@@ -32,15 +33,75 @@ const wire::Control* verify_control(std::span<const uint8_t> body) {
 }
 
 const wire::Datagram* verify_datagram(std::span<const uint8_t> d) {
-    if (d.size() < 8 || d.size() > MAX_DATAGRAM) return nullptr;
+    if (d.size() < 8 || d.size() > MAX_DATAGRAM || is_frame_datagram(d)) return nullptr;
     flatbuffers::Verifier::Options opt;
     opt.max_depth = 8;
     opt.max_tables = 64;
     flatbuffers::Verifier v(d.data(), d.size(), opt);
     if (!wire::VerifyDatagramBuffer(v)) return nullptr;
     const wire::Datagram* g = wire::GetDatagram(d.data());
-    if (g->body_type() == wire::DatagramBody::NONE || g->body_type() > wire::DatagramBody::MAX || !g->body()) return nullptr;
+    // A Frame table is no longer a datagram (version 13: FrameDatagram).
+    if (g->body_type() == wire::DatagramBody::NONE || g->body_type() == wire::DatagramBody::Frame ||
+        g->body_type() > wire::DatagramBody::MAX || !g->body())
+        return nullptr;
     return g;
+}
+
+namespace {
+uint32_t get32(const uint8_t* p) { return uint32_t(p[0]) | uint32_t(p[1]) << 8 | uint32_t(p[2]) << 16 | uint32_t(p[3]) << 24; }
+void put32(uint8_t* p, uint32_t v) {
+    p[0] = uint8_t(v);
+    p[1] = uint8_t(v >> 8);
+    p[2] = uint8_t(v >> 16);
+    p[3] = uint8_t(v >> 24);
+}
+}  // namespace
+
+wire::PoseAck FrameDatagram::pose_ack(size_t i) const {
+    const uint8_t* p = acks.data() + i * POSE_ACK_BYTES;
+    return wire::PoseAck(uint16_t(p[0] | p[1] << 8), get32(p + 2));
+}
+
+bool read_frame_datagram(std::span<const uint8_t> d, FrameDatagram& out) {
+    if (d.size() < FRAME_HEADER_BYTES || d.size() > MAX_DATAGRAM) return false;
+    const uint8_t flags = d[0];
+    if (!(flags & FRAME_KIND) || (flags & ~(FRAME_KIND | FRAME_SAMPLED | FRAME_ACKS))) return false;
+    out.seq = get32(&d[1]);
+    out.send_time_us = get32(&d[5]);
+    out.tick = get32(&d[9]);
+    out.sampled = (flags & FRAME_SAMPLED) != 0;
+    size_t at = FRAME_HEADER_BYTES;
+    out.acks = {};
+    if (flags & FRAME_ACKS) {
+        if (at >= d.size()) return false;
+        const size_t n = d[at++];
+        if (n == 0 || n > size_t(MAX_SPAWNED) || (d.size() - at) / POSE_ACK_BYTES < n) return false;
+        out.acks = d.subspan(at, n * POSE_ACK_BYTES);
+        at += n * POSE_ACK_BYTES;
+    }
+    out.payload = d.subspan(at);
+    return true;
+}
+
+void write_frame_datagram(uint32_t seq, uint32_t send_time_us, uint32_t tick, bool sampled,
+                          std::span<const wire::PoseAck> acks, std::span<const uint8_t> payload, std::vector<uint8_t>& out) {
+    out.resize(FRAME_HEADER_BYTES + (acks.empty() ? 0 : 1 + acks.size() * POSE_ACK_BYTES) + payload.size());
+    uint8_t* p = out.data();
+    p[0] = uint8_t(FRAME_KIND | (sampled ? FRAME_SAMPLED : 0) | (acks.empty() ? 0 : FRAME_ACKS));
+    put32(p + 1, seq);
+    put32(p + 5, send_time_us);
+    put32(p + 9, tick);
+    p += FRAME_HEADER_BYTES;
+    if (!acks.empty()) {
+        *p++ = uint8_t(acks.size());
+        for (const wire::PoseAck& a : acks) {
+            p[0] = uint8_t(a.instance());
+            p[1] = uint8_t(a.instance() >> 8);
+            put32(p + 2, a.pose_seq());
+            p += POSE_ACK_BYTES;
+        }
+    }
+    if (!payload.empty()) std::memcpy(p, payload.data(), payload.size());
 }
 
 void frame_control(const flatbuffers::FlatBufferBuilder& fbb, std::vector<uint8_t>& out) {

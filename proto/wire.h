@@ -3,9 +3,11 @@
 //
 // Control messages (TCP) are FlatBuffers "Control" buffers (control.fbs), each
 // preceded by a 4-byte little-endian length. UDP datagrams are FlatBuffers
-// "Datagram" buffers (datagram.fbs). Every received buffer goes through
-// verify_control / verify_datagram (flatbuffers::Verifier with depth and table
-// limits) before any field is read.
+// "Datagram" buffers (datagram.fbs) but the frame stream's, which have a
+// fixed 13-byte header of their own (FrameDatagram, below). Every received
+// buffer goes through verify_control / verify_datagram (flatbuffers::Verifier
+// with depth and table limits) or read_frame_datagram before any field is
+// read.
 #pragma once
 #include <cstddef>
 #include <cstdint>
@@ -19,7 +21,7 @@
 
 namespace progskin::net {
 
-inline constexpr uint16_t PROTOCOL_VERSION = 12;
+inline constexpr uint16_t PROTOCOL_VERSION = 13;
 inline constexpr size_t MAX_DATAGRAM = 1200;          // UDP payload limit, bytes
 inline constexpr size_t UDP_IP_OVERHEAD = 28;         // IPv4 + UDP headers (docs/metrics.md §3)
 inline constexpr size_t MAX_CONTROL_MESSAGE = 65536;  // control message body limit
@@ -74,6 +76,45 @@ inline constexpr size_t MAX_BATCH_REMOVED = 16000;    // ids per InstanceRemoved
 // The most bytes one Instance table (with MAX_INSTANCE_CLIPS clips) adds to
 // an InstanceAdded: InstanceAdded batches are cut by it (tests check it).
 inline constexpr size_t MAX_INSTANCE_TABLE_BYTES = 208 + 4 * MAX_INSTANCE_CLIPS;
+
+// The Frame datagram (version 13, docs/protocol.md "Frame"): the frame
+// stream's datagram is not a FlatBuffer (a Datagram's tables cost about 70
+// bytes; this header 13), all integers little-endian:
+//   byte 0       flags: bit 0 set (FRAME_KIND: a FlatBuffers datagram opens
+//                with its root offset, a multiple of 4, so its bit 0 is
+//                clear), bit 1 FRAME_SAMPLED (each chunk's blocks open with
+//                its sample byte), bit 2 FRAME_ACKS (pose acks follow the
+//                header); bits 3-7 clear
+//   bytes 1-4    seq: the datagram's sequence number (as Datagram.seq)
+//   bytes 5-8    send_time_us (as Datagram.send_time_us)
+//   bytes 9-12   tick: the server tick of every pose in the datagram
+//   FRAME_ACKS:  uint8 n (1..MAX_SPAWNED), then n pose acks of 6 bytes:
+//                uint16 instance, uint32 pose_seq (as Frame.pose_acks was)
+//   the rest     the payload (frame_reader.h; may be empty), at most
+//                MAX_DATAGRAM bytes in all.
+inline constexpr uint8_t FRAME_KIND = 1, FRAME_SAMPLED = 2, FRAME_ACKS = 4;
+inline constexpr size_t FRAME_HEADER_BYTES = 13;
+inline constexpr size_t POSE_ACK_BYTES = 6;
+// A received Frame datagram's fields (its spans point into the datagram).
+struct FrameDatagram {
+    uint32_t seq = 0, send_time_us = 0, tick = 0;
+    bool sampled = false;
+    std::span<const uint8_t> acks;     // pose acks, POSE_ACK_BYTES each
+    std::span<const uint8_t> payload;  // chunk heads, records, blocks (frame_reader.h)
+    size_t pose_ack_count() const { return acks.size() / POSE_ACK_BYTES; }
+    wire::PoseAck pose_ack(size_t i) const;
+};
+// Whether a datagram claims to be a Frame (its first byte's bit 0).
+inline bool is_frame_datagram(std::span<const uint8_t> d) { return !d.empty() && (d[0] & FRAME_KIND) != 0; }
+// Reads a Frame datagram's header: false when it is not one, is shorter than
+// its header (and acks), longer than MAX_DATAGRAM, has a reserved flag set,
+// or an ack count of 0 or above MAX_SPAWNED. The payload is read by
+// read_frame (frame_reader.h). O(1).
+bool read_frame_datagram(std::span<const uint8_t> d, FrameDatagram& out);
+// Writes one (out is replaced). acks: at most MAX_SPAWNED. The caller keeps
+// the whole within MAX_DATAGRAM (DatagramPacker). O(bytes).
+void write_frame_datagram(uint32_t seq, uint32_t send_time_us, uint32_t tick, bool sampled,
+                          std::span<const wire::PoseAck> acks, std::span<const uint8_t> payload, std::vector<uint8_t>& out);
 
 // FNV-1a 64 of bytes: the asset id (content hash; not cryptographic).
 uint64_t content_hash(std::span<const uint8_t> bytes);

@@ -23,20 +23,13 @@ void DatagramPacker::flush(uint32_t tick, uint32_t& seq, std::vector<std::vector
     if (!write_frame_payload(sorted_, codes_.best_order(), recs_.data(), blocks_.data(), payload_) || payload_.size() != expect)
         throw Error("datagram_packer: a payload of " + std::to_string(payload_.size()) + " bytes, " + std::to_string(expect) +
                     " expected");
-    fbb_.Clear();
-    auto pl = fbb_.CreateVector(payload_.data(), payload_.size());
-    flatbuffers::Offset<flatbuffers::Vector<const wire::PoseAck*>> pa;
-    if (!acks_.empty()) pa = fbb_.CreateVectorOfStructs(acks_.data(), acks_.size());
-    auto fr = wire::CreateFrame(fbb_, tick, pl, pa, sampled_);
-    auto dg = wire::CreateDatagram(fbb_, seq++, now_us32(), wire::DatagramBody::Frame, fr.Union());
-    fbb_.Finish(dg, wire::DatagramIdentifier());
-    const size_t size = fbb_.GetSize();
-    // WireCost::kFrameOverhead must cover the tables; this is what the tests check.
-    const size_t body = payload_.size() + ack_bytes_ + (sampled_ ? kSampledField : 0);
-    if (size > MAX_DATAGRAM || size > body + WireCost::kFrameOverhead)
-        throw Error("datagram_packer: frame overhead " + std::to_string(size - body) +
-                    " bytes exceeds WireCost::kFrameOverhead");
-    out.emplace_back(fbb_.GetBufferPointer(), fbb_.GetBufferPointer() + size);
+    out.emplace_back();
+    write_frame_datagram(seq++, now_us32(), tick, sampled_, acks_, payload_, out.back());
+    const size_t size = out.back().size();
+    // The room the packer leaves (WireCost::kFrameOverhead) must hold the header; the tests check it.
+    if (size > MAX_DATAGRAM || size != payload_.size() + ack_bytes_ + WireCost::kFrameOverhead)
+        throw Error("datagram_packer: a frame datagram of " + std::to_string(size) + " bytes for a payload of " +
+                    std::to_string(payload_.size()));
     wire += size + UDP_IP_OVERHEAD;
     chunks_.clear();
     codes_.clear();
@@ -80,10 +73,12 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
     head_bits_ = 0;
     recw_.clear();
     blocks_.clear();
-    // Frame.sampled: every chunk opens with its sample byte when one of the
+    // FRAME_SAMPLED: every chunk opens with its sample byte when one of the
     // tick's instances was sampled at a key (a byte per chunk then).
     sampled_ = false;
     for (const Pick& p : picks) sampled_ = sampled_ || frame.instances[size_t(p.instance)].sample != 0;
+    if (acks.size() > size_t(MAX_SPAWNED))
+        throw Error("datagram_packer: " + std::to_string(acks.size()) + " pose acks, at most " + std::to_string(MAX_SPAWNED));
     acks_ = acks;
     ack_bytes_ = acks.empty() ? 0 : pose_ack_bytes(acks.size());
     // Adjacent picks of one instance (the scheduler's ranges of it) share a chunk.
@@ -151,7 +146,7 @@ void DatagramPacker::pack_group(Group& grp, uint32_t& seq, std::vector<std::vect
         const size_t head = head_fixed_bits(first) + size_t(show - first);
         const size_t codes = codes_.bits_with(c.head);  // the instance codes and fields, exact
         const size_t blocks = (sampled_ ? 1 : 0) + root_bytes + morph_bytes;
-        const size_t fixed = ack_bytes_ + (sampled_ ? kSampledField : 0) + blocks;
+        const size_t fixed = ack_bytes_ + blocks;
         const size_t used = payload_bytes(codes, head) + fixed;
         if (used > room || (grp.bone >= 0 && payload_bytes(codes, head + grp.bits_of(grp.bone)) + fixed > room)) {
             flush(frame.tick, seq, out, wire);
@@ -174,7 +169,7 @@ void DatagramPacker::pack_group(Group& grp, uint32_t& seq, std::vector<std::vect
         }
         c.block_bytes = blocks_.size() - c.block_from;
         // The records: what the room leaves after the head at its largest.
-        const size_t room_bits = (room - ack_bytes_ - (sampled_ ? kSampledField : 0) - blocks_.size()) * 8 -
+        const size_t room_bits = (room - ack_bytes_ - blocks_.size()) * 8 -
                                  (codes + head_bits_ + recw_.bits() + head);
         c.rec_from = recw_.bits();
         write_records(grp, c.head, room_bits, seq, book);

@@ -1,5 +1,5 @@
 // datagram_packer.h — turns one client's picks of a tick into frame-stream
-// datagrams (datagram.fbs Frame) of at most MAX_DATAGRAM bytes, copying the
+// datagrams (wire.h FrameDatagram) of at most MAX_DATAGRAM bytes, copying the
 // pre-encoded parent-relative records' bits (no re-encoding). Adjacent picks of one instance
 // share one chunk (its head, then its records: proto/chunk_head.h); a
 // chunk that does not fit continues in the next datagram (its head's first)
@@ -11,8 +11,6 @@
 #include <cstdint>
 #include <span>
 #include <vector>
-
-#include <flatbuffers/flatbuffers.h>
 
 #include "baseline_book.h"
 #include "chunk_head.h"
@@ -29,16 +27,13 @@ public:
     // (optional): the client's record plan (each character's baseline and
     // predicted bones; nullptr: standalone records); book (optional): told
     // which bones each datagram carries (acknowledgements make them baselines).
-    // acks (optional): Frame.pose_acks for the first datagram (with no
-    // picks, a datagram of its own that carries nothing else).
+    // acks (optional, at most MAX_SPAWNED): the pose acks of the first
+    // datagram (with no picks, a datagram of its own that carries nothing else).
     size_t pack(const EncodedFrame& frame, std::span<const Pick> picks, uint32_t& seq,
                 std::vector<std::vector<uint8_t>>& out, const RecordPlan* plan = nullptr, BaselineBook* book = nullptr,
                 std::span<const wire::PoseAck> acks = {});
-    // What n pose acks add to a datagram at most (field, vector length, alignment).
-    static constexpr size_t pose_ack_bytes(size_t n) { return 16 + 8 * n; }
-    // What Frame.sampled adds to a datagram at most (vtable entry, field,
-    // alignment); each chunk then has one more byte (its sample byte).
-    static constexpr size_t kSampledField = 8;
+    // What n pose acks add to a datagram (their count byte and entries).
+    static constexpr size_t pose_ack_bytes(size_t n) { return 1 + POSE_ACK_BYTES * n; }
 
 private:
     struct Group;
@@ -49,7 +44,6 @@ private:
     size_t payload_bytes(size_t codes_bits, size_t extra_bits) const {
         return (codes_bits + head_bits_ + recw_.bits() + extra_bits + 7) / 8 + blocks_.size();
     }
-    flatbuffers::FlatBufferBuilder fbb_{1400};
     std::vector<ChunkOut> chunks_;  // the datagram's chunks, in pick order
     std::vector<ChunkOut> sorted_;  // the same by instance (flush)
     HeadCodes codes_;               // their heads (instance codes and fields)
@@ -61,7 +55,7 @@ private:
     std::vector<uint8_t> root_;     // an absolute root block (a character the plan has not planned)
     std::span<const wire::PoseAck> acks_;  // still to go (the first datagram)
     size_t ack_bytes_ = 0;
-    bool sampled_ = false;  // this pack's datagrams carry sample bytes (Frame.sampled)
+    bool sampled_ = false;  // this pack's datagrams carry sample bytes (FRAME_SAMPLED)
 };
 
 }  // namespace progskin::net

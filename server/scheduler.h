@@ -72,7 +72,7 @@ namespace progskin::net {
 // Wire bytes (docs/metrics.md §3: UDP payload + 28 per datagram) of a frame stream
 // carrying `payload` bytes of chunk headers and records in one tick.
 struct WireCost {
-    static constexpr size_t kFrameOverhead = 88;  // Datagram + Frame FlatBuffer tables (datagram_packer.cpp checks)
+    static constexpr size_t kFrameOverhead = FRAME_HEADER_BYTES;  // a Frame datagram's header (wire.h; datagram_packer.cpp checks)
     // A chunk head as the scheduler counts it (proto/chunk_head.h): the
     // instance code at a typical 3 bits (consecutive instances take 1, one
     // far from the previous up to 17; the packer counts the exact bits),

@@ -146,7 +146,12 @@ public:
             send_datagram(b);
             const auto until = clock::now() + std::chrono::milliseconds(200);
             while (clock::now() < until && !bound_) {
-                const wire::Datagram* d = receive(20);
+                const Got got = receive(20);
+                if (got.frame) {
+                    bound_ = true;
+                    continue;
+                }
+                const wire::Datagram* d = got.other;
                 if (!d) continue;
                 if (d->body_type() == wire::DatagramBody::Challenge && d->body_as_Challenge()->nonce()) {
                     const auto* n = d->body_as_Challenge()->nonce();
@@ -154,7 +159,7 @@ public:
                     flatbuffers::FlatBufferBuilder r;
                     build_challenge_response(r, session_, token_, nonce);
                     send_datagram(r);
-                } else if (d->body_type() == wire::DatagramBody::BindAck || d->body_type() == wire::DatagramBody::Frame) {
+                } else if (d->body_type() == wire::DatagramBody::BindAck) {
                     bound_ = true;
                 }
             }
@@ -178,8 +183,8 @@ public:
     // the Frames among them (no Ack sent: ack()).
     size_t read_frames(int ms) {
         size_t n = 0;
-        for (const wire::Datagram* d = receive(ms); d; d = receive(0))
-            if (d->body_type() == wire::DatagramBody::Frame) ++n;
+        for (Got d = receive(ms); d; d = receive(0))
+            if (d.frame) ++n;
         frames_ += n;
         return n;
     }
@@ -425,28 +430,36 @@ private:
         }
     }
 
-    // One datagram within ms, opened and verified (its seq noted), or null.
-    const wire::Datagram* receive(int ms) {
-        if (!udp_) return nullptr;
+    // One datagram received: a Frame datagram (its seq noted) or another,
+    // verified; neither when nothing came or it did not open or verify.
+    struct Got {
+        bool frame = false;
+        const wire::Datagram* other = nullptr;
+        explicit operator bool() const { return frame || other; }
+    };
+    // One datagram within ms, opened and read.
+    Got receive(int ms) {
+        if (!udp_) return {};
         pollfd p{udp_->native_handle(), POLLIN, 0};
-        if (::poll(&p, 1, ms) <= 0) return nullptr;
+        if (::poll(&p, 1, ms) <= 0) return {};
         uint8_t buf[2048];
         const ssize_t r = ::recv(udp_->native_handle(), buf, sizeof buf, MSG_DONTWAIT);
-        if (r <= 0) return nullptr;
+        if (r <= 0) return {};
         std::span<const uint8_t> bytes(buf, size_t(r));
         if (opener_) {
             uint64_t seq = 0;
-            if (crypto::open_datagram(*opener_, session_, PROTOCOL_VERSION, bytes, plain_, seq) != crypto::OpenResult::ok) return nullptr;
+            if (crypto::open_datagram(*opener_, session_, PROTOCOL_VERSION, bytes, plain_, seq) != crypto::OpenResult::ok) return {};
         } else {
             plain_.assign(bytes.begin(), bytes.end());
         }
-        const wire::Datagram* d = verify_datagram(plain_);
-        if (d && d->body_type() == wire::DatagramBody::Frame) {
+        FrameDatagram f;
+        if (read_frame_datagram(plain_, f)) {
             bound_ = true;
-            newest_seq_ = d->seq();
-            newest_send_us_ = d->send_time_us();
+            newest_seq_ = f.seq;
+            newest_send_us_ = f.send_time_us;
+            return {true, nullptr};
         }
-        return d;
+        return {false, verify_datagram(plain_)};
     }
 
     std::string ip_;

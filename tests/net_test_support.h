@@ -5,6 +5,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -29,10 +30,18 @@ inline std::vector<std::shared_ptr<ServerAsset>>& default_assets() {
 // What the client does with one Frame, without the network: the session's
 // apply_frame (client/session.h) into the views' pose buffers, instance i
 // being views[i].
-inline FrameApplied apply_frame(const wire::Frame& f, std::vector<std::unique_ptr<InstanceView>>& views) {
+inline FrameApplied apply_frame(const FrameDatagram& f, std::vector<std::unique_ptr<InstanceView>>& views) {
     std::vector<PoseTarget> targets;
     for (auto& v : views) targets.push_back({&v->buffer(), v->asset().format.size()});
     return net::apply_frame(f, targets);
+}
+
+// The fields of a Frame datagram the server wrote (wire.h
+// read_frame_datagram); std::nullopt when it is not one that reads.
+inline std::optional<FrameDatagram> frame_of(std::span<const uint8_t> d) {
+    FrameDatagram f;
+    if (!read_frame_datagram(d, f)) return std::nullopt;
+    return f;
 }
 
 // What a client holds after downloading a server asset (without the network).

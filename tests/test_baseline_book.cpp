@@ -17,6 +17,7 @@
 
 using namespace progskin;
 using namespace progskin::net;
+using progskin::net::testing::frame_of;
 
 TEST(BaselineBook, OnlyAcknowledgedBonesBecomeBaselines) {
     BaselineBook book;
@@ -126,8 +127,8 @@ TEST(BaselineBook, PlanPredictsAcknowledgedBonesAndThePackerWritesThem) {
         }
         // Every datagram reads back; the chunk's base is the plan's.
         for (const auto& d : out) {
-            const wire::Frame* fr = verify_datagram(d)->body_as_Frame();
-            ASSERT_NE(fr, nullptr);
+            const std::optional<FrameDatagram> fr = frame_of(d);
+            ASSERT_TRUE(fr);
             EXPECT_TRUE(for_each_chunk_head(*fr, [&](const ChunkHead& h) { EXPECT_EQ(base_from_flags(h.flags), plan.base(0)); }));
             EXPECT_TRUE(read_frame(*fr, [&](uint16_t) { return assets[0]->format.size(); },
                                    [](uint16_t, int, int, int, const RecordRun&) {}));
@@ -176,8 +177,8 @@ TEST(BaselineBook, PartialRefreshesPredictFromTheirOwnBaselinesAndDecodeExactly)
         out.clear();
         packer.pack(f, std::span(&pick, 1), seq, out, &plan, &book);
         for (const auto& d : out) {
-            const wire::Frame* fr = verify_datagram(d)->body_as_Frame();
-            ASSERT_NE(fr, nullptr);
+            const std::optional<FrameDatagram> fr = frame_of(d);
+            ASSERT_TRUE(fr);
             uint8_t sample = 0, epoch = 0;
             ASSERT_TRUE(read_frame(
                 *fr, [&](uint16_t) { return a.format.size(); },
@@ -247,8 +248,8 @@ TEST(BaselineBook, RootBlocksArePredictedFromAcknowledgedTicksOnly) {
         }
         if (t % 3 == 0) continue;  // lost: not received, not acknowledged
         for (const auto& d : out) {
-            const wire::Frame* fr = verify_datagram(d)->body_as_Frame();
-            ASSERT_NE(fr, nullptr);
+            const std::optional<FrameDatagram> fr = frame_of(d);
+            ASSERT_TRUE(fr);
             std::span<const uint8_t> root;
             uint8_t epoch = 0;
             // The block sent is as long as planned (EncodedFrame::root_block_bytes, shared between clients).

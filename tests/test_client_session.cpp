@@ -92,9 +92,9 @@ Bytes instance_added(uint16_t id) {
 
 // A Frame datagram carrying no chunk.
 Bytes frame(uint32_t seq, uint32_t tick, uint32_t send_time = 0) {
-    flatbuffers::FlatBufferBuilder b;
-    auto f = wire::CreateFrame(b, tick);
-    return datagram(b, seq, send_time, wire::DatagramBody::Frame, f);
+    Bytes d;
+    write_frame_datagram(seq, send_time, tick, false, {}, {}, d);
+    return d;
 }
 
 // The control messages the session wrote (verified), taken out of the Outbox.
@@ -408,16 +408,18 @@ TEST(ClientSessionFrames, ApplyFrameKeepsEpochsAndRoots) {
         chunks[1].rec_bits = 12;
         chunks[1].block_from = blocks.size();
         EXPECT_TRUE(write_frame_payload(chunks, 0, records.data(), blocks.data(), payload));
-        flatbuffers::FlatBufferBuilder b;
-        auto f = wire::CreateFrame(b, tick, b.CreateVector(payload));
-        return datagram(b, tick, 0, wire::DatagramBody::Frame, f);
+        Bytes d;
+        write_frame_datagram(tick, 0, tick, false, {}, payload, d);
+        return d;
     };
     auto root_at_11 = [&](uint8_t second_epoch) {
         PoseBuffer buffer(chain_format(1, fmt));
         const std::vector<PoseTarget> targets{{&buffer, fmt.size()}};
         for (auto [tick, epoch, x] : {std::tuple{10u, uint8_t(1), 0.0}, std::tuple{12u, second_epoch, 2.0}}) {
             const Bytes d = frame_at(tick, epoch, x);
-            const FrameApplied a = apply_frame(*verify_datagram(d)->body_as_Frame(), targets);
+            FrameDatagram fd;
+            EXPECT_TRUE(read_frame_datagram(d, fd));
+            const FrameApplied a = apply_frame(fd, targets);
             EXPECT_TRUE(a.read);
             EXPECT_EQ(a.applied, 1);
             EXPECT_EQ(a.refused, 0);
@@ -448,15 +450,17 @@ TEST(ClientSessionFrames, ALateFrameReachesBackTwoFrames) {
         chunk.head = ChunkHead{0, 0, 1, 0, 0, {1}};
         chunk.rec_bits = 12;
         EXPECT_TRUE(write_frame_payload(std::span(&chunk, 1), 0, records.data(), nullptr, payload));
-        flatbuffers::FlatBufferBuilder b;
-        auto f = wire::CreateFrame(b, tick, b.CreateVector(payload));
-        return datagram(b, tick, 0, wire::DatagramBody::Frame, f);
+        Bytes d;
+        write_frame_datagram(tick, 0, tick, false, {}, payload, d);
+        return d;
     };
     PoseBuffer buffer(chain_format(1, fmt));
     const std::vector<PoseTarget> targets{{&buffer, fmt.size()}};
     auto reach = [&](uint32_t tick) {
         const Bytes d = frame_at(tick);
-        const FrameApplied a = apply_frame(*verify_datagram(d)->body_as_Frame(), targets);
+        FrameDatagram fd;
+        EXPECT_TRUE(read_frame_datagram(d, fd));
+        const FrameApplied a = apply_frame(fd, targets);
         EXPECT_TRUE(a.read);
         EXPECT_EQ(a.applied, 1);
         return a.reach_from;

@@ -21,6 +21,7 @@ using namespace progskin::net;
 using progskin::net::testing::default_assets;
 
 namespace {
+using progskin::net::testing::frame_of;
 
 const PeerAddress kTcp = PeerAddress::v4(0x7f000001, 0);        // 127.0.0.1
 const PeerAddress kHome = PeerAddress::v4(0xc0a80001, 40000);   // 192.168.0.1:40000
@@ -233,9 +234,7 @@ TEST(ClientStream, TickSendsFramesWithinTheBudget) {
         for (const auto& d : f.sink.sent) {
             EXPECT_TRUE(d.to == kHome);
             EXPECT_LE(d.bytes.size(), MAX_DATAGRAM);
-            const wire::Datagram* g = verify_datagram(d.bytes);
-            ASSERT_TRUE(g);
-            EXPECT_EQ(g->body_type(), wire::DatagramBody::Frame);
+            EXPECT_TRUE(frame_of(d.bytes)) << "not a Frame datagram";
             bytes += d.bytes.size() + UDP_IP_OVERHEAD;
         }
         EXPECT_EQ(bytes, r.wire_bytes);
@@ -380,9 +379,9 @@ TEST(ClientStream, RepairsOfALossyLinkGoInMoreCopies) {
         // What went since the last look: this tick's datagrams and the
         // repairs the last Ack made.
         for (size_t k = std::exchange(scanned, f.sink.sent.size()); k < f.sink.sent.size(); ++k) {
-            const wire::Datagram* d = verify_datagram(f.sink.sent[k].bytes);
-            if (!d || !d->body_as_Frame()) continue;
-            const uint32_t seq = d->seq();
+            const std::optional<FrameDatagram> d = frame_of(f.sink.sent[k].bytes);
+            if (!d) continue;
+            const uint32_t seq = d->seq;
             if (!first_bytes.count(seq)) {  // its first send: every tenth lost
                 first_bytes[seq] = f.sink.sent[k].bytes;
                 if (seq % 10 == 7) {

@@ -28,13 +28,11 @@ using namespace progskin::net;
 
 namespace {
 
-// A Datagram with one Frame of the given payload bytes.
+// A Frame datagram (tick 7) of the given payload bytes.
 std::vector<uint8_t> frame_datagram(const std::vector<uint8_t>& payload) {
-    flatbuffers::FlatBufferBuilder fbb;
-    auto pl = fbb.CreateVector(payload.data(), payload.size());
-    auto fr = wire::CreateFrame(fbb, 7, pl);
-    fbb.Finish(wire::CreateDatagram(fbb, 1, 0, wire::DatagramBody::Frame, fr.Union()), wire::DatagramIdentifier());
-    return {fbb.GetBufferPointer(), fbb.GetBufferPointer() + fbb.GetSize()};
+    std::vector<uint8_t> d;
+    write_frame_datagram(1, 0, 7, false, {}, payload, d);
+    return d;
 }
 
 // One chunk as written by hand (any values, valid or not).
@@ -118,11 +116,10 @@ struct ChunkRun {
 // read_frame over a datagram, instances 0..2 known with 12-byte records.
 bool read_datagram(const std::vector<uint8_t>& d, std::vector<ChunkRun>& runs) {
     runs.clear();
-    const wire::Datagram* g = verify_datagram(d);
-    if (!g || !g->body_as_Frame()) return false;
-    const wire::Frame& f = *g->body_as_Frame();
-    const uint8_t* base = f.payload() ? f.payload()->data() : nullptr;
-    const size_t size = f.payload() ? f.payload()->size() : 0;
+    FrameDatagram f;
+    if (!read_frame_datagram(d, f)) return false;
+    const uint8_t* base = f.payload.data();
+    const size_t size = f.payload.size();
     return read_frame(
         f, [](uint16_t i) { return i < 3 ? 12 : 0; },
         [&](uint16_t i, int first, int count, int show, const RecordRun& rec) {
@@ -134,6 +131,109 @@ bool read_datagram(const std::vector<uint8_t>& d, std::vector<ChunkRun>& runs) {
 }
 
 }  // namespace
+
+// The Frame datagram's header (version 13), byte by byte as docs/protocol.md
+// "Frame" writes it: flags, seq, send time, tick (little-endian), the pose
+// acks (count, then instance and pose_seq each), then the payload.
+TEST(NetFrame, FrameDatagramHeaderIsTheProtocolsBytes) {
+    const std::vector<uint8_t> payload = {0xAA, 0xBB, 0xCC};
+    const std::vector<wire::PoseAck> acks = {wire::PoseAck(0x0102, 0x03040506), wire::PoseAck(7, 0xFFFFFFFF)};
+    std::vector<uint8_t> d;
+    write_frame_datagram(0x11223344, 0x55667788, 0x99AABBCC, true, acks, payload, d);
+    const std::vector<uint8_t> expect = {0x07,                                      // kind, sampled, acks
+                                         0x44, 0x33, 0x22, 0x11,                    // seq
+                                         0x88, 0x77, 0x66, 0x55,                    // send_time_us
+                                         0xCC, 0xBB, 0xAA, 0x99,                    // tick
+                                         2,                                         // two pose acks
+                                         0x02, 0x01, 0x06, 0x05, 0x04, 0x03,        // instance 0x0102, pose 0x03040506
+                                         7, 0, 0xFF, 0xFF, 0xFF, 0xFF,              // instance 7, pose 0xFFFFFFFF
+                                         0xAA, 0xBB, 0xCC};                         // payload
+    EXPECT_EQ(d, expect);
+    FrameDatagram f;
+    ASSERT_TRUE(is_frame_datagram(d));
+    ASSERT_TRUE(read_frame_datagram(d, f));
+    EXPECT_EQ(f.seq, 0x11223344u);
+    EXPECT_EQ(f.send_time_us, 0x55667788u);
+    EXPECT_EQ(f.tick, 0x99AABBCCu);
+    EXPECT_TRUE(f.sampled);
+    ASSERT_EQ(f.pose_ack_count(), 2u);
+    EXPECT_EQ(f.pose_ack(0).instance(), 0x0102);
+    EXPECT_EQ(f.pose_ack(0).pose_seq(), 0x03040506u);
+    EXPECT_EQ(f.pose_ack(1).instance(), 7);
+    EXPECT_EQ(f.pose_ack(1).pose_seq(), 0xFFFFFFFFu);
+    EXPECT_EQ(std::vector<uint8_t>(f.payload.begin(), f.payload.end()), payload);
+    // No acks, not sampled: the 13-byte header and the payload.
+    write_frame_datagram(1, 2, 3, false, {}, payload, d);
+    ASSERT_EQ(d.size(), FRAME_HEADER_BYTES + payload.size());
+    EXPECT_EQ(d[0], 0x01);
+    ASSERT_TRUE(read_frame_datagram(d, f));
+    EXPECT_FALSE(f.sampled);
+    EXPECT_EQ(f.pose_ack_count(), 0u);
+    EXPECT_EQ(f.payload.size(), payload.size());
+    // A FlatBuffers datagram is not a Frame datagram, and the other way round.
+    flatbuffers::FlatBufferBuilder fbb;
+    build_bind(fbb, 1, 2);
+    const std::span<const uint8_t> bind(fbb.GetBufferPointer(), fbb.GetSize());
+    EXPECT_FALSE(is_frame_datagram(bind));
+    EXPECT_FALSE(read_frame_datagram(bind, f));
+    EXPECT_NE(verify_datagram(bind), nullptr);
+    EXPECT_EQ(verify_datagram(d), nullptr);
+}
+
+// Every header a receiver refuses (docs/protocol.md "Frame"), before the payload is read.
+TEST(NetFrame, FrameDatagramRefusesMalformedHeaders) {
+    const std::vector<uint8_t> payload(20, 0);
+    const std::vector<wire::PoseAck> one = {wire::PoseAck(1, 2)};
+    std::vector<uint8_t> good;
+    write_frame_datagram(5, 6, 7, false, one, payload, good);
+    FrameDatagram f;
+    ASSERT_TRUE(read_frame_datagram(good, f));
+    auto refused = [&](std::vector<uint8_t> d, const char* why) {
+        EXPECT_FALSE(read_frame_datagram(d, f)) << why;
+    };
+    refused({}, "empty");
+    refused(std::vector<uint8_t>(good.begin(), good.begin() + 12), "shorter than the header");
+    for (int bit = 3; bit < 8; ++bit) {
+        std::vector<uint8_t> d = good;
+        d[0] |= uint8_t(1 << bit);
+        refused(d, "a reserved flag bit");
+    }
+    {
+        std::vector<uint8_t> d = good;
+        d[0] &= uint8_t(~FRAME_KIND);
+        refused(d, "not a frame (bit 0 clear)");
+    }
+    {
+        std::vector<uint8_t> d(good.begin(), good.begin() + 13);
+        d[0] |= FRAME_ACKS;
+        refused(d, "acks announced, no count");
+        d.push_back(0);
+        refused(d, "an ack count of 0");
+    }
+    {
+        std::vector<uint8_t> d = good;
+        d[13] = uint8_t(MAX_SPAWNED + 1);
+        d.resize(14 + POSE_ACK_BYTES * size_t(MAX_SPAWNED + 1));
+        refused(d, "more acks than a player has characters");
+        d[13] = 4;
+        d.resize(14 + POSE_ACK_BYTES * 3 + 5);
+        refused(d, "acks past the end");
+    }
+    {
+        std::vector<uint8_t> d = good;
+        d.resize(MAX_DATAGRAM + 1);
+        refused(d, "longer than MAX_DATAGRAM");
+        d.resize(MAX_DATAGRAM);
+        EXPECT_TRUE(read_frame_datagram(d, f)) << "MAX_DATAGRAM itself";
+    }
+    // The FlatBuffers Frame table of version 12 and before is refused as well.
+    flatbuffers::FlatBufferBuilder fbb;
+    auto fr = wire::CreateFrame(fbb, 7, fbb.CreateVector(payload));
+    fbb.Finish(wire::CreateDatagram(fbb, 1, 0, wire::DatagramBody::Frame, fr.Union()), wire::DatagramIdentifier());
+    const std::span<const uint8_t> old(fbb.GetBufferPointer(), fbb.GetSize());
+    EXPECT_EQ(verify_datagram(old), nullptr);
+    EXPECT_FALSE(read_frame_datagram(old, f));
+}
 
 TEST(NetFrame, ReadsMaskRunsAndRecords) {
     // Instance 0, bone 0 of show 1; instance 1, bones 3..12 of show 13 with
@@ -283,12 +383,13 @@ TEST(NetFrame, SkipsChunksOfUnknownInstances) {
     EXPECT_EQ(runs[0].instance, 0);
     EXPECT_EQ(runs[0].offset, 3u + 4 + 5 + 1 + 9 + 1 + 9 + 1 + 1);  // show and flags long, epoch 0 as before
     // Its root block handed over is its own (the first of the two).
-    const wire::Frame& f = *verify_datagram(d)->body_as_Frame();
+    FrameDatagram f;
+    ASSERT_TRUE(read_frame_datagram(d, f));
     std::span<const uint8_t> got;
     ASSERT_TRUE(read_frame(
         f, [](uint16_t i) { return i < 3 ? 12 : 0; }, [](uint16_t, int, int, int, const RecordRun&) {},
         [&](const wire::Chunk&, uint8_t, std::span<const uint8_t> r, const uint8_t*) { got = r; }));
-    EXPECT_EQ(got.data(), f.payload()->data() + f.payload()->size() - 2 * kRootAbsoluteBytes);
+    EXPECT_EQ(got.data(), f.payload.data() + f.payload.size() - 2 * kRootAbsoluteBytes);
     EXPECT_EQ(got.size(), size_t(kRootAbsoluteBytes));
 }
 
@@ -416,10 +517,9 @@ TEST(NetFrame, PackerRoundTripsPicksOverSeveralDatagrams) {
     std::map<std::pair<int, int>, int> got;
     for (const auto& d : out) {
         ASSERT_LE(d.size(), MAX_DATAGRAM);
-        const wire::Datagram* g = verify_datagram(d);
-        ASSERT_NE(g, nullptr);
-        const wire::Frame& fr = *g->body_as_Frame();
-        EXPECT_EQ(fr.tick(), 5u);
+        FrameDatagram fr;
+        ASSERT_TRUE(read_frame_datagram(d, fr));
+        EXPECT_EQ(fr.tick, 5u);
         std::map<int, int> chunks_of;
         ASSERT_TRUE(for_each_chunk_head(fr, [&](const ChunkHead& h) { ++chunks_of[h.instance]; }));
         for (auto [i, n] : chunks_of) EXPECT_EQ(n, 1) << "instance " << i;
@@ -452,10 +552,10 @@ namespace {
 bool read_morphs(const std::vector<uint8_t>& d, std::vector<ChunkRun>& runs, std::vector<const uint8_t*>& blocks) {
     runs.clear();
     blocks.clear();
-    const wire::Datagram* g = verify_datagram(d);
-    if (!g || !g->body_as_Frame()) return false;
+    FrameDatagram f;
+    if (!read_frame_datagram(d, f)) return false;
     return read_frame(
-        *g->body_as_Frame(), [](uint16_t i) { return i < 3 ? 12 : 0; },
+        f, [](uint16_t i) { return i < 3 ? 12 : 0; },
         [&](uint16_t i, int first, int count, int show, const RecordRun&) { runs.push_back({i, first, count, show, 0}); },
         [&](const wire::Chunk&, uint8_t, std::span<const uint8_t>, const uint8_t* morph) { blocks.push_back(morph); });
 }

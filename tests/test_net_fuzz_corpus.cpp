@@ -12,7 +12,7 @@
 TEST(NetFuzzCorpus, FrameStreamAcceptsEverySeedAndSurvivesTheFoundInputs) {
     const auto seeds = read_corpus("frame", false);  // the real datagrams, not the found inputs
     ASSERT_GE(seeds.size(), 10u);
-    for (const auto& in : seeds) EXPECT_EQ(progskin::fuzz::frame_stream(in.data(), in.size()), 1);
+    for (const auto& in : seeds) EXPECT_EQ(progskin::fuzz::frame_stream(in.data(), in.size()), 1) << "a seed of " << in.size() << " bytes";
     int accepted = 0;  // the found inputs: each accepted or dropped, none crashes
     const auto all = read_corpus("frame");
     for (const auto& in : all) accepted += progskin::fuzz::frame_stream(in.data(), in.size());

@@ -157,7 +157,8 @@ TEST(NetMorph, SchedulerSendsChangedWeightsOnly) {
         DatagramCollector out;
         client->send_frame(f, 1 << 20, out);
         for (const auto& d : out.sent) {
-            const wire::Frame* fr = verify_datagram(d.bytes)->body_as_Frame();
+            const std::optional<FrameDatagram> fr = frame_of(d.bytes);
+            ASSERT_TRUE(fr);
             ASSERT_TRUE(read_frame(
                 *fr, [](uint16_t) { return 12; }, [](uint16_t, int, int, int, const RecordRun&) {},
                 [&](const wire::Chunk&, uint8_t, std::span<const uint8_t>, const uint8_t* m) {
@@ -214,7 +215,7 @@ TEST(NetMorph, OutOfRangeWeightsAreRefusedAndCounted) {
         }
         for (const auto& d : out.sent)
             ASSERT_TRUE(read_frame(
-                *verify_datagram(d.bytes)->body_as_Frame(), [](uint16_t) { return 12; },
+                *frame_of(d.bytes), [](uint16_t) { return 12; },
                 [](uint16_t, int, int, int, const RecordRun&) {},
                 [&](const wire::Chunk&, uint8_t, std::span<const uint8_t>, const uint8_t* m) {
                     if (!m) return;

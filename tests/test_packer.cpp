@@ -59,14 +59,12 @@ ReadBack read_back(const EncodedFrame& f, const std::vector<std::vector<uint8_t>
     ReadBack r;
     for (const auto& d : out) {
         EXPECT_LE(d.size(), MAX_DATAGRAM);
-        const wire::Datagram* g = verify_datagram(d);
-        EXPECT_NE(g, nullptr);
-        if (!g) continue;
-        const wire::Frame* fr = g->body_as_Frame();
-        EXPECT_NE(fr, nullptr);
-        if (!fr) continue;
-        EXPECT_EQ(fr->tick(), f.tick);
-        r.seqs.insert(g->seq());
+        FrameDatagram fd;
+        EXPECT_TRUE(read_frame_datagram(d, fd));
+        if (!read_frame_datagram(d, fd)) continue;
+        const FrameDatagram* fr = &fd;
+        EXPECT_EQ(fr->tick, f.tick);
+        r.seqs.insert(fr->seq);
         ++r.datagrams;
         r.bytes += d.size();
         auto record_size = [&](uint16_t i) { return i < f.instances.size() ? f.instances[i].record_size : 0; };
