@@ -107,7 +107,7 @@ int frame_stream(const uint8_t* data, size_t size) {
             !read_root(p->root()->data(), root_len, from ? base_root.data() : nullptr, nullptr, abs.data()))
             return 0;
         const RootPose r = decode_root(abs.data());
-        sink = uint64_t(r.position.x) ^ r.source_us;
+        sink = uint64_t(int64_t(r.position.x)) ^ r.source_us;  // within +-2,147 km: an int64 holds it
         std::array<RecordInts, 255> ints, rest{};
         const std::span<RecordInts> out(ints.data(), p->count());
         if (!read_pose_records({p->records()->data(), p->records()->size()}, false,
@@ -115,7 +115,7 @@ int frame_stream(const uint8_t* data, size_t size) {
             return 0;
         for (const RecordInts& x : out) sink = uint64_t(x.rot[0]) ^ uint64_t(x.trans[2]);
         if (p->morphs())
-            for (int16_t w : *p->morphs()) sink = uint64_t(decode_morph_weight(w) * 16384.0f);
+            for (int16_t w : *p->morphs()) sink = uint64_t(int64_t(decode_morph_weight(w) * 16384.0f));
         return 1;
     }
     return 0;
