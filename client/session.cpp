@@ -617,7 +617,7 @@ void ClientSession::on_datagram(std::span<const uint8_t> bytes, bool from_server
     }
 }
 
-// n: bytes on the wire (sealed: 32 more than the datagram); t: arrival.
+// n: bytes received (sealed: crypto::SEAL_OVERHEAD more than the datagram); t: arrival.
 void ClientSession::handle_frame(const FrameDatagram& f, size_t n, double t) {
     const uint32_t seq = f.seq;
     if (window_.duplicate(seq)) {

@@ -4,6 +4,8 @@
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#include <stdexcept>
+#include <string>
 
 #include "hash.h"
 
@@ -85,6 +87,9 @@ bool read_frame_datagram(std::span<const uint8_t> d, FrameDatagram& out) {
 
 void write_frame_datagram(uint32_t seq, uint32_t send_time_us, uint32_t tick, bool sampled,
                           std::span<const wire::PoseAck> acks, std::span<const uint8_t> payload, std::vector<uint8_t>& out) {
+    if (acks.size() > size_t(MAX_SPAWNED))
+        throw std::invalid_argument("write_frame_datagram: " + std::to_string(acks.size()) + " pose acks, at most " +
+                                    std::to_string(MAX_SPAWNED));
     out.resize(FRAME_HEADER_BYTES + (acks.empty() ? 0 : 1 + acks.size() * POSE_ACK_BYTES) + payload.size());
     uint8_t* p = out.data();
     p[0] = uint8_t(FRAME_KIND | (sampled ? FRAME_SAMPLED : 0) | (acks.empty() ? 0 : FRAME_ACKS));

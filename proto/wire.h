@@ -111,8 +111,9 @@ inline bool is_frame_datagram(std::span<const uint8_t> d) { return !d.empty() &&
 // or an ack count of 0 or above MAX_SPAWNED. The payload is read by
 // read_frame (frame_reader.h). O(1).
 bool read_frame_datagram(std::span<const uint8_t> d, FrameDatagram& out);
-// Writes one (out is replaced). acks: at most MAX_SPAWNED. The caller keeps
-// the whole within MAX_DATAGRAM (DatagramPacker). O(bytes).
+// Writes one (out is replaced). acks: at most MAX_SPAWNED (else
+// std::invalid_argument). The caller keeps the whole within MAX_DATAGRAM
+// (DatagramPacker). O(bytes).
 void write_frame_datagram(uint32_t seq, uint32_t send_time_us, uint32_t tick, bool sampled,
                           std::span<const wire::PoseAck> acks, std::span<const uint8_t> payload, std::vector<uint8_t>& out);
 
