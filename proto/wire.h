@@ -78,7 +78,7 @@ inline constexpr size_t MAX_BATCH_REMOVED = 16000;    // ids per InstanceRemoved
 inline constexpr size_t MAX_INSTANCE_TABLE_BYTES = 208 + 4 * MAX_INSTANCE_CLIPS;
 
 // The Frame datagram (version 13, docs/protocol.md "Frame"): the frame
-// stream's datagram is not a FlatBuffer (a Datagram's tables cost about 70
+// stream's datagram is not a FlatBuffer (a Datagram's tables cost 76 to 81
 // bytes; this header 13), all integers little-endian:
 //   byte 0       flags: bit 0 set (FRAME_KIND: a FlatBuffers datagram opens
 //                with its root offset, a multiple of 4, so its bit 0 is
