@@ -11,6 +11,17 @@
 
 namespace progskin::net {
 
+namespace {
+// Little-endian uint32 (the control length prefix, the Frame datagram's header).
+uint32_t get32(const uint8_t* p) { return uint32_t(p[0]) | uint32_t(p[1]) << 8 | uint32_t(p[2]) << 16 | uint32_t(p[3]) << 24; }
+void put32(uint8_t* p, uint32_t v) {
+    p[0] = uint8_t(v);
+    p[1] = uint8_t(v >> 8);
+    p[2] = uint8_t(v >> 16);
+    p[3] = uint8_t(v >> 24);
+}
+}  // namespace
+
 uint64_t content_hash(std::span<const uint8_t> bytes) { return fnv1a64(bytes); }
 
 std::string hex64(uint64_t v) {
@@ -48,16 +59,6 @@ const wire::Datagram* verify_datagram(std::span<const uint8_t> d) {
         return nullptr;
     return g;
 }
-
-namespace {
-uint32_t get32(const uint8_t* p) { return uint32_t(p[0]) | uint32_t(p[1]) << 8 | uint32_t(p[2]) << 16 | uint32_t(p[3]) << 24; }
-void put32(uint8_t* p, uint32_t v) {
-    p[0] = uint8_t(v);
-    p[1] = uint8_t(v >> 8);
-    p[2] = uint8_t(v >> 16);
-    p[3] = uint8_t(v >> 24);
-}
-}  // namespace
 
 wire::PoseAck FrameDatagram::pose_ack(size_t i) const {
     const uint8_t* p = acks.data() + i * POSE_ACK_BYTES;
@@ -110,15 +111,15 @@ void write_frame_datagram(uint32_t seq, uint32_t send_time_us, uint32_t tick, bo
 }
 
 void frame_control(const flatbuffers::FlatBufferBuilder& fbb, std::vector<uint8_t>& out) {
-    uint32_t n = fbb.GetSize();
-    uint8_t len[4] = {uint8_t(n), uint8_t(n >> 8), uint8_t(n >> 16), uint8_t(n >> 24)};
+    uint8_t len[4];
+    put32(len, fbb.GetSize());
     out.insert(out.end(), len, len + 4);
-    out.insert(out.end(), fbb.GetBufferPointer(), fbb.GetBufferPointer() + n);
+    out.insert(out.end(), fbb.GetBufferPointer(), fbb.GetBufferPointer() + fbb.GetSize());
 }
 
 bool read_length(std::span<const uint8_t> in, uint32_t& length) {
     if (in.size() < 4) return false;
-    length = uint32_t(in[0]) | uint32_t(in[1]) << 8 | uint32_t(in[2]) << 16 | uint32_t(in[3]) << 24;
+    length = get32(in.data());
     return true;
 }
 

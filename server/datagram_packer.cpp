@@ -77,8 +77,6 @@ size_t DatagramPacker::pack(const EncodedFrame& frame, std::span<const Pick> pic
     // tick's instances was sampled at a key (a byte per chunk then).
     sampled_ = false;
     for (const Pick& p : picks) sampled_ = sampled_ || frame.instances[size_t(p.instance)].sample != 0;
-    if (acks.size() > size_t(MAX_SPAWNED))
-        throw Error("datagram_packer: " + std::to_string(acks.size()) + " pose acks, at most " + std::to_string(MAX_SPAWNED));
     acks_ = acks;
     ack_bytes_ = acks.empty() ? 0 : pose_ack_bytes(acks.size());
     // Adjacent picks of one instance (the scheduler's ranges of it) share a chunk.

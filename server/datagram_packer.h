@@ -27,7 +27,8 @@ public:
     // (optional): the client's record plan (each character's baseline and
     // predicted bones; nullptr: standalone records); book (optional): told
     // which bones each datagram carries (acknowledgements make them baselines).
-    // acks (optional, at most MAX_SPAWNED): the pose acks of the first
+    // acks (optional, at most MAX_SPAWNED: write_frame_datagram throws
+    // beyond): the pose acks of the first
     // datagram (with no picks, a datagram of its own that carries nothing else).
     size_t pack(const EncodedFrame& frame, std::span<const Pick> picks, uint32_t& seq,
                 std::vector<std::vector<uint8_t>>& out, const RecordPlan* plan = nullptr, BaselineBook* book = nullptr,

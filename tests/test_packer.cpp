@@ -60,8 +60,9 @@ ReadBack read_back(const EncodedFrame& f, const std::vector<std::vector<uint8_t>
     for (const auto& d : out) {
         EXPECT_LE(d.size(), MAX_DATAGRAM);
         FrameDatagram fd;
-        EXPECT_TRUE(read_frame_datagram(d, fd));
-        if (!read_frame_datagram(d, fd)) continue;
+        const bool reads = read_frame_datagram(d, fd);
+        EXPECT_TRUE(reads);
+        if (!reads) continue;
         const FrameDatagram* fr = &fd;
         EXPECT_EQ(fr->tick, f.tick);
         r.seqs.insert(fr->seq);
