@@ -472,6 +472,9 @@ DatagramVerdict ClientStream::on_ack(const wire::Ack& a, const PeerAddress& from
     const uint32_t loss_delay = rate_.rtt_ms() > 0 ? uint32_t(std::max(1000.0, 1125.0 * rate_.rtt_ms())) : 0;
     book_.on_ack(a.ack(), a.ack_bits(), selector_ ? nullptr : &lost_, now_us32(), loss_delay);
     if (core_.config().repair_lost && adaptive_) repair_again(a.ack(), loss_delay, out);
+    // Below 80 kbit/s a send waits for a fuller datagram (rate_controller.h):
+    // the lost bones go with the next tick's instead (RateController::expedite).
+    if (!lost_.empty() && adaptive_) rate_.expedite();
     for (size_t k = 0; k < lost_.size(); ++k) {
         const BaselineBook::LostRun& r = lost_[k];
         scheduler_.lost(r.instance, r.generation, r.first, r.count, r.tick, r.morphs);

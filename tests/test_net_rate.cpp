@@ -54,6 +54,49 @@ TEST(NetRate, PacingStaysUnderTheCapAndSlowLinksGetFullerDatagrams) {
     }
 }
 
+// Below 80 kbit/s a tick sends once the bucket holds a fuller datagram
+// (kFullerBytes); after a loss (expedite) the next tick that holds one
+// tick's fill sends, once, and the pacing bound holds all the same.
+TEST(NetRate, ALossSendsTheNextDatagramATickAfterIt) {
+    RateController rc(64, 64);
+    std::deque<size_t> window;
+    size_t window_bytes = 0, max_window = 0;
+    int last_send = -1, sends = 0;
+    std::vector<int> plain_gaps, expedited_gaps;
+    bool expedited = false;
+    for (int t = 0; t < 30 * 20; ++t) {
+        rc.refill(1.0 / 30.0);
+        size_t sent = 0;
+        if (const size_t b = rc.budget(); b > 0) {
+            const size_t d = std::min(b, MAX_DATAGRAM + UDP_IP_OVERHEAD);
+            rc.spend(d);
+            EXPECT_FALSE(rc.expedited()) << "a send ends the expedite";
+            sent = d;
+            if (last_send >= 0 && t > 60) (expedited ? expedited_gaps : plain_gaps).push_back(t - last_send);
+            last_send = t;
+            expedited = false;
+            // Every fourth datagram is found lost right after it went.
+            if (++sends % 4 == 0) {
+                rc.expedite();
+                expedited = true;
+            }
+        }
+        window.push_back(sent);
+        window_bytes += sent;
+        if (window.size() > 30) {
+            window_bytes -= window.front();
+            window.pop_front();
+        }
+        max_window = std::max(max_window, window_bytes);
+    }
+    ASSERT_FALSE(plain_gaps.empty());
+    ASSERT_FALSE(expedited_gaps.empty());
+    // Fuller datagrams: 750 bytes take more than three ticks' fill at 64 kbit/s.
+    for (int g : plain_gaps) EXPECT_GE(g, 3);
+    for (int g : expedited_gaps) EXPECT_EQ(g, 1);
+    EXPECT_LE(double(max_window), 1.04 * 64 * 125.0 + 1.0);
+}
+
 namespace {
 
 // Seconds until an unlimited link carries 90% of what the sender wants
