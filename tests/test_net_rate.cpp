@@ -13,11 +13,30 @@
 
 using namespace progskin::net;
 
+namespace {
+
+// The largest one-second window (30 ticks) of wire bytes sent.
+struct SecondWindow {
+    std::deque<size_t> ticks;
+    size_t bytes = 0, most = 0;
+    void add(size_t sent) {
+        ticks.push_back(sent);
+        bytes += sent;
+        if (ticks.size() > 30) {
+            bytes -= ticks.front();
+            ticks.pop_front();
+        }
+        most = std::max(most, bytes);
+    }
+};
+
+}  // namespace
+
 TEST(NetRate, PacingStaysUnderTheCapAndSlowLinksGetFullerDatagrams) {
     for (double cap : {8.0, 16.0, 24.0, 32.0, 64.0, 256.0, 2000.0}) {
         RateController rc(cap, cap);
-        std::deque<size_t> window;  // wire bytes of the last 30 ticks
-        size_t window_bytes = 0, max_window = 0, total = 0, datagrams = 0, smallest = SIZE_MAX;
+        SecondWindow window;
+        size_t total = 0, datagrams = 0, smallest = SIZE_MAX;
         const int ticks = 30 * 20;
         for (int t = 0; t < ticks; ++t) {
             rc.refill(1.0 / 30.0);
@@ -31,16 +50,10 @@ TEST(NetRate, PacingStaysUnderTheCapAndSlowLinksGetFullerDatagrams) {
                 if (d < MAX_DATAGRAM + UDP_IP_OVERHEAD) break;
             }
             total += sent;
-            window.push_back(sent);
-            window_bytes += sent;
-            if (window.size() > 30) {
-                window_bytes -= window.front();
-                window.pop_front();
-            }
-            max_window = std::max(max_window, window_bytes);
+            window.add(sent);
         }
         const double second = cap * 125.0;
-        EXPECT_LE(double(max_window), 1.04 * second + 1.0) << "cap " << cap;
+        EXPECT_LE(double(window.most), 1.04 * second + 1.0) << "cap " << cap;
         EXPECT_GE(double(total) / 20.0, 0.55 * second) << "cap " << cap;
         if (cap >= 64) {
             EXPECT_GE(double(total) / 20.0, 0.9 * second) << "cap " << cap;
@@ -59,8 +72,7 @@ TEST(NetRate, PacingStaysUnderTheCapAndSlowLinksGetFullerDatagrams) {
 // tick's fill sends, once, and the pacing bound holds all the same.
 TEST(NetRate, ALossSendsTheNextDatagramATickAfterIt) {
     RateController rc(64, 64);
-    std::deque<size_t> window;
-    size_t window_bytes = 0, max_window = 0;
+    SecondWindow window;
     int last_send = -1, sends = 0;
     std::vector<int> plain_gaps, expedited_gaps;
     bool expedited = false;
@@ -81,20 +93,14 @@ TEST(NetRate, ALossSendsTheNextDatagramATickAfterIt) {
                 expedited = true;
             }
         }
-        window.push_back(sent);
-        window_bytes += sent;
-        if (window.size() > 30) {
-            window_bytes -= window.front();
-            window.pop_front();
-        }
-        max_window = std::max(max_window, window_bytes);
+        window.add(sent);
     }
     ASSERT_FALSE(plain_gaps.empty());
     ASSERT_FALSE(expedited_gaps.empty());
     // Fuller datagrams: 750 bytes take more than three ticks' fill at 64 kbit/s.
     for (int g : plain_gaps) EXPECT_GE(g, 3);
     for (int g : expedited_gaps) EXPECT_EQ(g, 1);
-    EXPECT_LE(double(max_window), 1.04 * 64 * 125.0 + 1.0);
+    EXPECT_LE(double(window.most), 1.04 * 64 * 125.0 + 1.0);
 }
 
 namespace {
