@@ -11,8 +11,8 @@
 //   - a shown segment (refreshed a ticks ago) is worth refreshing now by
 //     V = a (a + D) (G(a + D) - G(a)) / D, G its mean interpolation error
 //     over a gap, D the whole ticks between the client's sends (the mean
-//     interval, send_interval, rounded down; 1 below 2: on a link where a
-//     datagram waits for the bucket to fill, about 3): the saving of a
+//     interval, send_interval, rounded to the nearest; 1 below 1.5: on a
+//     link where a datagram waits for the bucket to fill, about 3): the saving of a
 //     refresh period of a instead of a + D ticks (the next send), per byte
 //     the price a period-a schedule pays (Lagrangian condition); on the last
 //     tick of the hold at least its show value (else it is dropped);
@@ -322,7 +322,7 @@ private:
         size_t least = SIZE_MAX;  // the smallest item's bytes
         ChainPoint hull{};    // the hull's vertex after the first unshown segment's start (extend_chain)
     };
-    // step: D of a shown segment's refresh value (floor of send_interval()).
+    // step: D of a shown segment's refresh value (send_interval() rounded to the nearest).
     Offer segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30, double step);
     void offer_chain(size_t i, uint32_t age, const Offer& o);
     void place(size_t i, size_t n);  // room in the scratch for instance i's n items (offer_items)
