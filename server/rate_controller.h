@@ -49,7 +49,7 @@
 // loss (expedite()) below 80 kbit/s from 90 % of one tick's fill (at least
 // kExpediteBytes), once: the lost datagram's bones, due again, then go a
 // tick after the loss is known instead of a whole fuller datagram later
-// (docs/performance.md "A loss sends its bones a send sooner").
+// (docs/performance.md "A loss sends its bones a tick after it is known").
 #pragma once
 #include <array>
 #include <cstddef>
