@@ -375,10 +375,7 @@ void Scheduler::place(size_t i, size_t n) {
 void Scheduler::offer_items(const EncodedFrame& frame, const std::vector<std::shared_ptr<ServerAsset>>& assets,
                             std::span<const float> importance, float tick_rate, bool only_over_share) {
     const double to30 = 30.0 / std::max(1.0f, tick_rate);
-    // D, the whole ticks to the next send (scheduler.h): the mean interval
-    // rounded to the nearest (rounded down, a steady send every 2 ticks,
-    // whose average nears 2 from below, read as 1).
-    const double step = std::floor(interval_ + 0.5);
+    const double step = refresh_step();  // D (scheduler.h)
     sc_->heap.clear();
     sc_->items_used = sc_->chain_used = sc_->order_used = 0;
     least_unpaid_ = least_paid_ = SIZE_MAX;

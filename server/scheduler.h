@@ -212,6 +212,11 @@ public:
     // sends): a moving average (weight kIntervalWeight) of each interval,
     // each within 1..HOLD_TICKS; 1 until the second call.
     double send_interval() const { return interval_; }
+    // D, the whole ticks to the next send that a shown segment's refresh
+    // value compares with (scheduler.h): send_interval() rounded to the
+    // nearest (rounded down, a steady send every 2 ticks, whose average
+    // nears 2 from below, would read as 1 for good).
+    double refresh_step() const { return std::floor(interval_ + 0.5); }
     static constexpr double kIntervalWeight = 0.25;
     // The client's record plan of the tick (baseline_book.h): what each bone
     // costs as it will go (predicted or standalone). nullptr: every record
@@ -322,7 +327,7 @@ private:
         size_t least = SIZE_MAX;  // the smallest item's bytes
         ChainPoint hull{};    // the hull's vertex after the first unshown segment's start (extend_chain)
     };
-    // step: D of a shown segment's refresh value (send_interval() rounded to the nearest).
+    // step: D of a shown segment's refresh value (refresh_step()).
     Offer segment_items(size_t i, const EncodedFrame& frame, const ServerAsset& a, double w, double to30, double step);
     void offer_chain(size_t i, uint32_t age, const Offer& o);
     void place(size_t i, size_t n);  // room in the scratch for instance i's n items (offer_items)

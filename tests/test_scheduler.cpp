@@ -625,6 +625,14 @@ TEST(Scheduler, TheSendIntervalFollowsTheTicksBetweenSends) {
     Session third(4);
     for (uint32_t t = 3; t <= 90; t += 3) third.tick(t, 600);
     EXPECT_NEAR(third.sched.send_interval(), 3.0, 0.01);
+    EXPECT_EQ(third.sched.refresh_step(), 3.0);
     third.tick(90 + 200, 600);  // a long pause counts as the hold at most
     EXPECT_NEAR(third.sched.send_interval(), 0.75 * 3.0 + 0.25 * double(HOLD_TICKS), 0.01);
+    EXPECT_EQ(every.sched.refresh_step(), 1.0);
+    // A steady send every second tick: its average nears 2 from below and
+    // never reaches it; D is 2 (rounded down it stayed 1 for good).
+    Session second(4);
+    for (uint32_t t = 2; t <= 120; t += 2) second.tick(t, 600);
+    EXPECT_LT(second.sched.send_interval(), 2.0);
+    EXPECT_EQ(second.sched.refresh_step(), 2.0);
 }
