@@ -60,7 +60,7 @@ size_t RateController::budget() const {
     // then under a fifth of it (docs/performance.md "Protocol 7: predicted root blocks and fuller datagrams").
     const double t = target_kbps();
     double d = depth_bytes(t);
-    const double fuller = expedite_ ? std::max(kExpediteBytes, std::min(0.9 * fill_, kFullerBytes)) : kFullerBytes;
+    const double fuller = expedite_ ? std::max(kMinDatagramBytes, std::min(0.9 * fill_, kFullerBytes)) : kFullerBytes;
     double min_send = std::max(0.0, std::min(t < kFullerBelowKbps ? fuller : 400.0, d - fill_));
     return tokens_ >= min_send && tokens_ > 0 ? size_t(tokens_) : 0;
 }

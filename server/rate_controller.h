@@ -47,7 +47,7 @@
 // only when the bucket holds at least min(400, depth - one tick's fill)
 // bytes, min(kFullerBytes = 750, ...) below kFullerBelowKbps = 80; after a
 // loss (expedite()) below 80 kbit/s from 90 % of one tick's fill (at least
-// kExpediteBytes), once: the lost datagram's bones, due again, then go a
+// kMinDatagramBytes), once: the lost datagram's bones, due again, then go a
 // tick after the loss is known instead of a whole fuller datagram later
 // (docs/performance.md "A loss sends its bones a tick after it is known").
 #pragma once
@@ -80,13 +80,12 @@ public:
     void mark_limited() { limited_ = true; }
     void spend(size_t wire_bytes);  // after sending
     // A datagram was found lost: below kFullerBelowKbps the next send goes
-    // from 90 % of a tick's fill in the bucket (at least kExpediteBytes), not from
+    // from 90 % of a tick's fill in the bucket (at least kMinDatagramBytes), not from
     // kFullerBytes, so that its bones, due again (Scheduler::lost), are not
     // left out for a whole further datagram's wait; until the next spend().
     // The bucket never goes below empty: the rate stays what it was.
     void expedite() { expedite_ = true; }
     bool expedited() const { return expedite_; }
-    static constexpr double kExpediteBytes = kMinDatagramBytes;
     void on_sent(uint32_t seq, uint32_t send_us, size_t wire_bytes);
     void on_ack(uint32_t ack, uint32_t ack_bits, uint32_t echo_us, uint32_t hold_us, uint32_t now_us);
     // Re-evaluates the estimate; call every tick (acts every 250 ms).

@@ -75,23 +75,19 @@ TEST(NetRate, ALossSendsTheNextDatagramATickAfterIt) {
     SecondWindow window;
     int last_send = -1, sends = 0;
     std::vector<int> plain_gaps, expedited_gaps;
-    bool expedited = false;
     for (int t = 0; t < 30 * 20; ++t) {
         rc.refill(1.0 / 30.0);
         size_t sent = 0;
         if (const size_t b = rc.budget(); b > 0) {
+            const bool expedited = rc.expedited();
             const size_t d = std::min(b, MAX_DATAGRAM + UDP_IP_OVERHEAD);
             rc.spend(d);
             EXPECT_FALSE(rc.expedited()) << "a send ends the expedite";
             sent = d;
             if (last_send >= 0 && t > 60) (expedited ? expedited_gaps : plain_gaps).push_back(t - last_send);
             last_send = t;
-            expedited = false;
             // Every fourth datagram is found lost right after it went.
-            if (++sends % 4 == 0) {
-                rc.expedite();
-                expedited = true;
-            }
+            if (++sends % 4 == 0) rc.expedite();
         }
         window.add(sent);
     }
