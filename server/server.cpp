@@ -449,6 +449,7 @@ struct Server::Impl {
         timer.async_wait([this](asio::error_code ec) {
             if (ec) return;
             drain_udp();  // Acks accounted before the tick's work
+            if (bus) bus->before_tick(now_seconds());  // other nodes' poses go out with this tick
             {
                 auto lock = hold();
                 core.tick(now_seconds(), sink);

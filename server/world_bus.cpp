@@ -572,10 +572,13 @@ WorldBus::~WorldBus() {
     if (impl_->opts) natsOptions_Destroy(impl_->opts);
 }
 
-void WorldBus::after_tick(const EncodedFrame& frame, double now) {
+void WorldBus::before_tick(double now) {
     impl_->interest(now);
     impl_->receive(now);
     impl_->expire(now);
+}
+
+void WorldBus::after_tick(const EncodedFrame& frame, double now) {
     impl_->publish_own(frame);
     impl_->hello(now);
 }

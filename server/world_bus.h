@@ -18,7 +18,7 @@
 // Threads: libnats delivers on its own threads; a message is copied into a
 // bounded queue (WorldConfig::queue_messages, kQueueBytes: beyond, dropped
 // and counted)
-// that after_tick drains on the tick thread. Publishing never blocks (libnats
+// that before_tick drains on the tick thread. Publishing never blocks (libnats
 // buffers; while it reconnects, up to its reconnect buffer, then the
 // message is dropped and counted). A nats-server that restarts is reconnected
 // to (every 250 ms, forever).
@@ -80,9 +80,14 @@ public:
     WorldBus(const WorldBus&) = delete;
     WorldBus& operator=(const WorldBus&) = delete;
 
-    // Tick thread, after ServerCore::tick: the foreign characters received
-    // since the last call into the scene, those unheard for 2 s removed, this
-    // node's characters published by cell; a hello every second.
+    // Tick thread, right before ServerCore::tick: the foreign characters
+    // received since the last call into the scene (so that this tick encodes
+    // and sends them: a pose from another node waits for one tick of this
+    // node, not two), those unheard for kForeignTimeout removed, the cell
+    // subscriptions renewed.
+    void before_tick(double now);
+    // Tick thread, after ServerCore::tick: this node's characters, as the
+    // tick encoded them, published by cell; a hello every second.
     void after_tick(const EncodedFrame& frame, double now);
     WorldStats stats() const;
 
