@@ -452,9 +452,9 @@ struct Server::Impl {
             if (bus) bus->before_tick(now_seconds());  // other nodes' poses go out with this tick
             {
                 auto lock = hold();
-                core.tick(now_seconds(), sink);
+                if (bus) core.tick(now_seconds(), sink, [this](const EncodedFrame& f) { bus->publish(f); });
+                else core.tick(now_seconds(), sink);
             }
-            if (bus) bus->after_tick(core.encoder().frame(), now_seconds());  // outside the core's lock
             // Goodbyes, instance announcements, evictions, closes: at once with
             // one thread, else on the control thread.
             if (!own_tick_io) pump_all();

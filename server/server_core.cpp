@@ -464,13 +464,14 @@ const EncodedFrame* ServerCore::prepare_tick(double now, std::vector<std::shared
     return frame;
 }
 
-void ServerCore::tick(double now, DatagramSink& out) {
+void ServerCore::tick(double now, DatagramSink& out, const std::function<void(const EncodedFrame&)>& encoded) {
     const double t0 = now_seconds();
     const double dt = last_tick_time_ > 0 ? std::min(0.25, now - last_tick_time_) : 1.0 / cfg_.tick_rate;
     last_tick_time_ = now;
     ++tick_;
     std::vector<std::shared_ptr<ClientStream>> drop;
     const EncodedFrame* frame = prepare_tick(now, drop);
+    if (frame && encoded) encoded(*frame);
     TickResult sent;
     if (frame) sent = tick_streams(streaming_, *frame, now, dt, out);
     uint64_t timeouts = 0;

@@ -21,6 +21,7 @@
 #include <deque>
 #include <map>
 #include <memory>
+#include <functional>
 #include <mutex>
 #include <span>
 #include <string>
@@ -102,8 +103,11 @@ public:
     // One tick at `now`: instances announced, the frame encoded once (when
     // anyone streams), each Streaming session's tick to `out` (on the pool's
     // threads when one is attached: `out` must then take sends from several
-    // threads at once), timeouts. The caller holds mutex().
-    void tick(double now, DatagramSink& out);
+    // threads at once), timeouts. The caller holds mutex(). encoded, when
+    // given, is called with the tick's frame right after its encode, before
+    // any session's work (a world node publishes it on the bus then, so that
+    // the other nodes do not wait for this node's clients).
+    void tick(double now, DatagramSink& out, const std::function<void(const EncodedFrame&)>& encoded = {});
     // The Streaming sessions' part of a tick: each of `streams` ticked once
     // (ClientStream::tick) with `frame`, spread over the pool's threads when
     // one is attached (each stream on one thread), else on this one. Returns

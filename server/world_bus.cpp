@@ -576,12 +576,10 @@ void WorldBus::before_tick(double now) {
     impl_->interest(now);
     impl_->receive(now);
     impl_->expire(now);
-}
-
-void WorldBus::after_tick(const EncodedFrame& frame, double now) {
-    impl_->publish_own(frame);
     impl_->hello(now);
 }
+
+void WorldBus::publish(const EncodedFrame& frame) { impl_->publish_own(frame); }
 
 WorldStats WorldBus::stats() const {
     std::lock_guard lock(impl_->stats_mutex);

@@ -1,5 +1,5 @@
 // world_bus.h — one node of a world on NATS (docs/deployment.md,
-// docs/protocol.md "World bus"). After each tick the node publishes its own
+// docs/protocol.md "World bus"). Each tick, right after its encode, the node publishes its own
 // characters (clip instances and players' published ones), as the encoder
 // encoded them, one message per spatial cell (world_message.h) on
 // `progskin.<world>.cell.<cx>.<cz>`; it receives the other nodes' cells and
@@ -84,11 +84,13 @@ public:
     // received since the last call into the scene (so that this tick encodes
     // and sends them: a pose from another node waits for one tick of this
     // node, not two), those unheard for kForeignTimeout removed, the cell
-    // subscriptions renewed.
+    // subscriptions renewed; a hello every second.
     void before_tick(double now);
-    // Tick thread, after ServerCore::tick: this node's characters, as the
-    // tick encoded them, published by cell; a hello every second.
-    void after_tick(const EncodedFrame& frame, double now);
+    // Tick thread, within ServerCore::tick right after the encode (its
+    // `encoded` callback), before the sessions' work: this node's
+    // characters, as the tick encoded them, published by cell. The other
+    // nodes then need not wait for this node's clients to be served.
+    void publish(const EncodedFrame& frame);
     WorldStats stats() const;
 
     static constexpr size_t kQueueBytes = 16 << 20;
