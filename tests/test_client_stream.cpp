@@ -861,6 +861,31 @@ TEST(ServerCore, AcksCountAsOfTheLastTimeTheQueueWasEmpty) {
     EXPECT_NE(f.s->state(), SessionState::Streaming);
 }
 
+// ServerCore::tick's `encoded` callback (a world node publishes its cells
+// from it, server/world_bus.h): once per tick, with that tick's frame,
+// before any session's datagram of the tick is sent.
+TEST(ServerCore, TheEncodedCallbackComesBeforeTheSessionsWork) {
+    Fixture f;
+    f.bind(kHome, 100.0);
+    ASSERT_EQ(f.s->state(), SessionState::Streaming);
+    int calls = 0;
+    uint32_t last_tick = 0;
+    for (int t = 1; t <= 5; ++t) {
+        f.sink.sent.clear();
+        size_t sent_before = SIZE_MAX;
+        f.core->tick(100.0 + t / 30.0, f.sink, [&](const EncodedFrame& frame) {
+            ++calls;
+            sent_before = f.sink.sent.size();
+            EXPECT_GT(frame.tick, last_tick);
+            last_tick = frame.tick;
+            EXPECT_EQ(&frame, &f.core->encoder().frame());
+        });
+        EXPECT_EQ(calls, t);
+        EXPECT_EQ(sent_before, 0u) << "tick " << t << ": a session's datagram went before the frame was handed out";
+        EXPECT_FALSE(f.sink.sent.empty()) << "tick " << t << ": the streaming session sent nothing (the check above proves nothing)";
+    }
+}
+
 // An Ack crossing the Goodbye: the session is saying goodbye, or erased,
 // when its datagram arrives. Counted as late (not as an attack) while it
 // closes and for 2 s after, then rejected.
