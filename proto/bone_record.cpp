@@ -193,39 +193,6 @@ void BitWriter::put_eg(uint32_t u, int k) {
     put(x & ((uint64_t(1) << (n - 1)) - 1), n - 1);
 }
 
-bool BitReader::get(int n, uint64_t& v) {
-    if (size_t(n) > bits_ - at_) return false;
-    if (n == 0) {
-        v = 0;
-        return true;
-    }
-    const size_t b0 = at_ / 8, len = std::min<size_t>(8, (bits_ + 7) / 8 - b0);
-    uint64_t w = 0;
-    if constexpr (std::endian::native == std::endian::little) {
-        std::memcpy(&w, data_ + b0, len);
-    } else {
-        for (size_t i = 0; i < len; ++i) w |= uint64_t(data_[b0 + i]) << (8 * i);
-    }
-    v = (w >> (at_ % 8)) & (n >= 64 ? ~uint64_t(0) : (uint64_t(1) << n) - 1);
-    at_ += size_t(n);
-    return true;
-}
-
-bool BitReader::get_eg(int k, uint64_t& u) {
-    // The zero prefix: the first set bit within kMaxPrefix + 1 bits.
-    const int look = int(std::min<size_t>(size_t(kMaxPrefix) + 1, bits_ - at_));
-    uint64_t peek = 0;
-    if (look == 0 || !get(look, peek)) return false;
-    at_ -= size_t(look);
-    if (peek == 0) return false;  // past the end, or a prefix longer than kMaxPrefix
-    const int z = std::countr_zero(peek);
-    at_ += size_t(z) + 1;
-    uint64_t rest = 0;
-    if (!get(z + k, rest)) return false;
-    u = (uint64_t(1) << (z + k)) + rest - (uint64_t(1) << k);
-    return true;
-}
-
 size_t write_record(const RecordInts& r, bool scaled, BitWriter& w) {
     const size_t start = w.bits();
     uint32_t u[3] = {zigzag(r.rot[0]), zigzag(r.rot[1]), zigzag(r.rot[2])};

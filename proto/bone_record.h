@@ -39,7 +39,10 @@
 // chunk's CHUNK_SCALED flag). No state outside the record: any record decodes
 // on its own (given its parent's pose), so a lost datagram loses only itself.
 #pragma once
+#include <algorithm>
+#include <bit>
 #include <cstdint>
+#include <cstring>
 #include <span>
 #include <vector>
 
@@ -131,11 +134,52 @@ private:
 class BitReader {
 public:
     BitReader(const uint8_t* data, size_t bytes, size_t bit = 0) : data_(data), bits_(bytes * 8), at_(bit) {}
-    bool get(int n, uint64_t& v);  // n <= 57; false past the end
-    bool get_eg(int k, uint64_t& u);  // false past the end or a prefix over kMaxPrefix
+    // n <= 57; false past the end. Inline (every field of every record):
+    // one unaligned 8-byte load where 8 bytes remain, else the tail byte by byte.
+    bool get(int n, uint64_t& v) {
+        if (size_t(n) > bits_ - at_) return false;
+        if (n == 0) {
+            v = 0;
+            return true;
+        }
+        v = (window(at_ / 8) >> (at_ % 8)) & (n >= 64 ? ~uint64_t(0) : (uint64_t(1) << n) - 1);
+        at_ += size_t(n);
+        return true;
+    }
+    // Exp-Golomb of order k (0 <= k <= 33); false past the end or a prefix
+    // over kMaxPrefix. Inline; one window when the code (2z + k + 1 bits
+    // for z zeros) fits its 57 bits, as nearly every one does.
+    bool get_eg(int k, uint64_t& u) {
+        const size_t left = bits_ - at_;
+        if (left == 0) return false;
+        const uint64_t w = window(at_ / 8) >> (at_ % 8);
+        const size_t look = std::min<size_t>(size_t(kMaxPrefix) + 1, left);
+        const uint64_t peek = w & ((uint64_t(1) << look) - 1);
+        if (peek == 0) return false;  // past the end, or a prefix longer than kMaxPrefix
+        const int z = std::countr_zero(peek);
+        const size_t n = size_t(2 * z + k + 1);
+        if (n > left) return false;
+        const size_t p = at_ + size_t(z) + 1;  // the code's bits after its one
+        const uint64_t rest = (n <= 57 ? w >> (z + 1) : window(p / 8) >> (p % 8)) & ((uint64_t(1) << (z + k)) - 1);
+        at_ += n;
+        u = (uint64_t(1) << (z + k)) + rest - (uint64_t(1) << k);
+        return true;
+    }
     size_t at() const { return at_; }
     size_t size() const { return bits_; }
 private:
+    // The 8 bytes from byte b0, little-endian; bytes past the end read as 0.
+    uint64_t window(size_t b0) const {
+        const size_t bytes = bits_ / 8;
+        uint64_t w = 0;
+        if (b0 + 8 <= bytes) {
+            std::memcpy(&w, data_ + b0, 8);
+            if constexpr (std::endian::native == std::endian::big) w = __builtin_bswap64(w);
+            return w;
+        }
+        for (size_t i = 0; b0 + i < bytes; ++i) w |= uint64_t(data_[b0 + i]) << (8 * i);
+        return w;
+    }
     const uint8_t* data_;
     size_t bits_, at_;
 };

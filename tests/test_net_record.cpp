@@ -67,6 +67,35 @@ TEST(NetRecord, ExpGolombRoundTripsEveryOrderAndWidth) {
         ASSERT_TRUE(r.get(3, pad));
     }
     EXPECT_LT(r.size() - r.at(), 8u);
+    // Codes longer than the reader's 57-bit window (a writer's 32-bit values
+    // never make one; a hostile stream may): z = kMaxPrefix zeros, order up
+    // to 12, at every bit offset, in the middle of a buffer and at its end.
+    for (int k = 0; k <= 12; ++k)
+        for (int lead = 0; lead < 8; ++lead)
+            for (int tail = 0; tail < 2; ++tail) {
+                std::vector<uint8_t> b;
+                BitWriter lw(b);
+                lw.put(0x55, lead);
+                const int z = kMaxPrefix;
+                const uint64_t rest = (uint64_t(0x9E3779B97F4A7C15) >> (64 - (z + k))) | 1;
+                lw.put(0, z);
+                lw.put(1, 1);
+                lw.put(rest, z + k);
+                if (tail) lw.put(0xABCDEF, 24);
+                BitReader lr(b.data(), b.size());
+                uint64_t pad = 0, got = 0;
+                ASSERT_TRUE(lr.get(lead, pad));
+                ASSERT_TRUE(lr.get_eg(k, got)) << k << " " << lead;
+                EXPECT_EQ(got, (uint64_t(1) << (z + k)) + rest - (uint64_t(1) << k)) << k << " " << lead;
+                EXPECT_EQ(lr.at(), size_t(lead + 2 * z + k + 1));
+                // Cut one bit short: refused, nothing read.
+                if (!tail && (lead + 2 * z + k + 1) % 8 == 0) {
+                    BitReader cut(b.data(), b.size() - 1);
+                    ASSERT_TRUE(cut.get(lead, pad));
+                    EXPECT_FALSE(cut.get_eg(k, got));
+                    EXPECT_EQ(cut.at(), size_t(lead));
+                }
+            }
 }
 
 TEST(NetRecord, RandomPosesRoundTripWithinTheirSteps) {
