@@ -21,6 +21,7 @@
 #include "errors.h"
 #include "nats_test_support.h"
 #include "net_test_support.h"
+#include "server_core.h"
 #include "tls_identity.h"
 #include "world_bus.h"
 #include "world_message.h"
@@ -306,6 +307,71 @@ TEST(NetWorld, ABehindNodeTakesTheNewestMessageOfEachCell) {
     EXPECT_NEAR(rc->palette[0].m[7], double(n) * rise, 0.4 * rise);
     std::printf("%llu of %d messages taken, %llu superseded, %llu dropped\n", (unsigned long long)st.world_messages_in, n,
                 (unsigned long long)st.world_superseded, (unsigned long long)st.world_dropped);
+}
+
+// WorldBus::before_tick, which the tick thread calls right before
+// ServerCore::tick: what it takes from the bus goes out with that very tick
+// (the foreign character's pose is in the tick's encode), so a pose from
+// another node waits for one tick of this node, not two. Driven by hand as
+// server.cpp drives it, against a real nats-server.
+TEST(NetWorld, WhatBeforeTickTakesGoesWithThatTick) {
+    if (!have_nats_server()) GTEST_SKIP() << "nats-server not installed (apt-get install nats-server)";
+    NatsServer nats(free_port());
+    const ServerConfig cfg = node(nats, "alpha");
+    ServerCore core(cfg, default_assets(), {});
+    // One welcomed client without a view: the node follows every cell.
+    auto s = core.open(PeerAddress::v4(0x7f000001, 0), now_seconds());
+    flatbuffers::FlatBufferBuilder fbb;
+    auto name = fbb.CreateString("unit");
+    fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Hello, wire::CreateHello(fbb, PROTOCOL_VERSION, name).Union()),
+               wire::ControlIdentifier());
+    ASSERT_TRUE(s->on_control({fbb.GetBufferPointer(), fbb.GetSize()}, now_seconds()));
+    WorldBus bus(WorldConfig{cfg.nats_url, "", "", "", cfg.world_node, cfg.world_name, cfg.world_cell, cfg.world_queue}, core);
+    DatagramCollector sink;
+    auto tick = [&] {
+        bus.before_tick(now_seconds());
+        std::lock_guard lock(core.mutex());
+        core.tick(now_seconds(), sink);
+    };
+    const double t0 = now_seconds();
+    while (!(bus.stats().connected && bus.stats().cells == -1) && now_seconds() - t0 < 10) {
+        tick();
+        std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    ASSERT_EQ(bus.stats().cells, -1) << "the node follows every cell";
+    for (int k = 0; k < 30; ++k) {  // the subscription reaches nats-server asynchronously
+        tick();
+        std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    const glm::dvec3 at(1.0, 0.0, 2.0);
+    ASSERT_TRUE(flood_cell(nats, cfg.world_name, 4242, 1, 0.05f, at));
+    bool taken = false;
+    for (const double t1 = now_seconds(); !taken && now_seconds() - t1 < 5;) {
+        const uint64_t before = bus.stats().messages_in;
+        bus.before_tick(now_seconds());
+        taken = bus.stats().messages_in > before;
+        {
+            std::lock_guard lock(core.mutex());
+            core.tick(now_seconds(), sink);
+        }
+        if (!taken) {
+            std::this_thread::sleep_for(std::chrono::milliseconds(5));
+            continue;
+        }
+        // The tick right after: the character is in its encode, posed by it.
+        const EncodedFrame& f = core.encoder().frame();
+        int shown = 0;
+        for (const EncodedInstance& e : f.instances) {
+            if (!e.valid) continue;
+            ++shown;
+            EXPECT_EQ(e.changed_tick, f.tick) << "the pose taken before the tick is this tick's content";
+            EXPECT_NEAR(e.world.x, at.x, 1e-3);
+            EXPECT_NEAR(e.world.z, at.z, 1e-3);
+        }
+        EXPECT_EQ(shown, 1) << "the foreign character encoded by the tick after before_tick took it";
+    }
+    ASSERT_TRUE(taken) << "the message never reached the node";
+    EXPECT_EQ(bus.stats().foreign, 1);
 }
 
 // A NATS server with a user and password (nats://USER:PASSWORD@HOST:PORT,
