@@ -157,6 +157,8 @@ struct Server::Impl {
 
     ServerCore core;
     std::unique_ptr<WorldBus> bus;  // ServerConfig::nats_url: this node's world (docs/deployment.md)
+    // ServerCore::tick's `encoded`: the bus publishes the node's cells (empty without a bus).
+    std::function<void(const EncodedFrame&)> on_encoded;
     const int threads;                               // tick_threads(config)
     asio::io_context io;                             // control (everything when threads == 1)
     std::unique_ptr<asio::io_context> own_tick_io;   // threads > 1: the UDP socket and the tick
@@ -194,10 +196,12 @@ struct Server::Impl {
         sink.set_descriptor(udp_sock.native_handle());
         core.set_udp_port(udp_port);
         core.set_pool(pool.get());
-        if (const ServerConfig& cfg = core.config(); !cfg.nats_url.empty())
+        if (const ServerConfig& cfg = core.config(); !cfg.nats_url.empty()) {
             bus = std::make_unique<WorldBus>(WorldConfig{cfg.nats_url, cfg.nats_ca_file, cfg.nats_cert_file, cfg.nats_key_file,
                                                          cfg.world_node, cfg.world_name, cfg.world_cell, cfg.world_queue},
                                              core);
+            on_encoded = [this](const EncodedFrame& f) { bus->publish(f); };
+        }
         if (core.config().web_port >= 0) {
             web = std::make_unique<WebEndpoint>(io, core, sink, core.config().bind_address, uint16_t(core.config().web_port),
                                                 core.config().web_root, tls_ctx.get());
@@ -452,8 +456,7 @@ struct Server::Impl {
             if (bus) bus->before_tick(now_seconds());  // other nodes' poses go out with this tick
             {
                 auto lock = hold();
-                if (bus) core.tick(now_seconds(), sink, [this](const EncodedFrame& f) { bus->publish(f); });
-                else core.tick(now_seconds(), sink);
+                core.tick(now_seconds(), sink, on_encoded);
             }
             // Goodbyes, instance announcements, evictions, closes: at once with
             // one thread, else on the control thread.

@@ -17,6 +17,7 @@
 #include "server.h"
 #include "session.h"
 #include "temp_dir.h"
+#include "wire.h"
 
 namespace progskin::net::testing {
 
@@ -57,6 +58,16 @@ inline std::shared_ptr<ClientAsset> client_asset(const ServerAsset& s) {
     c->format = s.format;
     c->diagonal = rest_diagonal(c->character);
     return c;
+}
+
+// A Hello control message (unframed, as ClientStream::on_control takes it)
+// at this protocol version, named "unit", asking max_kbps (0: no cap).
+inline std::vector<uint8_t> hello(uint32_t max_kbps = 0) {
+    flatbuffers::FlatBufferBuilder fbb;
+    auto name = fbb.CreateString("unit");
+    auto h = wire::CreateHello(fbb, PROTOCOL_VERSION, name, 0, max_kbps);
+    fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Hello, h.Union()), wire::ControlIdentifier());
+    return {fbb.GetBufferPointer(), fbb.GetBufferPointer() + fbb.GetSize()};
 }
 
 // ServerConfig::threads for the tests' servers that ask for no count of

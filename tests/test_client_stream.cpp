@@ -22,6 +22,7 @@ using progskin::net::testing::default_assets;
 
 namespace {
 using progskin::net::testing::frame_of;
+using progskin::net::testing::hello;
 
 const PeerAddress kTcp = PeerAddress::v4(0x7f000001, 0);        // 127.0.0.1
 const PeerAddress kHome = PeerAddress::v4(0xc0a80001, 40000);   // 192.168.0.1:40000
@@ -29,14 +30,6 @@ const PeerAddress kOther = PeerAddress::v4(0x0a000002, 50000);  // 10.0.0.2:5000
 
 std::vector<uint8_t> bytes_of(const flatbuffers::FlatBufferBuilder& fbb) {
     return {fbb.GetBufferPointer(), fbb.GetBufferPointer() + fbb.GetSize()};
-}
-
-std::vector<uint8_t> hello(uint32_t max_kbps) {
-    flatbuffers::FlatBufferBuilder fbb;
-    auto name = fbb.CreateString("unit");
-    auto h = wire::CreateHello(fbb, PROTOCOL_VERSION, name, 0, max_kbps);
-    fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Hello, h.Union()), wire::ControlIdentifier());
-    return bytes_of(fbb);
 }
 
 // rtt_us: the echo as if the datagram left that long ago (the server's RTT sample).

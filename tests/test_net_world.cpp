@@ -321,17 +321,18 @@ TEST(NetWorld, WhatBeforeTickTakesGoesWithThatTick) {
     ServerCore core(cfg, default_assets(), {});
     // One welcomed client without a view: the node follows every cell.
     auto s = core.open(PeerAddress::v4(0x7f000001, 0), now_seconds());
-    flatbuffers::FlatBufferBuilder fbb;
-    auto name = fbb.CreateString("unit");
-    fbb.Finish(wire::CreateControl(fbb, wire::ControlBody::Hello, wire::CreateHello(fbb, PROTOCOL_VERSION, name).Union()),
-               wire::ControlIdentifier());
-    ASSERT_TRUE(s->on_control({fbb.GetBufferPointer(), fbb.GetSize()}, now_seconds()));
+    ASSERT_TRUE(s->on_control(hello(), now_seconds()));
     WorldBus bus(WorldConfig{cfg.nats_url, "", "", "", cfg.world_node, cfg.world_name, cfg.world_cell, cfg.world_queue}, core);
     DatagramCollector sink;
+    // As server.cpp's tick: the bus, then the core's tick under its lock.
+    // True when before_tick took a message.
     auto tick = [&] {
+        const uint64_t before = bus.stats().messages_in;
         bus.before_tick(now_seconds());
+        const bool took = bus.stats().messages_in > before;
         std::lock_guard lock(core.mutex());
         core.tick(now_seconds(), sink);
+        return took;
     };
     const double t0 = now_seconds();
     while (!(bus.stats().connected && bus.stats().cells == -1) && now_seconds() - t0 < 10) {
@@ -347,13 +348,7 @@ TEST(NetWorld, WhatBeforeTickTakesGoesWithThatTick) {
     ASSERT_TRUE(flood_cell(nats, cfg.world_name, 4242, 1, 0.05f, at));
     bool taken = false;
     for (const double t1 = now_seconds(); !taken && now_seconds() - t1 < 5;) {
-        const uint64_t before = bus.stats().messages_in;
-        bus.before_tick(now_seconds());
-        taken = bus.stats().messages_in > before;
-        {
-            std::lock_guard lock(core.mutex());
-            core.tick(now_seconds(), sink);
-        }
+        taken = tick();
         if (!taken) {
             std::this_thread::sleep_for(std::chrono::milliseconds(5));
             continue;
