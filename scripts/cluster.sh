@@ -14,9 +14,11 @@
 #   scripts/cluster.sh [--nodes N] [--players N] [--duration S] [--max-kbps K]
 #                      [--delay-ms D] [--threads T] [--asset NAME|INDEX]
 #                      [--walk R] [--spacing D] [--see K] [--connect-rate N]
-#                      [--placement round-robin|bands]
+#                      [--placement round-robin|bands] [--loadgen-threads T]
 #                      [--server-args "ARGS"] [--json FILE] [--build DIR]
 #                      [--nats-tls]
+# --threads: each node's tick threads; --loadgen-threads: the loadgen's
+# threads (default 1).
 # --server-args: more progskin-server options for every node (e.g.
 # "--owner-share-kbps 0 --threads 2").
 # --nats-tls: the bus over TLS (a self-signed pair made with openssl in the
@@ -47,11 +49,12 @@ while (($#)); do
     --threads) THREADS=$2; shift 2;;
     --asset) ASSET=$2; shift 2;;
     --walk|--spacing|--see|--connect-rate|--settle|--placement) LGOPTS+=("$1" "$2"); shift 2;;
+    --loadgen-threads) LGOPTS+=(--threads "$2"); shift 2;;
     --json) JSON=$2; shift 2;;
     --server-args) read -r -a SERVER_ARGS <<<"$2"; shift 2;;
     --build) BUILD=$2; shift 2;;
     --nats-tls) NATS_TLS=1; shift;;
-    -h|--help) sed -n '2,23p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
+    -h|--help) sed -n '2,25p' "$0" | sed 's/^# \{0,1\}//'; exit 0;;
     *) echo "cluster.sh: unknown argument $1" >&2; exit 2;;
   esac
 done

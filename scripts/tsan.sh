@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # tsan.sh — the networking tests under ThreadSanitizer: configures build-tsan
 # (-DPROGSKIN_TSAN=ON, no benchmarks), builds the multiplayer, security and
-# threads tests and the encoder's (its tick on a pool), progskin-client and examples/game_loop (which the
+# threads tests, the encoder's (its tick on a pool) and the load generator's
+# threaded run (its players on three threads against an in-process server), progskin-client and examples/game_loop (which the
 # multiplayer tests start), and runs them with every in-process server at
 # $PROGSKIN_TEST_THREADS tick threads (default 3: more threads than this
 # machine's cores, the control thread beside them). A ThreadSanitizer report
@@ -10,7 +11,8 @@
 # given rate) may fail without a race: those are listed, not counted (the
 # normal build checks them).
 #
-#   scripts/tsan.sh [GTEST_FILTER]        (default: every test of the three)
+#   scripts/tsan.sh [GTEST_FILTER]        (default: every test of the first four,
+#                                          and the load generator's threaded one)
 #   JOBS=N   build jobs (default 2)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -22,7 +24,9 @@ launcher=()
 command -v ccache >/dev/null && launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache -DCMAKE_C_COMPILER_LAUNCHER=ccache)
 cmake -S . -B build-tsan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPROGSKIN_TSAN=ON -DPROGSKIN_BUILD_BENCH=OFF \
   "${launcher[@]}" >/dev/null
-tests=(test_net_threads test_net_multiplayer test_net_security test_frame_encoder)
+tests=(test_net_threads test_net_multiplayer test_net_security test_frame_encoder test_net_loadgen)
+# The load generator's other tests run it on one thread: only its threaded one here.
+filter_of() { if [[ $1 == test_net_loadgen && $filter == '*' ]]; then echo 'NetLoadgen.ThreeThreads*'; else echo "$filter"; fi; }
 cmake --build build-tsan -j"$jobs" --target "${tests[@]}" progskin-client game_loop
 built=$(date +%s)
 export PROGSKIN_TEST_THREADS=${PROGSKIN_TEST_THREADS:-3}
@@ -36,7 +40,7 @@ for t in "${tests[@]}"; do
   echo "tsan.sh: $t (server at $PROGSKIN_TEST_THREADS tick threads)"
   log=build-tsan/logs/$t.log
   rc=0
-  "build-tsan/tests/$t" --gtest_filter="$filter" --gtest_brief=1 >"$log" 2>&1 || rc=$?
+  "build-tsan/tests/$t" --gtest_filter="$(filter_of "$t")" --gtest_brief=1 >"$log" 2>&1 || rc=$?
   if [[ $rc == 66 ]] || grep -q "WARNING: ThreadSanitizer" "$log"; then
     echo "tsan.sh: $t: DATA RACE (ThreadSanitizer), see $log" >&2
     sed -n '/WARNING: ThreadSanitizer/,/^SUMMARY/p' "$log" >&2

@@ -12,6 +12,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <nlohmann/json.hpp>
 #include <thread>
@@ -70,24 +71,32 @@ void expect_report_fields(const LoadReport& r, const LoadOptions& o) {
     }
     EXPECT_TRUE(j["starved"].contains("players"));
     EXPECT_EQ(j["players"], o.players);
+    EXPECT_EQ(j["threads"], o.threads);
 }
 
-// The loadgen thread's allocations in the measurement window (alloc_counter.h).
+// The loadgen threads' allocations in the measurement window
+// (alloc_counter.h counts per thread; each thread adds its count at the end).
+std::atomic<long> window_allocations{0};
 void count_window(bool start) {
     if (start) alloc_counter::allocations = 0;
     alloc_counter::counting = start;
+    if (!start) window_allocations += alloc_counter::allocations;
 }
 
-TEST(NetLoadgen, TwentyPlayersOnOneNodeSeeEachOther) {
+// Twenty players all seeing each other, on `threads` threads.
+void twenty_players(int threads) {
     Node node;
     LoadOptions o = options({node.address()}, 20);
+    o.threads = threads;
     o.on_window = count_window;
+    window_allocations = 0;
     const LoadReport r = run_loadgen(o);
     // Steady state: no allocation per player turn (reads, acks, poses, the sink).
-    std::printf("loadgen thread: %ld allocations in %llu player turns of the window\n", alloc_counter::allocations,
-                (unsigned long long)r.turns);
+    std::printf("loadgen, %d thread(s): %ld allocations in %llu player turns of the window\n", threads,
+                window_allocations.load(), (unsigned long long)r.turns);
+    EXPECT_EQ(r.threads, threads);
     EXPECT_GT(r.turns, 20u * 30u * 2u);
-    EXPECT_EQ(alloc_counter::allocations, 0);
+    EXPECT_EQ(window_allocations.load(), 0);
     SCOPED_TRACE(report_table(r, o));
     EXPECT_TRUE(r.ok) << r.error;
     EXPECT_EQ(r.joined, 20);
@@ -112,6 +121,13 @@ TEST(NetLoadgen, TwentyPlayersOnOneNodeSeeEachOther) {
     EXPECT_GT(r.poses_sent, 20u * 30u);
     expect_report_fields(r, o);
 }
+
+TEST(NetLoadgen, TwentyPlayersOnOneNodeSeeEachOther) { twenty_players(1); }
+
+// The same players split over three threads (players 0, 3, 6, ... on the
+// first): every check of one thread holds, the counts of every thread are
+// in the report, and no thread allocates per turn.
+TEST(NetLoadgen, ThreeThreadsShareThePlayers) { twenty_players(3); }
 
 TEST(NetLoadgen, ServerRefusalIsReportedNotHidden) {
     ServerConfig cfg;
@@ -157,7 +173,7 @@ TEST(NetLoadgen, ProgramArgumentsAndReportOnFailure) {
     const CmdResult help = run(exe + " --help");
     EXPECT_EQ(help.code, 0);
     EXPECT_NE(help.out.find("--players"), std::string::npos);
-    for (const char* bad : {"--players 0", "--players 4001", "--duration -1", "--bogus", "--report xml --no-tls",
+    for (const char* bad : {"--players 0", "--players 4001", "--threads 0", "--threads 65", "--duration -1", "--bogus", "--report xml --no-tls",
                             "--server nohost --no-tls", "--players 2" /* TLS with nothing to trust */, "--no-tls --pin ab",
                             "--addresses 300 --no-tls", "--retries 11 --no-tls"}) {
         const CmdResult r = run(exe + " " + bad);

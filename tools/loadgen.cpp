@@ -1,9 +1,16 @@
-// loadgen.cpp — see loadgen.h. One thread: the io_context (TCP, TLS) is
-// polled, then every player whose turn is due is updated (its UDP socket
-// read through the session, acks, its pose published); the loop sleeps up
-// to 1 ms when nothing is due. Nothing is allocated per turn once steady
-// (the sessions' Outboxes, the shared pose buffers and the histograms keep
-// their size; a player's observation table grows only when characters come).
+// loadgen.cpp — see loadgen.h. Each of LoadOptions::threads lanes is one
+// thread with its own io_context and its players (player i on lane i mod
+// threads): the io_context (TCP, TLS) is polled, then every player of the
+// lane whose turn is due is updated (its UDP socket read through the
+// session, acks, its pose published); the loop sleeps up to 1 ms when
+// nothing is due. Lane 0 runs on the calling thread and also steers the run
+// (joins, the window, progress, stop); the other lanes follow its phase.
+// What lanes share is read-only once set (options, grid step, the clip
+// tables, the decoded assets: built under Shared::mutex), and each lane
+// counts into its own histograms, merged after the threads are joined.
+// Nothing is allocated per turn once steady (the sessions' Outboxes, the
+// shared pose buffers and the histograms keep their size; a player's
+// observation table grows only when characters come).
 #include "loadgen.h"
 
 #include <netinet/in.h>
@@ -19,6 +26,7 @@
 #include <cstring>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <nlohmann/json.hpp>
 #include <openssl/evp.h>
 #include <openssl/ssl.h>
@@ -62,6 +70,11 @@ struct Histogram {
         return max;
     }
     Percentiles summary() const { return {n, at(0.5), at(0.99), max}; }
+    void merge(const Histogram& o) {
+        for (size_t b = 0; b < bins.size(); ++b) bins[b] += o.bins[b];
+        n += o.n;
+        max = std::max(max, o.max);
+    }
 };
 
 // Receives one datagram with the kernel's arrival time (as client.cpp).
@@ -98,6 +111,26 @@ uint64_t root_source_us(const uint8_t* root) {
 
 struct Shared;
 
+// The run's phase, set by lane 0 (release) and followed by every lane.
+enum Phase : int { kJoining = 0, kMeasuring = 1, kDone = 2 };
+
+// One thread's players and what they count (only that thread touches it
+// while the lanes run).
+struct Lane {
+    int index = 0;
+    asio::io_context io;
+    Histogram receipt, display, cross_receipt, cross_display;
+    uint64_t bones_sum = 0, bones_n = 0, records = 0, bad_records = 0;
+    uint64_t late = 0, turns = 0;
+    double decoded_check = 0;  // the decoded rotations summed (keeps the decoding from being optimised away)
+    bool in_window = false, window_done = false;
+    int started = 0;           // players of this lane started so far
+    std::mt19937 jitter{12345};
+    // For lane 0's steering, published by the lane after each pass.
+    std::atomic<int> n_started{0}, n_joined{0}, n_failed{0};
+    std::atomic<uint64_t> n_samples{0};
+};
+
 // One remote character as one player sees it.
 struct Obs {
     const ClientAsset* asset = nullptr;
@@ -116,6 +149,7 @@ struct Obs {
 
 struct Player final : DatagramSource, FrameSink {
     Shared& sh;
+    Lane& lane;
     int index = 0, node = 0;
     Outbox out;
     ClientSession session;
@@ -145,7 +179,8 @@ struct Player final : DatagramSource, FrameSink {
     double kbps = 0;
     bool streamed_window = false;
 
-    Player(Shared& s, int i, int n, const ClientConfig& cfg, asio::io_context& io);
+    const void* pose_table = nullptr;  // Shared::Pose of its asset, once looked up
+    Player(Shared& s, Lane& l, int i, int n, const ClientConfig& cfg);
     void start(double now);
     void open_channel();
     void channel_ready() {
@@ -174,18 +209,16 @@ struct Player final : DatagramSource, FrameSink {
 
 struct Shared {
     const LoadOptions& opt;
-    asio::io_context io;
     std::unique_ptr<asio::ssl::context> ssl_ctx;
     std::string pin;  // normalised
+    std::mutex mutex;  // assets, step and poses while they are set
     std::map<uint64_t, std::shared_ptr<ClientAsset>> assets;  // decoded once, by asset id
     int grid = 1;
-    double step = 1;  // grid step, world units (from the asset's diagonal)
-    bool in_window = false, window_done = false;
-    double window_start = 0, window_end = 0;
-    Histogram receipt, display, cross_receipt, cross_display;
-    uint64_t bones_sum = 0, bones_n = 0, records = 0, bad_records = 0;
-    double decoded_check = 0;  // the decoded rotations summed (keeps the decoding from being optimised away)
+    std::atomic<double> step{1.0};  // grid step, world units (from the asset's diagonal; set by the first spawn)
     bool step_set = false;
+    std::atomic<int> phase{kJoining};
+    std::atomic<bool> first_ready{false};  // player 0 spawned (or failed): the others may start
+    double window_start = 0, window_end = 0;  // written by lane 0 before the phase that makes them valid
     // The shared poses: per asset index, the clip sampled once at the tick
     // rate over its loop (at most kMaxFrames), each player publishing the
     // frame of its time: nothing sampled or allocated per turn.
@@ -196,9 +229,8 @@ struct Shared {
         ClipSelection sel;
     };
     static constexpr size_t kMaxFrames = 3600;
-    std::vector<Pose> poses;
+    std::map<int, std::unique_ptr<Pose>> poses;  // by asset index; never moved once made
     uint64_t start_us = 0;
-    uint64_t late = 0, turns = 0;
 
     explicit Shared(const LoadOptions& o) : opt(o) {}
     // The node of player i (LoadOptions::bands).
@@ -207,15 +239,29 @@ struct Shared {
         return opt.bands ? int(int64_t(i) * nodes / opt.players) : i % nodes;
     }
     int player_at(const glm::dvec3& c) const {
-        const long gx = std::lround(c.x / step), gz = std::lround(c.z / step);
+        const double st = step.load(std::memory_order_relaxed);
+        const long gx = std::lround(c.x / st), gz = std::lround(c.z / st);
         if (gx < 0 || gz < 0 || gx >= grid || gz >= grid) return -1;
         return int(gz * grid + gx);
     }
-    glm::dvec3 spot(int i) const { return {double(i % grid) * step, 0.0, double(i / grid) * step}; }
-    // The skinning matrices of asset `index` at `now` (its loop's frame).
-    std::span<const Mat34> pose(const ClientAsset& a, int index, double now) {
-        if (poses.size() <= size_t(index)) poses.resize(size_t(index) + 1);
-        Pose& p = poses[size_t(index)];
+    glm::dvec3 spot(int i) const {
+        const double st = step.load(std::memory_order_relaxed);
+        return {double(i % grid) * st, 0.0, double(i / grid) * st};
+    }
+    // The skinning matrices of asset `index` at `now` (its loop's frame);
+    // `cache` keeps the caller's table (made once, under the mutex).
+    std::span<const Mat34> pose(const ClientAsset& a, int index, double now, const void*& cache) {
+        if (!cache) cache = make_pose(a, index);
+        const Pose& p = *static_cast<const Pose*>(cache);
+        const double u = p.sel.looped(now - double(start_us) * 1e-6) - p.start;
+        const size_t f = std::min(p.frames - 1, size_t(std::max(0.0, u * opt.tick_rate)));
+        return {p.table.data() + f * p.joints, p.joints};
+    }
+    const Pose* make_pose(const ClientAsset& a, int index) {
+        std::lock_guard<std::mutex> lock(mutex);
+        std::unique_ptr<Pose>& slot = poses[index];
+        if (!slot) slot = std::make_unique<Pose>();
+        Pose& p = *slot;
         if (p.table.empty()) {
             p.sel = select_clips(a.character, opt.clip);
             p.joints = a.character.joint_count();
@@ -229,17 +275,16 @@ struct Shared {
                 for (size_t j = 0; j < p.joints; ++j) p.table[f * p.joints + j] = Mat34::from_glm(mats[j]);
             }
         }
-        const double u = p.sel.looped(now - double(start_us) * 1e-6) - p.start;
-        const size_t f = std::min(p.frames - 1, size_t(std::max(0.0, u * opt.tick_rate)));
-        return {p.table.data() + f * p.joints, p.joints};
+        return &p;
     }
 };
 
-Player::Player(Shared& s, int i, int n, const ClientConfig& cfg, asio::io_context& io)
-    : sh(s), index(i), node(n), session(cfg, out), tcp_sock(io), udp_sock(io) {
+Player::Player(Shared& s, Lane& l, int i, int n, const ClientConfig& cfg)
+    : sh(s), lane(l), index(i), node(n), session(cfg, out), tcp_sock(l.io), udp_sock(l.io) {
     SessionHooks hooks;
     hooks.frame_sink = this;
     hooks.load_asset = [&s](const wire::Asset* a, const std::string& path) {
+        std::lock_guard<std::mutex> lock(s.mutex);
         auto& slot = s.assets[a->asset_id()];
         if (!slot) slot = load_client_asset(a, path);
         return slot;
@@ -263,7 +308,7 @@ void Player::open_channel() {
     const auto addr = asio::ip::make_address(sa.host, ec);
     tcp::endpoint ep;
     if (ec) {
-        tcp::resolver r(sh.io);
+        tcp::resolver r(lane.io);
         auto res = r.resolve(sa.host, std::to_string(sa.port), ec);
         if (ec || res.empty()) return fail(FailReason::Unreachable, "cannot resolve " + sa.host + ": " + ec.message());
         ep = *res.begin();
@@ -433,9 +478,9 @@ void Player::on_chunk(int id, uint32_t tick, int show, std::span<const uint8_t> 
     if (o.publisher < 0) return;
     o.seen = true;
     o.show = show;
-    if (sh.in_window) {
-        sh.bones_sum += uint64_t(show);
-        ++sh.bones_n;
+    if (lane.in_window) {
+        lane.bones_sum += uint64_t(show);
+        ++lane.bones_n;
         if (o.nearest) {
             const double from = std::max(o.last_arrival, sh.window_start);
             o.max_gap = std::max(o.max_gap, arrival - from);
@@ -447,7 +492,7 @@ void Player::on_chunk(int id, uint32_t tick, int show, std::span<const uint8_t> 
     if (!o.roots) o.roots = std::make_unique<RootRing>();
     std::array<uint8_t, ROOT_BYTES> root;
     if (!o.roots->resolve(tick, block.data(), block.size(), root.data())) {
-        ++sh.bad_records;
+        ++lane.bad_records;
         return;
     }
     o.roots->put(tick, root.data());
@@ -458,9 +503,9 @@ void Player::on_chunk(int id, uint32_t tick, int show, std::span<const uint8_t> 
     o.ring_src[o.ring_at] = src;
     o.ring_at = uint8_t((o.ring_at + 1) % o.ring_tick.size());
     o.ring_n = uint8_t(std::min<size_t>(o.ring_n + 1u, o.ring_tick.size()));
-    if (!sh.in_window) return;
+    if (!lane.in_window) return;
     const double ms = (arrival - double(src) * 1e-6) * 1000.0;
-    (o.cross ? sh.cross_receipt : sh.receipt).add(ms);
+    (o.cross ? lane.cross_receipt : lane.receipt).add(ms);
 }
 
 // Reads every record (what the client's pose buffer does first with them):
@@ -476,7 +521,7 @@ void Player::on_run(int id, int, int count, const RecordRun& records) {
         RecordPrefix prefix;
         if (with_base && (!read_prefix(peek, prefix) || prefix.kind != RecordPrefix::Standalone)) {
             if (!skip_record(in, records.scaled, true)) {
-                ++sh.bad_records;
+                ++lane.bad_records;
                 return;
             }
             continue;
@@ -484,13 +529,13 @@ void Player::on_run(int id, int, int count, const RecordRun& records) {
         in = peek;  // past the standalone prefix (if any)
         RecordInts r;
         if (!read_record(in, records.scaled, r)) {
-            ++sh.bad_records;
+            ++lane.bad_records;
             return;
         }
         check += r.rot[0];
     }
-    sh.decoded_check += float(check & 0xff);
-    sh.records += uint64_t(count);
+    lane.decoded_check += float(check & 0xff);
+    lane.records += uint64_t(count);
 }
 
 // ----------------------------------------------------------- the turn --
@@ -516,9 +561,12 @@ void Player::on_events(double now) {
         const auto& a = session.assets()[size_t(asset)];
         if (!a) return;  // not downloaded yet
         const double diag = a->diagonal;
-        if (!sh.step_set) {  // the first spawn sets the grid step from its asset
-            sh.step = sh.opt.spacing * diag;
-            sh.step_set = true;
+        {
+            std::lock_guard<std::mutex> lock(sh.mutex);
+            if (!sh.step_set) {  // the first spawn sets the grid step from its asset
+                sh.step.store(sh.opt.spacing * diag, std::memory_order_relaxed);
+                sh.step_set = true;
+            }
         }
         center = sh.spot(index);
         SpawnSpec spec;
@@ -548,14 +596,14 @@ void Player::turn(double now) {
             joined_at = now;
         }
         const ClientAsset& a = *session.assets()[size_t(asset)];
-        const std::span<const Mat34> skin = sh.pose(a, asset, now);
+        const std::span<const Mat34> skin = sh.pose(a, asset, now, pose_table);
         const double t = now - double(sh.start_us) * 1e-6;
         const double diag = a.diagonal;
         RootPose root = walk_root(center, sh.opt.walk * diag, sh.opt.walk > 0 ? 0.75 * diag : 0.0, t);
         root.source_us = uint64_t(now * 1e6);
         session.publish(handle, root, skin, false, {});
     }
-    if (sh.in_window && (++turns % std::max(1, int(sh.opt.tick_rate / 10))) == 0) sample_display(now);
+    if (lane.in_window && (++turns % std::max(1, int(sh.opt.tick_rate / 10))) == 0) sample_display(now);
     flush();
     if (session.phase() == SessionPhase::Failed && !failed) failed = true;
 }
@@ -584,7 +632,7 @@ void Player::sample_display(double now) {
             src = tc > 1e299 ? sa : sa + (sc - sa) * (d - ta) / (tc - ta);
         }
         const double ms = (now - src * 1e-6) * 1000.0;
-        (o.cross ? sh.cross_display : sh.display).add(ms);
+        (o.cross ? lane.cross_display : lane.display).add(ms);
     }
 }
 
@@ -611,6 +659,7 @@ void check_options(const LoadOptions& opt) {
     if (!(opt.tick_rate > 0 && opt.tick_rate <= 240)) throw Error("tick rate must be in (0, 240]");
     if (!(opt.connect_rate > 0 && opt.connect_rate <= 10000)) throw Error("connect rate must be in (0, 10000]");
     if (opt.retries < 0 || opt.retries > 10) throw Error("retries must be in 0..10");
+    if (opt.threads < 1 || opt.threads > LoadOptions::kMaxThreads) throw Error("threads must be in 1.." + std::to_string(LoadOptions::kMaxThreads));
     if (!(opt.max_kbps >= 0) || !(opt.delay_ms >= 0 && opt.delay_ms <= 5000) || !(opt.walk >= 0 && opt.walk <= 1000) ||
         !(opt.spacing > 0 && opt.spacing <= 1000) || opt.see < 0 || !(opt.starve_s > 0) || opt.addresses > 250)
         throw Error("an option is out of range");
@@ -644,21 +693,33 @@ public:
         check_options(opt);
         rep.players = opt.players;
         rep.nodes = int(opt.servers.size());
+        rep.threads = opt.threads;
         sh.grid = int(std::ceil(std::sqrt(double(opt.players))));
         sh.start_us = uint64_t(now_seconds() * 1e6);
         if (opt.tls) setup_tls(opt, sh);
+        for (int k = 0; k < opt.threads; ++k) {
+            lanes.push_back(std::make_unique<Lane>());
+            lanes.back()->index = k;
+            lanes.back()->jitter.seed(uint32_t(12345 + k));
+        }
         make_players();
         layout_nearest();
     }
     LoadReport run() {
-        loop();
+        t0 = now_seconds();
+        period = 1.0 / opt.tick_rate;
+        next_progress = t0 + opt.progress_s;
+        std::vector<std::thread> threads;
+        for (size_t k = 1; k < lanes.size(); ++k) threads.emplace_back([this, k] { lane_loop(*lanes[k]); });
+        lane_loop(*lanes[0]);  // lane 0 steers: it ends the run
+        for (auto& t : threads) t.join();
         summarise();
         for (auto& p : players)
             if (p->session.running()) {
                 p->session.close("loadgen done");
                 p->flush();
             }
-        sh.io.poll();
+        for (auto& l : lanes) l->io.poll();
         return rep;
     }
 
@@ -667,14 +728,16 @@ private:
     const std::atomic<bool>* stop_;
     Shared sh;
     LoadReport rep;
-    std::vector<std::unique_ptr<Player>> players;
-    // Players replaced by a restart: kept until the end, as asio handlers
-    // may still refer to them (each returns at once: its session is over).
-    std::vector<std::unique_ptr<Player>> replaced;
+    std::vector<std::unique_ptr<Lane>> lanes;
+    std::vector<std::unique_ptr<Player>> players;  // player i on lane i mod threads
+    // Players replaced by a restart, per lane: kept until the end, as asio
+    // handlers may still refer to them (each returns at once: its session is over).
+    std::vector<std::vector<std::unique_ptr<Player>>> replaced;
+    std::atomic<int> retried_{0};
+    bool window_done_ = false;  // the window ran to its end (lane 0's, then summarise's)
     ClientConfig cfg_;
-    std::mt19937 jitter_{12345};
-    int see = 0, started = 0;
-    double t0 = 0, period = 0, all_joined_at = 0, cpu_start = 0, next_progress = 0;
+    int see = 0;
+    double t0 = 0, period = 0, all_joined_at = 0, cpu_start = 0, next_progress = 0;  // (lane 0's)
 
     template <class... A>
     void log(const char* fmt, A... args) {
@@ -682,14 +745,13 @@ private:
         std::fprintf(stderr, fmt, args...);
         std::fputc('\n', stderr);
     }
-    template <class Pred>
-    int count(Pred pred) const {
+    int lane_sum(std::atomic<int> Lane::*field) const {
         int n = 0;
-        for (const auto& p : players) n += pred(*p) ? 1 : 0;
+        for (const auto& l : lanes) n += ((*l).*field).load(std::memory_order_acquire);
         return n;
     }
 
-    // Every player, on its node (round-robin) and source address.
+    // Every player, on its node (round-robin), lane and source address.
     void make_players() {
         bool loopback = true;
         for (const auto& s : opt.servers) loopback = loopback && s.host.rfind("127.", 0) == 0;
@@ -705,10 +767,11 @@ private:
         cfg.max_delay_ms = opt.delay_ms;
         cfg.connect_timeout = opt.connect_timeout;
         players.reserve(size_t(opt.players));
+        replaced.resize(lanes.size());
         cfg_ = cfg;
         for (int i = 0; i < opt.players; ++i) {
             cfg.name = "loadgen" + std::to_string(i);
-            auto p = std::make_unique<Player>(sh, i, sh.node_of(i), cfg, sh.io);
+            auto p = std::make_unique<Player>(sh, *lanes[size_t(i) % lanes.size()], i, sh.node_of(i), cfg);
             if (addresses > 0) {
                 p->use_source = true;
                 p->source = asio::ip::address_v4((127u << 24) | uint32_t(2 + i % addresses));
@@ -735,21 +798,32 @@ private:
         }
     }
 
-    // Starts players at connect_rate, the first alone until its assets are cached.
-    void start_players(double now) {
-        const bool first_ready = players[0]->handle >= 0 || players[0]->failed;
-        while (started < opt.players && (started == 0 || (first_ready && now - t0 >= double(started) / opt.connect_rate))) {
-            Player& p = *players[size_t(started)];
-            p.next_turn = now + period * double(started % 97) / 97.0;
+    // The lane's players in start order: player i at t0 + i / connect_rate,
+    // player 0 first and alone until its assets are cached (it spawned).
+    void start_players(Lane& l, double now) {
+        const int threads = int(lanes.size());
+        if (l.index == 0 && !sh.first_ready.load(std::memory_order_relaxed) && (players[0]->handle >= 0 || players[0]->failed))
+            sh.first_ready.store(true, std::memory_order_release);
+        const bool first_ready = sh.first_ready.load(std::memory_order_acquire);
+        for (;;) {
+            const int i = l.index + l.started * threads;
+            if (i >= opt.players) break;
+            if (i != 0 && !(first_ready && now - t0 >= double(i) / opt.connect_rate)) break;
+            Player& p = *players[size_t(i)];
+            p.next_turn = now + period * double(i % 97) / 97.0;
             p.start(now);
-            if (++started == 1) break;
+            ++l.started;
+            if (i == 0) break;
         }
     }
 
-    // The turns that are due; returns when the next one is.
-    double turns(double now) {
+    // The lane's turns that are due; returns when the next one is.
+    double turns(Lane& l, double now, int& joined, int& failed) {
         double next_due = now + 0.001;
-        for (int i = 0; i < started; ++i) {
+        joined = failed = 0;
+        const int threads = int(lanes.size());
+        for (int k = 0; k < l.started; ++k) {
+            const int i = l.index + k * threads;
             Player& p = *players[size_t(i)];
             if (p.restart_at >= 0) {  // a replacement waiting for its start
                 if (now >= p.restart_at) {
@@ -758,36 +832,37 @@ private:
                 } else {
                     next_due = std::min(next_due, p.restart_at);
                 }
-                continue;
-            }
-            if (!p.session.running()) {
+            } else if (!p.session.running()) {
                 if (!p.failed && p.session.phase() == SessionPhase::Failed) p.failed = true;
-                if (p.failed && !p.joined && p.attempt < opt.retries && !sh.in_window && !sh.window_done) restart(i, now);
-                continue;
-            }
-            if (now < p.next_turn) {
+                if (p.failed && !p.joined && p.attempt < opt.retries && sh.phase.load(std::memory_order_acquire) == kJoining)
+                    restart(l, i, now);
+            } else if (now < p.next_turn) {
                 next_due = std::min(next_due, p.next_turn);
-                continue;
+            } else {
+                ++l.turns;
+                if (now - p.next_turn > period) ++l.late;
+                p.next_turn = std::max(p.next_turn + period, now);
+                p.turn(now);
             }
-            ++sh.turns;
-            if (now - p.next_turn > period) ++sh.late;
-            p.next_turn = std::max(p.next_turn + period, now);
-            p.turn(now);
+            const Player& q = *players[size_t(i)];  // (a restart replaced it)
+            joined += q.joined ? 1 : 0;
+            failed += q.failed ? 1 : 0;
         }
         return next_due;
     }
 
     // Player i failed before streaming: a fresh player (session, sockets) in
     // its place, started after a backoff of 0.5 s x 2^attempt, +-25 %.
-    void restart(int i, double now) {
+    void restart(Lane& l, int i, double now) {
         std::unique_ptr<Player>& slot = players[size_t(i)];
         Player& old = *slot;
         asio::error_code ig;  // its sockets closed now (pending handlers end: its session is over)
         old.tcp_sock.close(ig);
         old.udp_sock.close(ig);
         if (opt.verbose) log("player %d failed (%s): starting it again", i, old.session.error().c_str());
-        cfg_.name = "loadgen" + std::to_string(i);
-        auto p = std::make_unique<Player>(sh, i, old.node, cfg_, sh.io);
+        ClientConfig cfg = cfg_;
+        cfg.name = "loadgen" + std::to_string(i);
+        auto p = std::make_unique<Player>(sh, l, i, old.node, cfg);
         p->use_source = old.use_source;
         p->source = old.source;
         p->nearest = old.nearest;
@@ -795,72 +870,101 @@ private:
         p->attempt = old.attempt + 1;
         p->started = true;
         const double backoff = 0.5 * double(1 << std::min(old.attempt, 6));
-        p->restart_at = now + backoff * std::uniform_real_distribution<double>(0.75, 1.25)(jitter_);
-        replaced.push_back(std::move(slot));
+        p->restart_at = now + backoff * std::uniform_real_distribution<double>(0.75, 1.25)(l.jitter);
+        replaced[size_t(l.index)].push_back(std::move(slot));
         slot = std::move(p);
-        ++rep.retried;
+        retried_.fetch_add(1, std::memory_order_relaxed);
     }
 
-    void open_window(double now) {
-        sh.in_window = true;
-        sh.window_start = now;
-        cpu_start = cpu_now();
-        sh.late = sh.turns = 0;
-        for (auto& p : players) {
-            p->bytes_at_start = p->session.stats(now).wire_bytes;
-            p->streamed_window = p->joined && p->session.running();
-            for (Obs& o : p->obs) o.max_gap = 0;
+    // The lane follows lane 0's phase: its players' window opens and closes.
+    void follow_phase(Lane& l, double now) {
+        const int phase = sh.phase.load(std::memory_order_acquire);
+        if (phase >= kMeasuring && !l.in_window && !l.window_done) {
+            l.in_window = true;
+            l.late = l.turns = 0;
+            const int threads = int(lanes.size());
+            for (int i = l.index; i < opt.players; i += threads) {
+                Player& p = *players[size_t(i)];
+                p.bytes_at_start = p.session.stats(now).wire_bytes;
+                p.streamed_window = p.joined && p.session.running();
+                for (Obs& o : p.obs) o.max_gap = 0;
+            }
+            if (opt.on_window) opt.on_window(true);
         }
-        if (opt.on_window) opt.on_window(true);
+        if (phase >= kDone && l.in_window) {
+            l.in_window = false;
+            l.window_done = true;
+            if (opt.on_window) opt.on_window(false);
+        }
     }
 
-    void close_window(double now) {
-        sh.in_window = false;
-        sh.window_done = true;
-        sh.window_end = now;
-        rep.cpu_seconds = cpu_now() - cpu_start;
-        if (opt.on_window) opt.on_window(false);
-    }
-
-    // Until the window has passed, every player failed, or stop.
-    void loop() {
-        t0 = now_seconds();
-        period = 1.0 / opt.tick_rate;
-        next_progress = t0 + opt.progress_s;
+    // Lane 0's steering, once a pass: joins, the window, progress, the end.
+    // Returns false once the run is over.
+    bool steer(double now) {
+        if (stop_ && stop_->load()) {
+            rep.error = "stopped";
+            return false;
+        }
+        const int started = lane_sum(&Lane::n_started), joined = lane_sum(&Lane::n_joined), failed = lane_sum(&Lane::n_failed);
         const double join_deadline = t0 + opt.connect_timeout + double(opt.players) / opt.connect_rate + 30.0;
+        if (!all_joined_at && started == opt.players && (joined + failed == opt.players || now > join_deadline)) {
+            all_joined_at = now;
+            rep.join_seconds = now - t0;
+            log("%d of %d players joined (%d failed); measuring in %.1f s", joined, opt.players, failed, opt.settle);
+        }
+        const int phase = sh.phase.load(std::memory_order_relaxed);
+        if (phase == kJoining && all_joined_at && now >= all_joined_at + opt.settle) {
+            sh.window_start = now;
+            cpu_start = cpu_now();
+            sh.phase.store(kMeasuring, std::memory_order_release);
+        }
+        if (phase == kMeasuring && now >= sh.window_start + opt.duration) {
+            sh.window_end = now;
+            rep.cpu_seconds = cpu_now() - cpu_start;
+            window_done_ = true;
+            return false;
+        }
+        if (opt.progress_s > 0 && now >= next_progress) {
+            next_progress = now + opt.progress_s;
+            uint64_t samples = 0;
+            for (const auto& l : lanes) samples += l->n_samples.load(std::memory_order_relaxed);
+            const Lane& l0 = *lanes[0];  // (the other lanes' histograms are theirs until the end)
+            log("%d started, %d streaming, %d failed, %d restarts, %llu receipt samples, p99 %.1f ms%s%s", started, joined,
+                failed, retried_.load(std::memory_order_relaxed), (unsigned long long)samples,
+                std::max(l0.receipt.at(0.99), l0.cross_receipt.at(0.99)), lanes.size() > 1 ? " (thread 0)" : "",
+                phase == kMeasuring ? " (measuring)" : "");
+        }
+        if (!all_joined_at && started == opt.players && failed == opt.players) {
+            rep.error = "every player failed";
+            return false;
+        }
+        return true;
+    }
+
+    // One lane's loop until the run is over (lane 0: until it ends it).
+    void lane_loop(Lane& l) {
         for (;;) {
-            if (stop_ && stop_->load()) {
-                rep.error = "stopped";
-                return;
-            }
-            sh.io.poll();
-            sh.io.restart();
+            if (l.index != 0 && sh.phase.load(std::memory_order_acquire) == kDone) break;
+            l.io.poll();
+            l.io.restart();
             const double now = now_seconds();
-            start_players(now);
-            const double next_due = turns(now);
-            const int joined = count([](const Player& p) { return p.joined; });
-            const int failed = count([](const Player& p) { return p.failed; });
-            if (!all_joined_at && started == opt.players && (joined + failed == opt.players || now > join_deadline)) {
-                all_joined_at = now;
-                rep.join_seconds = now - t0;
-                log("%d of %d players joined (%d failed); measuring in %.1f s", joined, opt.players, failed, opt.settle);
-            }
-            if (all_joined_at && !sh.in_window && !sh.window_done && now >= all_joined_at + opt.settle) open_window(now);
-            if (sh.in_window && now >= sh.window_start + opt.duration) return close_window(now);
-            if (opt.progress_s > 0 && now >= next_progress) {
-                next_progress = now + opt.progress_s;
-                log("%d started, %d streaming, %d failed, %d restarts, %llu receipt samples, p99 %.1f ms%s", started, joined,
-                    failed, rep.retried,
-                    (unsigned long long)(sh.receipt.n + sh.cross_receipt.n),
-                    std::max(sh.receipt.at(0.99), sh.cross_receipt.at(0.99)), sh.in_window ? " (measuring)" : "");
-            }
-            if (!all_joined_at && started == opt.players && failed == opt.players) {
-                rep.error = "every player failed";
-                return;
+            follow_phase(l, now);
+            start_players(l, now);
+            int joined = 0, failed = 0;
+            const double next_due = turns(l, now, joined, failed);
+            l.n_started.store(l.started, std::memory_order_release);
+            l.n_joined.store(joined, std::memory_order_release);
+            l.n_failed.store(failed, std::memory_order_release);
+            l.n_samples.store(l.receipt.n + l.cross_receipt.n, std::memory_order_relaxed);
+            if (l.index == 0 && !steer(now)) {
+                sh.phase.store(kDone, std::memory_order_release);
+                follow_phase(l, now);
+                break;
             }
             const double wait = next_due - now_seconds();
             if (wait > 0) std::this_thread::sleep_for(std::chrono::duration<double>(std::min(wait, 0.001)));
         }
+        follow_phase(l, now_seconds());
     }
 
     // Player p's nearest-set pairs in the window (see loadgen.h "starved"); true when one starved.
@@ -901,7 +1005,7 @@ private:
         rep.poses_sent += st.poses_sent;
         rep.poses_refused += st.poses_refused;
         loss_sum += st.loss;
-        if (sh.window_done && p.streamed_window && p.session.running()) {
+        if (window_done_ && p.streamed_window && p.session.running()) {
             p.kbps = double(st.wire_bytes - p.bytes_at_start) * 8.0 / 1000.0 / rep.window_seconds;
             rates.push_back(p.kbps);
             rep.starved_players += pairs_of(p) ? 1 : 0;
@@ -910,7 +1014,22 @@ private:
 
     void summarise() {
         const double end = sh.window_end > 0 ? sh.window_end : now_seconds();
-        rep.window_seconds = sh.window_done ? sh.window_end - sh.window_start : 0;
+        rep.window_seconds = window_done_ ? sh.window_end - sh.window_start : 0;
+        rep.retried = retried_.load();
+        // The lanes' counts (their threads are joined).
+        Lane all;
+        for (const auto& l : lanes) {
+            all.receipt.merge(l->receipt);
+            all.display.merge(l->display);
+            all.cross_receipt.merge(l->cross_receipt);
+            all.cross_display.merge(l->cross_display);
+            all.bones_sum += l->bones_sum;
+            all.bones_n += l->bones_n;
+            all.records += l->records;
+            all.bad_records += l->bad_records;
+            all.late += l->late;
+            all.turns += l->turns;
+        }
         std::vector<double> rates;
         double seen_sum = 0, bones_sum = 0, loss_sum = 0;
         uint64_t bones_n = 0;
@@ -930,10 +1049,10 @@ private:
         rep.seen_mean = seen_sum / double(opt.players);
         rep.all_seen = rep.seen_min == see;
         rep.bones_nearest_mean = bones_n ? bones_sum / double(bones_n) : 0;
-        rep.bones_mean = sh.bones_n ? double(sh.bones_sum) / double(sh.bones_n) : 0;
+        rep.bones_mean = all.bones_n ? double(all.bones_sum) / double(all.bones_n) : 0;
         rep.loss_mean = loss_sum / double(opt.players);
-        rep.records = sh.records;
-        rep.bad_records = sh.bad_records;
+        rep.records = all.records;
+        rep.bad_records = all.bad_records;
         if (!rates.empty()) {
             rep.rate_kbps_min = *std::min_element(rates.begin(), rates.end());
             rep.rate_kbps_max = *std::max_element(rates.begin(), rates.end());
@@ -941,17 +1060,17 @@ private:
             for (double r : rates) s += r;
             rep.rate_kbps_mean = s / double(rates.size());
         }
-        rep.receipt_ms = sh.receipt.summary();
-        rep.display_ms = sh.display.summary();
-        rep.cross_receipt_ms = sh.cross_receipt.summary();
-        rep.cross_display_ms = sh.cross_display.summary();
-        rep.late_turns = sh.turns ? double(sh.late) / double(sh.turns) : 0;
-        rep.turns = sh.turns;
-        rep.grid_step = sh.step;
+        rep.receipt_ms = all.receipt.summary();
+        rep.display_ms = all.display.summary();
+        rep.cross_receipt_ms = all.cross_receipt.summary();
+        rep.cross_display_ms = all.cross_display.summary();
+        rep.late_turns = all.turns ? double(all.late) / double(all.turns) : 0;
+        rep.turns = all.turns;
+        rep.grid_step = sh.step.load();
         if (rep.error.empty()) {
             if (rep.failed > 0) rep.error = std::to_string(rep.failed) + " player(s) failed: " + rep.errors.front();
             else if (rep.joined < opt.players) rep.error = std::to_string(opt.players - rep.joined) + " player(s) never streamed";
-            else if (!sh.window_done) rep.error = "no measurement window";
+            else if (!window_done_) rep.error = "no measurement window";
         }
         rep.ok = rep.error.empty();
     }
@@ -975,6 +1094,7 @@ std::string report_json(const LoadReport& r, const LoadOptions& o) {
     j["servers"] = servers;
     j["players"] = r.players;
     j["nodes"] = r.nodes;
+    j["threads"] = r.threads;
     j["source_addresses"] = r.addresses;
     j["placement"] = o.bands ? "bands" : "round-robin";
     j["grid_step"] = r.grid_step;
@@ -1014,8 +1134,8 @@ std::string report_table(const LoadReport& r, const LoadOptions& o) {
     char b[2048];
     std::string s;
     std::snprintf(b, sizeof b,
-                  "players %d on %d node(s) from %d source address(es): %d joined, %d failed, %d restarts (join %.1f s, window %.1f s)\n",
-                  r.players, r.nodes, r.addresses, r.joined, r.failed, r.retried, r.join_seconds, r.window_seconds);
+                  "players %d on %d node(s) from %d source address(es), %d thread(s): %d joined, %d failed, %d restarts (join %.1f s, window %.1f s)\n",
+                  r.players, r.nodes, r.addresses, r.threads, r.joined, r.failed, r.retried, r.join_seconds, r.window_seconds);
     s += b;
     std::snprintf(b, sizeof b, "%-22s %10s %10s %10s\n", "", "mean/p50", "min/p99", "max");
     s += b;

@@ -5,8 +5,9 @@
 // (client/session.h, the real client's protocol core) behind a light shell:
 // its own TCP connection (TLS as progskin-client: --pin / --ca / --insecure, or
 // plain) and its own UDP socket (the server binds a session to the address
-// its Bind came from; one socket per player), all on ONE thread and ONE
-// asio io_context, no thread per player. Each player spawns one character
+// its Bind came from; one socket per player), on LoadOptions::threads
+// threads (default one), each with its own asio io_context and its share of
+// the players (player i on thread i mod threads), no thread per player. Each player spawns one character
 // of the catalogue, walks it around its own spot of a square grid, publishes
 // its pose every tick (the clip's loop sampled once per asset at the tick
 // rate, at most 3,600 frames, and shared by every player: each publishes the
@@ -79,13 +80,17 @@ struct LoadOptions {
     // server is busy, a TLS handshake cut, no answer) starts again this
     // many times, as a game client would, after 0.5, 1, 2, ... s (jittered).
     int retries = 2;                     // 0..10
+    // Threads, each with its own players (player i on thread i mod threads)
+    // and io_context; 1: everything on the calling thread.
+    int threads = 1;                     // 1..kMaxThreads
     double progress_s = 5;               // progress line period on stderr (0: none)
     bool verbose = false;
-    // Called on the loadgen's thread when the measurement window starts
-    // (true) and ends (false); tests count allocations in between.
+    // Called on each thread when its measurement window starts (true) and
+    // ends (false); tests count allocations in between.
     void (*on_window)(bool start) = nullptr;
 
     static constexpr int kMaxPlayers = 4000;
+    static constexpr int kMaxThreads = 64;
 };
 
 struct Percentiles {
@@ -96,7 +101,7 @@ struct Percentiles {
 struct LoadReport {
     bool ok = false;
     std::string error;                 // why not ok (first failure), empty when ok
-    int players = 0, nodes = 0, addresses = 0;
+    int players = 0, nodes = 0, addresses = 0, threads = 1;
     double grid_step = 0;              // world units between two players' spots
     int joined = 0;                    // players that reached Streaming with their character spawned
     int failed = 0;                    // players whose session failed (refused, lost, timed out...), after their retries
