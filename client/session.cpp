@@ -669,7 +669,8 @@ void ClientSession::handle_frame(const FrameDatagram& f, size_t n, double t) {
 }
 
 // A frame read for the FrameSink (session.h): the checks of apply_frame
-// (read_frame, and show within the asset's bones), no pose buffer.
+// (read_frame; a chunk whose show exceeds its asset's bones is refused, as
+// PoseBuffer::add_chunk refuses it), no pose buffer.
 FrameApplied ClientSession::sink_frame(const FrameDatagram& f, double arrival) {
     FrameApplied r;
     auto asset_of = [&](uint16_t i) -> const ClientAsset* {
@@ -679,18 +680,17 @@ FrameApplied ClientSession::sink_frame(const FrameDatagram& f, double arrival) {
         const ClientAsset* a = asset_of(i);
         return a ? a->format.size() : 0;
     };
-    // Pass 0: show within every chunk's asset (read_frame checks the rest).
-    bool fits = true;
-    for_each_chunk_head(f, [&](const ChunkHead& h) {
-        const ClientAsset* a = asset_of(h.instance);
-        if (a && h.show > a->skin.bone_count()) fits = false;
-    });
-    if (!fits) return r;
     FrameSink& sink = *hooks_.frame_sink;
+    bool refused = false;  // the current chunk's
     auto on_chunk = [&](const wire::Chunk& c, uint8_t, std::span<const uint8_t> root, const uint8_t*) {
-        sink.on_chunk(c.instance(), f.tick, c.show(), root, arrival);
+        refused = c.show() > asset_of(c.instance())->skin.bone_count();
+        if (!refused) sink.on_chunk(c.instance(), f.tick, c.show(), root, arrival);
     };
     auto run = [&](uint16_t i, int first, int count, int, const RecordRun& rec) {
+        if (refused) {
+            ++r.refused;
+            return;
+        }
         r.record_bits += rec.bits;
         ++r.applied;
         sink.on_run(i, first, count, rec);

@@ -123,9 +123,10 @@ protected:
 // 150 KB each, which 1,000 players seeing 1,000 characters could not hold):
 // characters() stays empty, CharacterAdded / CharacterRemoved are still
 // raised, and every received frame, read and checked as always
-// (proto/frame_reader.h read_frame: lengths, masks, record sizes; a chunk
-// whose show exceeds its asset's bones makes the frame malformed), goes to the
-// sink chunk by chunk. Acks, Stats, loss, rate, the display clock
+// (proto/frame_reader.h read_frame: lengths, masks, record sizes), goes to
+// the sink chunk by chunk; a chunk whose show exceeds its asset's bones is
+// refused and counted (Stats.refused), as a game client's pose buffer
+// refuses it, and not passed on. Acks, Stats, loss, rate, the display clock
 // (display_tick) run as without it.
 class FrameSink {
 public:

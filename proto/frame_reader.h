@@ -50,6 +50,7 @@
 #include <cstdint>
 
 #include <span>
+#include <utility>
 
 #include "bone_record.h"
 #include "chunk_head.h"
@@ -70,32 +71,40 @@ struct RecordRun {
     size_t bits = 0;   // the run's records take bits [bit, bit + bits)
 };
 
-// Walks the heads and records of a payload's bit stream: calls
-// head(i, h, rec_bit, rec_bits) for each chunk i (rec_bit: where its records
-// start). Returns the bytes of the bit stream (its padding included, checked
-// to be zero), or 0 when it breaks its syntax. An empty payload has no
-// chunks (returns 0 as well; callers check the size first).
-template <class Head>
-size_t walk_chunk_heads(const uint8_t* data, size_t size, Head&& head) {
+// Walks the heads of a payload's bit stream: for each chunk i, after its
+// head, calls chunk(i, h, in, scaled, with_base), which reads past the
+// chunk's h.carried() records from `in` (false when one breaks its syntax).
+// Returns the bytes of the bit stream (its padding included, checked to be
+// zero), or 0 when it breaks its syntax or chunk returned false. An empty
+// payload has no chunks (returns 0 as well; callers check the size first).
+template <class Chunk>
+size_t walk_chunks(const uint8_t* data, size_t size, Chunk&& chunk) {
     BitReader in(data, size);
     uint64_t n = 0, k = 0;
     if (!in.get_eg(0, n) || n >= kMaxChunks || !in.get(4, k)) return 0;
     ChunkHead h;
     for (size_t i = 0; i <= n; ++i) {
         if (!read_head(in, i ? &h : nullptr, int(k), h)) return 0;
-        const bool scaled = (h.flags & CHUNK_SCALED) != 0;
         const uint8_t base = base_from_flags(h.flags);
         if ((base & kBaseLinear) && !(base & kBaseAgeMask)) return 0;
-        const bool with_base = (base & kBaseAgeMask) != 0;
-        const size_t from = in.at();
-        for (int c = h.carried(); c > 0; --c)
-            if (!skip_record(in, scaled, with_base)) return 0;
-        if (!head(i, h, from, in.at() - from)) return 0;
+        if (!chunk(i, std::as_const(h), in, (h.flags & CHUNK_SCALED) != 0, (base & kBaseAgeMask) != 0)) return 0;
     }
     const size_t pad = (8 - in.at() % 8) % 8;
     uint64_t zero = 0;
     if (pad && (!in.get(int(pad), zero) || zero != 0)) return 0;
     return in.at() / 8;
+}
+
+// walk_chunks calling head(i, h, rec_bit, rec_bits) for each chunk i after
+// its records (rec_bit: where they start).
+template <class Head>
+size_t walk_chunk_heads(const uint8_t* data, size_t size, Head&& head) {
+    return walk_chunks(data, size, [&](size_t i, const ChunkHead& h, BitReader& in, bool scaled, bool with_base) {
+        const size_t from = in.at();
+        for (int c = h.carried(); c > 0; --c)
+            if (!skip_record(in, scaled, with_base)) return false;
+        return bool(head(i, h, from, in.at() - from));
+    });
 }
 
 // Calls f(const ChunkHead&) for every chunk of the frame (the stream's
@@ -165,21 +174,19 @@ bool read_frame(const FrameDatagram& frame, RecordSize&& record_size, Run&& run,
     }
     if (at != size) return false;
     if (unknown) *unknown = unknowns;
-    // Pass 1: the calls.
+    // Pass 1: the calls, each record skipped once (its run's end found as
+    // the stream is walked).
     at = stream;
-    walk_chunk_heads(data, size, [&](size_t, const ChunkHead& h, size_t rec_bit, size_t) {
+    walk_chunks(data, size, [&](size_t, const ChunkHead& h, BitReader& in, bool scaled, bool with_base) {
         Blocks b;
         block(at, h.flags, b);
-        if (record_size(h.instance) <= 0) return true;
-        on_chunk(h.chunk(), b.sample, b.root, b.morph);
-        const bool scaled = (h.flags & CHUNK_SCALED) != 0;
+        const bool known = record_size(h.instance) > 0;
+        if (known) on_chunk(h.chunk(), b.sample, b.root, b.morph);
         const uint8_t base = base_from_flags(h.flags);
-        const bool with_base = (base & kBaseAgeMask) != 0;
-        BitReader runs(data, stream, rec_bit);
         for_each_carried_run(h, [&](int j, int e) {
-            const size_t from = runs.at();
-            for (int c = j; c < e; ++c) skip_record(runs, scaled, with_base);
-            run(h.instance, int(h.first) + j, e - j, int(h.show), RecordRun{data, stream, from, scaled, base, runs.at() - from});
+            const size_t from = in.at();
+            for (int c = j; c < e; ++c) skip_record(in, scaled, with_base);
+            if (known) run(h.instance, int(h.first) + j, e - j, int(h.show), RecordRun{data, stream, from, scaled, base, in.at() - from});
         });
         return true;
     });
