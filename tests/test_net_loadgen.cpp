@@ -148,12 +148,13 @@ TEST(NetLoadgen, ServerRefusalIsReportedNotHidden) {
 // Players refused at first (the server's new-connection rate per address:
 // a bucket of 8, refilled at 1 per second; 12 players from one address)
 // start again after a backoff, as game clients would: all join, none
-// failed, the restarts counted.
+// failed, the restarts counted. On two threads: each restarts its own.
 TEST(NetLoadgen, RefusedPlayersStartAgainAndJoin) {
     ServerConfig cfg;
     cfg.connects_per_second = 1;
     Node node(cfg);
     LoadOptions o = options({node.address()}, 12);
+    o.threads = 2;
     o.addresses = 1;
     o.retries = 5;  // 0.5 + 1 + 2 + 4 + 8 s of backoff at most: the bucket refills 4 in time
     o.connect_timeout = 5;
