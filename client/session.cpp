@@ -676,11 +676,12 @@ FrameApplied ClientSession::sink_frame(const FrameDatagram& f, double arrival) {
     auto asset_of = [&](uint16_t i) -> const ClientAsset* {
         return i < remotes_.size() && remotes_[i].announced ? remotes_[i].rc.asset : nullptr;
     };
-    auto record_size = [&](uint16_t i) -> int {
+    FrameSink& sink = *hooks_.frame_sink;
+    auto record_size = [&](uint16_t i) -> int {  // (read_frame asks in its check pass, then again per chunk)
         const ClientAsset* a = asset_of(i);
+        if (a) sink.prefetch(i, f.tick);
         return a ? a->format.size() : 0;
     };
-    FrameSink& sink = *hooks_.frame_sink;
     bool refused = false;  // the current chunk's
     auto on_chunk = [&](const wire::Chunk& c, uint8_t, std::span<const uint8_t> root, const uint8_t*) {
         refused = c.show() > asset_of(c.instance())->skin.bone_count();

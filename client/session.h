@@ -141,6 +141,10 @@ public:
     // A run of `count` parent-relative records (bone_record.h) of bones
     // first.. of that chunk, as received (not yet decoded).
     virtual void on_run(int instance, int first, int count, const RecordRun& records) = 0;
+    // Called for every chunk of a frame of a known character while the frame
+    // is checked, before any on_chunk of it: a sink may prefetch what its
+    // on_chunk will touch (its misses then overlap). Default: nothing.
+    virtual void prefetch(int /*instance*/, uint32_t /*tick*/) {}
 
 protected:
     ~FrameSink() = default;
