@@ -125,6 +125,11 @@ struct Lane {
     double decoded_check = 0;  // the decoded rotations summed (keeps the decoding from being optimised away)
     bool in_window = false, window_done = false;
     int started = 0;           // players of this lane started so far
+    // When each of its players (k: player index + k * threads) next needs a
+    // look: its turn, its restart, or a period on when its session ended.
+    // Scanned each pass instead of the players themselves (cold: a session each).
+    std::vector<double> due;
+    double next_count = 0;     // when joined and failed are counted next
     std::mt19937 jitter{12345};
     // For lane 0's steering, published by the lane after each pass.
     std::atomic<int> n_started{0}, n_joined{0}, n_failed{0};
@@ -785,6 +790,7 @@ private:
         cfg.connect_timeout = opt.connect_timeout;
         players.reserve(size_t(opt.players));
         replaced.resize(lanes.size());
+        for (auto& l : lanes) l->due.assign(size_t((opt.players - l->index + int(lanes.size()) - 1) / int(lanes.size())), 0.0);
         cfg_ = cfg;
         for (int i = 0; i < opt.players; ++i) {
             cfg.name = "loadgen" + std::to_string(i);
@@ -835,11 +841,14 @@ private:
     }
 
     // The lane's turns that are due; returns when the next one is.
-    double turns(Lane& l, double now, int& joined, int& failed) {
+    double turns(Lane& l, double now) {
         double next_due = now + 0.001;
-        joined = failed = 0;
         const int threads = int(lanes.size());
         for (int k = 0; k < l.started; ++k) {
+            if (now < l.due[size_t(k)]) {
+                next_due = std::min(next_due, l.due[size_t(k)]);
+                continue;
+            }
             const int i = l.index + k * threads;
             Player& p = *players[size_t(i)];
             if (p.restart_at >= 0) {  // a replacement waiting for its start
@@ -862,10 +871,24 @@ private:
                 p.turn(now);
             }
             const Player& q = *players[size_t(i)];  // (a restart replaced it)
-            joined += q.joined ? 1 : 0;
-            failed += q.failed ? 1 : 0;
+            double& due = l.due[size_t(k)];
+            due = q.restart_at >= 0 ? q.restart_at : q.session.running() ? q.next_turn : now + period;
+            next_due = std::min(next_due, due);
         }
         return next_due;
+    }
+
+    // The lane's joined and failed players, for lane 0's steering (every 50 ms).
+    void count(Lane& l, double now) {
+        if (now < l.next_count) return;
+        l.next_count = now + 0.05;
+        int joined = 0, failed = 0;
+        for (int i = l.index; i < opt.players; i += int(lanes.size())) {
+            joined += players[size_t(i)]->joined ? 1 : 0;
+            failed += players[size_t(i)]->failed ? 1 : 0;
+        }
+        l.n_joined.store(joined, std::memory_order_release);
+        l.n_failed.store(failed, std::memory_order_release);
     }
 
     // Player i failed before streaming: a fresh player (session, sockets) in
@@ -967,19 +990,18 @@ private:
             const double now = now_seconds();
             follow_phase(l, now);
             start_players(l, now);
-            int joined = 0, failed = 0;
-            const double next_due = turns(l, now, joined, failed);
+            const double next_due = turns(l, now);
+            count(l, now);
             l.n_started.store(l.started, std::memory_order_release);
-            l.n_joined.store(joined, std::memory_order_release);
-            l.n_failed.store(failed, std::memory_order_release);
             l.n_samples.store(l.receipt.n + l.cross_receipt.n, std::memory_order_relaxed);
             if (l.index == 0 && !steer(now)) {
                 sh.phase.store(kDone, std::memory_order_release);
                 follow_phase(l, now);
                 break;
             }
-            const double wait = next_due - now_seconds();
-            if (wait > 0) std::this_thread::sleep_for(std::chrono::duration<double>(std::min(wait, 0.001)));
+            // Idle: a whole millisecond (the turns due meanwhile go together,
+            // at most 1 ms late: one wake-up for several, not one each).
+            if (next_due > now_seconds()) std::this_thread::sleep_for(std::chrono::milliseconds(1));
         }
         follow_phase(l, now_seconds());
     }
