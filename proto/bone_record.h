@@ -134,6 +134,8 @@ private:
 class BitReader {
 public:
     BitReader(const uint8_t* data, size_t bytes, size_t bit = 0) : data_(data), bits_(bytes * 8), at_(bit) {}
+    // Moves to bit `bit` of the stream (a position an earlier read reached).
+    void seek(size_t bit) { at_ = std::min(bit, bits_); }
     // n <= 57; false past the end. Inline (every field of every record):
     // one unaligned 8-byte load where 8 bytes remain, else the tail byte by byte.
     bool get(int n, uint64_t& v) {

@@ -125,18 +125,28 @@ bool read_frame(const FrameDatagram& frame, RecordSize&& record_size, Run&& run,
     const size_t size = frame.payload.size();
     if (size == 0) return true;
     const bool sampled = frame.sampled;
-    // Pass 0: the heads and records (and each chunk's flags kept for its blocks).
+    // Pass 0: the heads and records (and each chunk's flags kept for its
+    // blocks, and where each run's records end, for pass 1: the first
+    // kMaxRunEnds runs; the others pass 1 walks again).
     std::array<uint8_t, kMaxChunks> flags;
-    size_t chunks = 0;
+    constexpr size_t kMaxRunEnds = 512;
+    std::array<uint32_t, kMaxRunEnds> run_end;
+    size_t chunks = 0, runs = 0;
     int unknowns = 0;
-    const size_t stream = walk_chunk_heads(data, size, [&](size_t i, const ChunkHead& h, size_t, size_t) {
+    const size_t stream = walk_chunks(data, size, [&](size_t i, const ChunkHead& h, BitReader& in, bool scaled, bool with_base) {
         const int known = record_size(h.instance);
         const int rs = (h.flags & CHUNK_SCALED) ? RecordFormat::kScaledSize : RecordFormat::kPlainSize;
         if ((known > 0 && known != rs) || (h.carried() == 0 && !(h.flags & CHUNK_MORPH))) return false;
         unknowns += known <= 0;
         flags[i] = h.flags;
         chunks = i + 1;
-        return true;
+        bool ok = true;
+        for_each_carried_run(h, [&](int j, int e) {
+            for (int c = j; c < e && ok; ++c) ok = skip_record(in, scaled, with_base);
+            if (runs < kMaxRunEnds) run_end[runs] = uint32_t(in.at());
+            ++runs;
+        });
+        return ok;
     });
     if (stream == 0) return false;
     // The blocks: where each chunk's are, checked.
@@ -174,9 +184,10 @@ bool read_frame(const FrameDatagram& frame, RecordSize&& record_size, Run&& run,
     }
     if (at != size) return false;
     if (unknown) *unknown = unknowns;
-    // Pass 1: the calls, each record skipped once (its run's end found as
-    // the stream is walked).
+    // Pass 1: the calls; each run's records are not walked again where pass
+    // 0 noted their end.
     at = stream;
+    size_t r = 0;
     walk_chunks(data, size, [&](size_t, const ChunkHead& h, BitReader& in, bool scaled, bool with_base) {
         Blocks b;
         block(at, h.flags, b);
@@ -185,7 +196,10 @@ bool read_frame(const FrameDatagram& frame, RecordSize&& record_size, Run&& run,
         const uint8_t base = base_from_flags(h.flags);
         for_each_carried_run(h, [&](int j, int e) {
             const size_t from = in.at();
-            for (int c = j; c < e; ++c) skip_record(in, scaled, with_base);
+            if (r < kMaxRunEnds) in.seek(run_end[r]);
+            else
+                for (int c = j; c < e; ++c) skip_record(in, scaled, with_base);
+            ++r;
             if (known) run(h.instance, int(h.first) + j, e - j, int(h.show), RecordRun{data, stream, from, scaled, base, in.at() - from});
         });
         return true;
