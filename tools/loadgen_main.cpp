@@ -26,7 +26,7 @@ static const char* kUsage =
     "  --server LIST        one node, or the nodes of a world (default 127.0.0.1:7777)\n"
     "  --players N          simulated players (1..4000, default 20)\n"
     "  --threads N          threads, each with its own players (1..64, default 1; one turn of\n"
-    "                       a player at 256 kbit/s takes about 80 us of a core)\n"
+    "                       a player at 256 kbit/s takes about 55 us of a core)\n"
     "  --duration S         measurement window in seconds (default 10)\n"
     "  --settle S           seconds after the last player joined before measuring (default 2)\n"
     "  --max-kbps N         each player's rate cap in kbit/s (default 256; 0: the server's)\n"
