@@ -125,8 +125,8 @@ protected:
 // raised, and every received frame, read and checked as always
 // (proto/frame_reader.h read_frame: lengths, masks, record sizes), goes to
 // the sink chunk by chunk; a chunk whose show exceeds its asset's bones is
-// refused and counted (Stats.refused), as a game client's pose buffer
-// refuses it, and not passed on. Acks, Stats, loss, rate, the display clock
+// not passed on, its runs counted in ClientStats::malformed, as a game
+// client's pose buffer refuses and counts them. Acks, Stats, loss, rate, the display clock
 // (display_tick) run as without it.
 class FrameSink {
 public:
