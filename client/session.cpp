@@ -677,7 +677,7 @@ FrameApplied ClientSession::sink_frame(const FrameDatagram& f, double arrival) {
         return i < remotes_.size() && remotes_[i].announced ? remotes_[i].rc.asset : nullptr;
     };
     FrameSink& sink = *hooks_.frame_sink;
-    auto record_size = [&](uint16_t i) -> int {  // (read_frame asks in its check pass, then again per chunk)
+    auto record_size = [&](uint16_t i) -> int {  // (read_frame asks once per chunk, in its check pass)
         const ClientAsset* a = asset_of(i);
         if (a) sink.prefetch(i, f.tick);
         return a ? a->format.size() : 0;

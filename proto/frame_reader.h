@@ -22,7 +22,8 @@
 //       instance's asset (12, or 14 when it is scaled), 0 when the instance
 //       is unknown (its chunks are walked by their flags and skipped: an
 //       instance may be announced on the control channel after its first
-//       frames);
+//       frames); asked once per chunk, in the check pass, before any call
+//       below;
 //   on_chunk(chunk, sample, root, morph): once per chunk of a known
 //       instance, before its runs (chunk: its head as a wire::Chunk; sample:
 //       its sample byte, 0 when the frame has none; root: the chunk's root
@@ -125,10 +126,11 @@ bool read_frame(const FrameDatagram& frame, RecordSize&& record_size, Run&& run,
     const size_t size = frame.payload.size();
     if (size == 0) return true;
     const bool sampled = frame.sampled;
-    // Pass 0: the heads and records (and each chunk's flags kept for its
-    // blocks, and where each run's records end, for pass 1: the first
-    // kMaxRunEnds runs; the others pass 1 walks again).
+    // Pass 0: the heads and records (and, for pass 1, each chunk's flags
+    // and whether its instance is known, and where each run's records end:
+    // the first kMaxRunEnds runs; the others pass 1 walks again).
     std::array<uint8_t, kMaxChunks> flags;
+    std::array<bool, kMaxChunks> known_chunk;
     constexpr size_t kMaxRunEnds = 512;
     std::array<uint32_t, kMaxRunEnds> run_end;
     size_t chunks = 0, runs = 0;
@@ -139,6 +141,7 @@ bool read_frame(const FrameDatagram& frame, RecordSize&& record_size, Run&& run,
         if ((known > 0 && known != rs) || (h.carried() == 0 && !(h.flags & CHUNK_MORPH))) return false;
         unknowns += known <= 0;
         flags[i] = h.flags;
+        known_chunk[i] = known > 0;
         chunks = i + 1;
         bool ok = true;
         for_each_carried_run(h, [&](int j, int e) {
@@ -188,10 +191,10 @@ bool read_frame(const FrameDatagram& frame, RecordSize&& record_size, Run&& run,
     // 0 noted their end.
     at = stream;
     size_t r = 0;
-    walk_chunks(data, size, [&](size_t, const ChunkHead& h, BitReader& in, bool scaled, bool with_base) {
+    walk_chunks(data, size, [&](size_t i, const ChunkHead& h, BitReader& in, bool scaled, bool with_base) {
         Blocks b;
         block(at, h.flags, b);
-        const bool known = record_size(h.instance) > 0;
+        const bool known = known_chunk[i];
         if (known) on_chunk(h.chunk(), b.sample, b.root, b.morph);
         const uint8_t base = base_from_flags(h.flags);
         for_each_carried_run(h, [&](int j, int e) {

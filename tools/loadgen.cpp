@@ -2,8 +2,8 @@
 // thread with its own io_context and its players (player i on lane i mod
 // threads): the io_context (TCP, TLS) is polled, then every player of the
 // lane whose turn is due is updated (its UDP socket read through the
-// session, acks, its pose published); the loop sleeps up to 1 ms when
-// nothing is due. Lane 0 runs on the calling thread and also steers the run
+// session, acks, its pose published); the loop sleeps 1 ms when nothing
+// is due. Lane 0 runs on the calling thread and also steers the run
 // (joins, the window, progress, stop); the other lanes follow its phase.
 // What lanes share is read-only once set (options, grid step, the clip
 // tables, the decoded assets: built under Shared::mutex), and each lane
@@ -111,23 +111,51 @@ uint64_t root_source_us(const uint8_t* root) {
 
 struct Shared;
 
+// The shared poses of one asset: its clip sampled once at the tick rate
+// over its loop (at most kMaxFrames), each player publishing the frame of
+// its time: nothing sampled or allocated per turn.
+struct ClipTable {
+    std::vector<Mat34> table;  // frames x joints
+    size_t joints = 0, frames = 0;
+    double start = 0;
+    ClipSelection sel;
+    static constexpr size_t kMaxFrames = 3600;
+};
+
 // The run's phase, set by lane 0 (release) and followed by every lane.
 enum Phase : int { kJoining = 0, kMeasuring = 1, kDone = 2 };
 
-// One thread's players and what they count (only that thread touches it
-// while the lanes run).
-struct Lane {
-    int index = 0;
-    asio::io_context io;
+// What the players count in the window (per lane, merged at the end).
+struct Counts {
     Histogram receipt, display, cross_receipt, cross_display;
     uint64_t bones_sum = 0, bones_n = 0, records = 0, bad_records = 0;
     uint64_t late = 0, turns = 0;
+    void merge(const Counts& o) {
+        receipt.merge(o.receipt);
+        display.merge(o.display);
+        cross_receipt.merge(o.cross_receipt);
+        cross_display.merge(o.cross_display);
+        bones_sum += o.bones_sum;
+        bones_n += o.bones_n;
+        records += o.records;
+        bad_records += o.bad_records;
+        late += o.late;
+        turns += o.turns;
+    }
+};
+
+// One thread's players and what they count (only that thread touches it
+// while the lanes run).
+struct Lane : Counts {
+    int index = 0;
+    asio::io_context io;
     double decoded_check = 0;  // the decoded rotations summed (keeps the decoding from being optimised away)
     bool in_window = false, window_done = false;
-    int started = 0;           // players of this lane started so far
-    // When each of its players (k: player index + k * threads) next needs a
-    // look: its turn, its restart, or a period on when its session ended.
-    // Scanned each pass instead of the players themselves (cold: a session each).
+    std::vector<int> members;  // its players' indices (i, i + threads, ...), in start order
+    int started = 0;           // members started so far
+    // When each member next needs a look: its turn, its restart, or a
+    // period on when its session ended. Scanned each pass instead of the
+    // players themselves (cold: a session each).
     std::vector<double> due;
     double next_count = 0;     // when joined and failed are counted next
     std::mt19937 jitter{12345};
@@ -185,7 +213,7 @@ struct Player final : DatagramSource, FrameSink {
     double kbps = 0;
     bool streamed_window = false;
 
-    const void* pose_table = nullptr;  // Shared::Pose of its asset, once looked up
+    const ClipTable* clip_table = nullptr;  // its asset's, once looked up
     Player(Shared& s, Lane& l, int i, int n, const ClientConfig& cfg);
     void start(double now);
     void open_channel();
@@ -226,17 +254,7 @@ struct Shared {
     std::atomic<int> phase{kJoining};
     std::atomic<bool> first_ready{false};  // player 0 spawned (or failed): the others may start
     double window_start = 0, window_end = 0;  // written by lane 0 before the phase that makes them valid
-    // The shared poses: per asset index, the clip sampled once at the tick
-    // rate over its loop (at most kMaxFrames), each player publishing the
-    // frame of its time: nothing sampled or allocated per turn.
-    struct Pose {
-        std::vector<Mat34> table;  // frames x joints
-        size_t joints = 0, frames = 0;
-        double start = 0;
-        ClipSelection sel;
-    };
-    static constexpr size_t kMaxFrames = 3600;
-    std::map<int, std::unique_ptr<Pose>> poses;  // by asset index; never moved once made
+    std::map<int, std::unique_ptr<ClipTable>> poses;  // by asset index; never moved once made
     uint64_t start_us = 0;
 
     explicit Shared(const LoadOptions& o) : opt(o) {}
@@ -257,24 +275,24 @@ struct Shared {
     }
     // The skinning matrices of asset `index` at `now` (its loop's frame);
     // `cache` keeps the caller's table (made once, under the mutex).
-    std::span<const Mat34> pose(const ClientAsset& a, int index, double now, const void*& cache) {
+    std::span<const Mat34> pose(const ClientAsset& a, int index, double now, const ClipTable*& cache) {
         if (!cache) cache = make_pose(a, index);
-        const Pose& p = *static_cast<const Pose*>(cache);
+        const ClipTable& p = *cache;
         const double u = p.sel.looped(now - double(start_us) * 1e-6) - p.start;
         const size_t f = std::min(p.frames - 1, size_t(std::max(0.0, u * opt.tick_rate)));
         return {p.table.data() + f * p.joints, p.joints};
     }
-    const Pose* make_pose(const ClientAsset& a, int index) {
+    const ClipTable* make_pose(const ClientAsset& a, int index) {
         std::lock_guard<std::mutex> lock(mutex);
-        std::unique_ptr<Pose>& slot = poses[index];
-        if (!slot) slot = std::make_unique<Pose>();
-        Pose& p = *slot;
-        if (p.table.empty()) {
+        std::unique_ptr<ClipTable>& slot = poses[index];
+        if (!slot) {
+            slot = std::make_unique<ClipTable>();
+            ClipTable& p = *slot;
             p.sel = select_clips(a.character, opt.clip);
             p.joints = a.character.joint_count();
             p.start = p.sel.start;
             const double length = std::max(0.0, double(p.sel.end - p.sel.start));
-            p.frames = std::clamp<size_t>(size_t(std::ceil(length * opt.tick_rate)), 1, kMaxFrames);
+            p.frames = std::clamp<size_t>(size_t(std::ceil(length * opt.tick_rate)), 1, ClipTable::kMaxFrames);
             p.table.resize(p.frames * p.joints);
             std::vector<glm::dmat4> mats(p.joints);
             for (size_t f = 0; f < p.frames; ++f) {
@@ -282,7 +300,7 @@ struct Shared {
                 for (size_t j = 0; j < p.joints; ++j) p.table[f * p.joints + j] = Mat34::from_glm(mats[j]);
             }
         }
-        return &p;
+        return slot.get();
     }
 };
 
@@ -618,7 +636,7 @@ void Player::turn(double now) {
             joined_at = now;
         }
         const ClientAsset& a = *session.assets()[size_t(asset)];
-        const std::span<const Mat34> skin = sh.pose(a, asset, now, pose_table);
+        const std::span<const Mat34> skin = sh.pose(a, asset, now, clip_table);
         const double t = now - double(sh.start_us) * 1e-6;
         const double diag = a.diagonal;
         RootPose root = walk_root(center, sh.opt.walk * diag, sh.opt.walk > 0 ? 0.75 * diag : 0.0, t);
@@ -790,7 +808,8 @@ private:
         cfg.connect_timeout = opt.connect_timeout;
         players.reserve(size_t(opt.players));
         replaced.resize(lanes.size());
-        for (auto& l : lanes) l->due.assign(size_t((opt.players - l->index + int(lanes.size()) - 1) / int(lanes.size())), 0.0);
+        for (int i = 0; i < opt.players; ++i) lanes[size_t(i) % lanes.size()]->members.push_back(i);
+        for (auto& l : lanes) l->due.assign(l->members.size(), 0.0);
         cfg_ = cfg;
         for (int i = 0; i < opt.players; ++i) {
             cfg.name = "loadgen" + std::to_string(i);
@@ -824,13 +843,11 @@ private:
     // The lane's players in start order: player i at t0 + i / connect_rate,
     // player 0 first and alone until its assets are cached (it spawned).
     void start_players(Lane& l, double now) {
-        const int threads = int(lanes.size());
         if (l.index == 0 && !sh.first_ready.load(std::memory_order_relaxed) && (players[0]->handle >= 0 || players[0]->failed))
             sh.first_ready.store(true, std::memory_order_release);
         const bool first_ready = sh.first_ready.load(std::memory_order_acquire);
-        for (;;) {
-            const int i = l.index + l.started * threads;
-            if (i >= opt.players) break;
+        while (size_t(l.started) < l.members.size()) {
+            const int i = l.members[size_t(l.started)];
             if (i != 0 && !(first_ready && now - t0 >= double(i) / opt.connect_rate)) break;
             Player& p = *players[size_t(i)];
             p.next_turn = now + period * double(i % 97) / 97.0;
@@ -843,39 +860,38 @@ private:
     // The lane's turns that are due; returns when the next one is.
     double turns(Lane& l, double now) {
         double next_due = now + 0.001;
-        const int threads = int(lanes.size());
         for (int k = 0; k < l.started; ++k) {
-            if (now < l.due[size_t(k)]) {
-                next_due = std::min(next_due, l.due[size_t(k)]);
-                continue;
-            }
-            const int i = l.index + k * threads;
-            Player& p = *players[size_t(i)];
-            if (p.restart_at >= 0) {  // a replacement waiting for its start
-                if (now >= p.restart_at) {
-                    p.restart_at = -1;
-                    p.start(now);
-                } else {
-                    next_due = std::min(next_due, p.restart_at);
-                }
-            } else if (!p.session.running()) {
-                if (!p.failed && p.session.phase() == SessionPhase::Failed) p.failed = true;
-                if (p.failed && !p.joined && p.attempt < opt.retries && sh.phase.load(std::memory_order_acquire) == kJoining)
-                    restart(l, i, now);
-            } else if (now < p.next_turn) {
-                next_due = std::min(next_due, p.next_turn);
-            } else {
-                ++l.turns;
-                if (now - p.next_turn > period) ++l.late;
-                p.next_turn = std::max(p.next_turn + period, now);
-                p.turn(now);
-            }
-            const Player& q = *players[size_t(i)];  // (a restart replaced it)
             double& due = l.due[size_t(k)];
-            due = q.restart_at >= 0 ? q.restart_at : q.session.running() ? q.next_turn : now + period;
+            if (now >= due) {
+                const int i = l.members[size_t(k)];
+                look_at(l, i, now);
+                const Player& q = *players[size_t(i)];  // (a restart replaced it)
+                due = q.restart_at >= 0 ? q.restart_at : q.session.running() ? q.next_turn : now + period;
+            }
             next_due = std::min(next_due, due);
         }
         return next_due;
+    }
+
+    // Player i, due: its start after a restart's backoff, a restart once its
+    // session failed before streaming, or its turn.
+    void look_at(Lane& l, int i, double now) {
+        Player& p = *players[size_t(i)];
+        if (p.restart_at >= 0) {  // a replacement waiting for its start
+            if (now >= p.restart_at) {
+                p.restart_at = -1;
+                p.start(now);
+            }
+        } else if (!p.session.running()) {
+            if (!p.failed && p.session.phase() == SessionPhase::Failed) p.failed = true;
+            if (p.failed && !p.joined && p.attempt < opt.retries && sh.phase.load(std::memory_order_acquire) == kJoining)
+                restart(l, i, now);
+        } else if (now >= p.next_turn) {
+            ++l.turns;
+            if (now - p.next_turn > period) ++l.late;
+            p.next_turn = std::max(p.next_turn + period, now);
+            p.turn(now);
+        }
     }
 
     // The lane's joined and failed players, for lane 0's steering (every 50 ms).
@@ -883,7 +899,7 @@ private:
         if (now < l.next_count) return;
         l.next_count = now + 0.05;
         int joined = 0, failed = 0;
-        for (int i = l.index; i < opt.players; i += int(lanes.size())) {
+        for (const int i : l.members) {
             joined += players[size_t(i)]->joined ? 1 : 0;
             failed += players[size_t(i)]->failed ? 1 : 0;
         }
@@ -922,8 +938,7 @@ private:
         if (phase >= kMeasuring && !l.in_window && !l.window_done) {
             l.in_window = true;
             l.late = l.turns = 0;
-            const int threads = int(lanes.size());
-            for (int i = l.index; i < opt.players; i += threads) {
+            for (const int i : l.members) {
                 Player& p = *players[size_t(i)];
                 p.bytes_at_start = p.session.stats(now).wire_bytes;
                 p.streamed_window = p.joined && p.session.running();
@@ -1055,20 +1070,8 @@ private:
         const double end = sh.window_end > 0 ? sh.window_end : now_seconds();
         rep.window_seconds = window_done_ ? sh.window_end - sh.window_start : 0;
         rep.retried = retried_.load();
-        // The lanes' counts (their threads are joined).
-        Lane all;
-        for (const auto& l : lanes) {
-            all.receipt.merge(l->receipt);
-            all.display.merge(l->display);
-            all.cross_receipt.merge(l->cross_receipt);
-            all.cross_display.merge(l->cross_display);
-            all.bones_sum += l->bones_sum;
-            all.bones_n += l->bones_n;
-            all.records += l->records;
-            all.bad_records += l->bad_records;
-            all.late += l->late;
-            all.turns += l->turns;
-        }
+        Counts all;  // the lanes' (their threads are joined)
+        for (const auto& l : lanes) all.merge(*l);
         std::vector<double> rates;
         double seen_sum = 0, bones_sum = 0, loss_sum = 0;
         uint64_t bones_n = 0;
