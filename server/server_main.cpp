@@ -126,10 +126,12 @@ static const char* kUsage =
     "  --help\n"
     "Exit codes: 0 ok, 1 runtime error, 2 bad arguments.\n";
 
-static Server* g_server = nullptr;
-static void on_signal(int) {
-    if (g_server) g_server->stop();
-}
+// SIGINT/SIGTERM only set this flag; serve's watcher thread stops the
+// server. (Server::stop posts to the io_contexts, which takes their
+// mutex: called from the handler while the interrupted thread held it, the
+// server deadlocked and never exited.)
+static volatile std::sig_atomic_t g_stop_requested = 0;
+static void on_signal(int) { g_stop_requested = 1; }
 
 // The command line (see kUsage).
 struct Options {
@@ -384,40 +386,36 @@ static void stats_line(const ServerStats& a, const ServerStats& b, double dt, do
 }
 
 // Serves until SIGINT/SIGTERM (on_signal, installed by the caller before it
-// announces the server) or `duration` seconds (0: no limit); with
-// stats_every, a stats line that often.
+// announces the server; seen here within 20 ms) or `duration` seconds (0:
+// no limit); with stats_every, a stats line that often.
 static void serve(Server& server, double duration, double stats_every) {
-    std::thread stopper;
     std::atomic<bool> done{false};
-    if (duration > 0 || stats_every > 0) {
-        stopper = std::thread([&server, &done, duration, stats_every] {
-            using clock = std::chrono::steady_clock;
-            const auto start = clock::now();
-            auto end = start + std::chrono::duration<double>(duration > 0 ? duration : 1e9);
-            auto next = start + std::chrono::duration<double>(stats_every);
-            ServerStats last = server.stats();
-            double last_cpu = process_cpu_seconds();
-            auto last_at = start;
-            while (!done && clock::now() < end) {
-                std::this_thread::sleep_for(std::chrono::milliseconds(20));
-                if (stats_every > 0 && clock::now() >= next) {
-                    const auto now = clock::now();
-                    const ServerStats st = server.stats();
-                    const double cpu = process_cpu_seconds();
-                    stats_line(last, st, std::chrono::duration<double>(now - last_at).count(), cpu - last_cpu);
-                    last = st;
-                    last_cpu = cpu;
-                    last_at = now;
-                    next += std::chrono::duration<double>(stats_every);
-                }
+    std::thread stopper([&server, &done, duration, stats_every] {
+        using clock = std::chrono::steady_clock;
+        const auto start = clock::now();
+        auto end = start + std::chrono::duration<double>(duration > 0 ? duration : 1e9);
+        auto next = start + std::chrono::duration<double>(stats_every);
+        ServerStats last = server.stats();
+        double last_cpu = process_cpu_seconds();
+        auto last_at = start;
+        while (!done && !g_stop_requested && clock::now() < end) {
+            std::this_thread::sleep_for(std::chrono::milliseconds(20));
+            if (stats_every > 0 && clock::now() >= next) {
+                const auto now = clock::now();
+                const ServerStats st = server.stats();
+                const double cpu = process_cpu_seconds();
+                stats_line(last, st, std::chrono::duration<double>(now - last_at).count(), cpu - last_cpu);
+                last = st;
+                last_cpu = cpu;
+                last_at = now;
+                next += std::chrono::duration<double>(stats_every);
             }
-            if (!done) server.stop();
-        });
-    }
+        }
+        if (!done) server.stop();
+    });
     server.run();
     done = true;
-    if (stopper.joinable()) stopper.join();
-    g_server = nullptr;
+    stopper.join();
 }
 
 static void report(const ServerStats& st) {
@@ -483,7 +481,6 @@ int main(int argc, char** argv) {
         for (auto& s : instances) s.once = o.once;
         o.cfg.threads = std::max(0, o.threads);
         Server server(o.cfg, assets, instances, std::move(ports));
-        g_server = &server;
         std::signal(SIGINT, on_signal);
         std::signal(SIGTERM, on_signal);
         std::fputs(tls_line.c_str(), stdout);
