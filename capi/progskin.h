@@ -85,7 +85,7 @@ typedef enum psk_state {
     PSK_STATE_IDLE = 0,        /* before psk_client_connect */
     PSK_STATE_CONNECTING = 1,  /* TCP, TLS, Hello, Welcome, asset downloads, UDP bind */
     PSK_STATE_STREAMING = 2,   /* frames arrive, characters are displayed */
-    PSK_STATE_CLOSED = 3,      /* psk_client_close or the server's Goodbye */
+    PSK_STATE_CLOSED = 3,      /* psk_client_close (the server's Goodbye is FAILED, reason SESSION_ENDED) */
     PSK_STATE_FAILED = 4       /* see psk_client_fail_reason and psk_last_error */
 } psk_state;
 
@@ -156,7 +156,7 @@ typedef struct psk_event {
 typedef struct psk_character {
     double position[3];         /* world root position */
     double display_tick;        /* the server tick displayed */
-    const float* palette;       /* bone_count * 12 floats, progressive order; valid until the next update */
+    const float* palette;       /* bone_count * 12 floats, progressive order; valid until the next update; NULL, bone_count 0, until shown */
     const float* morph_weights; /* morph_count floats (apply before skinning), NULL when none */
     uint64_t source_us;         /* the displayed pose's producer time */
     float rotation[4];          /* world root rotation, quaternion x y z w */
@@ -164,7 +164,7 @@ typedef struct psk_character {
     int32_t asset;              /* index into the catalogue (psk_client_asset) */
     int32_t shown;              /* 1: a pose exists at the display time (palette valid) */
     int32_t bones;              /* bones shown (the level of detail); the rest copy their parent's */
-    int32_t bone_count;         /* matrices in palette: every bone of the asset */
+    int32_t bone_count;         /* matrices in palette: every bone of the asset once shown, 0 before */
     int32_t morph_count;
     int32_t published;          /* 1: a player publishes it (psk_client_spawn elsewhere) */
     int32_t reserved;

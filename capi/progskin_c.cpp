@@ -54,11 +54,13 @@ psk_status fail(psk_status s, const char* what) {
 
 psk_status fail(psk_status s, const std::string& what) { return fail(s, what.c_str()); }
 
-// Runs f, turning every exception into a status and a message.
+// Runs f(fn), turning every exception into a status and a message; fn, the
+// C function's name, is what PSK_NEED and the messages name (inside the
+// lambda __func__ would be "operator()").
 template <class F>
 psk_status guard(const char* fn, F&& f) noexcept {
     try {
-        return f();
+        return f(fn);
     } catch (const std::bad_alloc&) {
         return fail(PSK_ERR_MEMORY, std::string(fn) + ": out of memory");
     } catch (const progskin::Error& e) {
@@ -88,7 +90,7 @@ namespace {
 
 #define PSK_NEED(p)                                                                         \
     do {                                                                                    \
-        if (!(p)) return fail(PSK_ERR_NULL, std::string(__func__) + ": " #p " is NULL");    \
+        if (!(p)) return fail(PSK_ERR_NULL, std::string(psk_fn) + ": " #p " is NULL");    \
     } while (0)
 
 int asset_index(const Client& c, const ClientAsset* a) {
@@ -236,6 +238,7 @@ const char* psk_status_name(int s) {
 }
 
 psk_status psk_client_config_init(psk_client_config* config) {
+    const char* psk_fn = __func__;
     PSK_NEED(config);
     const ClientConfig d;
     std::memset(config, 0, sizeof *config);
@@ -251,7 +254,7 @@ psk_status psk_client_config_init(psk_client_config* config) {
 
 psk_client* psk_client_create(const psk_client_config* config) {
     psk_client* out = nullptr;
-    const psk_status s = guard(__func__, [&]() -> psk_status {
+    const psk_status s = guard(__func__, [&]([[maybe_unused]] const char* psk_fn) -> psk_status {
         PSK_NEED(config);
         if (const std::string why = check_config(*config); !why.empty())
             return fail(PSK_ERR_ARGUMENT, "psk_client_create: " + why);
@@ -262,14 +265,14 @@ psk_client* psk_client_create(const psk_client_config* config) {
 }
 
 psk_status psk_client_destroy(psk_client* client) {
-    return guard(__func__, [&] {
+    return guard(__func__, [&]([[maybe_unused]] const char* psk_fn) {
         delete client;  // ~Client closes the connection
         return ok();
     });
 }
 
 psk_status psk_client_connect(psk_client* client, const char* host, uint16_t port) {
-    return guard(__func__, [&] {
+    return guard(__func__, [&]([[maybe_unused]] const char* psk_fn) {
         PSK_NEED(client);
         PSK_NEED(host);
         if (port == 0) return fail(PSK_ERR_ARGUMENT, "psk_client_connect: port 0");
@@ -288,7 +291,7 @@ psk_status psk_client_connect(psk_client* client, const char* host, uint16_t por
 }
 
 psk_status psk_client_connect_list(psk_client* client, const char* servers) {
-    return guard(__func__, [&] {
+    return guard(__func__, [&]([[maybe_unused]] const char* psk_fn) {
         PSK_NEED(client);
         PSK_NEED(servers);
         if (client->client.state() != ClientState::Idle)
@@ -311,7 +314,7 @@ psk_status psk_client_connect_list(psk_client* client, const char* servers) {
 }
 
 psk_status psk_client_update(psk_client* client, double now) {
-    return guard(__func__, [&] {
+    return guard(__func__, [&]([[maybe_unused]] const char* psk_fn) {
         PSK_NEED(client);
         if (!is_finite(now)) return fail(PSK_ERR_ARGUMENT, "psk_client_update: now is not finite");
         client->client.update(now);
@@ -323,7 +326,7 @@ psk_status psk_client_update(psk_client* client, double now) {
 }
 
 psk_status psk_client_close(psk_client* client, const char* reason) {
-    return guard(__func__, [&] {
+    return guard(__func__, [&]([[maybe_unused]] const char* psk_fn) {
         PSK_NEED(client);
         client->client.close(reason ? reason : "done");
         client->next_event = client->client.events().size();
@@ -332,6 +335,7 @@ psk_status psk_client_close(psk_client* client, const char* reason) {
 }
 
 psk_status psk_client_state(const psk_client* client, psk_state* state) {
+    const char* psk_fn = __func__;
     PSK_NEED(client);
     PSK_NEED(state);
     *state = psk_state(int(client->client.state()));
@@ -339,6 +343,7 @@ psk_status psk_client_state(const psk_client* client, psk_state* state) {
 }
 
 psk_status psk_client_fail_reason(const psk_client* client, psk_fail_reason* reason) {
+    const char* psk_fn = __func__;
     PSK_NEED(client);
     PSK_NEED(reason);
     *reason = psk_fail_reason(int(client->client.fail_reason()));
@@ -346,6 +351,7 @@ psk_status psk_client_fail_reason(const psk_client* client, psk_fail_reason* rea
 }
 
 psk_status psk_client_poll_event(psk_client* client, psk_event* event) {
+    const char* psk_fn = __func__;
     PSK_NEED(client);
     PSK_NEED(event);
     const auto events = client->client.events();
@@ -363,6 +369,7 @@ psk_status psk_client_poll_event(psk_client* client, psk_event* event) {
 }
 
 psk_status psk_client_character_count(const psk_client* client, int* count) {
+    const char* psk_fn = __func__;
     PSK_NEED(client);
     PSK_NEED(count);
     *count = int(client->client.characters().size());
@@ -370,6 +377,7 @@ psk_status psk_client_character_count(const psk_client* client, int* count) {
 }
 
 psk_status psk_client_character(const psk_client* client, int index, psk_character* character) {
+    const char* psk_fn = __func__;
     PSK_NEED(client);
     PSK_NEED(character);
     const auto all = client->client.characters();
@@ -381,6 +389,7 @@ psk_status psk_client_character(const psk_client* client, int index, psk_charact
 }
 
 psk_status psk_client_find_character(const psk_client* client, int instance, psk_character* character) {
+    const char* psk_fn = __func__;
     PSK_NEED(client);
     PSK_NEED(character);
     const RemoteCharacter* rc = client->client.character(instance);
@@ -390,6 +399,7 @@ psk_status psk_client_find_character(const psk_client* client, int instance, psk
 }
 
 psk_status psk_client_character_world_id(const psk_client* client, int instance, uint64_t* world_id) {
+    const char* psk_fn = __func__;
     PSK_NEED(client);
     PSK_NEED(world_id);
     const RemoteCharacter* rc = client->client.character(instance);
@@ -399,6 +409,7 @@ psk_status psk_client_character_world_id(const psk_client* client, int instance,
 }
 
 psk_status psk_client_asset_count(const psk_client* client, int* count) {
+    const char* psk_fn = __func__;
     PSK_NEED(client);
     PSK_NEED(count);
     *count = int(client->client.asset_names().size());
@@ -406,7 +417,7 @@ psk_status psk_client_asset_count(const psk_client* client, int* count) {
 }
 
 psk_status psk_client_asset(psk_client* client, int index, psk_asset* asset) {
-    return guard(__func__, [&] {
+    return guard(__func__, [&]([[maybe_unused]] const char* psk_fn) {
         PSK_NEED(client);
         PSK_NEED(asset);
         const auto& names = client->client.asset_names();
@@ -426,7 +437,7 @@ psk_status psk_client_asset(psk_client* client, int index, psk_asset* asset) {
 }
 
 psk_status psk_client_sample_clip(psk_client* client, int asset, int clip, double t, float* out, int capacity) {
-    return guard(__func__, [&] {
+    return guard(__func__, [&]([[maybe_unused]] const char* psk_fn) {
         PSK_NEED(client);
         PSK_NEED(out);
         const auto& all = client->client.assets();
@@ -456,6 +467,7 @@ psk_status psk_client_sample_clip(psk_client* client, int asset, int clip, doubl
 }
 
 psk_status psk_spawn_spec_init(psk_spawn_spec* spec) {
+    const char* psk_fn = __func__;
     PSK_NEED(spec);
     std::memset(spec, 0, sizeof *spec);
     spec->speed = 1;
@@ -463,7 +475,7 @@ psk_status psk_spawn_spec_init(psk_spawn_spec* spec) {
 }
 
 psk_status psk_client_spawn(psk_client* client, const psk_spawn_spec* spec, int* handle) {
-    return guard(__func__, [&] {
+    return guard(__func__, [&]([[maybe_unused]] const char* psk_fn) {
         PSK_NEED(client);
         PSK_NEED(spec);
         PSK_NEED(handle);
@@ -499,6 +511,7 @@ psk_status psk_client_spawn(psk_client* client, const psk_spawn_spec* spec, int*
 }
 
 psk_status psk_client_instance_of(const psk_client* client, int handle, int* instance) {
+    const char* psk_fn = __func__;
     PSK_NEED(client);
     PSK_NEED(instance);
     *instance = client->client.instance_of(handle);
@@ -507,7 +520,7 @@ psk_status psk_client_instance_of(const psk_client* client, int handle, int* ins
 
 psk_status psk_client_publish(psk_client* client, int handle, const psk_root* root, const float* skinning,
                               int joint_count, const float* morph_weights, int morph_count, int teleport) {
-    return guard(__func__, [&] {
+    return guard(__func__, [&]([[maybe_unused]] const char* psk_fn) {
         PSK_NEED(client);
         PSK_NEED(root);
         PSK_NEED(skinning);
@@ -542,7 +555,7 @@ psk_status psk_client_publish(psk_client* client, int handle, const psk_root* ro
 }
 
 psk_status psk_client_despawn(psk_client* client, int handle) {
-    return guard(__func__, [&] {
+    return guard(__func__, [&]([[maybe_unused]] const char* psk_fn) {
         PSK_NEED(client);
         if (client->handle_asset.erase(handle) == 0)
             return fail(PSK_ERR_ARGUMENT, "psk_client_despawn: handle " + std::to_string(handle) + " was not spawned");
@@ -552,7 +565,7 @@ psk_status psk_client_despawn(psk_client* client, int handle) {
 }
 
 psk_status psk_client_set_view(psk_client* client, const psk_view* view) {
-    return guard(__func__, [&] {
+    return guard(__func__, [&]([[maybe_unused]] const char* psk_fn) {
         PSK_NEED(client);
         PSK_NEED(view);
         if (view->weight_count < 0 || view->weight_count > 65536 ||
@@ -578,7 +591,7 @@ psk_status psk_client_set_view(psk_client* client, const psk_view* view) {
 }
 
 psk_status psk_client_set_max_kbps(psk_client* client, double kbps) {
-    return guard(__func__, [&] {
+    return guard(__func__, [&]([[maybe_unused]] const char* psk_fn) {
         PSK_NEED(client);
         if (!is_finite(kbps) || kbps < 0) return fail(PSK_ERR_ARGUMENT, "psk_client_set_max_kbps: kbps must be finite and >= 0");
         client->client.set_max_kbps(kbps);
@@ -587,7 +600,7 @@ psk_status psk_client_set_max_kbps(psk_client* client, double kbps) {
 }
 
 psk_status psk_client_stats(const psk_client* client, psk_stats* stats) {
-    return guard(__func__, [&] {
+    return guard(__func__, [&]([[maybe_unused]] const char* psk_fn) {
         PSK_NEED(client);
         PSK_NEED(stats);
         const ClientStats s = client->client.stats();

@@ -85,7 +85,7 @@ enum class ClientState {
     Idle,        // before connect()
     Connecting,  // TCP, Hello, Welcome, asset downloads, UDP bind
     Streaming,   // bound: frames arrive, characters are displayed
-    Closed,      // close() or the server's Goodbye
+    Closed,      // close() (the server's Goodbye is Failed, FailReason::SessionEnded)
     Failed,      // refused, unreachable, timed out, bad data, stream lost: see fail_reason(), error()
 };
 
@@ -149,7 +149,7 @@ struct ClientEvent {
         CharacterRemoved,  // instance
         Spawned,           // handle (spawn()) now owns instance
         SpawnRefused,      // handle; text: the server's reason
-        Closed,            // text: why (the server's Goodbye reason, or close())
+        Closed,            // text: close()'s reason (the server's Goodbye raises Failed)
         Failed,            // text: why (also in error())
         AssetFailed,       // an asset of the catalogue cannot be loaded: asset = index, text: why. The session
                            // goes on; characters of that asset are never shown (the others are)

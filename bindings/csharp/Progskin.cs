@@ -281,25 +281,66 @@ public sealed class Client : IDisposable {
         Native.Check(Native.psk_client_sample_clip(H, asset, clip, t, into, into.Length));
     }
 
-    public unsafe int Spawn(int asset) {
+    public int Spawn(int asset) { return Spawn(asset, 0, 0, 0, null, 1); }
+
+    // Spawns at (x, y, z), announcing clips (catalogue clip indices, null: none) at the given speed.
+    public unsafe int Spawn(int asset, float x, float y, float z, int[] clips, float speed) {
+        if (clips != null && clips.Length > 64) throw new ArgumentException("at most 64 clips", "clips");
         var s = new SpawnSpec();
         Native.Check(Native.psk_spawn_spec_init(ref s));
         s.asset = asset;
+        s.position[0] = x; s.position[1] = y; s.position[2] = z;
+        s.speed = speed;
         int handle;
-        Native.Check(Native.psk_client_spawn(H, ref s, out handle));
+        fixed (int* c = clips) {
+            s.clips = (IntPtr)c;
+            s.clip_count = clips == null ? 0 : clips.Length;
+            Native.Check(Native.psk_client_spawn(H, ref s, out handle));
+        }
         return handle;
     }
     public int InstanceOf(int handle) { int i; Native.Check(Native.psk_client_instance_of(H, handle, out i)); return i; }
 
     // Sends a pose (skinning: JointCount * 12 floats). True: sent; false: not spawned yet or the stream not bound.
-    public unsafe bool Publish(int handle, float[] skinning, double x, double y, double z, ulong sourceUs) {
+    public bool Publish(int handle, float[] skinning, double x, double y, double z, ulong sourceUs) {
+        return Publish(handle, skinning, x, y, z, 0, 0, 0, 1, sourceUs, null, false);
+    }
+
+    // The same with the root's rotation (quaternion x y z w), morph weights (null: none) and a teleport
+    // (the observers snap instead of interpolating from the previous pose).
+    public unsafe bool Publish(int handle, float[] skinning, double x, double y, double z,
+                               float qx, float qy, float qz, float qw, ulong sourceUs, float[] morphs, bool teleport) {
+        if (skinning == null) throw new ArgumentNullException("skinning");
+        if (skinning.Length % 12 != 0) throw new ArgumentException("skinning needs 12 floats per joint", "skinning");
         var r = new Root();
         r.position[0] = x; r.position[1] = y; r.position[2] = z;
-        r.rotation[3] = 1;
+        r.rotation[0] = qx; r.rotation[1] = qy; r.rotation[2] = qz; r.rotation[3] = qw;
         r.source_us = sourceUs;
-        return Native.Check(Native.psk_client_publish(H, handle, ref r, skinning, skinning.Length / 12, null, 0, 0),
+        return Native.Check(Native.psk_client_publish(H, handle, ref r, skinning, skinning.Length / 12, morphs,
+                                                      morphs == null ? 0 : morphs.Length, teleport ? 1 : 0),
                             Status.NotReady) == Status.Ok;
     }
+
+    // The viewer's camera (world position, vertical field of view in radians, viewport height in pixels)
+    // and optional importance weights per instance (null: none): the server ranks characters by it.
+    public unsafe void SetView(float x, float y, float z, float fovY, float viewportHeight,
+                               int[] weightInstances, float[] weights) {
+        int n = weightInstances == null ? 0 : weightInstances.Length;
+        if ((weights == null ? 0 : weights.Length) != n)
+            throw new ArgumentException("weightInstances and weights need the same length");
+        var v = new NativeView();
+        v.camera[0] = x; v.camera[1] = y; v.camera[2] = z;
+        v.fov_y = fovY; v.viewport_height = viewportHeight;
+        v.has_camera = 1;
+        v.weight_count = n;
+        fixed (int* wi = weightInstances)
+        fixed (float* w = weights) {
+            v.weight_instances = (IntPtr)wi;
+            v.weights = (IntPtr)w;
+            Native.Check(Native.psk_client_set_view(H, ref v));
+        }
+    }
+    public void SetView(float x, float y, float z) { SetView(x, y, z, 0.8f, 1080f, null, null); }
     public void Despawn(int handle) { Native.Check(Native.psk_client_despawn(H, handle)); }
     public void SetMaxKbps(double kbps) { Native.Check(Native.psk_client_set_max_kbps(H, kbps)); }
     public Stats Stats { get { Stats s; Native.Check(Native.psk_client_stats(H, out s)); return s; } }

@@ -78,6 +78,14 @@ static class ProgskinTest {
         Throws(Status.ErrState, () => c.Connect("127.0.0.1", 1), "Connect twice");
         Throws(Status.ErrArgument, () => c.SetMaxKbps(double.NaN), "SetMaxKbps(NaN)");
         Throws(Status.ErrArgument, () => c.Publish(12345, new float[12], 0, 0, 0, 0), "Publish(unknown handle)");
+        Throws(Status.ErrArgument, () => c.SetView(0, 1, 0, 4f, 1080f, null, null), "SetView(fov 4 rad)");
+        try {
+            c.Publish(12345, null, 0, 0, 0, 0);
+            Check(false, "Publish(null skinning) did not throw");
+        } catch (ArgumentNullException) {
+        }
+        c.SetView(0, 1.6f, 5, 0.8f, 1080f, new int[] { 0 }, new float[] { 2f });  // a camera and one weighted instance
+        c.SetView(0, 1.6f, 5);
         Check(c.State == State.Streaming, "state " + c.State);
     }
 
@@ -111,14 +119,17 @@ static class ProgskinTest {
                             Check(a.Order.Length == a.BoneCount && a.Parents[0] == -1 && System.IO.File.Exists(a.Path),
                                   "asset 0: " + a.Name + " at " + a.Path);
                             skin = new float[a.JointCount * 12];
-                            handle = player.Spawn(0);
+                            handle = player.Spawn(0, 3, 0, 0, null, 1);
                             spawnedAt = now;
                         }
                     }
                     if (handle >= 0 && instance < 0) instance = player.InstanceOf(handle);
                     if (instance >= 0) {
                         player.SampleClip(0, -1, now - spawnedAt, skin);
-                        player.Publish(handle, skin, 3 * Math.Cos(now), 0, 3 * Math.Sin(now), (ulong)(now * 1e6));
+                        // the root turns with the walk around the circle (rotation about y)
+                        float half = (float)(-now / 2);
+                        player.Publish(handle, skin, 3 * Math.Cos(now), 0, 3 * Math.Sin(now), 0, (float)Math.Sin(half), 0,
+                                       (float)Math.Cos(half), (ulong)(now * 1e6), null, false);
                     }
                     Shown(observer, out published);
                     if (published >= 0 && published == instance) seenPublished = now - spawnedAt;

@@ -267,6 +267,9 @@ class Client:
         self._h = None
 
     def connect(self, host, port):
+        """port: 1-65535 (ValueError otherwise; ctypes would wrap it to 16 bits)."""
+        if isinstance(port, bool) or not isinstance(port, int) or not 0 < port < 65536:
+            raise ValueError(f"port must be a whole number in 1..65535 (got {port!r})")
         _check(_lib().psk_client_connect(self._h, _b(host), port))
 
     def connect_list(self, servers):

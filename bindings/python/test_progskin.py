@@ -112,6 +112,9 @@ class Loopback(unittest.TestCase):
         with self.assertRaises(progskin.Error) as e:
             c.connect("127.0.0.1", 1)
         self.assertEqual(e.exception.status, -3)
+        for port in (0, 65536, 17777 + 65536, -1):  # never wrapped to 16 bits
+            with self.assertRaises(ValueError):
+                c.connect("127.0.0.1", port)
         with self.assertRaises(progskin.Error):
             c.publish(12345, [0.0] * 12)
         with self.assertRaises(TypeError):

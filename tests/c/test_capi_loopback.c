@@ -124,7 +124,12 @@ static void check_bad_input(psk_client* c) {
     CHECK(psk_client_connect(c, "127.0.0.1", 1) == PSK_ERR_STATE, "connect twice");
     CHECK(psk_client_update(c, NAN) == PSK_ERR_ARGUMENT, "update NaN");
     CHECK(psk_client_set_max_kbps(c, -1) == PSK_ERR_ARGUMENT, "max_kbps -1");
-    CHECK(psk_client_publish(c, 12345, NULL, NULL, 0, NULL, 0, 0) == PSK_ERR_NULL, "publish NULL");
+    CHECK(psk_client_publish(c, 12345, NULL, NULL, 0, NULL, 0, 0) == PSK_ERR_NULL &&
+              strstr(psk_last_error(), "psk_client_publish: root is NULL"),
+          "publish NULL names the function and the argument");
+    CHECK(psk_client_connect(NULL, "127.0.0.1", 1) == PSK_ERR_NULL &&
+              strstr(psk_last_error(), "psk_client_connect: client is NULL"),
+          "connect NULL names the function");
     CHECK(psk_client_state(c, &st) == PSK_OK && st == PSK_STATE_STREAMING, "state %d", (int)st);
     CHECK(psk_client_state(c, NULL) == PSK_ERR_NULL, "state NULL");
     CHECK(psk_client_create(NULL) == NULL && strlen(psk_last_error()) > 0, "create NULL");
