@@ -518,6 +518,33 @@ psk_status psk_client_instance_of(const psk_client* client, int handle, int* ins
     return ok();
 }
 
+namespace {
+// What publish would refuse that can be named without the codec: a value
+// that is not finite, a root beyond 2,000 km, a zero root rotation, a morph
+// weight outside [-2, 2).
+// Empty when none (the codec's own range is checked by Client::publish).
+std::string check_publish_values(const psk_root& root, const float* skinning, int joint_count, const float* morphs,
+                                 int morph_count) {
+    for (int i = 0; i < 3; ++i)
+        if (!is_finite(root.position[i]) || std::abs(root.position[i]) > 2.0e6)
+            return "root position[" + std::to_string(i) + "] is not finite or beyond 2,000 km (the root is coded in mm, 32 bits)";
+    double q2 = 0;
+    for (int i = 0; i < 4; ++i) {
+        if (!is_finite(root.rotation[i])) return "root rotation[" + std::to_string(i) + "] is not finite";
+        q2 += double(root.rotation[i]) * root.rotation[i];
+    }
+    if (q2 < 1e-12) return "root rotation is the zero quaternion (identity is x y z w = 0 0 0 1)";
+    for (int j = 0; j < joint_count; ++j)
+        for (int k = 0; k < 12; ++k)
+            if (!is_finite(skinning[size_t(j) * 12 + size_t(k)]))
+                return "skinning matrix of joint " + std::to_string(j) + ", float " + std::to_string(k) + " is not finite";
+    for (int m = 0; morphs && m < morph_count; ++m)
+        if (int16_t q = 0; !progskin::net::encode_morph_weight(morphs[m], q))
+            return "morph weight " + std::to_string(m) + " is " + std::to_string(morphs[m]) + ", outside [-2, 2)";
+    return {};
+}
+}  // namespace
+
 psk_status psk_client_publish(psk_client* client, int handle, const psk_root* root, const float* skinning,
                               int joint_count, const float* morph_weights, int morph_count, int teleport) {
     return guard(__func__, [&]([[maybe_unused]] const char* psk_fn) {
@@ -541,6 +568,8 @@ psk_status psk_client_publish(psk_client* client, int handle, const psk_root* ro
                                               std::to_string(morphs) + " morph targets");
         if (client->client.instance_of(handle) < 0 || client->client.state() != ClientState::Streaming)
             return fail(PSK_NOT_READY, "psk_client_publish: not spawned yet, or the stream is not bound");
+        if (const std::string why = check_publish_values(*root, skinning, joint_count, morph_weights, morph_count); !why.empty())
+            return fail(PSK_ERR_ARGUMENT, "psk_client_publish: " + why);
         RootPose r;
         r.position = {root->position[0], root->position[1], root->position[2]};
         r.rotation = glm::quat(root->rotation[3], root->rotation[0], root->rotation[1], root->rotation[2]);
@@ -548,8 +577,8 @@ psk_status psk_client_publish(psk_client* client, int handle, const psk_root* ro
         const std::span<const Mat34> m(reinterpret_cast<const Mat34*>(skinning), size_t(joint_count));
         const std::span<const float> w(morph_weights, morph_weights ? size_t(morph_count) : 0);
         if (!client->client.publish(handle, r, m, teleport != 0, w))
-            return fail(PSK_ERR_ARGUMENT, "psk_client_publish: a value is outside the codec's range (not finite, "
-                                          "a translation or scale too large, a morph weight outside [-2, 2))");
+            return fail(PSK_ERR_ARGUMENT, "psk_client_publish: a joint's translation or scale is outside the codec's range "
+                                          "(skinning matrices are joint world times inverse bind, in the asset's units)");
         return ok();
     });
 }

@@ -195,6 +195,19 @@ int main(void) {
             CHECK(s == PSK_OK || s == PSK_NOT_READY, "publish: %s", psk_status_name(s));
             CHECK(psk_client_publish(player, handle, &root, skin, joints - 1, NULL, 0, 0) == PSK_ERR_ARGUMENT,
                   "publish with the wrong joint count");
+            if (s == PSK_OK) { /* values publish refuses are named (spawned and bound: the checks come after those) */
+                psk_root zero = root;
+                const float keep = skin[12 * (joints - 1) + 3];
+                zero.rotation[3] = 0;
+                CHECK(psk_client_publish(player, handle, &zero, skin, joints, NULL, 0, 0) == PSK_ERR_ARGUMENT &&
+                          strstr(psk_last_error(), "zero quaternion"),
+                      "a zero root rotation is named: %s", psk_last_error());
+                skin[12 * (joints - 1) + 3] = (float)NAN;
+                CHECK(psk_client_publish(player, handle, &root, skin, joints, NULL, 0, 0) == PSK_ERR_ARGUMENT &&
+                          strstr(psk_last_error(), "joint"),
+                      "a NaN in a skinning matrix names the joint: %s", psk_last_error());
+                skin[12 * (joints - 1) + 3] = keep;
+            }
         }
         shown = count_shown(observer, &published);
         if (published >= 0 && published == instance) seen_published = now - spawned_at;
