@@ -28,10 +28,12 @@ std::vector<uint8_t> read_file(const std::string& p) {
     return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
 }
 
-std::string cached_asset_path(const std::string& dir, const std::string& name, uint64_t id) {
-    std::string ext = fs::path(name).extension().string();
-    if (ext != ".glb" && ext != ".gltf") ext = ".glb";
-    return (fs::path(dir) / (hex64(id) + ext)).string();
+std::string cached_asset_path(const std::string& dir, uint64_t id, bool glb) {
+    return (fs::path(dir) / (hex64(id) + (glb ? ".glb" : ".gltf"))).string();
+}
+
+bool is_glb(std::span<const uint8_t> bytes) {
+    return bytes.size() >= 4 && bytes[0] == 'g' && bytes[1] == 'l' && bytes[2] == 'T' && bytes[3] == 'F';
 }
 
 std::string write_cached_asset(const std::string& path, std::span<const uint8_t> bytes, const void* writer) {

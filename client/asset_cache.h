@@ -23,9 +23,12 @@ inline constexpr uint64_t MAX_ASSET_BYTES = uint64_t(256) << 20;
 // $XDG_CACHE_HOME/progskin, else ~/.cache/progskin, else /tmp/progskin-cache.
 std::string default_cache_dir();
 
-// The cache file of an asset: DIR/<hex64(id)><extension of name: .glb or
-// .gltf; .glb for any other>.
-std::string cached_asset_path(const std::string& dir, const std::string& name, uint64_t id);
+// The cache file of an asset: DIR/<hex64(id)>.glb when its bytes are a
+// binary glTF (they start with "glTF"; what progskin-server serves, whatever
+// the catalogue name's extension), DIR/<hex64(id)>.gltf otherwise, so that a
+// loader that picks its parser by extension reads it.
+std::string cached_asset_path(const std::string& dir, uint64_t id, bool glb);
+bool is_glb(std::span<const uint8_t> bytes);
 
 // Writes `bytes` to `path` whole: into a temporary name unique to this
 // process and `writer` (several clients may fill the same cache at once),

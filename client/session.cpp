@@ -420,8 +420,12 @@ void ClientSession::start_downloads() {
     for (size_t i = 0; i < catalogue_.size(); ++i) {
         CatalogueEntry& e = catalogue_[i];
         if (e.ready || e.failed) continue;  // loaded before a failover
-        const std::string path = cached_asset_path(cache_, e.name, e.id);
-        if (fs::exists(path) && content_hash(read_file(path)) == e.id) {
+        std::string path;
+        for (const bool glb : {true, false})
+            if (const std::string p = cached_asset_path(cache_, e.id, glb); path.empty() && fs::exists(p) &&
+                                                                             content_hash(read_file(p)) == e.id)
+                path = p;
+        if (!path.empty()) {
             ++st_.assets_cached;
             asset_loaded(i, path);
             if (phase_ == SessionPhase::Failed) return;
@@ -465,7 +469,7 @@ void ClientSession::on_asset_chunk(const wire::AssetChunk& ch, double now) {
     if (cfg_.on_download) cfg_.on_download(e.name, e.bytes.size(), e.size);
     if (e.bytes.size() < e.size) return request_chunks();
     if (content_hash(e.bytes) != e.id) return fail(FailReason::BadServerData, "downloaded " + e.name + " does not match its content hash");
-    const std::string path = cached_asset_path(cache_, e.name, e.id);
+    const std::string path = cached_asset_path(cache_, e.id, is_glb(e.bytes));
     if (const std::string why = write_cached_asset(path, e.bytes, this); !why.empty()) return fail(FailReason::LocalIo, why);
     asset_loaded(downloading_, path);
     request_chunks();

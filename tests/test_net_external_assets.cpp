@@ -169,8 +169,13 @@ TEST(ExternalAssets, ServerServesOneSelfContainedGlbThatARealClientDisplays) {
             EXPECT_LT(i.rms_pct, 1.0) << "the avatar displayed far from its reference";
         }
     EXPECT_TRUE(avatar_shown);
-    // The client's cached copy holds no reference to a file beside it.
-    expect_self_contained(read_bytes(cached_asset_path((dir / "client-cache").string(), avatar->name, avatar->id)), dir);
+    // The client's cached copy holds no reference to a file beside it, and
+    // is named .glb (its bytes are a GLB, though the catalogue says
+    // avatar.gltf): engines pick their loader by the extension.
+    const std::string cached = cached_asset_path((dir / "client-cache").string(), avatar->id, true);
+    ASSERT_TRUE(fs::exists(cached)) << cached;
+    EXPECT_FALSE(fs::exists(cached_asset_path((dir / "client-cache").string(), avatar->id, false)));
+    expect_self_contained(read_bytes(cached), dir);
 }
 
 TEST(ExternalAssets, WhatCannotBeEmbeddedIsRefusedNamingTheAssetAndTheUri) {
