@@ -267,7 +267,10 @@ private:
             a.k_max = std::max(a.k_max, c.bones);
             ++a.frames;
             if (c.publisher.published) latencies_.push_back((now - double(c.root.source_us) * 1e-6) * 1000.0);
-            if (verify_now && !c.clip.selection.clips.empty()) verify(c, a);
+            // The reference: the clip it plays; a server-driven instance
+            // without a clip holds its rest pose. A player's character
+            // without announced clips has no reference (its live pose).
+            if (verify_now && (!c.clip.selection.clips.empty() || !c.publisher.published)) verify(c, a);
         }
         if (opt_.on_snapshot && opt_.snapshot_every > 0 && warm && now >= next_snapshot_) snapshot(now, chars);
         if (opt_.verbose && display_count_ % size_t(std::max(1.0, opt_.display_rate)) == 0) {
@@ -528,8 +531,13 @@ std::string report_json(const ClientReport& r) {
     for (size_t i = 0; i < r.instances.size(); ++i) {
         const auto& x = r.instances[i];
         o << (i ? ", " : "") << "{\"instance\": " << x.instance << ", \"asset\": " << json_string(x.asset) << ", \"bones_mean\": " << x.bones_mean
-          << ", \"bones_min\": " << x.bones_min << ", \"bones_max\": " << x.bones_max << ", \"rms_pct\": " << x.rms_pct
-          << ", \"max_pct\": " << x.max_pct << ", \"max_jump_pct\": " << x.max_jump_pct << ", \"frames\": " << x.frames
+          << ", \"bones_min\": " << x.bones_min << ", \"bones_max\": " << x.bones_max << ", \"rms_pct\": ";
+        num_or_null(o, x.rms_pct);
+        o << ", \"max_pct\": ";
+        num_or_null(o, x.max_pct);
+        o << ", \"max_jump_pct\": ";
+        num_or_null(o, x.max_jump_pct);
+        o << ", \"frames\": " << x.frames
           << ", \"published\": " << (x.published ? "true" : "false") << "}";
     }
     o << "], \"assets_failed\": [";

@@ -81,8 +81,8 @@ struct InstanceReport {
     std::string asset;
     double bones_mean = 0;
     int bones_min = 0, bones_max = 0;
-    double rms_pct = 0, max_pct = 0;
-    double max_jump_pct = 0;  // largest change of a vertex's error between displayed frames
+    double rms_pct = -1, max_pct = -1;  // -1 (JSON null): not verified
+    double max_jump_pct = -1;  // largest change of a vertex's error between displayed frames; -1: not verified
     uint64_t frames = 0;      // displayed frames with a pose
     bool published = false;   // a player's character
 };

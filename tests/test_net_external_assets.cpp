@@ -166,6 +166,7 @@ TEST(ExternalAssets, ServerServesOneSelfContainedGlbThatARealClientDisplays) {
     for (const auto& i : r.instances)
         if (i.asset == "avatar.gltf") {
             avatar_shown = i.frames > 0;
+            EXPECT_GE(i.rms_pct, 0.0) << "the avatar was not verified";
             EXPECT_LT(i.rms_pct, 1.0) << "the avatar displayed far from its reference";
         }
     EXPECT_TRUE(avatar_shown);
