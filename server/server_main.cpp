@@ -358,6 +358,9 @@ static bool load_assets(Options& o, const char* argv0, std::vector<std::shared_p
                      a.name.c_str(), a.bone_count(), a.character.vertex_count(), a.selections.size(),
                      hex64(a.id).c_str(), a.bytes.size());
         for (const std::string& w : a.warnings) std::fprintf(stderr, "progskin-server: warning: %s\n", w.c_str());
+        // The importer's notes: renormalised weights, decomposed matrices,
+        // what a bone record cannot carry (common/representable.h).
+        for (const std::string& n : a.character.notes) std::fprintf(stderr, "progskin-server:   %s: note: %s\n", a.name.c_str(), n.c_str());
     }
     return true;
 }

@@ -9,6 +9,7 @@
 #include "animation.h"
 #include "errors.h"
 #include "gltf_import.h"
+#include "representable.h"
 
 using namespace progskin;
 
@@ -435,4 +436,50 @@ TEST(ImportBrokenFiles, MissingFile) {
     const std::string what = import_error(data("broken/does_not_exist.glb"));
     EXPECT_NE(what.find("does_not_exist.glb"), std::string::npos);
     EXPECT_NE(what.find("cannot open"), std::string::npos);
+}
+
+// What a bone record cannot carry is said, per joint, with the clip and the
+// distance (common/representable.h); the shipped characters have none of it.
+namespace {
+size_t count_containing(const std::vector<std::string>& notes, const std::string& what) {
+    size_t n = 0;
+    for (const std::string& s : notes) n += s.find(what) != std::string::npos;
+    return n;
+}
+}  // namespace
+
+TEST(Representable, ShippedCharactersAreCarried) {
+    for (const char* name : {"RiggedSimple.gltf", "CesiumMan.glb", "Fox.glb"}) {
+        const Character c = import_character(asset(name));
+        EXPECT_TRUE(representability_notes(c).empty()) << name << ": " << representability_notes(c).front();
+    }
+}
+
+TEST(Representable, MirroredZeroAndNonUniformJointsAreNamed) {
+    const Character base = import_character(asset("RiggedSimple.gltf"));
+    const int child = base.joint_node[1];
+    struct Case {
+        glm::dvec3 scale;
+        const char* kind;
+    };
+    for (const Case& k : {Case{{-1, 1, 1}, "is mirrored"}, Case{{0, 0, 0}, "is scaled to zero"},
+                          Case{{1, 1.5, 1}, "non-uniform scale"}}) {
+        Character c = base;
+        c.nodes[size_t(child)].scale = k.scale;
+        // The clip animates rotation only, so the scale holds in the rest pose and every frame.
+        const std::vector<std::string> notes = representability_notes(c);
+        ASSERT_FALSE(notes.empty()) << k.kind;
+        EXPECT_NE(notes.front().find(k.kind), std::string::npos) << notes.front();
+        EXPECT_NE(notes.front().find("\"" + base.nodes[size_t(child)].name + "\""), std::string::npos) << notes.front();
+        EXPECT_NE(notes.front().find("% of the diagonal off"), std::string::npos) << notes.front();
+    }
+    // A uniform positive scale is carried exactly.
+    Character c = base;
+    c.nodes[size_t(child)].scale = {2, 2, 2};
+    EXPECT_TRUE(representability_notes(c).empty());
+}
+
+TEST(Representable, StepClipsAreNoted) {
+    const Character c = import_character(data("sparse_quantized.gltf"));
+    EXPECT_EQ(count_containing(c.notes, "clip \"steps\" has STEP channels"), 1u);
 }

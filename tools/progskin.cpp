@@ -360,6 +360,9 @@ int cmd_build(int argc, char** argv) {
     if (!quiet)
         std::fprintf(stderr, "%s: %zu joints, %zu vertices, %zu frames at %g fps\n", a.positional[0].c_str(),
                      c.joint_count(), c.vertex_count(), frames.frame_count(), fps);
+    // The importer's notes (also in `inspect`), quiet or not: what the
+    // stream cannot carry is the user's to know.
+    for (const std::string& n : c.notes) std::fprintf(stderr, "%s: note: %s\n", a.positional[0].c_str(), n.c_str());
     if (range_of_motion && !quiet)
         std::fprintf(stderr,
                      "%s: %s: trained on %g s of range-of-motion poses (every joint turning up to %g degrees; "
