@@ -325,6 +325,26 @@ void save_progressive(const Character& c, const ProgressiveSkin& s, const std::s
         for (int col = 0; col < 4; ++col)
             for (int row = 0; row < 4; ++row) ibm[b * 16 + col * 4 + row] = float(M[col][row]);
     }
+    // Two joints of the character on one glTF node (skins of one skeleton
+    // merged, gltf_import.cpp, whose inverse binds differ) cannot both be
+    // listed: glTF forbids a node twice in skin.joints. The second gets a
+    // child node of its own with the identity transform (the same global
+    // matrix), listed instead.
+    {
+        std::vector<char> listed(m.nodes.size(), 0);
+        for (int b = 0; b < B; ++b) {
+            const int node = joints[size_t(b)];
+            if (!listed[size_t(node)]) {
+                listed[size_t(node)] = 1;
+                continue;
+            }
+            tinygltf::Node helper;
+            helper.name = m.nodes[size_t(node)].name + "_joint" + std::to_string(b);
+            m.nodes.push_back(helper);
+            joints[size_t(b)] = int(m.nodes.size()) - 1;
+            m.nodes[size_t(node)].children.push_back(joints[size_t(b)]);
+        }
+    }
     const int ibm_acc = append_accessor(m, ibm.data(), ibm.size() * 4, TINYGLTF_COMPONENT_TYPE_FLOAT,
                                         TINYGLTF_TYPE_MAT4, size_t(B), 0);
 
@@ -332,6 +352,27 @@ void save_progressive(const Character& c, const ProgressiveSkin& s, const std::s
     if (!note.empty()) ext["note"] = note;
     if (extra.is_object())
         for (const auto& [key, value] : extra.items()) ext[key] = value;
+    // A mesh that this character skins and that another node uses too
+    // (another character's, or this one's under another skin) gets a copy
+    // for each of its users but the last: its joints are rewritten for this
+    // character's joint list.
+    {
+        std::vector<int> users(m.meshes.size(), 0);
+        for (const tinygltf::Node& n : m.nodes)
+            if (n.mesh >= 0 && size_t(n.mesh) < m.meshes.size()) ++users[size_t(n.mesh)];
+        std::vector<char> copied(m.nodes.size(), 0);
+        for (const PrimitiveRange& r : c.primitives) {
+            if (r.rigid || r.node < 0 || size_t(r.node) >= m.nodes.size() || copied[size_t(r.node)]) continue;
+            copied[size_t(r.node)] = 1;
+            const int mesh = m.nodes[size_t(r.node)].mesh;
+            // The last of its users keeps the original (no mesh left unused).
+            if (mesh < 0 || size_t(mesh) >= m.meshes.size() || users[size_t(mesh)] < 2) continue;
+            --users[size_t(mesh)];
+            tinygltf::Mesh copy = m.meshes[size_t(mesh)];
+            m.meshes.push_back(std::move(copy));
+            m.nodes[size_t(r.node)].mesh = int(m.meshes.size()) - 1;
+        }
+    }
     std::vector<char> skin_done(m.skins.size(), 0);
     std::map<int, nlohmann::json> skin_ext;
     const int I = s.influences;
@@ -345,7 +386,7 @@ void save_progressive(const Character& c, const ProgressiveSkin& s, const std::s
             skin_ext[r.skin] = ext;
             skin_done[r.skin] = 1;
         }
-        auto& prim = m.meshes[size_t(r.mesh)].primitives[size_t(r.primitive)];
+        auto& prim = m.meshes[size_t(m.nodes[size_t(r.node)].mesh)].primitives[size_t(r.primitive)];
         for (int set = 0; set * 4 < I; ++set) {
             std::vector<uint16_t> jj(size_t(r.count) * 4, 0);
             std::vector<float> ww(size_t(r.count) * 4, 0.0f);
