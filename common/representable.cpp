@@ -108,10 +108,16 @@ std::vector<std::string> representability_notes(const Character& c, double fps, 
         }
     };
     check(ClipSelection{}, -1, 0.0);
+    // At most kMaxFrames frames in all: longer clips (a file's key times are
+    // its own) are sampled more sparsely, never for longer.
+    constexpr double kMaxFrames = 20000;
+    double total = 0;
+    for (size_t k = 0; k < c.clips.size(); ++k) total += std::max(0.0, double(c.clips[k].end) - double(c.clips[k].start));
+    const double rate = total * fps > kMaxFrames ? kMaxFrames / total : fps;
     for (size_t k = 0; k < c.clips.size(); ++k) {
         const ClipSelection sel = make_selection(c, {int(k)});
-        const int frames = int(std::floor(double(sel.duration()) * fps)) + 1;
-        for (int f = 0; f < frames; ++f) check(sel, int(k), double(sel.start) + f / fps);
+        const double frames = std::floor(std::max(0.0, double(sel.duration())) * rate) + 1;
+        for (double f = 0; f < frames && std::isfinite(frames); ++f) check(sel, int(k), double(sel.start) + f / rate);
         check(sel, int(k), double(sel.end));
     }
     std::vector<size_t> bad;

@@ -20,7 +20,8 @@ namespace progskin {
 // Notes, worst first (at most max_notes, then one line saying how many more),
 // for each joint whose decompose/compose round trip moves one of its
 // vertices by more than threshold_pct of the bind diagonal, at the rest pose
-// or at any frame of any clip sampled at fps (each clip on its own), naming
+// or at any frame of any clip sampled at fps (each clip on its own; at most
+// 20,000 frames in all, the rate lowered for longer clips), naming
 // the joint, the kind (mirrored / scaled to zero / non-uniform scale or
 // shear), the clip and time of the worst frame and the distance; and one note
 // per clip with STEP channels (clients interpolate between ticks, so a step
