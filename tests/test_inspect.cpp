@@ -59,13 +59,13 @@ TEST(BuildCli, OutputPathCheckedBeforeTheBuild) {
     EXPECT_NE(folder.out.find("-o /tmp: is a folder"), std::string::npos) << folder.out;
 }
 
-// The default build says which strategy it kept and why, writes it in the
+// --strategy auto says which strategy it kept and why, writes it in the
 // file, and logs progress one line at a time when stderr is not a terminal
 // (run() captures it through a pipe): no carriage returns piling up.
-TEST(BuildCli, DefaultStrategyChosenAndSaidProgressOneLineAtATime) {
+TEST(BuildCli, AutoStrategyChosenAndSaidProgressOneLineAtATime) {
     if (!std::ifstream(progskin()).good()) GTEST_SKIP() << progskin() << " not built";
     const std::string out = ::testing::TempDir() + "progskin_build_auto.glb";
-    const CmdResult r = run(progskin() + " build " + std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb -o " + out);
+    const CmdResult r = run(progskin() + " build " + std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb --strategy auto -o " + out);
     ASSERT_EQ(r.code, 0) << r.out;
     EXPECT_EQ(r.out.find('\r'), std::string::npos) << r.out;
     EXPECT_NE(r.out.find("collapses"), std::string::npos) << r.out;
@@ -91,6 +91,10 @@ TEST(BuildCli, RateStrategyWeighsTheStreamsRecordBits) {
     const CmdResult r = run(progskin() + " build " + std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb --strategy rate -o " + out);
     ASSERT_EQ(r.code, 0) << r.out;
     EXPECT_NE(r.out.find("chosen by rate-distortion"), std::string::npos) << r.out;
+    // The default is the server's: rate.
+    const CmdResult d = run(progskin() + " build " + std::string(PROGSKIN_ASSETS) + "/CesiumMan.glb -o " + out + "-default.glb");
+    ASSERT_EQ(d.code, 0) << d.out;
+    EXPECT_NE(d.out.find("chosen by rate-distortion"), std::string::npos) << d.out;
     const size_t at = r.out.find(": strategy ");
     ASSERT_NE(at, std::string::npos) << r.out;
     const std::string said = r.out.substr(at + 11, r.out.find(':', at + 11) - at - 11);

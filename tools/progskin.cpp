@@ -61,13 +61,13 @@ usage:
       .gltf is written as JSON with embedded buffers, anything else as .glb.
       OUT is self-contained: images IN keeps in files beside it are embedded
       (a missing or refused one is an error, before anything is built).
-      --strategy auto (default) builds reorder and flatten and keeps the one of
-      lower mean RMS error over k = 1..B, saying which (twice the time; as
-      progskin-server builds a plain file). --strategy rate builds reorder,
-      flatten and hierarchy (every bone after its artist parent: cheaper
-      parent-relative records) and keeps the one that removes the most error
-      per bit of the stream's records (docs/algorithms.md "Choosing the
-      strategy"; three times the time).
+      --strategy rate (default; auto in a build without the streaming library)
+      builds reorder, flatten and hierarchy (every bone after its artist
+      parent: cheaper parent-relative records) and keeps the one that removes
+      the most error per bit of the stream's records (docs/algorithms.md
+      "Choosing the strategy"; three times the time), as progskin-server
+      builds a plain file. --strategy auto builds reorder and flatten and
+      keeps the one of lower mean RMS error over k = 1..B, saying which.
   progskin build --from-vertices IN -o OUT.glb [--bones N] [--max-error PERCENT]
                  [--rest-frame F] [--similarity] [--method auto|collapse|hybrid|top-down]
                  [--clip SPEC] [--fps 30] [--quiet]
@@ -346,7 +346,14 @@ int cmd_build(int argc, char** argv) {
     check_output_path(a.get("-o"));
     const double fps = a.has("--fps") ? to_number("--fps", a.get("--fps")) : 30.0;
     if (fps <= 0 || fps > 1000) throw UsageError("--fps must be in (0, 1000]");
+    // The default is the server's (--build-strategy rate): a file built here
+    // streams as the same file served plain would (key samples need every
+    // bone's progressive parent to be its artist parent: hierarchy).
+#ifdef PROGSKIN_HAVE_NET
+    const std::string strategy = a.get("--strategy", "rate");
+#else
     const std::string strategy = a.get("--strategy", "auto");
+#endif
     const bool by_rate = strategy == "rate", choose = strategy == "auto" || by_rate;
     if (!choose && strategy != "reorder" && strategy != "flatten" && strategy != "hierarchy" && strategy != "leaf_prune")
         throw UsageError("--strategy must be auto, rate, reorder, flatten, hierarchy or leaf_prune, not '" + strategy + "'");
