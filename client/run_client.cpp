@@ -49,8 +49,16 @@ struct Acc {
 
 int find_asset(const Client& c, const std::string& spec) {
     const auto& names = c.asset_names();
+    std::vector<size_t> same;
     for (size_t i = 0; i < names.size(); ++i)
-        if (names[i] == spec) return int(i);
+        if (names[i] == spec) same.push_back(i);
+    if (same.size() == 1) return int(same[0]);
+    if (same.size() > 1) {  // never the first of several silently
+        std::string list;
+        for (size_t k = 0; k < same.size(); ++k) list += (k ? ", " : "") + std::to_string(same[k]);
+        throw Error("--publish " + spec + ": " + std::to_string(same.size()) + " assets of the catalogue have that name (indices " +
+                    list + "): give the index instead");
+    }
     char* end = nullptr;
     const long i = std::strtol(spec.c_str(), &end, 10);
     if (end && *end == 0 && !spec.empty() && i >= 0 && size_t(i) < names.size()) return int(i);

@@ -362,6 +362,16 @@ static bool load_assets(Options& o, const char* argv0, std::vector<std::shared_p
         // what a bone record cannot carry (common/representable.h).
         for (const std::string& n : a.character.notes) std::fprintf(stderr, "progskin-server:   %s: note: %s\n", a.name.c_str(), n.c_str());
     }
+    // Two files of one name (every Sketchfab download is scene.gltf): clients
+    // that pick an asset by name (progskin-client --publish NAME) get the
+    // first. Said, with the catalogue indices, so that one can be renamed.
+    for (size_t i = 0; i < assets.size() && assets.size() == pending.size(); ++i)
+        for (size_t j = i + 1; j < assets.size(); ++j)
+            if (assets[i]->name == assets[j]->name)
+                std::fprintf(stderr,
+                             "progskin-server: warning: assets %zu and %zu are both named %s (%s, %s): a client that picks "
+                             "an asset by name gets asset %zu; rename one file to tell them apart\n",
+                             i, j, assets[i]->name.c_str(), pending[i].path.c_str(), pending[j].path.c_str(), i);
     return true;
 }
 

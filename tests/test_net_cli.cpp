@@ -5,12 +5,14 @@
 #include <gtest/gtest.h>
 
 #include "run_command.h"
+#include "temp_dir.h"
 
 #include <array>
 #include <utility>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <string>
 #include <thread>
@@ -35,9 +37,9 @@ struct BackgroundServer {
     BackgroundServer(const std::string& name, const std::string& args) {
         out = ::testing::TempDir() + name + ".out";
         std::remove(out.c_str());
-        const std::string cmd = bin("progskin-server") + " " + args + " > " + out + " 2>/dev/null & echo $! > " + out + ".pid";
+        const std::string cmd = bin("progskin-server") + " " + args + " > " + out + " 2>" + out + ".err & echo $! > " + out + ".pid";
         if (std::system(cmd.c_str()) != 0) return;
-        for (int i = 0; i < 200 && port.empty(); ++i) {
+        for (int i = 0; i < 1200 && port.empty(); ++i) {  // up to 60 s: plain files are built first
             std::this_thread::sleep_for(std::chrono::milliseconds(50));
             std::ifstream f(out);
             std::string line;
@@ -54,6 +56,10 @@ struct BackgroundServer {
     }
     std::string text() const {
         std::ifstream f(out);
+        return std::string(std::istreambuf_iterator<char>(f), {});
+    }
+    std::string err() const {
+        std::ifstream f(out + ".err");
         return std::string(std::istreambuf_iterator<char>(f), {});
     }
 };
@@ -289,4 +295,31 @@ TEST(NetCli, PortInUseReportedBeforeAnyAssetIsBuilt) {
     EXPECT_EQ(r.out.find("loading"), std::string::npos) << "built before binding: " << r.out;
     EXPECT_LT(seconds, 1.0) << r.out;
     std::system(("rm -rf " + cache).c_str());
+}
+
+// Two files of one name (every Sketchfab download is scene.gltf): the server
+// says so with both paths, and a client that names one (--publish NAME) is
+// refused with the indices instead of given the first; the index works.
+TEST(NetCli, TwoAssetsOfOneNameAreSaidAndNeverPickedSilently) {
+    if (!built("progskin-server") || !built("progskin-client")) GTEST_SKIP() << "executables not built";
+    const std::filesystem::path dir = progskin::testing::process_temp_dir("progskin-cli-same-name-");
+    std::filesystem::create_directories(dir / "a");
+    std::filesystem::create_directories(dir / "b");
+    // Two small self-contained files (their build is quick), both scene.gltf.
+    std::filesystem::copy_file(std::string(PROGSKIN_ASSETS) + "/RiggedSimple.gltf", dir / "a" / "scene.gltf");
+    std::filesystem::copy_file(std::string(PROGSKIN_TEST_DATA) + "/armature_m.gltf", dir / "b" / "scene.gltf");
+    const std::string cache = " --cache " + (dir / "cache").string();
+    BackgroundServer s("progskin-cli-same-name", "--no-tls --port 0 --duration 30 --asset " + (dir / "a" / "scene.gltf").string() +
+                                                     " --asset " + (dir / "b" / "scene.gltf").string() + cache);
+    ASSERT_FALSE(s.port.empty()) << s.text() << s.err();
+    EXPECT_NE(s.err().find("are both named scene.gltf"), std::string::npos) << s.err();
+    BackgroundClient by_name("progskin-cli-same-name-client", "--no-tls --server 127.0.0.1:" + s.port +
+                                                                   " --duration 3 --publish scene.gltf --report json" + cache + "-c1");
+    const int code = by_name.wait(20);
+    EXPECT_NE(code, 0) << by_name.text();
+    EXPECT_NE(by_name.text().find("2 assets of the catalogue have that name (indices 0, 1)"), std::string::npos) << by_name.text();
+    BackgroundClient by_index("progskin-cli-same-name-index", "--no-tls --server 127.0.0.1:" + s.port +
+                                                                   " --duration 3 --publish 1 --report json" + cache + "-c2");
+    EXPECT_EQ(by_index.wait(20), 0) << by_index.text();
+    std::filesystem::remove_all(dir);
 }
