@@ -29,7 +29,6 @@
 #include <glm/gtx/matrix_decompose.hpp>
 
 #include "errors.h"
-#include "representable.h"
 
 namespace progskin {
 namespace {
@@ -1116,7 +1115,6 @@ Character build_character(const Ctx& ctx, const std::vector<int>& skins, const s
         c.notes.push_back(std::to_string(c.renormalised_vertices) + " vertices had weights not summing to 1 (renormalised)");
 
     read_clips(ctx, c, node_index);
-    for (std::string& n : representability_notes(c)) c.notes.push_back(std::move(n));
     return c;
 }
 

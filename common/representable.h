@@ -8,7 +8,8 @@
 // pose, and an importer cannot clamp that away silently: this check samples
 // the rest pose and every clip and says, per joint, how far off the stream
 // would show it, so that `progskin build`, `inspect` and progskin-server tell
-// the user (gltf_import.cpp adds the result to Character::notes).
+// the user when they load a file. Not part of the import: a client loading
+// an asset has no one to tell, and would pay for the sampling.
 #pragma once
 #include <string>
 #include <vector>

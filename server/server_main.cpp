@@ -19,6 +19,7 @@
 
 #include "cli_args.h"
 #include "errors.h"
+#include "representable.h"
 #include "server.h"
 #include "tls_identity.h"
 #include "web_files.h"
@@ -361,6 +362,8 @@ static bool load_assets(Options& o, const char* argv0, std::vector<std::shared_p
         // The importer's notes: renormalised weights, decomposed matrices,
         // what a bone record cannot carry (common/representable.h).
         for (const std::string& n : a.character.notes) std::fprintf(stderr, "progskin-server:   %s: note: %s\n", a.name.c_str(), n.c_str());
+        for (const std::string& n : representability_notes(a.character))
+            std::fprintf(stderr, "progskin-server:   %s: note: %s\n", a.name.c_str(), n.c_str());
     }
     // Two files of one name (every Sketchfab download is scene.gltf): clients
     // that pick an asset by name (progskin-client --publish NAME) get the

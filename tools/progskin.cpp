@@ -28,6 +28,7 @@
 #include "plot.h"
 #include "progressive_asset.h"
 #include "progressive_skin.h"
+#include "representable.h"
 #ifdef PROGSKIN_HAVE_NET
 #include "bone_record.h"
 #include "crypto.h"
@@ -215,6 +216,13 @@ ProgressiveSkin build_with_progress(const Character& c, const FrameSet& frames, 
     return build_progressive_skin(c, frames, opt);
 }
 
+// The character with what its bone records cannot carry added to its notes
+// (common/representable.h): build and inspect print the notes.
+Character with_stream_notes(Character c) {
+    for (std::string& n : representability_notes(c)) c.notes.push_back(std::move(n));
+    return c;
+}
+
 // --strategy auto: reorder and flatten, the lower mean RMS kept; --strategy
 // rate: reorder, flatten and hierarchy, the lowest rate-distortion area
 // against the stream's record bits kept (offline/collapse.h).
@@ -361,14 +369,14 @@ int cmd_build(int argc, char** argv) {
     const bool quiet = a.has("--quiet");
     // The output embeds the images the input keeps beside it: every one is checked before the build.
     external_files(a.positional[0]);
-    const Character c = import_or_hint(a.positional[0], character_arg(a));
+    const Character c = with_stream_notes(import_or_hint(a.positional[0], character_arg(a)));
     bool range_of_motion = false;
     const FrameSet frames = spec_frames(c, a.get("--clip"), fps, &range_of_motion);
     if (!quiet)
         std::fprintf(stderr, "%s: %zu joints, %zu vertices, %zu frames at %g fps\n", a.positional[0].c_str(),
                      c.joint_count(), c.vertex_count(), frames.frame_count(), fps);
-    // The importer's notes (also in `inspect`), quiet or not: what the
-    // stream cannot carry is the user's to know.
+    // The importer's notes and what the stream cannot carry (also in
+    // `inspect`), quiet or not: the user's to know.
     for (const std::string& n : c.notes) std::fprintf(stderr, "%s: note: %s\n", a.positional[0].c_str(), n.c_str());
     if (range_of_motion && !quiet)
         std::fprintf(stderr,
@@ -535,7 +543,7 @@ int cmd_inspect(int argc, char** argv) {
                               {"clips", all[i].clips.size()},
                               {"morph_targets", all[i].morphs.size()}});
     ProgressiveAsset asset;
-    asset.character = std::move(all[size_t(index)]);
+    asset.character = with_stream_notes(std::move(all[size_t(index)]));
     std::string ext_text;
     asset.progressive = read_progressive_extension(a.positional[0], asset.character, asset.skin, &ext_text);
     const json ext = asset.progressive ? json::parse(ext_text, nullptr, false) : json();
